@@ -1,0 +1,3 @@
+//! dynacal firmware entry point (filled in by the firmware work).
+#![no_std]
+#![no_main]

@@ -1,0 +1,459 @@
+//! The IMU interchange format: one CSV (optionally gzip-compressed) per sensor, with a header
+//! row and SI units. Every dynacal tool reads and writes it; `docs/formats.md` is its spec.
+//!
+//! Columns: `t_s` (seconds, strictly increasing) is required. Then any of the body-frame
+//! (forward-right-down) angular rate `gx_rad_s, gy_rad_s, gz_rad_s` (body w.r.t. inertial
+//! space) and specific force `ax_m_s2, ay_m_s2, az_m_s2`; optionally the attitude of the body
+//! w.r.t. local North-East-Down `roll_rad, pitch_rad, yaw_rad` (Z-Y-X), the position
+//! `lat_rad, lon_rad, h_m` and the NED velocity `vn_m_s, ve_m_s, vd_m_s`. A triplet is all
+//! present or all absent. Unknown columns are ignored.
+
+use std::fs::File;
+use std::io::{BufReader, Read, Write};
+use std::path::{Path, PathBuf};
+
+use crate::output::AtomicFile;
+
+/// Errors reading or writing tables. Each names the file and, where there is one, the line
+/// (1-based, the header being line 1) and column.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum TableError {
+    /// The file could not be opened, read or written.
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// The CSV layer rejected a record (bad quoting, wrong field count, bad UTF-8).
+    #[error("{path}: line {line}: {message}")]
+    Csv {
+        path: PathBuf,
+        line: u64,
+        message: String,
+    },
+    /// A column the format requires is absent from the header.
+    #[error("{path}: line 1: missing required column `{column}`")]
+    MissingColumn { path: PathBuf, column: String },
+    /// Only part of a column triplet (e.g. `gx_rad_s` without `gy_rad_s`) is present.
+    #[error("{path}: line 1: column `{present}` needs `{missing}` too")]
+    IncompleteTriplet {
+        path: PathBuf,
+        present: String,
+        missing: String,
+    },
+    /// A field is not a finite number.
+    #[error("{path}: line {line}, column `{column}`: `{value}` is not a finite number")]
+    NotANumber {
+        path: PathBuf,
+        line: u64,
+        column: String,
+        value: String,
+    },
+    /// Time does not strictly increase.
+    #[error("{path}: line {line}, column `t_s`: time {t_s} s does not increase (previous {previous_t_s} s)")]
+    TimeNotIncreasing {
+        path: PathBuf,
+        line: u64,
+        t_s: f64,
+        previous_t_s: f64,
+    },
+    /// The file has a header but no data rows.
+    #[error("{path}: no data rows")]
+    Empty { path: PathBuf },
+    /// Columns of an in-memory recording have different lengths.
+    #[error("{path}: column `{column}` has {len} values, expected {expected}")]
+    LengthMismatch {
+        path: PathBuf,
+        column: String,
+        len: usize,
+        expected: usize,
+    },
+}
+
+/// A numeric table read from a CSV: the header names and one `Vec<f64>` per column.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Table {
+    pub path: PathBuf,
+    pub headers: Vec<String>,
+    pub columns: Vec<Vec<f64>>,
+}
+
+impl Table {
+    /// Index of a column by exact header name.
+    pub fn index(&self, name: &str) -> Option<usize> {
+        self.headers.iter().position(|h| h == name)
+    }
+    /// A column by exact header name.
+    pub fn column(&self, name: &str) -> Option<&[f64]> {
+        self.index(name).map(|i| self.columns[i].as_slice())
+    }
+    /// Number of data rows.
+    pub fn rows(&self) -> usize {
+        self.columns.first().map_or(0, Vec::len)
+    }
+}
+
+/// Opens a file for reading, transparently decompressing gzip (detected by its magic bytes,
+/// so a `.csv` that is really gzip, or a `.gz` that is not, still reads).
+pub fn open_maybe_gz(path: &Path) -> Result<Box<dyn Read>, TableError> {
+    let io = |source| TableError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut file = File::open(path).map_err(io)?;
+    let mut magic = [0u8; 2];
+    let n = file.read(&mut magic).map_err(io)?;
+    let file = File::open(path).map_err(io)?;
+    if n == 2 && magic == [0x1f, 0x8b] {
+        Ok(Box::new(BufReader::with_capacity(
+            1 << 16,
+            flate2::read::MultiGzDecoder::new(BufReader::with_capacity(1 << 16, file)),
+        )))
+    } else {
+        Ok(Box::new(BufReader::with_capacity(1 << 16, file)))
+    }
+}
+
+/// Reads a CSV (or CSV.gz) with a header row whose fields are all numbers.
+///
+/// Only the columns named in `wanted` are parsed (all columns if `wanted` is `None`); other
+/// columns may hold anything. Every parsed field must be a finite number.
+pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableError> {
+    let reader = open_maybe_gz(path)?;
+    let mut csv = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .trim(csv::Trim::All)
+        .comment(None)
+        .from_reader(reader);
+    let csv_err = |e: csv::Error| {
+        let line = e.position().map_or(0, |p| p.line());
+        match e.into_kind() {
+            csv::ErrorKind::Io(source) => TableError::Io {
+                path: path.to_path_buf(),
+                source,
+            },
+            other => TableError::Csv {
+                path: path.to_path_buf(),
+                line,
+                message: format!("{other:?}"),
+            },
+        }
+    };
+    let all_headers: Vec<String> = csv
+        .headers()
+        .map_err(csv_err)?
+        .iter()
+        .map(str::to_string)
+        .collect();
+    let selected: Vec<usize> = match wanted {
+        None => (0..all_headers.len()).collect(),
+        Some(names) => all_headers
+            .iter()
+            .enumerate()
+            .filter(|(_, h)| names.contains(&h.as_str()))
+            .map(|(i, _)| i)
+            .collect(),
+    };
+    let headers: Vec<String> = selected.iter().map(|&i| all_headers[i].clone()).collect();
+    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); selected.len()];
+    let mut record = csv::ByteRecord::new();
+    loop {
+        match csv.read_byte_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => return Err(csv_err(e)),
+        }
+        let line = record.position().map_or(0, |p| p.line());
+        for (slot, &i) in selected.iter().enumerate() {
+            let raw = record.get(i).unwrap_or(b"");
+            let value = std::str::from_utf8(raw)
+                .ok()
+                .and_then(|s| s.parse::<f64>().ok())
+                .filter(|v| v.is_finite());
+            match value {
+                Some(v) => columns[slot].push(v),
+                None => {
+                    return Err(TableError::NotANumber {
+                        path: path.to_path_buf(),
+                        line,
+                        column: headers[slot].clone(),
+                        value: String::from_utf8_lossy(raw).into_owned(),
+                    })
+                }
+            }
+        }
+    }
+    Ok(Table {
+        path: path.to_path_buf(),
+        headers,
+        columns,
+    })
+}
+
+/// Names of the six IMU channels, in the order dynacal reports them.
+pub const CHANNELS: [&str; 6] = ["gx", "gy", "gz", "ax", "ay", "az"];
+
+/// Interchange column names of the six IMU channels, in [`CHANNELS`] order.
+pub const CHANNEL_COLUMNS: [&str; 6] = [
+    "gx_rad_s", "gy_rad_s", "gz_rad_s", "ax_m_s2", "ay_m_s2", "az_m_s2",
+];
+
+const GYRO: [&str; 3] = ["gx_rad_s", "gy_rad_s", "gz_rad_s"];
+const ACCEL: [&str; 3] = ["ax_m_s2", "ay_m_s2", "az_m_s2"];
+const ATTITUDE: [&str; 3] = ["roll_rad", "pitch_rad", "yaw_rad"];
+const POSITION: [&str; 3] = ["lat_rad", "lon_rad", "h_m"];
+const VELOCITY: [&str; 3] = ["vn_m_s", "ve_m_s", "vd_m_s"];
+
+/// Three columns of equal length, one per axis.
+pub type Triplet = [Vec<f64>; 3];
+
+/// One sensor's recording in the interchange format, column by column (SI units).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ImuRecording {
+    /// Sample times, seconds, strictly increasing.
+    pub t_s: Vec<f64>,
+    /// Angular rate of the body w.r.t. inertial space, body frame (FRD), rad/s.
+    pub gyro_rad_s: Option<Triplet>,
+    /// Specific force, body frame (FRD), m/s^2.
+    pub accel_m_s2: Option<Triplet>,
+    /// Roll, pitch, yaw of the body w.r.t. local NED (Z-Y-X convention), rad.
+    pub attitude_rad: Option<Triplet>,
+    /// Geodetic latitude (rad), longitude (rad), ellipsoidal height (m).
+    pub position: Option<Triplet>,
+    /// Velocity w.r.t. Earth in NED, m/s.
+    pub velocity_ned_m_s: Option<Triplet>,
+}
+
+impl ImuRecording {
+    /// Number of samples.
+    pub fn len(&self) -> usize {
+        self.t_s.len()
+    }
+    /// True when there are no samples.
+    pub fn is_empty(&self) -> bool {
+        self.t_s.is_empty()
+    }
+    /// Median sampling interval, seconds (0 for fewer than two samples).
+    pub fn median_dt_s(&self) -> f64 {
+        if self.t_s.len() < 2 {
+            return 0.0;
+        }
+        let mut dt: Vec<f64> = self.t_s.windows(2).map(|w| w[1] - w[0]).collect();
+        let mid = dt.len() / 2;
+        *dt.select_nth_unstable_by(mid, f64::total_cmp).1
+    }
+    /// A channel by its short name (`gx` ... `az`), if the recording has it.
+    pub fn channel(&self, name: &str) -> Option<&[f64]> {
+        let i = CHANNELS.iter().position(|c| *c == name)?;
+        let triplet = if i < 3 {
+            self.gyro_rad_s.as_ref()
+        } else {
+            self.accel_m_s2.as_ref()
+        }?;
+        Some(triplet[i % 3].as_slice())
+    }
+    /// The short names of the channels this recording has, in [`CHANNELS`] order.
+    pub fn channels(&self) -> Vec<&'static str> {
+        CHANNELS
+            .iter()
+            .copied()
+            .filter(|c| self.channel(c).is_some())
+            .collect()
+    }
+
+    fn triplets(&self) -> [(&'static [&'static str; 3], Option<&Triplet>); 5] {
+        [
+            (&GYRO, self.gyro_rad_s.as_ref()),
+            (&ACCEL, self.accel_m_s2.as_ref()),
+            (&ATTITUDE, self.attitude_rad.as_ref()),
+            (&POSITION, self.position.as_ref()),
+            (&VELOCITY, self.velocity_ned_m_s.as_ref()),
+        ]
+    }
+
+    /// Checks lengths and time order, naming `path` in errors.
+    pub fn validate(&self, path: &Path) -> Result<(), TableError> {
+        if self.t_s.is_empty() {
+            return Err(TableError::Empty {
+                path: path.to_path_buf(),
+            });
+        }
+        for (names, triplet) in self.triplets() {
+            if let Some(t) = triplet {
+                for (name, col) in names.iter().zip(t.iter()) {
+                    if col.len() != self.t_s.len() {
+                        return Err(TableError::LengthMismatch {
+                            path: path.to_path_buf(),
+                            column: (*name).to_string(),
+                            len: col.len(),
+                            expected: self.t_s.len(),
+                        });
+                    }
+                }
+            }
+        }
+        check_time_increasing(path, &self.t_s)
+    }
+
+    /// Reads an interchange CSV or CSV.gz.
+    pub fn read(path: &Path) -> Result<Self, TableError> {
+        let mut wanted: Vec<&str> = vec!["t_s"];
+        for names in [&GYRO, &ACCEL, &ATTITUDE, &POSITION, &VELOCITY] {
+            wanted.extend_from_slice(names);
+        }
+        let table = read_table(path, Some(&wanted))?;
+        let t_s = table
+            .column("t_s")
+            .ok_or_else(|| TableError::MissingColumn {
+                path: path.to_path_buf(),
+                column: "t_s".into(),
+            })?
+            .to_vec();
+        let triplet = |names: &[&str; 3]| -> Result<Option<Triplet>, TableError> {
+            let present: Vec<bool> = names.iter().map(|n| table.index(n).is_some()).collect();
+            if present.iter().all(|p| !p) {
+                return Ok(None);
+            }
+            if let Some(missing) = names.iter().zip(&present).find(|(_, p)| !**p) {
+                let present = names.iter().zip(&present).find(|(_, p)| **p).unwrap().0;
+                return Err(TableError::IncompleteTriplet {
+                    path: path.to_path_buf(),
+                    present: (*present).to_string(),
+                    missing: (*missing.0).to_string(),
+                });
+            }
+            Ok(Some(names.map(|n| table.column(n).unwrap().to_vec())))
+        };
+        let recording = ImuRecording {
+            gyro_rad_s: triplet(&GYRO)?,
+            accel_m_s2: triplet(&ACCEL)?,
+            attitude_rad: triplet(&ATTITUDE)?,
+            position: triplet(&POSITION)?,
+            velocity_ned_m_s: triplet(&VELOCITY)?,
+            t_s,
+        };
+        recording.validate(path)?;
+        Ok(recording)
+    }
+
+    /// Writes the recording as interchange CSV, gzip-compressed when `path` ends in `.gz`.
+    /// The file appears whole or not at all. Values are written in Rust's shortest
+    /// round-trip form, so reading them back gives the same `f64` bits.
+    pub fn write(&self, path: &Path) -> Result<(), TableError> {
+        self.validate(path)?;
+        let io = |source| TableError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut out = AtomicFile::create(path).map_err(io)?;
+        let columns: Vec<(&str, &Vec<f64>)> = std::iter::once(("t_s", &self.t_s))
+            .chain(self.triplets().into_iter().flat_map(|(names, t)| {
+                t.into_iter()
+                    .flat_map(move |t| names.iter().copied().zip(t.iter()))
+            }))
+            .collect();
+        {
+            let mut w = out.writer();
+            let header: Vec<&str> = columns.iter().map(|c| c.0).collect();
+            writeln!(w, "{}", header.join(",")).map_err(io)?;
+            let mut line = String::with_capacity(256);
+            for row in 0..self.t_s.len() {
+                line.clear();
+                for (k, (_, col)) in columns.iter().enumerate() {
+                    if k > 0 {
+                        line.push(',');
+                    }
+                    use std::fmt::Write as _;
+                    let _ = write!(line, "{}", col[row]);
+                }
+                line.push('\n');
+                w.write_all(line.as_bytes()).map_err(io)?;
+            }
+            w.flush().map_err(io)?;
+        }
+        out.commit().map_err(io)
+    }
+}
+
+/// Checks that `t_s` strictly increases; the error names the 1-based file line (header = 1).
+pub fn check_time_increasing(path: &Path, t_s: &[f64]) -> Result<(), TableError> {
+    for (i, w) in t_s.windows(2).enumerate() {
+        if !(w[1] > w[0]) {
+            return Err(TableError::TimeNotIncreasing {
+                path: path.to_path_buf(),
+                line: i as u64 + 3,
+                t_s: w[1],
+                previous_t_s: w[0],
+            });
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample() -> ImuRecording {
+        ImuRecording {
+            t_s: vec![0.0, 0.01, 0.02],
+            gyro_rad_s: Some([vec![0.1, 0.2, 1.0 / 3.0], vec![0.0; 3], vec![-1e-9, 2e-300, 5.0]]),
+            accel_m_s2: Some([vec![0.0; 3], vec![1.0; 3], vec![-9.81, -9.8, 9.7]]),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn write_then_read_gives_identical_bits_plain_and_gz() {
+        let dir = tempfile::tempdir().unwrap();
+        for name in ["a.csv", "a.csv.gz"] {
+            let path = dir.path().join(name);
+            sample().write(&path).unwrap();
+            assert_eq!(ImuRecording::read(&path).unwrap(), sample());
+        }
+    }
+
+    #[test]
+    fn errors_name_file_line_and_column() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("bad.csv");
+        std::fs::write(&path, "t_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.1,1,x,3\n").unwrap();
+        let msg = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(msg.contains("bad.csv") && msg.contains("line 3") && msg.contains("gy_rad_s"), "{msg}");
+
+        std::fs::write(&path, "t_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.1,1,2,3\n0.05,1,2,3\n").unwrap();
+        let msg = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(msg.contains("line 4") && msg.contains("t_s"), "{msg}");
+
+        std::fs::write(&path, "time,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n").unwrap();
+        let msg = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(msg.contains("missing required column `t_s`"), "{msg}");
+
+        std::fs::write(&path, "t_s,gx_rad_s,gy_rad_s\n0,1,2\n").unwrap();
+        let msg = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(msg.contains("gz_rad_s"), "{msg}");
+    }
+
+    #[test]
+    fn unknown_columns_are_ignored_even_if_not_numbers() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.csv");
+        std::fs::write(&path, "note,t_s,ax_m_s2,ay_m_s2,az_m_s2\nhello,0,1,2,3\nworld,1,1,2,3\n").unwrap();
+        let rec = ImuRecording::read(&path).unwrap();
+        assert_eq!(rec.channels(), vec!["ax", "ay", "az"]);
+        assert_eq!(rec.channel("az").unwrap(), &[3.0, 3.0]);
+    }
+
+    #[test]
+    fn failed_write_leaves_no_file() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("out.csv");
+        let mut bad = sample();
+        bad.t_s[2] = 0.0;
+        assert!(bad.write(&path).is_err());
+        assert!(!path.exists());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}

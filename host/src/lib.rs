@@ -1,0 +1,19 @@
+//! dynacal: host-side library. Reads and writes sensor recordings, decodes the board's logs,
+//! and fits, simulates and diagnoses inertial sensor error models.
+//!
+//! The `dynacal` binary is a thin command-line layer over this library; errors here are
+//! typed (`thiserror`), `anyhow` appears only in the binary.
+
+pub mod interchange;
+pub mod output;
+
+use std::path::PathBuf;
+
+/// The measured-data folder: `$DYNACAL_DATA` if set, else `../shared/data` relative to the
+/// workspace root (the repository is checked out with `shared/` beside it).
+pub fn data_dir() -> PathBuf {
+    match std::env::var_os("DYNACAL_DATA") {
+        Some(dir) => PathBuf::from(dir),
+        None => PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../shared/data"),
+    }
+}

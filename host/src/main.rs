@@ -1,0 +1,17 @@
+//! The `dynacal` command line: a thin layer over the `dynacal` library. Each subcommand
+//! lives in its own module under `cli/`.
+
+mod cli;
+
+use clap::Parser;
+
+fn main() -> std::process::ExitCode {
+    let args = cli::Cli::parse();
+    match cli::run(args) {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("dynacal: error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}
