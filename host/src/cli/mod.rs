@@ -14,12 +14,16 @@ pub struct Cli {
 pub enum Command {
     /// Show the header and size of an interchange file.
     Info(info::Args),
+    /// Regress error signals on the dynamics (paper Tables II/III).
+    Regress(regress::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
+        Command::Regress(args) => regress::run(args),
     }
 }
 
 mod info;
+mod regress;
