@@ -458,20 +458,46 @@ impl OlsFit {
 /// Andrews (1991) automatic bandwidth for the Bartlett kernel from AR(1) fits of each score
 /// series x_tj e_t: lag = 1.1447 (alpha n)^(1/3), capped at n/4.
 fn andrews_bartlett_lag(x: &DMatrix<f64>, resid: &[f64]) -> usize {
-    let n = resid.len();
+    andrews_bartlett_lag_from_scores(&scores(x, resid), x.ncols())
+}
+
+fn newey_west_meat(x: &DMatrix<f64>, resid: &[f64], lag: usize) -> DMatrix<f64> {
+    newey_west_meat_from_scores(&scores(x, resid), x.ncols(), lag)
+}
+
+/// Score vectors u_t = x_t e_t stored row-major (one p-vector per time), which keeps the
+/// lag products cache-friendly.
+fn scores(x: &DMatrix<f64>, resid: &[f64]) -> Vec<f64> {
+    let p = x.ncols();
+    (0..resid.len())
+        .flat_map(|t| (0..p).map(move |j| (t, j)))
+        .map(|(t, j)| x[(t, j)] * resid[t])
+        .collect()
+}
+
+/// Andrews (1991) AR(1) plug-in lag for the Bartlett kernel, from score vectors stored
+/// row-major (`scores.len() = n * p`): lag = 1.1447 (alpha n)^(1/3), capped at n/4.
+pub fn andrews_bartlett_lag_from_scores(scores: &[f64], p: usize) -> usize {
+    if p == 0 {
+        return 0;
+    }
+    let n = scores.len() / p;
     let (mut num, mut den) = (0.0, 0.0);
-    for j in 0..x.ncols() {
-        let u: Vec<f64> = (0..n).map(|t| x[(t, j)] * resid[t]).collect();
-        let (mut sxy, mut sxx) = (0.0, 0.0);
+    for j in 0..p {
+        let u = |t: usize| scores[t * p + j];
+        let (mut sxy, mut sxx, mut s2) = (0.0, 0.0, 0.0);
         for t in 1..n {
-            sxy += u[t] * u[t - 1];
-            sxx += u[t - 1] * u[t - 1];
+            sxy += u(t) * u(t - 1);
+            sxx += u(t - 1) * u(t - 1);
+        }
+        for t in 0..n {
+            s2 += u(t) * u(t);
         }
         if sxx <= 0.0 {
             continue;
         }
         let rho = (sxy / sxx).clamp(-0.99, 0.99);
-        let s2 = u.iter().map(|v| v * v).sum::<f64>() / n as f64 * (1.0 - rho * rho);
+        let s2 = s2 / n as f64 * (1.0 - rho * rho);
         let w = s2 * s2;
         num += w * 4.0 * rho * rho / ((1.0 - rho).powi(6) * (1.0 + rho).powi(2));
         den += w / (1.0 - rho).powi(4);
@@ -484,15 +510,14 @@ fn andrews_bartlett_lag(x: &DMatrix<f64>, resid: &[f64]) -> usize {
     (lag.ceil() as usize).min(n / 4)
 }
 
-/// Sum over lags of Bartlett-weighted autocovariances of the score vectors u_t = x_t e_t.
-fn newey_west_meat(x: &DMatrix<f64>, resid: &[f64], lag: usize) -> DMatrix<f64> {
-    let n = resid.len();
-    let p = x.ncols();
-    // Scores stored row-major (one p-vector per time) for cache-friendly lag products.
-    let u: Vec<f64> = (0..n)
-        .flat_map(|t| (0..p).map(move |j| (t, j)))
-        .map(|(t, j)| x[(t, j)] * resid[t])
-        .collect();
+/// Newey-West long-run covariance sum_l w_l (Gamma_l + Gamma_l') of score vectors stored
+/// row-major (`scores.len() = n * p`), Bartlett weights w_l = 1 - l / (lag + 1). Not divided
+/// by n: it is the "meat" of a sandwich (X'X)^-1 S (X'X)^-1.
+pub fn newey_west_meat_from_scores(u: &[f64], p: usize, lag: usize) -> DMatrix<f64> {
+    if p == 0 {
+        return DMatrix::zeros(0, 0);
+    }
+    let n = u.len() / p;
     let gamma = |l: usize| -> DMatrix<f64> {
         let mut g = DMatrix::<f64>::zeros(p, p);
         for t in l..n {
@@ -507,7 +532,7 @@ fn newey_west_meat(x: &DMatrix<f64>, resid: &[f64], lag: usize) -> DMatrix<f64> 
         }
         g
     };
-    (0..=lag)
+    (0..=lag.min(n.saturating_sub(1)))
         .into_par_iter()
         .map(|l| {
             let g = gamma(l);
