@@ -14,12 +14,16 @@ pub struct Cli {
 pub enum Command {
     /// Show the header and size of an interchange file.
     Info(info::Args),
+    /// Convert a measured dataset (file or folder) into interchange files, one per sensor.
+    Import(import::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
+        Command::Import(args) => import::run(args),
     }
 }
 
+mod import;
 mod info;
