@@ -139,6 +139,13 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
                 path: path.to_path_buf(),
                 source,
             },
+            csv::ErrorKind::UnequalLengths {
+                expected_len, len, ..
+            } => TableError::Csv {
+                path: path.to_path_buf(),
+                line,
+                message: format!("{len} fields, expected {expected_len} as in the header"),
+            },
             other => TableError::Csv {
                 path: path.to_path_buf(),
                 line,
@@ -526,6 +533,10 @@ mod tests {
         .unwrap();
         let msg = ImuRecording::read(&path).unwrap_err().to_string();
         assert!(msg.contains("line 4") && msg.contains("t_s"), "{msg}");
+
+        std::fs::write(&path, "t_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.1,1,2\n").unwrap();
+        let msg = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(msg.contains("line 3: 3 fields, expected 4"), "{msg}");
 
         std::fs::write(&path, "time,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n").unwrap();
         let msg = ImuRecording::read(&path).unwrap_err().to_string();
