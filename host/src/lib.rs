@@ -5,6 +5,7 @@
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
 pub mod error_signal;
+pub mod import;
 pub mod interchange;
 pub mod output;
 pub mod regress;

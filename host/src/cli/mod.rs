@@ -16,14 +16,18 @@ pub enum Command {
     Info(info::Args),
     /// Regress error signals on the dynamics (paper Tables II/III).
     Regress(regress::Args),
+    /// Convert a measured dataset (file or folder) into interchange files, one per sensor.
+    Import(import::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
         Command::Regress(args) => regress::run(args),
+        Command::Import(args) => import::run(args),
     }
 }
 
+mod import;
 mod info;
 mod regress;
