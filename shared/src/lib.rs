@@ -6,3 +6,4 @@
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
 pub mod log;
+pub mod nav;
