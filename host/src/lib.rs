@@ -9,6 +9,7 @@ pub mod import;
 pub mod interchange;
 pub mod output;
 pub mod regress;
+pub mod wv;
 
 use std::path::PathBuf;
 
