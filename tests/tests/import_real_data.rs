@@ -100,8 +100,8 @@ fn psins_mems_reads_minus_g_on_the_down_axis_and_fog_speed_reaches_16_m_s() {
     // First 10 s: the FOG says the vehicle is nearly level (|roll|, |pitch| < 5 deg).
     let att = fog.attitude_rad.as_ref().unwrap();
     let first_10_s = fog.t_s.iter().take_while(|t| **t <= 10.0).count();
-    for k in 0..2 {
-        assert!(att[k][..first_10_s].iter().all(|a| a.abs() < 5.0 * DEG));
+    for angle in &att[..2] {
+        assert!(angle[..first_10_s].iter().all(|a| a.abs() < 5.0 * DEG));
     }
     let accel = mems.accel_m_s2.as_ref().unwrap();
     let f = mean_vec(accel, 0..1001);

@@ -201,10 +201,13 @@ fn file_stem(path: &Path) -> String {
     name
 }
 
+/// Dataset files found (path and dataset), and the other files seen.
+pub type DatasetFiles = (Vec<(PathBuf, Dataset)>, Vec<PathBuf>);
+
 /// The dataset files under `path`: the file itself (an error if it is not a known dataset),
 /// or every known dataset file in the folder and its subfolders, in name order. The second
 /// list holds the folder's files that are not datasets (READMEs, JSON...).
-pub fn find_datasets(path: &Path) -> Result<(Vec<(PathBuf, Dataset)>, Vec<PathBuf>), ImportError> {
+pub fn find_datasets(path: &Path) -> Result<DatasetFiles, ImportError> {
     let meta = std::fs::metadata(path).map_err(|e| ImportError::io(path, e))?;
     if !meta.is_dir() {
         return match detect(path)? {

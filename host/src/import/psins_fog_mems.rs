@@ -52,6 +52,7 @@ pub const MEMS_DT_S: f64 = 0.01;
 const MEMS_DT_TOLERANCE_S: f64 = 1e-6;
 
 /// Reads the MEMS increments as FRD rates (rad/s) and specific force (m/s^2).
+#[allow(clippy::needless_range_loop)] // one row index across seven columns
 pub fn read_mems(path: &Path) -> Result<ImuRecording, ImportError> {
     let cols = read_columns(path, &MEMS_COLUMNS)?;
     let t_s = cols[0].clone();
@@ -91,6 +92,7 @@ pub fn read_mems(path: &Path) -> Result<ImuRecording, ImportError> {
 }
 
 /// Reads the FOG INS solution as NED attitude, velocity and position (no IMU channel).
+#[allow(clippy::needless_range_loop)] // one row index across ten columns
 pub fn read_fog(path: &Path) -> Result<ImuRecording, ImportError> {
     let cols = read_columns(path, &FOG_COLUMNS)?;
     let n = cols[0].len();

@@ -178,9 +178,9 @@ fn parse_header(path: &Path, line: u64, l: &[Vec<f64>]) -> Result<LaserGyroHeade
         gyro_arcsec_per_count: [l[2][0], l[2][1], l[2][2]],
         accel_ug_s_per_count: [l[2][3], l[2][4], l[2][5]],
     };
-    // Only values that make the conversion meaningless are rejected; the g bounds span
+    // The fields are finite (checked when parsed). Only values that make the conversion meaningless are rejected; the g bounds span
     // Earth's surface gravity (9.78 at the equator to 9.83 at the poles) with margin.
-    let bad = if !(header.dt_s > 0.0) {
+    let bad = if header.dt_s <= 0.0 {
         Some(format!("sampling interval {} ms is not positive", l[1][4]))
     } else if !(9.7..=9.9).contains(&header.g_m_s2) {
         Some(format!("g = {} m/s^2 is not Earth gravity", header.g_m_s2))
@@ -188,7 +188,7 @@ fn parse_header(path: &Path, line: u64, l: &[Vec<f64>]) -> Result<LaserGyroHeade
         .gyro_arcsec_per_count
         .iter()
         .chain(&header.accel_ug_s_per_count)
-        .any(|s| !(*s > 0.0))
+        .any(|s| *s <= 0.0)
     {
         Some("scale factors must be positive".to_string())
     } else {
