@@ -4,8 +4,10 @@
 //! The `dynacal` binary is a thin command-line layer over this library; errors here are
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
+pub mod diagnose;
 pub mod error_signal;
 pub mod import;
+pub mod errors;
 pub mod interchange;
 pub mod output;
 pub mod regress;

@@ -14,6 +14,8 @@ pub struct Cli {
 pub enum Command {
     /// Show the header and size of an interchange file.
     Info(info::Args),
+    /// Build a sensor's error signals against a reference IMU or navigation solution.
+    Errors(errors::Args),
     /// Regress error signals on the dynamics (paper Tables II/III).
     Regress(regress::Args),
     /// Convert a measured dataset (file or folder) into interchange files, one per sensor.
@@ -29,5 +31,10 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 }
 
 mod import;
+        Command::Errors(args) => errors::run(args),
+    }
+}
+
+mod errors;
 mod info;
 mod regress;
