@@ -6,8 +6,8 @@
 
 pub mod diagnose;
 pub mod error_signal;
-pub mod import;
 pub mod errors;
+pub mod import;
 pub mod interchange;
 pub mod output;
 pub mod regress;

@@ -25,16 +25,13 @@ pub enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
+        Command::Errors(args) => errors::run(args),
         Command::Regress(args) => regress::run(args),
         Command::Import(args) => import::run(args),
     }
 }
 
-mod import;
-        Command::Errors(args) => errors::run(args),
-    }
-}
-
 mod errors;
+mod import;
 mod info;
 mod regress;
