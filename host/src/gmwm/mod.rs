@@ -3,4 +3,6 @@
 //! variance, parameter intervals, goodness of fit, model selection, and the static-versus-
 //! dynamic comparison of the seed paper's Table I (Stebler et al. 2015, eqs. 15-19).
 
+pub mod covariance;
+pub mod fit;
 pub mod model;
