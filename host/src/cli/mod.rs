@@ -14,12 +14,20 @@ pub struct Cli {
 pub enum Command {
     /// Show the header and size of an interchange file.
     Info(info::Args),
+    /// GMWM fit of a stochastic error model per channel, with intervals and J-test.
+    Fit(fit::Args),
+    /// Fit two recordings with one model and compare parameters (the paper's Table I).
+    Compare(compare::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
+        Command::Fit(args) => fit::run(args),
+        Command::Compare(args) => compare::run(args),
     }
 }
 
+mod compare;
+mod fit;
 mod info;

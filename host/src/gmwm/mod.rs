@@ -3,6 +3,9 @@
 //! variance, parameter intervals, goodness of fit, model selection, and the static-versus-
 //! dynamic comparison of the seed paper's Table I (Stebler et al. 2015, eqs. 15-19).
 
+pub mod compare;
 pub mod covariance;
 pub mod fit;
+pub mod inference;
+pub mod input;
 pub mod model;
