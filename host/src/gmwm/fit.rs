@@ -5,8 +5,9 @@
 //! - var(nu_hat_j) is [`WaveletVariance::estimate_variance`]: from the width of the WV's 95%
 //!   chi-square interval, ((ci_high - ci_low) / (2 z_0.975))^2, i.e. about 2 nu_j^2 / eta_j
 //!   with eta_j = max(M_j / 2^j, 1) (eta3). It needs nothing but the WV, so a fit from a
-//!   published WV alone uses exactly the same weights as a fit from raw data. Omega is
-//!   reported so anyone can recompute the objective.
+//!   published WV alone uses exactly the same weights as a fit from raw data (where an
+//!   interval end is not finite, 2 nu_j^2 / eta_j itself). Omega is reported so anyone can
+//!   recompute the objective.
 //! - Solver: Levenberg-Marquardt (Nielsen's damping update, Marquardt scaling kept as the
 //!   running maximum of diag(J'J) as in MINPACK), on box bounds wide enough never to bind
 //!   for a well-posed model (they only stop a collapsing GM from running to infinity).
@@ -67,18 +68,24 @@ impl FitInput {
         if !(wv.dt_s.is_finite() && wv.dt_s > 0.0) {
             return Err(FitError::BadSamplingInterval { dt_s: wv.dt_s });
         }
-        let var_est = wv.estimate_variance();
+        let mut var_est = wv.estimate_variance();
         for (i, &j) in wv.levels.iter().enumerate() {
             let v = wv.variance[i];
             if !(v.is_finite() && v > 0.0) {
                 return Err(FitError::BadVariance { level: j, value: v });
             }
             if !(var_est[i].is_finite() && var_est[i] > 0.0) {
-                return Err(FitError::BadInterval {
-                    level: j,
-                    low: wv.ci_low[i],
-                    high: wv.ci_high[i],
-                });
+                // An interval end that is not finite (seen at eta = 1 levels) carries no
+                // width: fall back to the chi-square variance 2 nu^2 / eta3 it stands for.
+                let m = wv.n_coefficients.get(i).copied().unwrap_or(0);
+                if m == 0 {
+                    return Err(FitError::BadInterval {
+                        level: j,
+                        low: wv.ci_low[i],
+                        high: wv.ci_high[i],
+                    });
+                }
+                var_est[i] = 2.0 * v * v / crate::wv::eta3(m, j);
             }
         }
         Ok(Self {
