@@ -8,6 +8,7 @@ pub mod diagnose;
 pub mod error_signal;
 pub mod errors;
 pub mod import;
+pub mod gmwm;
 pub mod interchange;
 pub mod output;
 pub mod regress;

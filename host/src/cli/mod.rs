@@ -20,18 +20,26 @@ pub enum Command {
     Regress(regress::Args),
     /// Convert a measured dataset (file or folder) into interchange files, one per sensor.
     Import(import::Args),
+    /// GMWM fit of a stochastic error model per channel, with intervals and J-test.
+    Fit(fit::Args),
+    /// Fit two recordings with one model and compare parameters (the paper's Table I).
+    Compare(compare::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
+        Command::Import(args) => import::run(args),
         Command::Errors(args) => errors::run(args),
         Command::Regress(args) => regress::run(args),
-        Command::Import(args) => import::run(args),
+        Command::Fit(args) => fit::run(args),
+        Command::Compare(args) => compare::run(args),
     }
 }
 
+mod compare;
 mod errors;
+mod fit;
 mod import;
 mod info;
 mod regress;
