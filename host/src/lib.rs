@@ -9,6 +9,7 @@ pub mod error_signal;
 pub mod errors;
 pub mod import;
 pub mod gmwm;
+pub mod decode;
 pub mod interchange;
 pub mod output;
 pub mod regress;

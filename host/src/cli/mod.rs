@@ -24,12 +24,15 @@ pub enum Command {
     Fit(fit::Args),
     /// Fit two recordings with one model and compare parameters (the paper's Table I).
     Compare(compare::Args),
+    /// Decode a board log into per-IMU interchange CSVs and summary.json.
+    Decode(decode::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
         Command::Import(args) => import::run(args),
+        Command::Decode(args) => decode::run(args),
         Command::Errors(args) => errors::run(args),
         Command::Regress(args) => regress::run(args),
         Command::Fit(args) => fit::run(args),
@@ -38,6 +41,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 }
 
 mod compare;
+mod decode;
 mod errors;
 mod fit;
 mod import;
