@@ -6,6 +6,7 @@
 
 pub mod interchange;
 pub mod output;
+pub mod sim;
 
 use std::path::PathBuf;
 
