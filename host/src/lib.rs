@@ -4,9 +4,11 @@
 //! The `dynacal` binary is a thin command-line layer over this library; errors here are
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
+pub mod gmwm;
 pub mod interchange;
 pub mod output;
 pub mod sim;
+pub mod wv;
 
 use std::path::PathBuf;
 
