@@ -14,12 +14,16 @@ pub struct Cli {
 pub enum Command {
     /// Show the header and size of an interchange file.
     Info(info::Args),
+    /// Simulate a car or static run: reference IMU, MEMS IMUs, GNSS and PPS.
+    Simulate(simulate::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
+        Command::Simulate(args) => simulate::run(args),
     }
 }
 
 mod info;
+mod simulate;

@@ -341,7 +341,17 @@ impl ChannelEffects {
             None => y,
         };
         match self.quantization_step {
-            Some(q) => (y / q).round() * q,
+            // Dividing by an exact integer 1/q (e.g. 1e4) gives the double nearest n q, which
+            // prints as the short decimal the sensor would report.
+            Some(q) => {
+                let n = (y / q).round();
+                let inv = 1.0 / q;
+                if (inv.round() - inv).abs() <= 1e-9 * inv {
+                    n / inv.round()
+                } else {
+                    n * q
+                }
+            }
             None => y,
         }
     }

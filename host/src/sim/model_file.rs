@@ -334,6 +334,9 @@ impl Default for PpsModel {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct SimModel {
+    /// Free text describing the model.
+    #[serde(default, rename = "_comment", skip_serializing_if = "Option::is_none")]
+    pub comment: Option<String>,
     #[serde(default)]
     pub trajectory: TrajectoryConfig,
     /// The reference IMU; it defines the body frame (no lever arm, boresight or clock).
@@ -433,6 +436,10 @@ impl SimModel {
             channels: BTreeMap::new(),
         };
         Ok(SimModel {
+            comment: Some(format!(
+                "fitted model {} ({}) on imu1",
+                spec.model, spec.unit
+            )),
             trajectory: TrajectoryConfig::default(),
             reference: ImuModel::navigation_grade_reference(),
             imus: vec![imu],
