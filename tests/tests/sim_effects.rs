@@ -589,3 +589,117 @@ fn gnss_outages_pps_and_clock_drift_follow_the_model() {
         assert!((local - s * (1.0 + 40e-6)).abs() < 1.5e-6, "{s}: {local}");
     }
 }
+
+#[test]
+fn written_outputs_read_back_list_every_effect_and_repeat_bit_for_bit_for_a_seed() {
+    let model = example("table1-dynamic.json");
+    let opts = SimOptions {
+        scenario: Scenario::Car,
+        seconds: 30.0,
+        seed: 17,
+        disabled: vec!["outliers".into()],
+        keep_ideal: false,
+    };
+    let dirs = [tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap()];
+    for d in &dirs {
+        let out = simulate(&model, &opts, &|_| {}).unwrap();
+        dynacal::sim::output::write_outputs(&out, d.path(), false, false).unwrap();
+    }
+    let names = [
+        "reference.csv",
+        "mtx1.csv",
+        "mtx2.csv",
+        "mtx3.csv",
+        "gnss.csv",
+        "pps.csv",
+        "truth.json",
+    ];
+    for name in names {
+        let a = std::fs::read(dirs[0].path().join(name)).unwrap();
+        let b = std::fs::read(dirs[1].path().join(name)).unwrap();
+        assert!(a == b, "{name} differs between two runs with the same seed");
+    }
+    let reference =
+        dynacal::interchange::ImuRecording::read(&dirs[0].path().join("reference.csv")).unwrap();
+    assert!(
+        reference.attitude_rad.is_some()
+            && reference.position.is_some()
+            && reference.velocity_ned_m_s.is_some()
+    );
+    assert_eq!(reference.len(), 30 * 200);
+    let mtx = dynacal::interchange::ImuRecording::read(&dirs[0].path().join("mtx2.csv")).unwrap();
+    assert_eq!(mtx.channels().len(), 6);
+    assert!(mtx.position.is_none());
+    let truth: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dirs[0].path().join("truth.json")).unwrap()).unwrap();
+    let gx = truth["imus"][1]["channels"]["gx"].as_array().unwrap();
+    let effects: Vec<(&str, bool)> = gx
+        .iter()
+        .map(|e| {
+            (
+                e["effect"].as_str().unwrap(),
+                e["enabled"].as_bool().unwrap(),
+            )
+        })
+        .collect();
+    for name in [
+        "white_noise",
+        "gauss_markov",
+        "bias",
+        "scale_factor",
+        "saturation",
+        "quantization",
+    ] {
+        assert!(
+            effects.contains(&(name, true)),
+            "{name} missing from {effects:?}"
+        );
+    }
+    let sensor = truth["imus"][1]["sensor_effects"].as_array().unwrap();
+    assert!(sensor
+        .iter()
+        .any(|e| e["effect"] == "time_offset" && e["parameters"]["time_offset_s"] == 0.002));
+    assert!(!truth["trajectory"]["segments"]
+        .as_array()
+        .unwrap()
+        .is_empty());
+    // no staging folder is left behind
+    let leftovers = std::fs::read_dir(dirs[0].path())
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .file_name()
+                .to_string_lossy()
+                .starts_with('.')
+        })
+        .count();
+    assert_eq!(leftovers, 0);
+}
+
+#[test]
+fn every_example_model_loads() {
+    for file in [
+        "table1-static.json",
+        "table1-dynamic.json",
+        "three-mems-1khz.json",
+    ] {
+        let m = example(file);
+        assert_eq!(m.imus.len(), 3, "{file}");
+    }
+}
+
+#[test]
+fn an_output_folder_that_cannot_be_created_is_an_error_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let blocker = dir.path().join("file");
+    std::fs::write(&blocker, b"x").unwrap();
+    let out = run(&model_with(100.0, vec![]), Scenario::Static, 1.0, 1);
+    let err =
+        dynacal::sim::output::write_outputs(&out, &blocker.join("out"), false, false).unwrap_err();
+    assert!(
+        err.to_string().contains("file/out") || err.to_string().contains("file"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+}
