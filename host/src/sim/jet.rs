@@ -120,6 +120,7 @@ impl Mul for Jet {
 }
 impl Div for Jet {
     type Output = Jet;
+    #[allow(clippy::suspicious_arithmetic_impl)] // a / b is a times the jet of 1/b
     fn div(self, o: Jet) -> Jet {
         self * o.recip()
     }
