@@ -13,6 +13,7 @@ pub mod import;
 pub mod interchange;
 pub mod output;
 pub mod regress;
+pub mod sim;
 pub mod wv;
 
 use std::path::PathBuf;

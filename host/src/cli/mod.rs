@@ -26,6 +26,8 @@ pub enum Command {
     Compare(compare::Args),
     /// Decode a board log into per-IMU interchange CSVs and summary.json.
     Decode(decode::Args),
+    /// Simulate a car or static run: reference IMU, MEMS IMUs, GNSS and PPS.
+    Simulate(simulate::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -33,6 +35,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Info(args) => info::run(args),
         Command::Import(args) => import::run(args),
         Command::Decode(args) => decode::run(args),
+        Command::Simulate(args) => simulate::run(args),
         Command::Errors(args) => errors::run(args),
         Command::Regress(args) => regress::run(args),
         Command::Fit(args) => fit::run(args),
@@ -47,3 +50,4 @@ mod fit;
 mod import;
 mod info;
 mod regress;
+mod simulate;

@@ -180,7 +180,7 @@ impl<T: RealField + Copy> Strapdown<T> {
         delta_v_sf_b: Vector3<T>,
         dt_s: T,
     ) -> Result<(), NavFault> {
-        if !(dt_s > T::zero()) || !dt_s.is_finite() {
+        if dt_s <= T::zero() || !dt_s.is_finite() {
             return Err(NavFault::BadTimeStep);
         }
         if !all_finite(&rotation_vector_b) || !all_finite(&delta_v_sf_b) {
