@@ -222,6 +222,7 @@ pub fn simulate_imu(traj: &Trajectory, job: &ImuJob, progress: &(dyn Fn(u64) + S
             attitude_rad: attitude,
             position,
             velocity_ned_m_s: velocity,
+            single_axis: Vec::new(),
         },
         clock,
         true_t_s,
