@@ -6,6 +6,7 @@
 
 pub mod interchange;
 pub mod output;
+pub mod replay;
 
 use std::path::PathBuf;
 
