@@ -4,6 +4,7 @@
 //! The `dynacal` binary is a thin command-line layer over this library; errors here are
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
+pub mod decode;
 pub mod interchange;
 pub mod output;
 pub mod replay;
