@@ -482,6 +482,144 @@ pub fn run_replay_in_qemu(
     })
 }
 
+/// How a decoded board log compares with the replay input it was recorded from.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ReplayCheck {
+    /// IMU sample sets in the replay input.
+    pub samples_expected: usize,
+    /// Sample sets in the log whose time and counts equal the input's, in order, and whose
+    /// interchange values are bit-for-bit `counts as f64 * scale`.
+    pub samples_exact: usize,
+    pub pps_expected: usize,
+    /// PPS frames in the log with the input's time and the expected sequence number.
+    pub pps_exact: usize,
+    /// Frames the decoder could not read (CRC, COBS, truncation) plus frames the board
+    /// reported dropped in its last Health frame.
+    pub frames_dropped: u64,
+    /// The first few differences, described.
+    pub mismatches: Vec<String>,
+}
+
+impl ReplayCheck {
+    /// Everything arrived, exactly, with nothing dropped.
+    pub fn is_exact(&self) -> bool {
+        self.mismatches.is_empty()
+            && self.samples_exact == self.samples_expected
+            && self.pps_exact == self.pps_expected
+            && self.frames_dropped == 0
+    }
+}
+
+/// Compares a decoded log with the replay input it was recorded from: header scale factors,
+/// every sample's time and counts, the interchange values derived from them (bit for bit),
+/// PPS times and sequence numbers, and dropped frames.
+pub fn check_log_against_replay(
+    input: &ReplayInput,
+    log: &crate::decode::DecodedLog,
+) -> ReplayCheck {
+    const MAX_REPORTED: usize = 8;
+    let mut check = ReplayCheck {
+        samples_expected: input.samples().count(),
+        pps_expected: input.pps_t_us().count(),
+        frames_dropped: log.stream.frames_dropped
+            + log.health.last().map_or(0, |h| u64::from(h.frames_dropped)),
+        ..Default::default()
+    };
+    let mismatch = |check: &mut ReplayCheck, what: String| {
+        if check.mismatches.len() < MAX_REPORTED {
+            check.mismatches.push(what);
+        }
+    };
+    if log.stream.bytes_dropped > 0 {
+        let what = format!(
+            "{} log bytes could not be decoded",
+            log.stream.bytes_dropped
+        );
+        mismatch(&mut check, what);
+    }
+    for imu in &input.header.imus {
+        let Some(stream) = log.imus.iter().find(|s| s.config.imu_id == imu.imu_id) else {
+            mismatch(
+                &mut check,
+                format!("IMU {} missing from the log header", imu.imu_id),
+            );
+            continue;
+        };
+        let config = &stream.config;
+        if config.gyro_scale_rad_s_per_count.to_bits() != imu.gyro_scale_rad_s_per_count.to_bits()
+            || config.accel_scale_m_s2_per_count.to_bits()
+                != imu.accel_scale_m_s2_per_count.to_bits()
+            || config.sample_rate_hz.to_bits() != imu.sample_rate_hz.to_bits()
+            || config.model.as_str() != imu.model_str()
+        {
+            mismatch(
+                &mut check,
+                format!("IMU {}: header config differs: {config:?}", imu.imu_id),
+            );
+        }
+        let expected: Vec<CountSample> =
+            input.samples().filter(|s| s.imu_id == imu.imu_id).collect();
+        if stream.len() != expected.len() {
+            let what = format!(
+                "IMU {}: {} samples in the log, {} in the input",
+                imu.imu_id,
+                stream.len(),
+                expected.len()
+            );
+            mismatch(&mut check, what);
+        }
+        let recording = stream.to_recording();
+        let (Some(gyro), Some(accel)) = (&recording.gyro_rad_s, &recording.accel_m_s2) else {
+            mismatch(
+                &mut check,
+                format!("IMU {}: no gyro or accel channels", imu.imu_id),
+            );
+            continue;
+        };
+        for (i, want) in expected.iter().enumerate().take(stream.len()) {
+            let counts_equal = stream.t_us[i] == want.t_us
+                && stream.gyro_counts[i] == want.gyro_counts
+                && stream.accel_counts[i] == want.accel_counts;
+            let si_equal = (0..3).all(|axis| {
+                gyro[axis][i].to_bits()
+                    == (want.gyro_counts[axis] as f64 * imu.gyro_scale_rad_s_per_count).to_bits()
+                    && accel[axis][i].to_bits()
+                        == (want.accel_counts[axis] as f64 * imu.accel_scale_m_s2_per_count)
+                            .to_bits()
+            });
+            if counts_equal && si_equal {
+                check.samples_exact += 1;
+            } else {
+                let what = format!(
+                    "IMU {} sample {i}: log t_us={} gyro={:?} accel={:?}, input {want:?}",
+                    imu.imu_id, stream.t_us[i], stream.gyro_counts[i], stream.accel_counts[i]
+                );
+                mismatch(&mut check, what);
+            }
+        }
+    }
+    let expected_pps: Vec<u64> = input.pps_t_us().collect();
+    if log.pps.len() != expected_pps.len() {
+        let what = format!(
+            "{} PPS frames in the log, {} in the input",
+            log.pps.len(),
+            expected_pps.len()
+        );
+        mismatch(&mut check, what);
+    }
+    for (k, (pps, &t_us)) in log.pps.iter().zip(&expected_pps).enumerate() {
+        if pps.t_us == t_us && pps.sequence as usize == k {
+            check.pps_exact += 1;
+        } else {
+            mismatch(
+                &mut check,
+                format!("PPS {k}: log {pps:?}, input t_us={t_us}"),
+            );
+        }
+    }
+    check
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
