@@ -296,6 +296,11 @@ pub fn adis16405_replay(path: &Path, seconds: u32) -> Result<ReplayInput, Replay
     ReplayInput::from_counts(&[adis16405_imu()], &samples)
 }
 
+/// Cargo target folder (under the workspace root) for firmware builds made by tools and
+/// tests: separate from `target/` so a build started from inside `cargo test` does not wait
+/// on the lock of the build that is running it.
+pub const FIRMWARE_TARGET_DIR: &str = "target/firmware";
+
 /// The workspace root (where `Cargo.toml`, `memory.x` and `firmware/` are).
 pub fn workspace_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))

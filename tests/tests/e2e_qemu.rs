@@ -12,7 +12,7 @@ use dynacal::interchange::ImuRecording;
 use dynacal::replay::{
     adis16405_replay, adis16405_session_path, build_replay_firmware, check_log_against_replay,
     qemu_available, run_replay_in_qemu, workspace_root, ADIS16405_ACCEL_SCALE_M_S2_PER_COUNT,
-    ADIS16405_GYRO_SCALE_RAD_S_PER_COUNT,
+    ADIS16405_GYRO_SCALE_RAD_S_PER_COUNT, FIRMWARE_TARGET_DIR,
 };
 
 const SECONDS: u32 = 60;
@@ -52,7 +52,7 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
     let input_path = dir.path().join("adis16405-session1-60s.replay");
     input.write(&input_path).unwrap();
 
-    let elf = build_replay_firmware(&workspace_root().join("target/firmware-e2e")).unwrap();
+    let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
     let log_path = dir.path().join("board.log");
     let run = run_replay_in_qemu(&elf, &input_path, &log_path).unwrap();
     let report = run.report;
@@ -197,7 +197,7 @@ fn a_truncated_replay_input_fails_the_run_and_leaves_no_log() {
     let input_path = dir.path().join("cut.replay");
     std::fs::write(&input_path, &bytes).unwrap();
 
-    let elf = build_replay_firmware(&workspace_root().join("target/firmware-e2e")).unwrap();
+    let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
     let log_path = dir.path().join("board.log");
     let err = run_replay_in_qemu(&elf, &input_path, &log_path)
         .unwrap_err()

@@ -16,14 +16,18 @@ pub enum Command {
     Info(info::Args),
     /// Decode a board log into per-IMU interchange CSVs and summary.json.
     Decode(decode::Args),
+    /// Run the firmware in QEMU on a minute of real ADIS16405 data and check the log.
+    Demo(demo::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
         Command::Decode(args) => decode::run(args),
+        Command::Demo(args) => demo::run(args),
     }
 }
 
 mod decode;
+mod demo;
 mod info;
