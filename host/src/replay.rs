@@ -726,6 +726,95 @@ mod tests {
         );
     }
 
+    fn empty_header() -> dynacal_core::log::Header {
+        dynacal_core::log::Header {
+            protocol_version: dynacal_core::log::PROTOCOL_VERSION,
+            board: Default::default(),
+            imus: Default::default(),
+        }
+    }
+
+    #[test]
+    fn the_log_check_finds_a_changed_count_a_missing_pps_and_dropped_frames() {
+        use dynacal_core::log::{Frame, Header, ImuConfig, ImuSampleSet, PpsEvent};
+        let samples: Vec<_> = (0..150).map(|k| sample(k as u64 * 10_000, 0, k)).collect();
+        let input = ReplayInput::from_counts(&[adis16405_imu()], &samples).unwrap();
+        let imu = adis16405_imu();
+        let header = Frame::Header(Header {
+            protocol_version: dynacal_core::log::PROTOCOL_VERSION,
+            board: "test".try_into().unwrap(),
+            imus: {
+                let mut imus = empty_header().imus;
+                imus.push(ImuConfig {
+                    imu_id: 0,
+                    model: imu.model_str().try_into().unwrap(),
+                    sample_rate_hz: imu.sample_rate_hz,
+                    gyro_scale_rad_s_per_count: imu.gyro_scale_rad_s_per_count,
+                    accel_scale_m_s2_per_count: imu.accel_scale_m_s2_per_count,
+                })
+                .unwrap();
+                imus
+            },
+        });
+        let frames_of = |input: &ReplayInput| -> Vec<Frame> {
+            let mut frames = vec![header.clone()];
+            let mut sequence = 0;
+            for record in &input.records {
+                frames.push(match *record {
+                    ReplayRecord::Imu {
+                        t_us,
+                        imu_id,
+                        gyro_counts,
+                        accel_counts,
+                    } => Frame::Imu(ImuSampleSet {
+                        t_us,
+                        imu_id,
+                        gyro_counts,
+                        accel_counts,
+                    }),
+                    ReplayRecord::Pps { t_us } => {
+                        sequence += 1;
+                        Frame::Pps(PpsEvent {
+                            t_us,
+                            sequence: sequence - 1,
+                        })
+                    }
+                    ReplayRecord::End { .. } => unreachable!(),
+                });
+            }
+            frames
+        };
+        let exact =
+            crate::decode::decode_bytes(&crate::decode::encode_log(&frames_of(&input)).unwrap());
+        let check = check_log_against_replay(&input, &exact);
+        assert!(check.is_exact(), "{check:?}");
+        assert_eq!((check.samples_exact, check.pps_exact), (150, 2));
+
+        let mut frames = frames_of(&input);
+        // frames: header, PPS at 0 s, then sample k at index k + 2.
+        if let Frame::Imu(s) = &mut frames[61] {
+            s.accel_counts[2] += 1;
+        }
+        frames.retain(|f| !matches!(f, Frame::Pps(p) if p.t_us == 1_000_000));
+        let mut bytes = crate::decode::encode_log(&frames).unwrap();
+        let last = bytes.len() - 3;
+        // Corrupt the last frame (without making a 0x00 delimiter): the decoder drops it.
+        bytes[last] = if bytes[last] == 0x55 { 0x56 } else { 0x55 };
+        let check = check_log_against_replay(&input, &crate::decode::decode_bytes(&bytes));
+        assert!(!check.is_exact());
+        assert_eq!(check.samples_exact, 148);
+        assert_eq!(check.pps_exact, 1);
+        assert_eq!(check.frames_dropped, 1);
+        assert!(
+            check.mismatches.iter().any(|m| m.contains("sample 59")),
+            "{check:?}"
+        );
+        assert!(
+            check.mismatches.iter().any(|m| m.contains("1 PPS frames")),
+            "{check:?}"
+        );
+    }
+
     #[test]
     fn run_report_parses_only_a_complete_line() {
         let stderr = "noise\ndynacal-firmware: run-report board=x imu_sample_sets=6000 \

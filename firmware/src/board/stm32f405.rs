@@ -47,6 +47,14 @@ const LOG_QUEUE_LEN: usize = 16 * 1024;
 const LOG_BAUD: u32 = 921_600;
 const TIMER_HZ: u32 = 1_000_000;
 
+// TIM2_SR flag bits (RM0090): update, capture 1..4, trigger, over-capture 1..4.
+const SR_UIF: u32 = 1 << 0;
+const SR_CC1OF: u32 = 1 << 9;
+const SR_CC2OF: u32 = 1 << 10;
+const SR_CC3OF: u32 = 1 << 11;
+const SR_CC4OF: u32 = 1 << 12;
+const SR_FLAGS: u32 = 0b1_1110_0101_1111;
+
 type ChipSelect<const N: u8> = Pin<'C', N, Output<PushPull>>;
 type Bus = RefCell<Spi<pac::SPI1>>;
 type Imu<const N: u8> =
@@ -276,26 +284,26 @@ impl CaptureSource {
                 };
                 (high << 32) | capture as u64
             };
-            let overcaptured = [
-                sr.cc2of().bit_is_set(),
-                sr.cc3of().bit_is_set(),
-                sr.cc4of().bit_is_set(),
-            ];
-            // Clear what this snapshot handles (rc_w0: writing 1 leaves a flag alone);
-            // reading a CCR below clears its CCxIF.
-            self.timer.sr().write(|w| unsafe {
-                w.bits(0xFFFF_FFFF);
-                if wrapped {
-                    w.uif().clear_bit();
-                }
-                w.cc2of()
-                    .clear_bit()
-                    .cc3of()
-                    .clear_bit()
-                    .cc4of()
-                    .clear_bit()
-            });
-            self.overrun += overcaptured.iter().filter(|&&o| o).count() as u32;
+            let raw = sr.bits();
+            // Flags this snapshot handles: the update (wrap) and the over-captures. Status
+            // flags are rc_w0, so writing 1 leaves a flag alone and 0 clears it; only the
+            // flags seen set are cleared, so one raised since the read is kept for the next
+            // pass. Reading a CCR below clears its CCxIF.
+            let handled = raw & (SR_UIF | SR_CC1OF | SR_CC2OF | SR_CC3OF | SR_CC4OF);
+            // SAFETY: only defined TIM2_SR flag bits are written.
+            self.timer
+                .sr()
+                .write(|w| unsafe { w.bits(SR_FLAGS & !handled) });
+            // An over-captured data-ready line lost one sample set of that IMU.
+            self.overrun += [SR_CC2OF, SR_CC3OF, SR_CC4OF]
+                .iter()
+                .filter(|&&flag| raw & flag != 0)
+                .count() as u32;
+            // A PPS edge lost to over-capture still advances the pulse count, so the gap
+            // shows in the logged sequence numbers.
+            if raw & SR_CC1OF != 0 {
+                self.pps_sequence = self.pps_sequence.wrapping_add(1);
+            }
             if sr.cc1if().bit_is_set() {
                 let t_us = stamp(self.high, self.timer.ccr1().read().bits());
                 let _ = self.pending.push(SourceEvent::Pps(PpsEvent {
