@@ -8,3 +8,4 @@
 pub mod log;
 pub mod recorder;
 pub mod replay;
+pub mod nav;
