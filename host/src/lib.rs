@@ -12,6 +12,7 @@ pub mod gmwm;
 pub mod import;
 pub mod interchange;
 pub mod output;
+pub mod replay;
 pub mod regress;
 pub mod sim;
 pub mod wv;

@@ -28,6 +28,8 @@ pub enum Command {
     Decode(decode::Args),
     /// Simulate a car or static run: reference IMU, MEMS IMUs, GNSS and PPS.
     Simulate(simulate::Args),
+    /// Run the firmware in QEMU on a minute of real ADIS16405 data and check the log.
+    Demo(demo::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -36,6 +38,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Import(args) => import::run(args),
         Command::Decode(args) => decode::run(args),
         Command::Simulate(args) => simulate::run(args),
+        Command::Demo(args) => demo::run(args),
         Command::Errors(args) => errors::run(args),
         Command::Regress(args) => regress::run(args),
         Command::Fit(args) => fit::run(args),
@@ -45,6 +48,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 
 mod compare;
 mod decode;
+mod demo;
 mod errors;
 mod fit;
 mod import;
