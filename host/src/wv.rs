@@ -102,6 +102,8 @@ pub enum WvError {
     },
     #[error("{path}: {what}")]
     Format { path: PathBuf, what: String },
+    #[error("streaming snapshot: {what}")]
+    Snapshot { what: String },
 }
 
 /// Two-sided 95% interval: tail probability on each side.
@@ -173,6 +175,61 @@ impl WaveletVariance {
             robust,
             dt_s,
         }
+    }
+}
+
+impl WaveletVariance {
+    /// The wavelet variance accumulated on the board ([`dynacal_core::wavelet::HaarStream`]),
+    /// in physical units: `lsb` units per count, `dt_s` seconds per sample. Levels without a
+    /// coefficient yet are left out; a saturated level is an error.
+    ///
+    /// Full levels get the batch estimator's eta3 interval (their sums are the batch sums).
+    /// Decimated levels use only every h-th coefficient (h = 2^{j-1}); for white noise that
+    /// multiplies the estimate's variance by 9/4 (see `dynacal_core::wavelet`), so they get
+    /// eta = max((K / 2) / (9/4), 1) = max(2K / 9, 1) degrees of freedom from K coefficients,
+    /// K h / 2^j = K / 2 being the batch eta3 of the same stretch of data.
+    pub fn from_stream_snapshot(
+        snapshot: &dynacal_core::wavelet::WvSnapshot,
+        lsb: f64,
+        dt_s: f64,
+    ) -> Result<Self, WvError> {
+        if !(dt_s.is_finite() && dt_s > 0.0) {
+            return Err(WvError::BadInterval { dt_s });
+        }
+        let (mut levels, mut variance, mut m, mut eta) = (vec![], vec![], vec![], vec![]);
+        for sums in snapshot.levels.iter() {
+            if sums.saturated {
+                return Err(WvError::Snapshot {
+                    what: format!("level {} saturated", sums.level),
+                });
+            }
+            let Some(nu) = sums.variance_counts2() else {
+                break;
+            };
+            let j = u32::from(sums.level);
+            if levels.last().is_some_and(|&prev| prev + 1 != j) {
+                return Err(WvError::Snapshot {
+                    what: format!("level {j} does not follow level {}", levels.last().unwrap()),
+                });
+            }
+            levels.push(j);
+            variance.push(nu * lsb * lsb);
+            m.push(sums.count as usize);
+            eta.push(if sums.stride_log2 == 0 {
+                eta3(sums.count as usize, j)
+            } else {
+                (2.0 * sums.count as f64 / 9.0).max(1.0)
+            });
+        }
+        Ok(Self::from_levels(
+            levels,
+            variance,
+            m,
+            eta,
+            snapshot.n_samples as usize,
+            dt_s,
+            false,
+        ))
     }
 }
 
@@ -440,7 +497,7 @@ fn haar_coefficients(s: &[f64], j: u32, out: &mut Vec<f64>) {
 /// data: sigma solves mean(rho(w / sigma)) = b, with rho(r) = 1 - (1 - (r/c)^2)^3 for |r| <= c
 /// and 1 beyond, b = E[rho(Z)] for Z standard normal. The tuning constant c is chosen for a
 /// given asymptotic efficiency relative to the Gaussian maximum-likelihood scale (for 0.6,
-/// c = 2.2, b = 0.35; the breakdown point is b). Unlike the reference implementation (which
+/// c = 1.7295 and b = 0.4561, so the breakdown point b is 46%). Unlike the reference implementation (which
 /// solves a psi-type equation whose left side is not monotone in sigma), rho is monotone, so
 /// the root is unique and found by a bracketed Newton iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -694,4 +751,193 @@ pub fn read_smac_golden(path: &Path) -> Result<Vec<GoldenWv>, WvError> {
         }
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    fn gaussian(seed: u64, n: usize, sigma: f64) -> Vec<f64> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let dist = Normal::new(0.0, sigma).unwrap();
+        (0..n).map(|_| dist.sample(&mut rng)).collect()
+    }
+
+    #[test]
+    fn default_max_level_follows_wv_package() {
+        assert_eq!(default_max_level(1_000_000), 18);
+        assert_eq!(default_max_level(1024), 9);
+        assert_eq!(default_max_level(1023), 8);
+        let x = gaussian(1, 1024, 1.0);
+        assert_eq!(haar_wv(&x, 0.01, &WvOptions::default()).unwrap().len(), 9);
+        let all = WvOptions {
+            max_level: Some(10),
+            ..Default::default()
+        };
+        let wv = haar_wv(&x, 0.01, &all).unwrap();
+        assert_eq!((wv.len(), wv.n_coefficients[9]), (10, 1));
+        let too_deep = WvOptions {
+            max_level: Some(11),
+            ..Default::default()
+        };
+        assert!(matches!(
+            haar_wv(&x, 0.01, &too_deep),
+            Err(WvError::BadLevel { requested: 11, .. })
+        ));
+        let mut bad = x.clone();
+        bad[17] = f64::NAN;
+        assert!(matches!(
+            haar_wv(&bad, 0.01, &WvOptions::default()),
+            Err(WvError::NonFinite { index: 17, .. })
+        ));
+    }
+
+    /// Brute force from the definition, summing in f64 over exactly the same coefficients.
+    fn direct_wv(x: &[f64], j: u32) -> f64 {
+        let h = 1usize << (j - 1);
+        let width = (2 * h) as f64;
+        let mut sum = 0.0;
+        let mut m = 0;
+        for t in (2 * h - 1)..x.len() {
+            let recent: f64 = x[t + 1 - h..=t].iter().sum();
+            let older: f64 = x[t + 1 - 2 * h..=t - h].iter().sum();
+            sum += ((recent - older) / width).powi(2);
+            m += 1;
+        }
+        sum / m as f64
+    }
+
+    #[test]
+    fn matches_definition_and_white_noise_theory() {
+        let x = gaussian(2, 5000, 3.0);
+        let wv = haar_wv(&x, 0.5, &WvOptions::default()).unwrap();
+        for (i, &j) in wv.levels.iter().enumerate() {
+            let direct = direct_wv(&x, j);
+            assert!(
+                ((wv.variance[i] - direct) / direct).abs() < 1e-12,
+                "level {j}"
+            );
+            assert_eq!(wv.scales_s[i], 0.5 * (1u64 << j) as f64);
+            assert!(wv.ci_low[i] < wv.variance[i] && wv.variance[i] < wv.ci_high[i]);
+        }
+        // White noise: nu_j = s2 / 2^j; level 1 has thousands of coefficients.
+        assert!((wv.variance[0] / (9.0 / 2.0) - 1.0).abs() < 0.05);
+    }
+
+    #[test]
+    fn large_offset_and_random_walk_keep_digits() {
+        // An accelerometer-like series: 1 g offset, a random-walk bias, 1e-3 noise, as exact
+        // integer counts of 1e-6 g; the f64 path must agree with the exact integer path.
+        let n = 1 << 20;
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let noise = Normal::new(0.0, 1000.0).unwrap();
+        let walk = Normal::new(0.0, 3.0).unwrap();
+        let mut bias = 0.0f64;
+        let counts: Vec<i32> = (0..n)
+            .map(|_| {
+                bias += walk.sample(&mut rng);
+                (1_000_000.0 + bias + noise.sample(&mut rng)).round() as i32
+            })
+            .collect();
+        let lsb = 1e-6;
+        let exact = haar_wv_counts(&counts, lsb, 0.01, &WvOptions::default()).unwrap();
+        let x: Vec<f64> = counts.iter().map(|&c| c as f64 * lsb).collect();
+        let float = haar_wv(&x, 0.01, &WvOptions::default()).unwrap();
+        for i in 0..exact.len() {
+            let err = ((float.variance[i] - exact.variance[i]) / exact.variance[i]).abs();
+            assert!(err < 1e-11, "level {}: {err:e}", i + 1);
+        }
+    }
+
+    #[test]
+    fn biweight_tuning_reaches_requested_efficiency() {
+        let t = BiweightScale::for_efficiency(0.6).unwrap();
+        assert!((BiweightScale::efficiency_of(t.c) - 0.6).abs() < 1e-9);
+        // Independent check (scipy quad + brentq on the same definitions): c = 1.72947,
+        // b = 0.456109.
+        assert!((t.c - 1.729_47).abs() < 1e-4, "c = {}", t.c);
+        assert!((t.b - 0.456_109).abs() < 1e-5, "b = {}", t.b);
+        // Monte Carlo at iid Gaussian data: consistency (mean near sigma) and efficiency
+        // (variance of the robust scale over that of the RMS, the Gaussian MLE of the scale of
+        // zero-mean data) near 1 / 0.6.
+        let (reps, n) = (600, 2000);
+        let (mut robust, mut rms) = (vec![], vec![]);
+        for r in 0..reps {
+            let x = gaussian(100 + r, n, 2.0);
+            robust.push(t.scale(&x));
+            rms.push((x.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt());
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let var = |v: &[f64]| {
+            let m = mean(v);
+            v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64
+        };
+        assert!(
+            (mean(&robust) / 2.0 - 1.0).abs() < 0.005,
+            "{}",
+            mean(&robust)
+        );
+        let efficiency = var(&rms) / var(&robust);
+        assert!((0.5..0.7).contains(&efficiency), "efficiency {efficiency}");
+    }
+
+    #[test]
+    fn robust_wv_resists_outliers_and_widens_interval() {
+        let mut x = gaussian(4, 1 << 16, 1.0);
+        for i in (0..x.len()).step_by(500) {
+            x[i] += 80.0; // 0.2% spikes
+        }
+        let classical = haar_wv(&x, 1.0, &WvOptions::default()).unwrap();
+        let opts = WvOptions {
+            robust: true,
+            ..Default::default()
+        };
+        let robust = haar_wv(&x, 1.0, &opts).unwrap();
+        assert!(robust.robust);
+        // Truth at level 1 is 1/2: the spikes inflate the classical estimate many times over.
+        assert!(classical.variance[0] > 5.0, "{}", classical.variance[0]);
+        assert!(
+            (robust.variance[0] / 0.5 - 1.0).abs() < 0.05,
+            "{}",
+            robust.variance[0]
+        );
+        // Same data without spikes: the robust interval is the wider one (fewer dof).
+        let clean = gaussian(4, 1 << 16, 1.0);
+        let c = haar_wv(&clean, 1.0, &WvOptions::default()).unwrap();
+        let r = haar_wv(&clean, 1.0, &opts).unwrap();
+        let width = |w: &WaveletVariance| (w.ci_high[0] - w.ci_low[0]) / w.variance[0];
+        assert!(width(&r) > 1.2 * width(&c));
+        assert!((r.variance[0] / c.variance[0] - 1.0).abs() < 0.05);
+    }
+
+    #[test]
+    fn estimate_variance_agrees_with_chi_square_model() {
+        let x = gaussian(5, 1 << 18, 1.0);
+        let wv = haar_wv(&x, 1.0, &WvOptions::default()).unwrap();
+        let v = wv.estimate_variance();
+        // For many degrees of freedom, var = 2 nu^2 / eta.
+        let eta = eta3(wv.n_coefficients[0], 1);
+        let model = 2.0 * wv.variance[0].powi(2) / eta;
+        assert!((v[0] / model - 1.0).abs() < 0.01);
+    }
+
+    #[test]
+    fn golden_reader_rejects_inconsistent_scales() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("g.json");
+        std::fs::write(
+            &path,
+            r#"{"s": {"sensor": "S", "freq": 100, "n": 1000, "wvar": {"Gyro. X":
+               {"scales": [0.02, 0.05], "variance": [1, 2], "ci_low": [0.5, 1], "ci_high": [2, 3]}}}}"#,
+        )
+        .unwrap();
+        let err = read_smac_golden(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("channel `Gyro. X`") && err.contains("level 2"),
+            "{err}"
+        );
+    }
 }

@@ -14,12 +14,16 @@ pub struct Cli {
 pub enum Command {
     /// Show the header and size of an interchange file.
     Info(info::Args),
+    /// Haar wavelet variance and Allan variance of each channel, with 95% intervals.
+    Wv(wv::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
+        Command::Wv(args) => wv::run(args),
     }
 }
 
 mod info;
+mod wv;
