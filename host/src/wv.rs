@@ -247,17 +247,41 @@ pub fn chi2_interval(nu: f64, eta: f64) -> (f64, f64) {
 }
 
 /// Chi-square quantile to full double precision: statrs' inverse (bisection then at most four
-/// Newton steps, converged to about 1e-9 relative only) polished by further Newton steps.
+/// Newton steps, converged to about 1e-9 relative only) polished by Newton steps kept inside a
+/// bracket of the root (plain Newton overshoots below 0 for one degree of freedom).
 fn chi2_quantile(dof: f64, p: f64) -> f64 {
     let dist = ChiSquared::new(dof).expect("dof >= 1 by construction");
-    let mut x = dist.inverse_cdf(p);
-    for _ in 0..20 {
-        let step = (dist.cdf(x) - p) / dist.pdf(x);
-        if !step.is_finite() {
+    let start = match dist.inverse_cdf(p) {
+        x if x.is_finite() && x > 0.0 => x,
+        _ => dof, // statrs gives NaN for some large dof; the mean is a fine start
+    };
+    let (mut lo, mut hi) = (start, start);
+    while lo > f64::MIN_POSITIVE && dist.cdf(lo) > p {
+        lo *= 0.5;
+    }
+    while hi < f64::MAX / 4.0 && dist.cdf(hi) < p {
+        hi *= 2.0;
+    }
+    let mut x = start;
+    for _ in 0..100 {
+        let error = dist.cdf(x) - p;
+        if error == 0.0 {
             break;
         }
-        x -= step;
-        if step.abs() <= 1e-15 * x.abs() {
+        if error > 0.0 {
+            hi = x;
+        } else {
+            lo = x;
+        }
+        let newton = x - error / dist.pdf(x);
+        let next = if newton > lo && newton < hi {
+            newton
+        } else {
+            0.5 * (lo + hi)
+        };
+        let done = (next - x).abs() <= 1e-15 * x.abs();
+        x = next;
+        if done {
             break;
         }
     }
@@ -764,6 +788,47 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let dist = Normal::new(0.0, sigma).unwrap();
         (0..n).map(|_| dist.sample(&mut rng)).collect()
+    }
+
+    #[test]
+    fn chi_square_quantiles_are_accurate_down_to_one_dof() {
+        // Reference values: scipy.stats.chi2.ppf.
+        let cases = [
+            (1.0, 0.025, 0.000_982_069_117_175_255_5),
+            (1.0, 0.975, 5.023_886_187_314_888),
+            (10.0, 0.025, 3.246_972_780_236_841),
+            (3.8, 0.975, 10.794_240_173_527_653),
+        ];
+        for (dof, p, q) in cases {
+            let got = chi2_quantile(dof, p);
+            assert!(
+                ((got - q) / q).abs() < 1e-9,
+                "dof {dof} p {p}: {got} vs {q}"
+            );
+        }
+        let more = [
+            (1.004, 0.001_012_498_535_929_695_7, 5.034_817_489_441_242),
+            (2.5, 0.118_622_942_100_063_45, 8.392_295_266_912_964),
+            (40.0, 24.433_039_170_807_888, 59.341_707_143_173_18),
+            (5e5, 498_041.931_008_642_5, 501_961.857_602_028_8),
+        ];
+        for (dof, q_lo, q_hi) in more {
+            for (p, q) in [(0.025, q_lo), (0.975, q_hi)] {
+                let got = chi2_quantile(dof, p);
+                assert!(
+                    ((got - q) / q).abs() < 1e-12,
+                    "dof {dof} p {p}: {got} vs {q}"
+                );
+            }
+        }
+        // Every interval of a short series is finite and positive (top level has eta = 1).
+        let x = gaussian(9, 512, 1.0);
+        let wv = haar_wv(&x, 0.01, &WvOptions::default()).unwrap();
+        assert!(wv
+            .ci_low
+            .iter()
+            .chain(&wv.ci_high)
+            .all(|v| v.is_finite() && *v > 0.0));
     }
 
     #[test]

@@ -122,3 +122,48 @@ fn no_time_column_needs_rate_and_errors_name_place() {
     ]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("no column `gz`"));
 }
+
+#[test]
+fn interchange_file_channels_in_si_units() {
+    use dynacal::interchange::ImuRecording;
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("rec.csv");
+    let n = 512;
+    let t_s: Vec<f64> = (0..n).map(|i| i as f64 * 0.005).collect();
+    let wave = |k: usize| -> Vec<f64> {
+        (0..n)
+            .map(|i| ((i * (7 + k)) % 23) as f64 * 1e-3 + 0.1 * k as f64)
+            .collect()
+    };
+    let rec = ImuRecording {
+        t_s,
+        gyro_rad_s: Some([wave(0), wave(1), wave(2)]),
+        accel_m_s2: None,
+        attitude_rad: None,
+        position: None,
+        velocity_ned_m_s: None,
+    };
+    rec.write(&path).unwrap();
+    let out = dir.path().join("wv.json");
+    let o = dynacal(&[path.to_str().unwrap(), "--json", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    let channels = json["channels"].as_object().unwrap();
+    assert_eq!(channels.keys().collect::<Vec<_>>(), ["gx", "gy", "gz"]);
+    let reread = ImuRecording::read(&path).unwrap();
+    let expected = haar_wv(reread.channel("gy").unwrap(), 0.005, &WvOptions::default()).unwrap();
+    let got: dynacal::wv::WaveletVariance = serde_json::from_value(channels["gy"].clone()).unwrap();
+    for i in 0..expected.len() {
+        assert!((got.variance[i] / expected.variance[i] - 1.0).abs() < 1e-9);
+        assert!((got.scales_s[i] / expected.scales_s[i] - 1.0).abs() < 1e-9);
+    }
+    // Asking for a channel the file lacks names it.
+    let o = dynacal(&[
+        path.to_str().unwrap(),
+        "--columns",
+        "ax",
+        "--json",
+        out.to_str().unwrap(),
+    ]);
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no channel `ax`"));
+}
