@@ -347,23 +347,18 @@ pub fn haar_wv_counts(
 ) -> Result<WaveletVariance, WvError> {
     check_common(dt_s, opts)?;
     let j_max = resolve_max_level(counts.len(), opts)?;
-    // Centring on an integer keeps the sums small; the Haar filter ignores constants.
+    // Centring on an integer keeps the sums small; the Haar filter ignores constants. While
+    // |S| < 2^51 (always in practice: centred counts sum like a random walk) every S and every
+    // S_a - 2 S_b + S_c is an integer below 2^53, so the f64 kernel forms the Haar differences
+    // exactly; beyond, each S is rounded once (still 1e-16 relative).
     let mean = counts.iter().map(|&c| c as i64).sum::<i64>() / counts.len() as i64;
     let mut sum = 0i64;
-    let mut max_abs = 0i64;
-    let mut exact = Vec::with_capacity(counts.len() + 1);
-    exact.push(0i64);
-    for &c in counts {
+    let mut prefix = Vec::with_capacity(counts.len() + 1);
+    prefix.push(0.0);
+    prefix.extend(counts.iter().map(|&c| {
         sum += c as i64 - mean;
-        max_abs = max_abs.max(sum.abs());
-        exact.push(sum);
-    }
-    // While |S| < 2^51 (always in practice: centred counts sum like a random walk) every S and
-    // every S_a - 2 S_b + S_c is an integer below 2^53, so the f64 kernel forms the Haar
-    // differences exactly. Beyond, each S is rounded once (still relative 1e-16).
-    debug_assert!(max_abs < (1i64 << 51), "prefix sum beyond exact f64 range");
-    let prefix: Vec<f64> = exact.iter().map(|&s| s as f64).collect();
-    drop(exact);
+        sum as f64
+    }));
     Ok(wv_from_prefix(
         &prefix,
         counts.len(),
@@ -374,26 +369,60 @@ pub fn haar_wv_counts(
     ))
 }
 
-/// Prefix sums S_k = sum_{i<k} (x_i - m), k = 0..=N, with m the compensated mean of x and the
-/// running sum carried with Neumaier compensation, so each stored S_k is within one rounding
-/// of the exact value.
+/// Prefix sums S_k = sum_{i<k} (x_i - m), k = 0..=N, with m the mean of x (any constant
+/// would do: the Haar filter ignores it; the mean keeps |S| smallest), the running sum carried
+/// with a compensation term (Knuth's branch-free TwoSum), so each stored S_k is within one
+/// rounding of the exact value. Parallel over chunks: the chunks' compensated sums give each
+/// chunk its starting value, then every chunk continues the compensated running sum.
 fn centred_prefix_sums(x: &[f64]) -> Vec<f64> {
-    let mean = neumaier_sum(x.iter().copied()) / x.len() as f64;
-    let mut out = Vec::with_capacity(x.len() + 1);
-    out.push(0.0);
+    const CHUNK: usize = 1 << 16;
+    let mean = x
+        .par_chunks(CHUNK)
+        .map(|c| c.iter().sum::<f64>())
+        .sum::<f64>()
+        / x.len() as f64;
+    let chunk_sums: Vec<(f64, f64)> = x
+        .par_chunks(CHUNK)
+        .map(|c| {
+            c.iter().fold((0.0, 0.0), |(sum, comp), &v| {
+                let (t, e) = two_sum(sum, v - mean);
+                (t, comp + e)
+            })
+        })
+        .collect();
+    // Starting value (sum, compensation) of each chunk.
+    let mut starts = Vec::with_capacity(chunk_sums.len());
     let (mut sum, mut comp) = (0.0f64, 0.0f64);
-    for &v in x {
-        let d = v - mean;
-        let t = sum + d;
-        if sum.abs() >= d.abs() {
-            comp += (sum - t) + d;
-        } else {
-            comp += (d - t) + sum;
-        }
+    for &(s, c) in &chunk_sums {
+        starts.push((sum, comp));
+        let (t, e) = two_sum(sum, s);
         sum = t;
-        out.push(sum + comp);
+        comp += e + c;
     }
+    let mut out = vec![0.0; x.len() + 1];
+    out[1..]
+        .par_chunks_mut(CHUNK)
+        .zip(x.par_chunks(CHUNK))
+        .zip(starts.par_iter())
+        .for_each(|((out, x), &(mut sum, mut comp))| {
+            for (o, &v) in out.iter_mut().zip(x) {
+                let (t, e) = two_sum(sum, v - mean);
+                sum = t;
+                comp += e;
+                *o = sum + comp;
+            }
+        });
     out
+}
+
+/// Knuth's TwoSum: a + b = s + e exactly, with s = fl(a + b). No branch, so a running sum
+/// built on it pipelines.
+#[inline(always)]
+fn two_sum(a: f64, b: f64) -> (f64, f64) {
+    let s = a + b;
+    let b_virtual = s - a;
+    let a_virtual = s - b_virtual;
+    (s, (a - a_virtual) + (b - b_virtual))
 }
 
 /// Compensated (Neumaier) sum.
