@@ -210,7 +210,7 @@ impl<const J_FULL: usize, const HISTORY: usize, const J_DEC: usize>
             level.add(difference);
         }
         let slot = (k as usize) & mask;
-        if k % HISTORY as u64 == 0 {
+        if (k as usize) & mask == 0 {
             // A block of HISTORY samples is complete: its sum is a half-block of level J_FULL+1.
             let block = s_k.wrapping_sub(self.ring[slot]);
             self.push_block(block);

@@ -123,8 +123,11 @@ fn rate_dt(path: &Path, rate: f64) -> anyhow::Result<f64> {
     Ok(1.0 / rate)
 }
 
-/// Sampling interval and the selected channels (name, values), in the order asked for.
-fn read_channels(args: &Args) -> anyhow::Result<(f64, Vec<(String, Vec<f64>)>)> {
+/// Selected channels as (name, values), in the order asked for.
+type Channels = Vec<(String, Vec<f64>)>;
+
+/// Sampling interval and the selected channels.
+fn read_channels(args: &Args) -> anyhow::Result<(f64, Channels)> {
     let path = &args.file;
     let headers = header(path)?;
     let interchange = headers.iter().any(|h| h == "t_s")
