@@ -102,6 +102,8 @@ pub enum WvError {
     },
     #[error("{path}: {what}")]
     Format { path: PathBuf, what: String },
+    #[error("streaming snapshot: {what}")]
+    Snapshot { what: String },
 }
 
 /// Two-sided 95% interval: tail probability on each side.
@@ -176,6 +178,61 @@ impl WaveletVariance {
     }
 }
 
+impl WaveletVariance {
+    /// The wavelet variance accumulated on the board ([`dynacal_core::wavelet::HaarStream`]),
+    /// in physical units: `lsb` units per count, `dt_s` seconds per sample. Levels without a
+    /// coefficient yet are left out; a saturated level is an error.
+    ///
+    /// Full levels get the batch estimator's eta3 interval (their sums are the batch sums).
+    /// Decimated levels use only every h-th coefficient (h = 2^{j-1}); for white noise that
+    /// multiplies the estimate's variance by 9/4 (see `dynacal_core::wavelet`), so they get
+    /// eta = max((K / 2) / (9/4), 1) = max(2K / 9, 1) degrees of freedom from K coefficients,
+    /// K h / 2^j = K / 2 being the batch eta3 of the same stretch of data.
+    pub fn from_stream_snapshot(
+        snapshot: &dynacal_core::wavelet::WvSnapshot,
+        lsb: f64,
+        dt_s: f64,
+    ) -> Result<Self, WvError> {
+        if !(dt_s.is_finite() && dt_s > 0.0) {
+            return Err(WvError::BadInterval { dt_s });
+        }
+        let (mut levels, mut variance, mut m, mut eta) = (vec![], vec![], vec![], vec![]);
+        for sums in snapshot.levels.iter() {
+            if sums.saturated {
+                return Err(WvError::Snapshot {
+                    what: format!("level {} saturated", sums.level),
+                });
+            }
+            let Some(nu) = sums.variance_counts2() else {
+                break;
+            };
+            let j = u32::from(sums.level);
+            if levels.last().is_some_and(|&prev| prev + 1 != j) {
+                return Err(WvError::Snapshot {
+                    what: format!("level {j} does not follow level {}", levels.last().unwrap()),
+                });
+            }
+            levels.push(j);
+            variance.push(nu * lsb * lsb);
+            m.push(sums.count as usize);
+            eta.push(if sums.stride_log2 == 0 {
+                eta3(sums.count as usize, j)
+            } else {
+                (2.0 * sums.count as f64 / 9.0).max(1.0)
+            });
+        }
+        Ok(Self::from_levels(
+            levels,
+            variance,
+            m,
+            eta,
+            snapshot.n_samples as usize,
+            dt_s,
+            false,
+        ))
+    }
+}
+
 /// The eta3 equivalent degrees of freedom of level j from M_j coefficients: max(M_j / 2^j, 1).
 pub fn eta3(m_j: usize, level: u32) -> f64 {
     (m_j as f64 / (1u64 << level) as f64).max(1.0)
@@ -190,17 +247,41 @@ pub fn chi2_interval(nu: f64, eta: f64) -> (f64, f64) {
 }
 
 /// Chi-square quantile to full double precision: statrs' inverse (bisection then at most four
-/// Newton steps, converged to about 1e-9 relative only) polished by further Newton steps.
+/// Newton steps, converged to about 1e-9 relative only) polished by Newton steps kept inside a
+/// bracket of the root (plain Newton overshoots below 0 for one degree of freedom).
 fn chi2_quantile(dof: f64, p: f64) -> f64 {
     let dist = ChiSquared::new(dof).expect("dof >= 1 by construction");
-    let mut x = dist.inverse_cdf(p);
-    for _ in 0..20 {
-        let step = (dist.cdf(x) - p) / dist.pdf(x);
-        if !step.is_finite() {
+    let start = match dist.inverse_cdf(p) {
+        x if x.is_finite() && x > 0.0 => x,
+        _ => dof, // statrs gives NaN for some large dof; the mean is a fine start
+    };
+    let (mut lo, mut hi) = (start, start);
+    while lo > f64::MIN_POSITIVE && dist.cdf(lo) > p {
+        lo *= 0.5;
+    }
+    while hi < f64::MAX / 4.0 && dist.cdf(hi) < p {
+        hi *= 2.0;
+    }
+    let mut x = start;
+    for _ in 0..100 {
+        let error = dist.cdf(x) - p;
+        if error == 0.0 {
             break;
         }
-        x -= step;
-        if step.abs() <= 1e-15 * x.abs() {
+        if error > 0.0 {
+            hi = x;
+        } else {
+            lo = x;
+        }
+        let newton = x - error / dist.pdf(x);
+        let next = if newton > lo && newton < hi {
+            newton
+        } else {
+            0.5 * (lo + hi)
+        };
+        let done = (next - x).abs() <= 1e-15 * x.abs();
+        x = next;
+        if done {
             break;
         }
     }
@@ -266,23 +347,18 @@ pub fn haar_wv_counts(
 ) -> Result<WaveletVariance, WvError> {
     check_common(dt_s, opts)?;
     let j_max = resolve_max_level(counts.len(), opts)?;
-    // Centring on an integer keeps the sums small; the Haar filter ignores constants.
+    // Centring on an integer keeps the sums small; the Haar filter ignores constants. While
+    // |S| < 2^51 (always in practice: centred counts sum like a random walk) every S and every
+    // S_a - 2 S_b + S_c is an integer below 2^53, so the f64 kernel forms the Haar differences
+    // exactly; beyond, each S is rounded once (still 1e-16 relative).
     let mean = counts.iter().map(|&c| c as i64).sum::<i64>() / counts.len() as i64;
     let mut sum = 0i64;
-    let mut max_abs = 0i64;
-    let mut exact = Vec::with_capacity(counts.len() + 1);
-    exact.push(0i64);
-    for &c in counts {
+    let mut prefix = Vec::with_capacity(counts.len() + 1);
+    prefix.push(0.0);
+    prefix.extend(counts.iter().map(|&c| {
         sum += c as i64 - mean;
-        max_abs = max_abs.max(sum.abs());
-        exact.push(sum);
-    }
-    // While |S| < 2^51 (always in practice: centred counts sum like a random walk) every S and
-    // every S_a - 2 S_b + S_c is an integer below 2^53, so the f64 kernel forms the Haar
-    // differences exactly. Beyond, each S is rounded once (still relative 1e-16).
-    debug_assert!(max_abs < (1i64 << 51), "prefix sum beyond exact f64 range");
-    let prefix: Vec<f64> = exact.iter().map(|&s| s as f64).collect();
-    drop(exact);
+        sum as f64
+    }));
     Ok(wv_from_prefix(
         &prefix,
         counts.len(),
@@ -293,26 +369,60 @@ pub fn haar_wv_counts(
     ))
 }
 
-/// Prefix sums S_k = sum_{i<k} (x_i - m), k = 0..=N, with m the compensated mean of x and the
-/// running sum carried with Neumaier compensation, so each stored S_k is within one rounding
-/// of the exact value.
+/// Prefix sums S_k = sum_{i<k} (x_i - m), k = 0..=N, with m the mean of x (any constant
+/// would do: the Haar filter ignores it; the mean keeps |S| smallest), the running sum carried
+/// with a compensation term (Knuth's branch-free TwoSum), so each stored S_k is within one
+/// rounding of the exact value. Parallel over chunks: the chunks' compensated sums give each
+/// chunk its starting value, then every chunk continues the compensated running sum.
 fn centred_prefix_sums(x: &[f64]) -> Vec<f64> {
-    let mean = neumaier_sum(x.iter().copied()) / x.len() as f64;
-    let mut out = Vec::with_capacity(x.len() + 1);
-    out.push(0.0);
+    const CHUNK: usize = 1 << 16;
+    let mean = x
+        .par_chunks(CHUNK)
+        .map(|c| c.iter().sum::<f64>())
+        .sum::<f64>()
+        / x.len() as f64;
+    let chunk_sums: Vec<(f64, f64)> = x
+        .par_chunks(CHUNK)
+        .map(|c| {
+            c.iter().fold((0.0, 0.0), |(sum, comp), &v| {
+                let (t, e) = two_sum(sum, v - mean);
+                (t, comp + e)
+            })
+        })
+        .collect();
+    // Starting value (sum, compensation) of each chunk.
+    let mut starts = Vec::with_capacity(chunk_sums.len());
     let (mut sum, mut comp) = (0.0f64, 0.0f64);
-    for &v in x {
-        let d = v - mean;
-        let t = sum + d;
-        if sum.abs() >= d.abs() {
-            comp += (sum - t) + d;
-        } else {
-            comp += (d - t) + sum;
-        }
+    for &(s, c) in &chunk_sums {
+        starts.push((sum, comp));
+        let (t, e) = two_sum(sum, s);
         sum = t;
-        out.push(sum + comp);
+        comp += e + c;
     }
+    let mut out = vec![0.0; x.len() + 1];
+    out[1..]
+        .par_chunks_mut(CHUNK)
+        .zip(x.par_chunks(CHUNK))
+        .zip(starts.par_iter())
+        .for_each(|((out, x), &(mut sum, mut comp))| {
+            for (o, &v) in out.iter_mut().zip(x) {
+                let (t, e) = two_sum(sum, v - mean);
+                sum = t;
+                comp += e;
+                *o = sum + comp;
+            }
+        });
     out
+}
+
+/// Knuth's TwoSum: a + b = s + e exactly, with s = fl(a + b). No branch, so a running sum
+/// built on it pipelines.
+#[inline(always)]
+fn two_sum(a: f64, b: f64) -> (f64, f64) {
+    let s = a + b;
+    let b_virtual = s - a;
+    let a_virtual = s - b_virtual;
+    (s, (a - a_virtual) + (b - b_virtual))
 }
 
 /// Compensated (Neumaier) sum.
@@ -440,7 +550,7 @@ fn haar_coefficients(s: &[f64], j: u32, out: &mut Vec<f64>) {
 /// data: sigma solves mean(rho(w / sigma)) = b, with rho(r) = 1 - (1 - (r/c)^2)^3 for |r| <= c
 /// and 1 beyond, b = E[rho(Z)] for Z standard normal. The tuning constant c is chosen for a
 /// given asymptotic efficiency relative to the Gaussian maximum-likelihood scale (for 0.6,
-/// c = 2.2, b = 0.35; the breakdown point is b). Unlike the reference implementation (which
+/// c = 1.7295 and b = 0.4561, so the breakdown point b is 46%). Unlike the reference implementation (which
 /// solves a psi-type equation whose left side is not monotone in sigma), rho is monotone, so
 /// the root is unique and found by a bracketed Newton iteration.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -694,4 +804,234 @@ pub fn read_smac_golden(path: &Path) -> Result<Vec<GoldenWv>, WvError> {
         }
     }
     Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    fn gaussian(seed: u64, n: usize, sigma: f64) -> Vec<f64> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let dist = Normal::new(0.0, sigma).unwrap();
+        (0..n).map(|_| dist.sample(&mut rng)).collect()
+    }
+
+    #[test]
+    fn chi_square_quantiles_are_accurate_down_to_one_dof() {
+        // Reference values: scipy.stats.chi2.ppf.
+        let cases = [
+            (1.0, 0.025, 0.000_982_069_117_175_255_5),
+            (1.0, 0.975, 5.023_886_187_314_888),
+            (10.0, 0.025, 3.246_972_780_236_841),
+            (3.8, 0.975, 10.794_240_173_527_653),
+        ];
+        for (dof, p, q) in cases {
+            let got = chi2_quantile(dof, p);
+            assert!(
+                ((got - q) / q).abs() < 1e-9,
+                "dof {dof} p {p}: {got} vs {q}"
+            );
+        }
+        let more = [
+            (1.004, 0.001_012_498_535_929_695_7, 5.034_817_489_441_242),
+            (2.5, 0.118_622_942_100_063_45, 8.392_295_266_912_964),
+            (40.0, 24.433_039_170_807_888, 59.341_707_143_173_18),
+            (5e5, 498_041.931_008_642_5, 501_961.857_602_028_8),
+        ];
+        for (dof, q_lo, q_hi) in more {
+            for (p, q) in [(0.025, q_lo), (0.975, q_hi)] {
+                let got = chi2_quantile(dof, p);
+                assert!(
+                    ((got - q) / q).abs() < 1e-12,
+                    "dof {dof} p {p}: {got} vs {q}"
+                );
+            }
+        }
+        // Every interval of a short series is finite and positive (top level has eta = 1).
+        let x = gaussian(9, 512, 1.0);
+        let wv = haar_wv(&x, 0.01, &WvOptions::default()).unwrap();
+        assert!(wv
+            .ci_low
+            .iter()
+            .chain(&wv.ci_high)
+            .all(|v| v.is_finite() && *v > 0.0));
+    }
+
+    #[test]
+    fn default_max_level_follows_wv_package() {
+        assert_eq!(default_max_level(1_000_000), 18);
+        assert_eq!(default_max_level(1024), 9);
+        assert_eq!(default_max_level(1023), 8);
+        let x = gaussian(1, 1024, 1.0);
+        assert_eq!(haar_wv(&x, 0.01, &WvOptions::default()).unwrap().len(), 9);
+        let all = WvOptions {
+            max_level: Some(10),
+            ..Default::default()
+        };
+        let wv = haar_wv(&x, 0.01, &all).unwrap();
+        assert_eq!((wv.len(), wv.n_coefficients[9]), (10, 1));
+        let too_deep = WvOptions {
+            max_level: Some(11),
+            ..Default::default()
+        };
+        assert!(matches!(
+            haar_wv(&x, 0.01, &too_deep),
+            Err(WvError::BadLevel { requested: 11, .. })
+        ));
+        let mut bad = x.clone();
+        bad[17] = f64::NAN;
+        assert!(matches!(
+            haar_wv(&bad, 0.01, &WvOptions::default()),
+            Err(WvError::NonFinite { index: 17, .. })
+        ));
+    }
+
+    /// Brute force from the definition, summing in f64 over exactly the same coefficients.
+    fn direct_wv(x: &[f64], j: u32) -> f64 {
+        let h = 1usize << (j - 1);
+        let width = (2 * h) as f64;
+        let mut sum = 0.0;
+        let mut m = 0;
+        for t in (2 * h - 1)..x.len() {
+            let recent: f64 = x[t + 1 - h..=t].iter().sum();
+            let older: f64 = x[t + 1 - 2 * h..=t - h].iter().sum();
+            sum += ((recent - older) / width).powi(2);
+            m += 1;
+        }
+        sum / m as f64
+    }
+
+    #[test]
+    fn matches_definition_and_white_noise_theory() {
+        let x = gaussian(2, 5000, 3.0);
+        let wv = haar_wv(&x, 0.5, &WvOptions::default()).unwrap();
+        for (i, &j) in wv.levels.iter().enumerate() {
+            let direct = direct_wv(&x, j);
+            assert!(
+                ((wv.variance[i] - direct) / direct).abs() < 1e-12,
+                "level {j}"
+            );
+            assert_eq!(wv.scales_s[i], 0.5 * (1u64 << j) as f64);
+            assert!(wv.ci_low[i] < wv.variance[i] && wv.variance[i] < wv.ci_high[i]);
+        }
+        // White noise: nu_j = s2 / 2^j; level 1 has thousands of coefficients.
+        assert!((wv.variance[0] / (9.0 / 2.0) - 1.0).abs() < 0.05);
+    }
+
+    #[test]
+    fn large_offset_and_random_walk_keep_digits() {
+        // An accelerometer-like series: 1 g offset, a random-walk bias, 1e-3 noise, as exact
+        // integer counts of 1e-6 g; the f64 path must agree with the exact integer path.
+        let n = 1 << 20;
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let noise = Normal::new(0.0, 1000.0).unwrap();
+        let walk = Normal::new(0.0, 3.0).unwrap();
+        let mut bias = 0.0f64;
+        let counts: Vec<i32> = (0..n)
+            .map(|_| {
+                bias += walk.sample(&mut rng);
+                (1_000_000.0 + bias + noise.sample(&mut rng)).round() as i32
+            })
+            .collect();
+        let lsb = 1e-6;
+        let exact = haar_wv_counts(&counts, lsb, 0.01, &WvOptions::default()).unwrap();
+        let x: Vec<f64> = counts.iter().map(|&c| c as f64 * lsb).collect();
+        let float = haar_wv(&x, 0.01, &WvOptions::default()).unwrap();
+        for i in 0..exact.len() {
+            let err = ((float.variance[i] - exact.variance[i]) / exact.variance[i]).abs();
+            assert!(err < 1e-11, "level {}: {err:e}", i + 1);
+        }
+    }
+
+    #[test]
+    fn biweight_tuning_reaches_requested_efficiency() {
+        let t = BiweightScale::for_efficiency(0.6).unwrap();
+        assert!((BiweightScale::efficiency_of(t.c) - 0.6).abs() < 1e-9);
+        // Independent check (scipy quad + brentq on the same definitions): c = 1.72947,
+        // b = 0.456109.
+        assert!((t.c - 1.729_47).abs() < 1e-4, "c = {}", t.c);
+        assert!((t.b - 0.456_109).abs() < 1e-5, "b = {}", t.b);
+        // Monte Carlo at iid Gaussian data: consistency (mean near sigma) and efficiency
+        // (variance of the robust scale over that of the RMS, the Gaussian MLE of the scale of
+        // zero-mean data) near 1 / 0.6.
+        let (reps, n) = (600, 2000);
+        let (mut robust, mut rms) = (vec![], vec![]);
+        for r in 0..reps {
+            let x = gaussian(100 + r, n, 2.0);
+            robust.push(t.scale(&x));
+            rms.push((x.iter().map(|v| v * v).sum::<f64>() / n as f64).sqrt());
+        }
+        let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+        let var = |v: &[f64]| {
+            let m = mean(v);
+            v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() - 1) as f64
+        };
+        assert!(
+            (mean(&robust) / 2.0 - 1.0).abs() < 0.005,
+            "{}",
+            mean(&robust)
+        );
+        let efficiency = var(&rms) / var(&robust);
+        assert!((0.5..0.7).contains(&efficiency), "efficiency {efficiency}");
+    }
+
+    #[test]
+    fn robust_wv_resists_outliers_and_widens_interval() {
+        let mut x = gaussian(4, 1 << 16, 1.0);
+        for i in (0..x.len()).step_by(500) {
+            x[i] += 80.0; // 0.2% spikes
+        }
+        let classical = haar_wv(&x, 1.0, &WvOptions::default()).unwrap();
+        let opts = WvOptions {
+            robust: true,
+            ..Default::default()
+        };
+        let robust = haar_wv(&x, 1.0, &opts).unwrap();
+        assert!(robust.robust);
+        // Truth at level 1 is 1/2: the spikes inflate the classical estimate many times over.
+        assert!(classical.variance[0] > 5.0, "{}", classical.variance[0]);
+        assert!(
+            (robust.variance[0] / 0.5 - 1.0).abs() < 0.05,
+            "{}",
+            robust.variance[0]
+        );
+        // Same data without spikes: the robust interval is the wider one (fewer dof).
+        let clean = gaussian(4, 1 << 16, 1.0);
+        let c = haar_wv(&clean, 1.0, &WvOptions::default()).unwrap();
+        let r = haar_wv(&clean, 1.0, &opts).unwrap();
+        let width = |w: &WaveletVariance| (w.ci_high[0] - w.ci_low[0]) / w.variance[0];
+        assert!(width(&r) > 1.2 * width(&c));
+        assert!((r.variance[0] / c.variance[0] - 1.0).abs() < 0.05);
+    }
+
+    #[test]
+    fn estimate_variance_agrees_with_chi_square_model() {
+        let x = gaussian(5, 1 << 18, 1.0);
+        let wv = haar_wv(&x, 1.0, &WvOptions::default()).unwrap();
+        let v = wv.estimate_variance();
+        // For many degrees of freedom, var = 2 nu^2 / eta.
+        let eta = eta3(wv.n_coefficients[0], 1);
+        let model = 2.0 * wv.variance[0].powi(2) / eta;
+        assert!((v[0] / model - 1.0).abs() < 0.01);
+    }
+
+    #[test]
+    fn golden_reader_rejects_inconsistent_scales() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("g.json");
+        std::fs::write(
+            &path,
+            r#"{"s": {"sensor": "S", "freq": 100, "n": 1000, "wvar": {"Gyro. X":
+               {"scales": [0.02, 0.05], "variance": [1, 2], "ci_low": [0.5, 1], "ci_high": [2, 3]}}}}"#,
+        )
+        .unwrap();
+        let err = read_smac_golden(&path).unwrap_err().to_string();
+        assert!(
+            err.contains("channel `Gyro. X`") && err.contains("level 2"),
+            "{err}"
+        );
+    }
 }

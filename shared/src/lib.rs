@@ -9,3 +9,4 @@ pub mod log;
 pub mod recorder;
 pub mod replay;
 pub mod nav;
+pub mod wavelet;

@@ -30,6 +30,8 @@ pub enum Command {
     Simulate(simulate::Args),
     /// Run the firmware in QEMU on a minute of real ADIS16405 data and check the log.
     Demo(demo::Args),
+    /// Haar wavelet variance and Allan variance of each channel, with 95% intervals.
+    Wv(wv::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -43,6 +45,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Regress(args) => regress::run(args),
         Command::Fit(args) => fit::run(args),
         Command::Compare(args) => compare::run(args),
+        Command::Wv(args) => wv::run(args),
     }
 }
 
@@ -55,3 +58,4 @@ mod import;
 mod info;
 mod regress;
 mod simulate;
+mod wv;
