@@ -399,7 +399,11 @@ mod tests {
     fn sample() -> ImuRecording {
         ImuRecording {
             t_s: vec![0.0, 0.01, 0.02],
-            gyro_rad_s: Some([vec![0.1, 0.2, 1.0 / 3.0], vec![0.0; 3], vec![-1e-9, 2e-300, 5.0]]),
+            gyro_rad_s: Some([
+                vec![0.1, 0.2, 1.0 / 3.0],
+                vec![0.0; 3],
+                vec![-1e-9, 2e-300, 5.0],
+            ]),
             accel_m_s2: Some([vec![0.0; 3], vec![1.0; 3], vec![-9.81, -9.8, 9.7]]),
             ..Default::default()
         }
@@ -419,11 +423,22 @@ mod tests {
     fn errors_name_file_line_and_column() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("bad.csv");
-        std::fs::write(&path, "t_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.1,1,x,3\n").unwrap();
+        std::fs::write(
+            &path,
+            "t_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.1,1,x,3\n",
+        )
+        .unwrap();
         let msg = ImuRecording::read(&path).unwrap_err().to_string();
-        assert!(msg.contains("bad.csv") && msg.contains("line 3") && msg.contains("gy_rad_s"), "{msg}");
+        assert!(
+            msg.contains("bad.csv") && msg.contains("line 3") && msg.contains("gy_rad_s"),
+            "{msg}"
+        );
 
-        std::fs::write(&path, "t_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.1,1,2,3\n0.05,1,2,3\n").unwrap();
+        std::fs::write(
+            &path,
+            "t_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.1,1,2,3\n0.05,1,2,3\n",
+        )
+        .unwrap();
         let msg = ImuRecording::read(&path).unwrap_err().to_string();
         assert!(msg.contains("line 4") && msg.contains("t_s"), "{msg}");
 
@@ -440,7 +455,11 @@ mod tests {
     fn unknown_columns_are_ignored_even_if_not_numbers() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("x.csv");
-        std::fs::write(&path, "note,t_s,ax_m_s2,ay_m_s2,az_m_s2\nhello,0,1,2,3\nworld,1,1,2,3\n").unwrap();
+        std::fs::write(
+            &path,
+            "note,t_s,ax_m_s2,ay_m_s2,az_m_s2\nhello,0,1,2,3\nworld,1,1,2,3\n",
+        )
+        .unwrap();
         let rec = ImuRecording::read(&path).unwrap();
         assert_eq!(rec.channels(), vec!["ax", "ay", "az"]);
         assert_eq!(rec.channel("az").unwrap(), &[3.0, 3.0]);

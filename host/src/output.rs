@@ -34,7 +34,11 @@ impl AtomicFile {
     /// A buffered writer into the temporary file (compressing if the target is `.gz`).
     /// Drop the writer before calling [`AtomicFile::commit`].
     pub fn writer(&mut self) -> Box<dyn Write + '_> {
-        let file = self.temp.as_mut().expect("writer after commit").as_file_mut();
+        let file = self
+            .temp
+            .as_mut()
+            .expect("writer after commit")
+            .as_file_mut();
         let buffered = BufWriter::with_capacity(1 << 16, file);
         if self.gzip {
             Box::new(GzFinish(Some(flate2::write::GzEncoder::new(

@@ -5,3 +5,4 @@
 //! hardware: pins, buses and clocks live in the firmware's board layer.
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
+pub mod nav;
