@@ -110,7 +110,7 @@ impl<T: RealField + Copy> EkfConfig<T> {
         let c = |x: f64| nalgebra::convert::<f64, T>(x);
         Self {
             accel_noise_psd: c(0.02 * 0.02),
-            gyro_noise_psd: c(0.005_f64.to_radians().powi(2)),
+            gyro_noise_psd: c(0.005_f64.to_radians() * 0.005_f64.to_radians()),
             accel_bias_psd: c(1e-4 * 1e-4),
             gyro_bias_psd: c(1e-5 * 1e-5),
             accel_bias_inv_tau_s: c(0.0),
