@@ -32,10 +32,12 @@
 
 mod fuse_gnss;
 mod fuse_inter_imu;
+mod ins;
 mod predict;
 
 pub use fuse_gnss::geodetic_difference_ned_m;
 pub use fuse_inter_imu::{InterImuSample, RateDifferentiator};
+pub use ins::{apply_correction, InsEkf};
 pub use predict::NavLinearization;
 
 use nalgebra::{Matrix3, Quaternion, RealField, SMatrix, SVector, UnitQuaternion, Vector3};
@@ -609,3 +611,5 @@ pub fn skew<T: RealField + Copy>(v: &Vector3<T>) -> Matrix3<T> {
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_ins;

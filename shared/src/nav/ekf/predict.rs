@@ -17,6 +17,9 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::{boresight_index, skew, ErrorStateEkf, ACCEL_BIAS, ATT, GYRO_BIAS, NAV_STATES, VEL};
+use crate::nav::earth::{
+    earth_rate_ned_rad_s, normal_gravity_m_s2, radii, transport_rate_ned_rad_s,
+};
 use nalgebra::{Matrix3, RealField, SMatrix, Vector3};
 
 /// The nominal quantities the error model is linearised about, for one prediction step.
@@ -42,17 +45,10 @@ pub struct NavLinearization<T> {
     pub tan_lat: T,
 }
 
-/// WGS84 semi-major axis, m.
-const WGS84_A_M: f64 = 6_378_137.0;
-/// WGS84 first eccentricity squared.
-const WGS84_E2: f64 = 6.694_379_990_141_316e-3;
-/// WGS84 Earth rotation rate, rad/s.
-const WGS84_OMEGA_IE_RAD_S: f64 = 7.292_115e-5;
-
 impl<T: RealField + Copy> NavLinearization<T> {
     /// Builds the linearisation point from a geodetic nominal state: latitude `lat_rad`,
     /// height `h_m` (WGS84), NED velocity, attitude `c_b_n` and bias-corrected specific force
-    /// `f_b_m_s2`. Gravity is Somigliana's normal gravity with the free-air height term.
+    /// `f_b_m_s2`, with the WGS84 model of [`crate::nav::earth`].
     pub fn from_geodetic(
         lat_rad: T,
         h_m: T,
@@ -60,32 +56,17 @@ impl<T: RealField + Copy> NavLinearization<T> {
         c_b_n: Matrix3<T>,
         f_b_m_s2: Vector3<T>,
     ) -> Self {
-        let c = |x: f64| nalgebra::convert::<f64, T>(x);
+        let r = radii(lat_rad);
         let (sin_lat, cos_lat) = lat_rad.sin_cos();
-        let one_minus_e2_sin2 = T::one() - c(WGS84_E2) * sin_lat * sin_lat;
-        let transverse = c(WGS84_A_M) / one_minus_e2_sin2.sqrt();
-        let meridian = transverse * (T::one() - c(WGS84_E2)) / one_minus_e2_sin2;
-        let r_n_h = meridian + h_m;
-        let r_e_h = transverse + h_m;
-        let omega = c(WGS84_OMEGA_IE_RAD_S);
-        let sin2 = sin_lat * sin_lat;
-        // Somigliana (WGS84) with the linear free-air correction.
-        let gravity = c(9.780_325_335_9) * (T::one() + c(0.001_931_852_652_41) * sin2)
-            / one_minus_e2_sin2.sqrt()
-            - c(3.086e-6) * h_m;
         Self {
             c_b_n,
             f_b_m_s2,
             v_ned_m_s,
-            omega_ie_n_rad_s: Vector3::new(omega * cos_lat, T::zero(), -omega * sin_lat),
-            omega_en_n_rad_s: Vector3::new(
-                v_ned_m_s.y / r_e_h,
-                -v_ned_m_s.x / r_n_h,
-                -v_ned_m_s.y * sin_lat / (cos_lat * r_e_h),
-            ),
-            gravity_m_s2: gravity,
-            meridian_radius_plus_h_m: r_n_h,
-            transverse_radius_plus_h_m: r_e_h,
+            omega_ie_n_rad_s: earth_rate_ned_rad_s(lat_rad),
+            omega_en_n_rad_s: transport_rate_ned_rad_s(lat_rad, h_m, &v_ned_m_s),
+            gravity_m_s2: normal_gravity_m_s2(lat_rad, h_m),
+            meridian_radius_plus_h_m: r.meridian_m + h_m,
+            transverse_radius_plus_h_m: r.transverse_m + h_m,
             tan_lat: sin_lat / cos_lat,
         }
     }
