@@ -5,6 +5,7 @@
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
 pub mod interchange;
+pub mod nav_smoother;
 pub mod output;
 
 use std::path::PathBuf;

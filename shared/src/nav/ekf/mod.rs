@@ -586,12 +586,23 @@ pub fn small_rotation<T: RealField + Copy>(theta: Vector3<T>) -> UnitQuaternion<
     ))
 }
 
-/// The rotation vector of a small rotation, `2·sign(w)·(x, y, z)` of its quaternion: exact
-/// to third order and free of trigonometry (see [`small_rotation`]).
+/// The inverse of [`small_rotation`]: `2 (x, y, z) / w` of the quaternion (twice the Gibbs
+/// vector, `2 tan(θ/2)` along the axis), equal to the rotation vector to third order, free of
+/// trigonometry, and independent of the quaternion's sign. Rotations near 180° (|w| below
+/// 1e-6) are clamped rather than divided by zero.
 pub fn small_rotation_vector<T: RealField + Copy>(q: &UnitQuaternion<T>) -> Vector3<T> {
+    let tiny: T = nalgebra::convert(1e-6);
     let two: T = nalgebra::convert(2.0);
-    let sign = if q.w < T::zero() { -two } else { two };
-    Vector3::new(q.i * sign, q.j * sign, q.k * sign)
+    let w = if q.w.abs() < tiny {
+        if q.w < T::zero() {
+            -tiny
+        } else {
+            tiny
+        }
+    } else {
+        q.w
+    };
+    Vector3::new(q.i, q.j, q.k) * (two / w)
 }
 
 /// The skew-symmetric cross-product matrix `[v×]`.
