@@ -4,9 +4,11 @@
 //! The `dynacal` binary is a thin command-line layer over this library; errors here are
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
+pub mod decode;
 pub mod interchange;
 pub mod nav_smoother;
 pub mod output;
+pub mod replay;
 
 use std::path::PathBuf;
 

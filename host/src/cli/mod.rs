@@ -14,12 +14,16 @@ pub struct Cli {
 pub enum Command {
     /// Show the header and size of an interchange file.
     Info(info::Args),
+    /// Decode a board log into per-IMU interchange CSVs and summary.json.
+    Decode(decode::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
+        Command::Decode(args) => decode::run(args),
     }
 }
 
+mod decode;
 mod info;
