@@ -5,7 +5,7 @@
 //! hardware: pins, buses and clocks live in the firmware's board layer.
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
-pub mod nav;
 pub mod log;
+pub mod nav;
 pub mod recorder;
 pub mod replay;

@@ -496,26 +496,20 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
         let gain = pht / s;
         self.dx += gain * innovation;
 
-        // A = (I − k hᵀ) P = P − k (P h)ᵀ, then P⁺ = A − (A h) kᵀ + r k kᵀ on the upper triangle.
-        let mut a = self.p;
-        for j in 0..N {
-            let pj = pht[j];
-            for i in 0..N {
-                a[(i, j)] -= gain[i] * pj;
-            }
-        }
+        // Joseph form P⁺ = A − (A h) kᵀ + r k kᵀ with A = (I − k hᵀ) P = P − k (P h)ᵀ, evaluated
+        // element by element on the upper triangle without forming A: its needed product is
+        // A h = P h − k (hᵀ P h). Each element is then
+        // P⁺_ij = P_ij − k_i (Ph)_j − (Ah)_i k_j + r k_i k_j, a sum of the Joseph form's terms,
+        // so no N×N temporary is needed.
+        let h_p_h = s - r;
         let mut ah = SVector::<T, N>::zeros();
-        for m in 0..len {
-            let (col, val) = (h.index[m], h.value[m]);
-            for i in 0..N {
-                ah[i] += a[(i, col)] * val;
-            }
+        for i in 0..N {
+            ah[i] = pht[i] - gain[i] * h_p_h;
         }
         for j in 0..N {
-            let kj = gain[j];
-            let rkj = r * kj;
+            let (kj, phtj, rkj) = (gain[j], pht[j], r * gain[j]);
             for i in 0..=j {
-                let v = a[(i, j)] - ah[i] * kj + gain[i] * rkj;
+                let v = self.p[(i, j)] - gain[i] * phtj - ah[i] * kj + gain[i] * rkj;
                 self.p[(i, j)] = v;
                 self.p[(j, i)] = v;
             }
