@@ -4,11 +4,21 @@
 //! The `dynacal` binary is a thin command-line layer over this library; errors here are
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
+pub mod diagnose;
+pub mod error_signal;
+pub mod errors;
+pub mod import;
+pub mod gmwm;
 pub mod decode;
 pub mod interchange;
 pub mod nav_smoother;
 pub mod output;
+<<<<<<< HEAD
 pub mod replay;
+=======
+pub mod regress;
+pub mod wv;
+>>>>>>> main
 
 use std::path::PathBuf;
 

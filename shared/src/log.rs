@@ -496,7 +496,7 @@ impl<const N: usize> Default for FrameAccumulator<N> {
 }
 
 impl<const N: usize> FrameAccumulator<N> {
-    const CAPACITY_OK: () = assert!(N >= 1 + CRC_LEN + 1, "accumulator too small for any frame");
+    const CAPACITY_OK: () = assert!(N > 1 + CRC_LEN, "accumulator too small for any frame");
 
     /// An empty accumulator.
     pub const fn new() -> Self {
@@ -959,6 +959,8 @@ mod tests {
         }
         // The bound is tight: the largest frame uses all of it.
         assert_eq!(largest_wire, MAX_FRAME_LEN);
+        // The figure quoted in docs/log-format.md.
+        assert_eq!(MAX_FRAME_LEN, 158);
     }
 
     #[test]

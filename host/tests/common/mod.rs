@@ -112,7 +112,12 @@ pub fn frames(seed: u64, seconds: u64) -> Vec<Frame> {
             Frame::Filter(FilterState {
                 t_us: T0_US + t,
                 imu_id: 0,
-                q_nb: [0.7071, 0.0, 0.0, 0.7071],
+                q_nb: [
+                    std::f32::consts::FRAC_1_SQRT_2,
+                    0.0,
+                    0.0,
+                    std::f32::consts::FRAC_1_SQRT_2,
+                ],
                 vel_ned_m_s: [10.0, 0.5, rng.random_range(-0.1..0.1)],
                 lat_rad: 0.8107,
                 lon_rad: 0.1147,

@@ -1,0 +1,697 @@
+//! Batch Haar MODWT wavelet variance (WV) of one sensor channel, with 95% chi-square
+//! ("eta3") intervals, the equivalent overlapping Allan variance, an optional robust
+//! (Tukey biweight M-scale) estimate, and a reader for the reference WVs published by
+//! SMAC-Group (`golden/smac_wavelet_variance.json`). The WV is what the GMWM fit consumes.
+//!
+//! Conventions (Percival & Walden 2000; Guerrier et al. 2013; `wv` R package):
+//! - level j = 1..J, Haar filter width tau_j = 2^j samples, scale `scales_s[j-1] = 2^j dt`;
+//! - W_{j,t} = 2^-j [ sum_{l<h} X_{t-l} - sum_{h<=l<2h} X_{t-l} ], h = 2^{j-1};
+//! - unbiased estimator: the first 2^j - 1 (boundary) coefficients are dropped, leaving
+//!   M_j = N - 2^j + 1, and nu2_j = sum W_{j,t}^2 / M_j (no mean removal: the filter sums to 0);
+//! - default maximum level J = floor(log2 N) - 1, as the `wv` package (`gmwm` uses floor(log2 N));
+//! - interval: eta_j = max(M_j / 2^j, 1), [eta nu / q(0.975; eta), eta nu / q(0.025; eta)];
+//! - overlapping Allan variance at averaging time 2^{j-1} dt (= `scales_s / 2`) is 2 nu2_j.
+//!
+//! Numerics: W is computed from prefix sums, W_{j,t} = 2^-j (S_{t+1} - 2 S_{t+1-h} + S_{t+1-2h}).
+//! A plain f64 running sum of raw data loses digits (its magnitude grows like N x mean while W
+//! stays at the noise level), so the series is first centred on its (compensated) mean and then
+//! summed with Neumaier compensation; integer counts ([`haar_wv_counts`]) are summed exactly in
+//! i64. The coefficients of all levels are formed in one cache-friendly pass over blocks of the
+//! prefix-sum array, the blocks spread over threads with rayon; memory is one f64 per sample.
+
+use std::path::{Path, PathBuf};
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use statrs::distribution::{ChiSquared, Continuous, ContinuousCDF};
+
+/// The Haar wavelet variance of one channel, level by level (index i is level `levels[i]`).
+///
+/// Units: `variance`, `ci_low`, `ci_high` and `allan_variance` are in the square of the input
+/// unit (e.g. (deg/s)^2); `scales_s` and `dt_s` in seconds.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WaveletVariance {
+    /// Haar filter width 2^j dt of each level, seconds.
+    pub scales_s: Vec<f64>,
+    /// Decomposition level j (1-based).
+    pub levels: Vec<u32>,
+    /// Wavelet variance nu2_j, input unit squared.
+    pub variance: Vec<f64>,
+    /// Lower end of the 95% interval of nu2_j.
+    pub ci_low: Vec<f64>,
+    /// Upper end of the 95% interval of nu2_j.
+    pub ci_high: Vec<f64>,
+    /// Overlapping Allan variance at averaging time 2^{j-1} dt (see [`Self::allan_tau_s`]):
+    /// exactly 2 nu2_j.
+    pub allan_variance: Vec<f64>,
+    /// Number of samples of the series.
+    pub n: usize,
+    /// Number of wavelet coefficients averaged at each level (M_j = N - 2^j + 1 for the batch
+    /// estimator; fewer for the decimated levels of a streaming snapshot).
+    pub n_coefficients: Vec<usize>,
+    /// Whether `variance` is the robust (Tukey biweight M-scale) estimate.
+    pub robust: bool,
+    /// Sampling interval, seconds.
+    pub dt_s: f64,
+}
+
+/// Options of [`haar_wv`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct WvOptions {
+    /// Highest level J; `None` means floor(log2 N) - 1 (the `wv` R package's choice).
+    pub max_level: Option<u32>,
+    /// Robust estimate: Tukey biweight M-estimate of the scale of each level's coefficients.
+    pub robust: bool,
+    /// Asymptotic efficiency at Gaussian data of the robust scale estimate, in [0.3, 0.99]
+    /// (used only when `robust`). 0.6 by default, as the reference implementation.
+    pub efficiency: f64,
+}
+
+impl Default for WvOptions {
+    fn default() -> Self {
+        Self {
+            max_level: None,
+            robust: false,
+            efficiency: 0.6,
+        }
+    }
+}
+
+/// Errors of the wavelet-variance computations and readers.
+#[derive(Debug, thiserror::Error)]
+pub enum WvError {
+    #[error("wavelet variance needs at least 4 samples, got {n}")]
+    TooShort { n: usize },
+    #[error("sample {index} is not a finite number ({value})")]
+    NonFinite { index: usize, value: f64 },
+    #[error("sampling interval must be positive and finite, got {dt_s} s")]
+    BadInterval { dt_s: f64 },
+    #[error("max level {requested} is out of range 1..={max} for {n} samples (2^J must be <= N)")]
+    BadLevel { requested: u32, max: u32, n: usize },
+    #[error("robust efficiency {efficiency} is out of range [0.3, 0.99]")]
+    BadEfficiency { efficiency: f64 },
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+    #[error("{path}: {source}")]
+    Json {
+        path: PathBuf,
+        source: serde_json::Error,
+    },
+    #[error("{path}: {what}")]
+    Format { path: PathBuf, what: String },
+}
+
+/// Two-sided 95% interval: tail probability on each side.
+const ALPHA_OVER_2: f64 = 0.025;
+
+impl WaveletVariance {
+    /// Number of levels.
+    pub fn len(&self) -> usize {
+        self.levels.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.levels.is_empty()
+    }
+
+    /// Averaging time of each `allan_variance` entry: 2^{j-1} dt = `scales_s / 2`, seconds.
+    pub fn allan_tau_s(&self) -> Vec<f64> {
+        self.scales_s.iter().map(|s| s / 2.0).collect()
+    }
+
+    /// Overlapping Allan deviation sqrt(2 nu2_j) at [`Self::allan_tau_s`].
+    pub fn allan_deviation(&self) -> Vec<f64> {
+        self.allan_variance.iter().map(|v| v.sqrt()).collect()
+    }
+
+    /// Variance of each estimate nu2_j, for GMWM weighting Omega = diag(1 / var).
+    ///
+    /// Taken from the 95% interval: var = ((ci_high - ci_low) / (2 z_0.975))^2. Under the
+    /// chi-square model behind the interval (eta nu_hat / nu ~ chi2(eta)) the estimate's variance
+    /// is 2 nu^2 / eta, and for large eta the interval width is 2 z sqrt(2 / eta) nu, so both
+    /// agree; at the top levels (eta of a few) the interval is skewed and wider, which
+    /// down-weights those noisy levels a little more. Using the interval makes this available
+    /// for every source of WV (batch, robust, streaming snapshot, published reference values).
+    pub fn estimate_variance(&self) -> Vec<f64> {
+        let two_z = 2.0 * 1.959_963_984_540_054;
+        self.ci_low
+            .iter()
+            .zip(&self.ci_high)
+            .map(|(lo, hi)| ((hi - lo) / two_z).powi(2))
+            .collect()
+    }
+
+    /// Assembles a WV from per-level sums (the common tail of every estimator): fills scales,
+    /// eta3 intervals with `eta_j = dof_factor * max(M_j / 2^j, 1)` degrees of freedom and the
+    /// Allan variance.
+    fn from_levels(
+        levels: Vec<u32>,
+        variance: Vec<f64>,
+        n_coefficients: Vec<usize>,
+        eta: Vec<f64>,
+        n: usize,
+        dt_s: f64,
+        robust: bool,
+    ) -> Self {
+        let (ci_low, ci_high) = variance
+            .iter()
+            .zip(&eta)
+            .map(|(&nu, &eta)| chi2_interval(nu, eta))
+            .unzip();
+        Self {
+            scales_s: levels.iter().map(|&j| (1u64 << j) as f64 * dt_s).collect(),
+            allan_variance: variance.iter().map(|v| 2.0 * v).collect(),
+            levels,
+            variance,
+            ci_low,
+            ci_high,
+            n,
+            n_coefficients,
+            robust,
+            dt_s,
+        }
+    }
+}
+
+/// The eta3 equivalent degrees of freedom of level j from M_j coefficients: max(M_j / 2^j, 1).
+pub fn eta3(m_j: usize, level: u32) -> f64 {
+    (m_j as f64 / (1u64 << level) as f64).max(1.0)
+}
+
+/// 95% chi-square interval [eta nu / q(0.975), eta nu / q(0.025)] of a variance estimate `nu`
+/// with `eta` equivalent degrees of freedom.
+pub fn chi2_interval(nu: f64, eta: f64) -> (f64, f64) {
+    let q_hi = chi2_quantile(eta, 1.0 - ALPHA_OVER_2);
+    let q_lo = chi2_quantile(eta, ALPHA_OVER_2);
+    (eta * nu / q_hi, eta * nu / q_lo)
+}
+
+/// Chi-square quantile to full double precision: statrs' inverse (bisection then at most four
+/// Newton steps, converged to about 1e-9 relative only) polished by further Newton steps.
+fn chi2_quantile(dof: f64, p: f64) -> f64 {
+    let dist = ChiSquared::new(dof).expect("dof >= 1 by construction");
+    let mut x = dist.inverse_cdf(p);
+    for _ in 0..20 {
+        let step = (dist.cdf(x) - p) / dist.pdf(x);
+        if !step.is_finite() {
+            break;
+        }
+        x -= step;
+        if step.abs() <= 1e-15 * x.abs() {
+            break;
+        }
+    }
+    x
+}
+
+/// Default maximum level floor(log2 N) - 1 (at least 1).
+pub fn default_max_level(n: usize) -> u32 {
+    (n.max(2).ilog2()).saturating_sub(1).max(1)
+}
+
+fn resolve_max_level(n: usize, opts: &WvOptions) -> Result<u32, WvError> {
+    if n < 4 {
+        return Err(WvError::TooShort { n });
+    }
+    let max = n.ilog2();
+    match opts.max_level {
+        None => Ok(default_max_level(n)),
+        Some(j) if (1..=max).contains(&j) => Ok(j),
+        Some(j) => Err(WvError::BadLevel {
+            requested: j,
+            max,
+            n,
+        }),
+    }
+}
+
+fn check_common(dt_s: f64, opts: &WvOptions) -> Result<(), WvError> {
+    if !(dt_s.is_finite() && dt_s > 0.0) {
+        return Err(WvError::BadInterval { dt_s });
+    }
+    if opts.robust && !(0.3..=0.99).contains(&opts.efficiency) {
+        return Err(WvError::BadEfficiency {
+            efficiency: opts.efficiency,
+        });
+    }
+    Ok(())
+}
+
+/// Haar MODWT wavelet variance of `x` (any unit) sampled every `dt_s` seconds, all levels
+/// 1..=J. See the module documentation for the estimator and its conventions.
+pub fn haar_wv(x: &[f64], dt_s: f64, opts: &WvOptions) -> Result<WaveletVariance, WvError> {
+    check_common(dt_s, opts)?;
+    let j_max = resolve_max_level(x.len(), opts)?;
+    if let Some(index) = x.iter().position(|v| !v.is_finite()) {
+        return Err(WvError::NonFinite {
+            index,
+            value: x[index],
+        });
+    }
+    let prefix = centred_prefix_sums(x);
+    Ok(wv_from_prefix(&prefix, x.len(), j_max, 1.0, dt_s, opts))
+}
+
+/// Haar MODWT wavelet variance of integer counts, `lsb` physical units per count: the same
+/// estimator as [`haar_wv`] on `counts * lsb`, but with exact integer prefix sums, so the
+/// coefficients carry no rounding error at all before they are squared.
+pub fn haar_wv_counts(
+    counts: &[i32],
+    lsb: f64,
+    dt_s: f64,
+    opts: &WvOptions,
+) -> Result<WaveletVariance, WvError> {
+    check_common(dt_s, opts)?;
+    let j_max = resolve_max_level(counts.len(), opts)?;
+    // Centring on an integer keeps the sums small; the Haar filter ignores constants.
+    let mean = counts.iter().map(|&c| c as i64).sum::<i64>() / counts.len() as i64;
+    let mut sum = 0i64;
+    let mut max_abs = 0i64;
+    let mut exact = Vec::with_capacity(counts.len() + 1);
+    exact.push(0i64);
+    for &c in counts {
+        sum += c as i64 - mean;
+        max_abs = max_abs.max(sum.abs());
+        exact.push(sum);
+    }
+    // While |S| < 2^51 (always in practice: centred counts sum like a random walk) every S and
+    // every S_a - 2 S_b + S_c is an integer below 2^53, so the f64 kernel forms the Haar
+    // differences exactly. Beyond, each S is rounded once (still relative 1e-16).
+    debug_assert!(max_abs < (1i64 << 51), "prefix sum beyond exact f64 range");
+    let prefix: Vec<f64> = exact.iter().map(|&s| s as f64).collect();
+    drop(exact);
+    Ok(wv_from_prefix(
+        &prefix,
+        counts.len(),
+        j_max,
+        lsb,
+        dt_s,
+        opts,
+    ))
+}
+
+/// Prefix sums S_k = sum_{i<k} (x_i - m), k = 0..=N, with m the compensated mean of x and the
+/// running sum carried with Neumaier compensation, so each stored S_k is within one rounding
+/// of the exact value.
+fn centred_prefix_sums(x: &[f64]) -> Vec<f64> {
+    let mean = neumaier_sum(x.iter().copied()) / x.len() as f64;
+    let mut out = Vec::with_capacity(x.len() + 1);
+    out.push(0.0);
+    let (mut sum, mut comp) = (0.0f64, 0.0f64);
+    for &v in x {
+        let d = v - mean;
+        let t = sum + d;
+        if sum.abs() >= d.abs() {
+            comp += (sum - t) + d;
+        } else {
+            comp += (d - t) + sum;
+        }
+        sum = t;
+        out.push(sum + comp);
+    }
+    out
+}
+
+/// Compensated (Neumaier) sum.
+pub(crate) fn neumaier_sum(values: impl Iterator<Item = f64>) -> f64 {
+    let (mut sum, mut comp) = (0.0f64, 0.0f64);
+    for v in values {
+        let t = sum + v;
+        if sum.abs() >= v.abs() {
+            comp += (sum - t) + v;
+        } else {
+            comp += (v - t) + sum;
+        }
+        sum = t;
+    }
+    sum + comp
+}
+
+/// Block length (in coefficients) of the all-levels pass: three 64 KiB windows per level stay
+/// in L2 while every level is swept over the block.
+const BLOCK: usize = 8192;
+
+/// Sum over t of (2^j W_{j,t})^2 for every level 1..=j_max, from prefix sums `s` (length N+1).
+fn level_square_sums(s: &[f64], j_max: u32) -> Vec<f64> {
+    let n = s.len() - 1;
+    let blocks: Vec<Vec<f64>> = (1..=n)
+        .step_by(BLOCK)
+        .collect::<Vec<_>>()
+        .into_par_iter()
+        .map(|start| {
+            let end = (start + BLOCK).min(n + 1);
+            (1..=j_max)
+                .map(|j| {
+                    let h = 1usize << (j - 1);
+                    let first = start.max(2 * h);
+                    if first >= end {
+                        return 0.0;
+                    }
+                    squared_haar_sum(
+                        &s[first..end],
+                        &s[first - h..end - h],
+                        &s[first - 2 * h..end - 2 * h],
+                    )
+                })
+                .collect()
+        })
+        .collect();
+    (0..j_max as usize)
+        .map(|level| neumaier_sum(blocks.iter().map(|b| b[level])))
+        .collect()
+}
+
+/// sum_k (a_k - 2 b_k + c_k)^2 with eight independent accumulators so the loop vectorises.
+fn squared_haar_sum(a: &[f64], b: &[f64], c: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 8];
+    let (a8, b8, c8) = (a.chunks_exact(8), b.chunks_exact(8), c.chunks_exact(8));
+    let (ar, br, cr) = (a8.remainder(), b8.remainder(), c8.remainder());
+    for ((a, b), c) in a8.zip(b8).zip(c8) {
+        for l in 0..8 {
+            let d = (a[l] - b[l]) - (b[l] - c[l]);
+            acc[l] += d * d;
+        }
+    }
+    let mut tail = 0.0;
+    for ((a, b), c) in ar.iter().zip(br).zip(cr) {
+        let d = (a - b) - (b - c);
+        tail += d * d;
+    }
+    acc.iter().sum::<f64>() + tail
+}
+
+fn wv_from_prefix(
+    prefix: &[f64],
+    n: usize,
+    j_max: u32,
+    unit: f64,
+    dt_s: f64,
+    opts: &WvOptions,
+) -> WaveletVariance {
+    let levels: Vec<u32> = (1..=j_max).collect();
+    let m: Vec<usize> = levels.iter().map(|&j| n + 1 - (1usize << j)).collect();
+    let eta: Vec<f64> = levels.iter().zip(&m).map(|(&j, &m)| eta3(m, j)).collect();
+    if opts.robust {
+        let tuning = BiweightScale::for_efficiency(opts.efficiency)
+            .expect("efficiency range checked by check_common");
+        let mut coeffs = Vec::with_capacity(n);
+        let variance = levels
+            .iter()
+            .map(|&j| {
+                haar_coefficients(prefix, j, &mut coeffs);
+                let scale = tuning.scale(&coeffs);
+                scale * scale * unit * unit
+            })
+            .collect();
+        let eta = eta.iter().map(|e| e * opts.efficiency).collect();
+        WaveletVariance::from_levels(levels, variance, m, eta, n, dt_s, true)
+    } else {
+        let sums = level_square_sums(prefix, j_max);
+        let variance = levels
+            .iter()
+            .zip(&sums)
+            .zip(&m)
+            .map(|((&j, &ss), &m)| {
+                let width = (1u64 << j) as f64;
+                ss / (width * width) / m as f64 * unit * unit
+            })
+            .collect();
+        WaveletVariance::from_levels(levels, variance, m, eta, n, dt_s, false)
+    }
+}
+
+/// The M_j non-boundary coefficients W_{j,t} (t = 2^j - 1 .. N-1) of level j, into `out`.
+fn haar_coefficients(s: &[f64], j: u32, out: &mut Vec<f64>) {
+    let h = 1usize << (j - 1);
+    let inv_width = 1.0 / (2 * h) as f64;
+    let n = s.len() - 1;
+    out.clear();
+    out.par_extend(
+        (2 * h..=n)
+            .into_par_iter()
+            .map(|k| ((s[k] - s[k - h]) - (s[k - h] - s[k - 2 * h])) * inv_width),
+    );
+}
+
+/// Tukey biweight M-estimate of scale, made consistent for the standard deviation at Gaussian
+/// data: sigma solves mean(rho(w / sigma)) = b, with rho(r) = 1 - (1 - (r/c)^2)^3 for |r| <= c
+/// and 1 beyond, b = E[rho(Z)] for Z standard normal. The tuning constant c is chosen for a
+/// given asymptotic efficiency relative to the Gaussian maximum-likelihood scale (for 0.6,
+/// c = 2.2, b = 0.35; the breakdown point is b). Unlike the reference implementation (which
+/// solves a psi-type equation whose left side is not monotone in sigma), rho is monotone, so
+/// the root is unique and found by a bracketed Newton iteration.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct BiweightScale {
+    /// Tuning constant c (in units of sigma).
+    pub c: f64,
+    /// Consistency constant b = E[rho(Z)], Z ~ N(0, 1).
+    pub b: f64,
+}
+
+impl BiweightScale {
+    /// Tuning for asymptotic efficiency `efficiency` in [0.3, 0.99] at the Gaussian.
+    pub fn for_efficiency(efficiency: f64) -> Result<Self, WvError> {
+        if !(0.3..=0.99).contains(&efficiency) {
+            return Err(WvError::BadEfficiency { efficiency });
+        }
+        // Efficiency increases with c: bisection.
+        let (mut lo, mut hi) = (0.5f64, 60.0f64);
+        for _ in 0..100 {
+            let mid = 0.5 * (lo + hi);
+            if Self::efficiency_of(mid) < efficiency {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let c = 0.5 * (lo + hi);
+        Ok(Self {
+            c,
+            b: Self::gaussian_mean(c, |r| rho(r, c)),
+        })
+    }
+
+    /// Asymptotic efficiency of the scale estimate with tuning c: 0.5 / V with
+    /// V = E[(rho - b)^2] / E[Z rho'(Z)]^2 (0.5 is the maximum-likelihood value).
+    pub fn efficiency_of(c: f64) -> f64 {
+        let b = Self::gaussian_mean(c, |r| rho(r, c));
+        let var = Self::gaussian_mean(c, |r| (rho(r, c) - b).powi(2));
+        let slope = Self::gaussian_mean(c, |r| r * rho_prime(r, c));
+        0.5 / (var / (slope * slope))
+    }
+
+    /// E[f(Z)] for a function that is constant (= f(c)) for |z| > c: Simpson on [0, c] plus
+    /// the Gaussian tail mass.
+    fn gaussian_mean(c: f64, f: impl Fn(f64) -> f64) -> f64 {
+        let intervals = 4000;
+        let h = c / intervals as f64;
+        let phi = |z: f64| (-0.5 * z * z).exp() / (2.0 * std::f64::consts::PI).sqrt();
+        let mut acc = f(0.0) * phi(0.0) + f(c) * phi(c);
+        for i in 1..intervals {
+            let z = i as f64 * h;
+            acc += if i % 2 == 1 { 4.0 } else { 2.0 } * f(z) * phi(z);
+        }
+        let tail = statrs::function::erf::erfc(c / std::f64::consts::SQRT_2);
+        2.0 * acc * h / 3.0 + tail * f(c + 1.0)
+    }
+
+    /// The M-estimate of scale sigma of `w` (same unit as `w`); 0 if more than a fraction 1-b
+    /// of `w` is exactly 0.
+    pub fn scale(&self, w: &[f64]) -> f64 {
+        if w.is_empty() {
+            return 0.0;
+        }
+        let n = w.len() as f64;
+        // Start from the normalised median absolute value (robust, near the answer).
+        let mut abs: Vec<f64> = w.par_iter().map(|v| v.abs()).collect();
+        let mid = abs.len() / 2;
+        let (_, median, _) = abs.select_nth_unstable_by(mid, |a, b| a.total_cmp(b));
+        let mut sigma = *median / 0.674_489_750_196_081_7;
+        drop(abs);
+        if sigma <= 0.0 {
+            let rms = (w.iter().map(|v| v * v).sum::<f64>() / n).sqrt();
+            if rms == 0.0 {
+                return 0.0;
+            }
+            sigma = rms;
+        }
+        // g(log sigma) = mean rho(w / sigma) - b decreases in sigma. Bracket, then Newton in
+        // log sigma with bisection fallback.
+        let g = |sigma: f64| -> (f64, f64) {
+            let (sr, srp) = w
+                .par_iter()
+                .map(|&v| {
+                    let r = v / sigma;
+                    (rho(r, self.c), r * rho_prime(r, self.c))
+                })
+                .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+            (sr / n - self.b, -srp / n)
+        };
+        let (mut lo, mut hi) = (sigma, sigma);
+        while g(lo).0 < 0.0 && lo > f64::MIN_POSITIVE * 1e10 {
+            lo /= 2.0;
+        }
+        while g(hi).0 > 0.0 && hi < f64::MAX / 4.0 {
+            hi *= 2.0;
+        }
+        let mut log_s = sigma.ln().clamp(lo.ln(), hi.ln());
+        for _ in 0..200 {
+            let (value, slope) = g(log_s.exp());
+            if value > 0.0 {
+                lo = log_s.exp();
+            } else {
+                hi = log_s.exp();
+            }
+            let newton = log_s - value / slope;
+            let next = if slope < 0.0 && newton > lo.ln() && newton < hi.ln() {
+                newton
+            } else {
+                0.5 * (lo.ln() + hi.ln())
+            };
+            if (next - log_s).abs() < 1e-14 || (hi.ln() - lo.ln()) < 1e-14 {
+                log_s = next;
+                break;
+            }
+            log_s = next;
+        }
+        log_s.exp()
+    }
+}
+
+fn rho(r: f64, c: f64) -> f64 {
+    let u = (r / c) * (r / c);
+    if u >= 1.0 {
+        1.0
+    } else {
+        1.0 - (1.0 - u).powi(3)
+    }
+}
+
+fn rho_prime(r: f64, c: f64) -> f64 {
+    let u = (r / c) * (r / c);
+    if u >= 1.0 {
+        0.0
+    } else {
+        6.0 * r / (c * c) * (1.0 - u).powi(2)
+    }
+}
+
+/// One sensor channel of the SMAC-Group reference file.
+#[derive(Debug, Clone)]
+pub struct GoldenWv {
+    /// Key of the sensor in the file (`adis`, `imar`, `kvh1750`, `ln200`, `navchip`).
+    pub sensor_key: String,
+    /// Human name of the sensor as given in the file.
+    pub sensor: String,
+    /// Channel name as given in the file (`Gyro. X`, ..., `Accel. Z`).
+    pub channel: String,
+    /// The WV in the file's units; `n_coefficients` and the Allan variance are derived.
+    pub wv: WaveletVariance,
+}
+
+impl GoldenWv {
+    /// dynacal's channel key (`gx` .. `az`) for the file's channel name, if it is one of them.
+    pub fn channel_key(&self) -> Option<&'static str> {
+        let axis = match self.channel.chars().last()? {
+            'X' => 0,
+            'Y' => 1,
+            'Z' => 2,
+            _ => return None,
+        };
+        if self.channel.starts_with("Gyro") {
+            Some(crate::interchange::CHANNELS[axis])
+        } else if self.channel.starts_with("Accel") {
+            Some(crate::interchange::CHANNELS[3 + axis])
+        } else {
+            None
+        }
+    }
+}
+
+#[derive(Deserialize)]
+struct GoldenSensorJson {
+    sensor: String,
+    freq: f64,
+    n: usize,
+    wvar: serde_json::Map<String, serde_json::Value>,
+}
+
+#[derive(Deserialize)]
+struct GoldenChannelJson {
+    scales: Vec<f64>,
+    variance: Vec<f64>,
+    ci_low: Vec<f64>,
+    ci_high: Vec<f64>,
+}
+
+/// Reads `golden/smac_wavelet_variance.json` (`{sensor: {sensor, freq, n, wvar: {channel:
+/// {scales, variance, ci_low, ci_high}}}}`) into one [`GoldenWv`] per sensor channel, sorted
+/// by sensor key then channel name. Checks that every scale is 2^j / freq for j = 1, 2, ... and that the arrays agree in
+/// length; errors name the sensor and channel.
+pub fn read_smac_golden(path: &Path) -> Result<Vec<GoldenWv>, WvError> {
+    let text = std::fs::read_to_string(path).map_err(|source| WvError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let sensors: serde_json::Map<String, serde_json::Value> =
+        serde_json::from_str(&text).map_err(|source| WvError::Json {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    let format = |what: String| WvError::Format {
+        path: path.to_path_buf(),
+        what,
+    };
+    let mut out = Vec::new();
+    for (key, value) in sensors {
+        let sensor: GoldenSensorJson =
+            serde_json::from_value(value).map_err(|e| format(format!("sensor `{key}`: {e}")))?;
+        if !(sensor.freq.is_finite() && sensor.freq > 0.0) {
+            return Err(format(format!("sensor `{key}`: bad freq {}", sensor.freq)));
+        }
+        let dt_s = 1.0 / sensor.freq;
+        for (channel, value) in sensor.wvar {
+            let at = format!("sensor `{key}` channel `{channel}`");
+            let ch: GoldenChannelJson =
+                serde_json::from_value(value).map_err(|e| format(format!("{at}: {e}")))?;
+            let len = ch.scales.len();
+            if ch.variance.len() != len || ch.ci_low.len() != len || ch.ci_high.len() != len {
+                return Err(format(format!("{at}: arrays differ in length")));
+            }
+            let levels: Vec<u32> = (1..=len as u32).collect();
+            for (&j, &scale) in levels.iter().zip(&ch.scales) {
+                let expected = (1u64 << j) as f64 * dt_s;
+                if (scale - expected).abs() > 1e-9 * expected {
+                    return Err(format(format!(
+                        "{at}: scale {scale} at level {j} is not 2^{j}/freq = {expected}"
+                    )));
+                }
+                if (1usize << j) > sensor.n {
+                    return Err(format(format!("{at}: level {j} exceeds n = {}", sensor.n)));
+                }
+            }
+            let n_coefficients = levels.iter().map(|&j| sensor.n + 1 - (1 << j)).collect();
+            out.push(GoldenWv {
+                sensor_key: key.clone(),
+                sensor: sensor.sensor.clone(),
+                channel,
+                wv: WaveletVariance {
+                    scales_s: ch.scales,
+                    allan_variance: ch.variance.iter().map(|v| 2.0 * v).collect(),
+                    levels,
+                    variance: ch.variance,
+                    ci_low: ch.ci_low,
+                    ci_high: ch.ci_high,
+                    n: sensor.n,
+                    n_coefficients,
+                    robust: false,
+                    dt_s,
+                },
+            });
+        }
+    }
+    Ok(out)
+}
