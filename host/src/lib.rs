@@ -11,11 +11,14 @@ pub mod errors;
 pub mod gmwm;
 pub mod import;
 pub mod interchange;
+pub mod nav_smoother;
 pub mod output;
+pub mod replay;
 pub mod replay;
 pub mod regress;
 pub mod sim;
 pub mod wv;
+>>>>>>> ekf
 
 use std::path::PathBuf;
 

@@ -10,3 +10,6 @@ pub mod recorder;
 pub mod replay;
 pub mod nav;
 pub mod wavelet;
+pub mod nav;
+pub mod recorder;
+pub mod replay;

@@ -4,6 +4,7 @@
 //! same Earth model, and a navigation filter is built on [`Strapdown`].
 
 pub mod earth;
+pub mod ekf;
 pub mod strapdown;
 
 pub use earth::{
