@@ -14,7 +14,6 @@ pub mod interchange;
 pub mod nav_smoother;
 pub mod output;
 pub mod replay;
-pub mod replay;
 pub mod regress;
 pub mod sim;
 pub mod wv;

@@ -10,6 +10,3 @@ pub mod recorder;
 pub mod replay;
 pub mod nav;
 pub mod wavelet;
-pub mod nav;
-pub mod recorder;
-pub mod replay;
