@@ -17,7 +17,6 @@ pub mod replay;
 pub mod regress;
 pub mod sim;
 pub mod wv;
->>>>>>> ekf
 
 use std::path::PathBuf;
 
