@@ -54,7 +54,13 @@ pub struct ErrorSignals {
     pub errors: [Option<Vec<f64>>; 6],
     /// The 15 dynamics quantities in [`DYNAMICS_REGRESSORS`] order.
     pub dynamics: [Vec<f64>; 15],
+    /// Reference specific force in the body frame, m/s^2 (columns `f_{x,y,z}_m_s2`;
+    /// optional): what accelerometer scale factors and gyro g-sensitivity act on.
+    pub specific_force_b_m_s2: Option<[Vec<f64>; 3]>,
 }
+
+/// Specific-force column names.
+pub const SPECIFIC_FORCE_COLUMNS: [&str; 3] = ["f_x_m_s2", "f_y_m_s2", "f_z_m_s2"];
 
 impl ErrorSignals {
     /// The error series of a channel (`gx` ... `az`).
@@ -103,10 +109,22 @@ impl ErrorSignals {
                 path: path.to_path_buf(),
             });
         }
+        let specific_force_b_m_s2 = if SPECIFIC_FORCE_COLUMNS
+            .iter()
+            .all(|c| table.index(c).is_some())
+        {
+            Some(
+                SPECIFIC_FORCE_COLUMNS
+                    .map(|c| table.column(c).map(<[f64]>::to_vec).unwrap_or_default()),
+            )
+        } else {
+            None
+        };
         Ok(Self {
             t_s,
             errors,
             dynamics,
+            specific_force_b_m_s2,
         })
     }
 
@@ -125,6 +143,11 @@ impl ErrorSignals {
         }
         for (name, d) in DYNAMICS_COLUMNS.iter().zip(&self.dynamics) {
             columns.push((name, d));
+        }
+        if let Some(f) = &self.specific_force_b_m_s2 {
+            for (name, d) in SPECIFIC_FORCE_COLUMNS.iter().zip(f) {
+                columns.push((name, d));
+            }
         }
         for (name, c) in &columns {
             if c.len() != n {
@@ -179,6 +202,7 @@ mod tests {
                 Some(vec![0.0; 4]),
             ],
             dynamics: std::array::from_fn(|k| (0..n).map(|i| (k * 10 + i) as f64 / 7.0).collect()),
+            specific_force_b_m_s2: Some([vec![0.5; 4], vec![0.25; 4], vec![-9.75; 4]]),
         };
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("e.csv.gz");

@@ -199,6 +199,14 @@ fn lerp_at(t_s: &[f64], x: &[f64], t: f64) -> f64 {
 }
 
 /// The reference over the epochs: mean body rate and specific force, attitude at mid-epoch.
+struct EpochData {
+    reference: ReferenceEpochs,
+    omega_dot: Vec<Vector3<f64>>,
+    f_dot: Vec<Vector3<f64>>,
+    gyro: Option<Vec<Vector3<f64>>>,
+    accel: Option<Vec<Vector3<f64>>>,
+}
+
 struct ReferenceEpochs {
     omega_ib_b_rad_s: Vec<Vector3<f64>>,
     f_b_m_s2: Vec<Vector3<f64>>,
@@ -206,11 +214,11 @@ struct ReferenceEpochs {
     g_ned_mid_m_s2: Vec<Vector3<f64>>,
 }
 
-fn reference_from_imu(
+fn reference_at_points(
     rec: &ImuRecording,
     gyro: &[Vec<f64>; 3],
     accel: &[Vec<f64>; 3],
-    bounds: &[f64],
+    times_s: &[f64],
 ) -> Result<ReferenceEpochs, ErrorsError> {
     let att = rec
         .attitude_rad
@@ -218,22 +226,20 @@ fn reference_from_imu(
         .ok_or(ErrorsError::ReferenceIncomplete(
             "roll_rad, pitch_rad, yaw_rad columns to express gravity in the body frame",
         ))?;
-    let omega = interval_means(&integrals(&rec.t_s, gyro), bounds, 0.0);
-    let f = interval_means(&integrals(&rec.t_s, accel), bounds, 0.0);
-    let mids: Vec<f64> = bounds.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
-    let q_nb_mid = mids.iter().map(|&t| attitude_at(rec, att, t)).collect();
-    let g = mids
-        .iter()
-        .map(|&t| match &rec.position {
-            Some(p) => gravity_ned_m_s2(lerp_at(&rec.t_s, &p[0], t), lerp_at(&rec.t_s, &p[2], t)),
-            None => gravity_ned_m_s2(0.0, 0.0),
-        })
-        .collect();
+    let at = |t: f64, x: &[Vec<f64>; 3]| Vector3::from_fn(|i, _| lerp_at(&rec.t_s, &x[i], t));
     Ok(ReferenceEpochs {
-        omega_ib_b_rad_s: omega,
-        f_b_m_s2: f,
-        q_nb_mid,
-        g_ned_mid_m_s2: g,
+        omega_ib_b_rad_s: times_s.iter().map(|&t| at(t, gyro)).collect(),
+        f_b_m_s2: times_s.iter().map(|&t| at(t, accel)).collect(),
+        q_nb_mid: times_s.iter().map(|&t| attitude_at(rec, att, t)).collect(),
+        g_ned_mid_m_s2: times_s
+            .iter()
+            .map(|&t| match &rec.position {
+                Some(p) => {
+                    gravity_ned_m_s2(lerp_at(&rec.t_s, &p[0], t), lerp_at(&rec.t_s, &p[2], t))
+                }
+                None => gravity_ned_m_s2(0.0, 0.0),
+            })
+            .collect(),
     })
 }
 
@@ -500,40 +506,43 @@ pub fn build_error_signals(
             needed_s,
         });
     }
-    // Epoch boundaries: the slower recording's samples inside the overlap.
-    let (bounds, bounds_idx): (Vec<f64>, Vec<usize>) = {
-        let slower = if !ref_is_imu || reference.median_dt_s() >= sensor.median_dt_s() {
-            reference
+    // Epochs. Against a reference IMU: the sensor's own samples, untouched (so its noise
+    // reaches the error signal unfiltered and a fitted model can be simulated directly),
+    // with the smooth reference interpolated to them. Against a navigation solution: the
+    // solution's sample intervals, with the sensor integrated over each.
+    let (epoch_t, sensor_idx, bounds, bounds_idx): (Vec<f64>, Vec<usize>, Vec<f64>, Vec<usize>) =
+        if ref_is_imu {
+            let (t, i): (Vec<f64>, Vec<usize>) = sensor
+                .t_s
+                .iter()
+                .enumerate()
+                .filter(|(_, &t)| t >= start && t <= end)
+                .map(|(i, &t)| (t, i))
+                .unzip();
+            (t, i, Vec::new(), Vec::new())
         } else {
-            sensor
+            let (b, i): (Vec<f64>, Vec<usize>) = reference
+                .t_s
+                .iter()
+                .enumerate()
+                .filter(|(_, &t)| t >= start && t <= end)
+                .map(|(i, &t)| (t, i))
+                .unzip();
+            let mid = b.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
+            (mid, Vec::new(), b, i)
         };
-        slower
-            .t_s
-            .iter()
-            .enumerate()
-            .filter(|(_, &t)| t >= start && t <= end)
-            .map(|(i, &t)| (t, i))
-            .unzip()
-    };
-    if bounds.len() < 10 {
+    if epoch_t.len() < 10 {
         return Err(ErrorsError::NoOverlap {
             overlap_s: end - start,
             needed_s,
         });
     }
-    let reference_epochs = if ref_is_imu {
-        let (g, a) = (
-            reference.gyro_rad_s.as_ref().unwrap(),
-            reference.accel_m_s2.as_ref().unwrap(),
-        );
-        reference_from_imu(reference, g, a, &bounds)?
+    let mid_t = epoch_t.clone();
+    let fixed_reference = if ref_is_imu {
+        None
     } else {
-        reference_from_solution(reference, &bounds_idx)?
+        Some(reference_from_solution(reference, &bounds_idx)?)
     };
-    let mid_t: Vec<f64> = bounds.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
-    let omega_dot = derivative(&mid_t, &reference_epochs.omega_ib_b_rad_s);
-    let f_dot = derivative(&mid_t, &reference_epochs.f_b_m_s2);
-
     let gyro_int = sensor
         .gyro_rad_s
         .as_ref()
@@ -542,6 +551,61 @@ pub fn build_error_signals(
         .accel_m_s2
         .as_ref()
         .map(|a| integrals(&sensor.t_s, a));
+    let raw_at = |x: &[Vec<f64>; 3]| -> Vec<Vector3<f64>> {
+        sensor_idx
+            .iter()
+            .map(|&i| Vector3::new(x[0][i], x[1][i], x[2][i]))
+            .collect()
+    };
+    // Reference and sensor over the epochs for a time offset `shift_s` (positive: the
+    // sensor lags, so its epoch k shows the truth at epoch time - shift).
+    let epoch_data = |shift_s: f64| -> Result<EpochData, ErrorsError> {
+        let (reference_epochs, gyro, accel) = match &fixed_reference {
+            None => {
+                let shifted: Vec<f64> = epoch_t.iter().map(|t| t - shift_s).collect();
+                let r = reference_at_points(
+                    reference,
+                    reference
+                        .gyro_rad_s
+                        .as_ref()
+                        .expect("reference IMU has gyros"),
+                    reference
+                        .accel_m_s2
+                        .as_ref()
+                        .expect("reference IMU has accelerometers"),
+                    &shifted,
+                )?;
+                (
+                    r,
+                    sensor.gyro_rad_s.as_ref().map(raw_at),
+                    sensor.accel_m_s2.as_ref().map(raw_at),
+                )
+            }
+            Some(r) => (
+                ReferenceEpochs {
+                    omega_ib_b_rad_s: r.omega_ib_b_rad_s.clone(),
+                    f_b_m_s2: r.f_b_m_s2.clone(),
+                    q_nb_mid: r.q_nb_mid.clone(),
+                    g_ned_mid_m_s2: r.g_ned_mid_m_s2.clone(),
+                },
+                gyro_int
+                    .as_ref()
+                    .map(|g| interval_means(g, &bounds, shift_s)),
+                accel_int
+                    .as_ref()
+                    .map(|a| interval_means(a, &bounds, shift_s)),
+            ),
+        };
+        let omega_dot = derivative(&mid_t, &reference_epochs.omega_ib_b_rad_s);
+        let f_dot = derivative(&mid_t, &reference_epochs.f_b_m_s2);
+        Ok(EpochData {
+            reference: reference_epochs,
+            omega_dot,
+            f_dot,
+            gyro,
+            accel,
+        })
+    };
     let mut notes = Vec::new();
     let mut layout = Layout {
         gyro: gyro_int.is_some(),
@@ -555,26 +619,21 @@ pub fn build_error_signals(
     // of eqs. 10-11 holds at convergence even for boresights of several degrees.
     let mut r_sb = Rotation3::identity();
     let mut weights = [1.0, 1.0];
-    let means_in_b = |shift_s: f64, r_sb: &Rotation3<f64>| {
-        let rotate = |v: Vec<Vector3<f64>>| v.into_iter().map(|x| r_sb * x).collect::<Vec<_>>();
-        (
-            gyro_int
-                .as_ref()
-                .map(|g| rotate(interval_means(g, &bounds, shift_s))),
-            accel_int
-                .as_ref()
-                .map(|a| rotate(interval_means(a, &bounds, shift_s))),
-        )
+    let rotate = |v: &Option<Vec<Vector3<f64>>>, r_sb: &Rotation3<f64>| {
+        v.as_ref()
+            .map(|v| v.iter().map(|x| r_sb * x).collect::<Vec<_>>())
     };
     let mut solution = None;
     for iteration in 0..12 {
-        let (omega_s, f_s) = means_in_b(shift_s, &r_sb);
+        let data = epoch_data(shift_s)?;
+        let (reference_epochs, omega_dot, f_dot) = (&data.reference, &data.omega_dot, &data.f_dot);
+        let (omega_s, f_s) = (rotate(&data.gyro, &r_sb), rotate(&data.accel, &r_sb));
         let sol = loop {
             match solve(
                 &layout,
-                &reference_epochs,
-                &omega_dot,
-                &f_dot,
+                reference_epochs,
+                omega_dot,
+                f_dot,
                 omega_s.as_deref(),
                 f_s.as_deref(),
                 weights,
@@ -659,7 +718,10 @@ pub fn build_error_signals(
         .map(|l| Vector3::new(sol.theta[l], sol.theta[l + 1], sol.theta[l + 2]));
 
     // Final errors at the estimated boresight and time offset.
-    let (omega_s, f_s) = means_in_b(shift_s, &r_sb);
+    let data = epoch_data(shift_s)?;
+    let (reference_epochs, omega_dot, f_dot) = (&data.reference, &data.omega_dot, &data.f_dot);
+    let (omega_s, f_s) = (rotate(&data.gyro, &r_sb), rotate(&data.accel, &r_sb));
+    let _ = f_dot;
     let n = mid_t.len();
     let mut errors: [Option<Vec<f64>>; 6] = Default::default();
     if let Some(o) = &omega_s {
@@ -706,7 +768,7 @@ pub fn build_error_signals(
         std::array::from_fn(|q| series[q / 3].iter().map(|v| v[q % 3]).collect());
 
     let error_std = std::array::from_fn(|i| errors[i].as_ref().map(|e| std_dev(e)));
-    let mut dt: Vec<f64> = bounds.windows(2).map(|w| w[1] - w[0]).collect();
+    let mut dt: Vec<f64> = epoch_t.windows(2).map(|w| w[1] - w[0]).collect();
     let mid = dt.len() / 2;
     let epoch_dt_s = *dt.select_nth_unstable_by(mid, f64::total_cmp).1;
     let summary = CalibrationSummary {
@@ -743,6 +805,9 @@ pub fn build_error_signals(
     };
     Ok((
         ErrorSignals {
+            specific_force_b_m_s2: Some(std::array::from_fn(|i| {
+                reference_epochs.f_b_m_s2.iter().map(|v| v[i]).collect()
+            })),
             t_s: mid_t,
             errors,
             dynamics,
