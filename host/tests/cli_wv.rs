@@ -91,6 +91,32 @@ fn no_time_column_needs_rate_and_errors_name_place() {
     assert_eq!(json["channels"]["gx"]["robust"], true);
     assert_eq!(json["dt_s"], 0.01);
 
+    // Per-channel scale: variances scale by its square, the other channel is untouched.
+    let scaled = dir.path().join("scaled.json");
+    let o = dynacal(&[
+        csv.to_str().unwrap(),
+        "--rate",
+        "100",
+        "--max-level",
+        "5",
+        "--robust",
+        "--scale",
+        "gy=0.5",
+        "--json",
+        scaled.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s: serde_json::Value = serde_json::from_slice(&std::fs::read(&scaled).unwrap()).unwrap();
+    for i in 0..5 {
+        let ratio = s["channels"]["gy"]["variance"][i].as_f64().unwrap()
+            / json["channels"]["gy"]["variance"][i].as_f64().unwrap();
+        assert!((ratio - 0.25).abs() < 1e-12, "{ratio}");
+        assert_eq!(
+            s["channels"]["gx"]["variance"][i],
+            json["channels"]["gx"]["variance"][i]
+        );
+    }
+
     // A bad field: the error names file, line and column, and the old output stays intact.
     let before = std::fs::read(&out).unwrap();
     let last_line = text[..text.len() - 1].rfind('\n').unwrap() + 1;

@@ -4,8 +4,9 @@
 //! Inputs: an interchange CSV (channels `gx` .. `az`, SI units, time from `t_s`), or any CSV
 //! with a header (channels are its columns, `--columns` to choose; time from a `t_s` column or
 //! `--rate`), e.g. the ADIS16405 sessions (integer counts, 100 Hz, no time column:
-//! `--rate 100`). Columns holding only integers are processed exactly as counts. Values keep
-//! the input's unit; the variances are in its square.
+//! `--rate 100 --scale gx=0.05,gy=0.05,gz=0.05,ax=0.00333,ay=0.00333,az=0.00333` for deg/s and
+//! g). Columns holding only integers are processed exactly as counts. Values keep the input's
+//! unit times `--scale`; the variances are in its square.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -35,6 +36,10 @@ pub struct Args {
     /// Highest level J (default floor(log2 N) - 1, as the `wv` R package).
     #[arg(long)]
     pub max_level: Option<u32>,
+    /// Physical units per input unit (e.g. per count), one factor for every channel (`0.05`)
+    /// or per channel (`gx=0.05,ax=0.00333`); variances scale by its square.
+    #[arg(long, value_delimiter = ',')]
+    pub scale: Vec<String>,
     /// Output JSON file (written whole or not at all).
     #[arg(long)]
     pub json: PathBuf,
@@ -53,17 +58,19 @@ struct Report {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (dt_s, channels) = read_channels(&args)?;
+    let scales = parse_scales(&args, &channels)?;
     let opts = WvOptions {
         max_level: args.max_level,
         robust: args.robust,
         efficiency: args.efficiency,
     };
     let mut out = BTreeMap::new();
-    for (name, values) in channels {
+    for ((name, values), scale) in channels.into_iter().zip(scales) {
         let wv = if let Some(counts) = as_counts(&values) {
-            haar_wv_counts(&counts, 1.0, dt_s, &opts)
+            haar_wv_counts(&counts, scale, dt_s, &opts)
         } else {
-            haar_wv(&values, dt_s, &opts)
+            let scaled: Vec<f64> = values.iter().map(|v| v * scale).collect();
+            haar_wv(&scaled, dt_s, &opts)
         }
         .with_context(|| format!("{}: column `{name}`", args.file.display()))?;
         out.insert(name, wv);
@@ -90,6 +97,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     println!("wrote {}", args.json.display());
     Ok(())
+}
+
+/// The `--scale` factor of each channel (1 where none is given).
+fn parse_scales(args: &Args, channels: &Channels) -> anyhow::Result<Vec<f64>> {
+    let mut scales = vec![1.0; channels.len()];
+    for item in &args.scale {
+        let (target, text) = match item.split_once('=') {
+            Some((name, factor)) => (Some(name.trim()), factor),
+            None => (None, item.as_str()),
+        };
+        let factor: f64 = text
+            .trim()
+            .parse()
+            .ok()
+            .filter(|f: &f64| f.is_finite() && *f != 0.0)
+            .with_context(|| format!("--scale `{item}`: not a finite non-zero number"))?;
+        match target {
+            None => scales.iter_mut().for_each(|s| *s = factor),
+            Some(name) => {
+                let Some(i) = channels.iter().position(|(n, _)| n == name) else {
+                    bail!("--scale `{item}`: no selected channel `{name}`");
+                };
+                scales[i] = factor;
+            }
+        }
+    }
+    Ok(scales)
 }
 
 /// The column as i32 counts if every value is an integer in i32 range.
