@@ -193,3 +193,47 @@ fn interchange_file_channels_in_si_units() {
     ]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("no channel `ax`"));
 }
+
+#[test]
+fn adis_session1_through_cli_reproduces_reference() {
+    let data = dynacal::data_dir();
+    let session = data.join("adis16405/session1.csv.gz");
+    let golden = data.join("golden/smac_wavelet_variance.json");
+    if !session.exists() || !golden.exists() {
+        println!("SKIP: {} or {} absent", session.display(), golden.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("adis.json");
+    let o = dynacal(&[
+        session.to_str().unwrap(),
+        "--rate",
+        "100",
+        "--scale",
+        "gx=0.05,gy=0.05,gz=0.05,ax=0.00333,ay=0.00333,az=0.00333",
+        "--json",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    let reference = dynacal::wv::read_smac_golden(&golden).unwrap();
+    let mut checked = 0;
+    for g in reference.iter().filter(|g| g.sensor_key == "adis") {
+        let key = g.channel_key().unwrap();
+        let got: dynacal::wv::WaveletVariance =
+            serde_json::from_value(json["channels"][key].clone()).unwrap();
+        assert_eq!(got.levels, g.wv.levels);
+        for (ours, theirs) in [
+            (&got.variance, &g.wv.variance),
+            (&got.ci_low, &g.wv.ci_low),
+            (&got.ci_high, &g.wv.ci_high),
+            (&got.scales_s, &g.wv.scales_s),
+        ] {
+            for (a, b) in ours.iter().zip(theirs) {
+                assert!(((a - b) / b).abs() < 1e-9, "{key}: {a} vs {b}");
+            }
+        }
+        checked += 1;
+    }
+    assert_eq!(checked, 6);
+}
