@@ -1,3 +1,58 @@
-//! dynacal firmware entry point (filled in by the firmware work).
-#![no_std]
-#![no_main]
+//! dynacal firmware: records three IMUs and GNSS PPS edges into the dynacal log.
+//!
+//! The application (`dynacal_core::recorder::Recorder`) is board-agnostic; this crate adds
+//! the board layer (`board::*`, one board per cargo feature), start-up, cost measurement
+//! and fatal-error handling. See `firmware/README.md` for the boards and how to run them.
+#![cfg_attr(target_os = "none", no_std)]
+#![cfg_attr(target_os = "none", no_main)]
+
+#[cfg(target_os = "none")]
+mod board;
+#[cfg(target_os = "none")]
+mod cost;
+
+#[cfg(target_os = "none")]
+mod bare_metal {
+    use cortex_m_rt::{entry, exception, ExceptionFrame};
+    use dynacal_core::recorder::Recorder;
+
+    use crate::{board, cost};
+
+    #[entry]
+    fn main() -> ! {
+        let Some(core) = cortex_m::Peripherals::take() else {
+            board::fatal("core peripherals taken twice")
+        };
+        let mut clock = cost::SysTickClock::start(core.SYST);
+        let calibration = clock.calibrate();
+        defmt::info!(
+            "dynacal-firmware on {=str}: {=u64} SysTick ticks per {=u64} calibration instructions",
+            board::NAME,
+            calibration.ticks,
+            calibration.instructions
+        );
+        let mut parts = board::init();
+        let recorder = Recorder::new(parts.header);
+        let result = recorder.run(&mut parts.source, &mut parts.sink, &mut clock);
+        board::finish(result, &calibration, &mut parts.sink)
+    }
+
+    #[panic_handler]
+    fn panic(info: &core::panic::PanicInfo) -> ! {
+        board::fatal_panic(info)
+    }
+
+    #[exception]
+    unsafe fn HardFault(frame: &ExceptionFrame) -> ! {
+        board::fatal_hard_fault(frame.pc())
+    }
+}
+
+#[cfg(not(target_os = "none"))]
+fn main() {
+    eprintln!(
+        "dynacal-firmware runs on a Cortex-M4F: build it with --target thumbv7em-none-eabihf \
+         and --features board-replay or board-stm32f405 (see firmware/README.md)"
+    );
+    std::process::exit(2);
+}

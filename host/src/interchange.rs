@@ -6,7 +6,11 @@
 //! space) and specific force `ax_m_s2, ay_m_s2, az_m_s2`; optionally the attitude of the body
 //! w.r.t. local North-East-Down `roll_rad, pitch_rad, yaw_rad` (Z-Y-X), the position
 //! `lat_rad, lon_rad, h_m` and the NED velocity `vn_m_s, ve_m_s, vd_m_s`. A triplet is all
-//! present or all absent. Unknown columns are ignored.
+//! present or all absent, with one exception: a single-axis sensor may give exactly one of the
+//! gyro (or accelerometer) columns alone (see [`SingleAxis`]); two of three is still an error,
+//! as it is far more often a misspelt column than a two-axis sensor. A file may hold no IMU
+//! channel at all (a reference trajectory: attitude, velocity, position). Unknown columns are
+//! ignored.
 
 use std::fs::File;
 use std::io::{BufReader, Read, Write};
@@ -36,7 +40,8 @@ pub enum TableError {
     /// A column the format requires is absent from the header.
     #[error("{path}: line 1: missing required column `{column}`")]
     MissingColumn { path: PathBuf, column: String },
-    /// Only part of a column triplet (e.g. `gx_rad_s` without `gy_rad_s`) is present.
+    /// Only part of a column triplet is present (e.g. `gx_rad_s` and `gy_rad_s` without
+    /// `gz_rad_s`, or `roll_rad` alone). A lone gyro or accelerometer column is allowed.
     #[error("{path}: line 1: column `{present}` needs `{missing}` too")]
     IncompleteTriplet {
         path: PathBuf,
@@ -134,6 +139,13 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
                 path: path.to_path_buf(),
                 source,
             },
+            csv::ErrorKind::UnequalLengths {
+                expected_len, len, ..
+            } => TableError::Csv {
+                path: path.to_path_buf(),
+                line,
+                message: format!("{len} fields, expected {expected_len} as in the header"),
+            },
             other => TableError::Csv {
                 path: path.to_path_buf(),
                 line,
@@ -209,6 +221,17 @@ const VELOCITY: [&str; 3] = ["vn_m_s", "ve_m_s", "vd_m_s"];
 /// Three columns of equal length, one per axis.
 pub type Triplet = [Vec<f64>; 3];
 
+/// One axis of a single-axis sensor: a gyro or accelerometer channel whose other two axes
+/// do not exist (e.g. a lone gyro X record). At most one per triplet, and only when the
+/// triplet itself is absent.
+#[derive(Debug, Clone, PartialEq)]
+pub struct SingleAxis {
+    /// Index into [`CHANNELS`]: 0..3 gyro x, y, z (rad/s); 3..6 accelerometer x, y, z (m/s^2).
+    pub channel: usize,
+    /// One value per `t_s`, in the channel's unit, body frame (FRD) axis.
+    pub values: Vec<f64>,
+}
+
 /// One sensor's recording in the interchange format, column by column (SI units).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ImuRecording {
@@ -224,6 +247,8 @@ pub struct ImuRecording {
     pub position: Option<Triplet>,
     /// Velocity w.r.t. Earth in NED, m/s.
     pub velocity_ned_m_s: Option<Triplet>,
+    /// Lone channels of single-axis sensors (empty for ordinary three-axis recordings).
+    pub single_axis: Vec<SingleAxis>,
 }
 
 impl ImuRecording {
@@ -251,8 +276,15 @@ impl ImuRecording {
             self.gyro_rad_s.as_ref()
         } else {
             self.accel_m_s2.as_ref()
-        }?;
-        Some(triplet[i % 3].as_slice())
+        };
+        match triplet {
+            Some(t) => Some(t[i % 3].as_slice()),
+            None => self
+                .single_axis
+                .iter()
+                .find(|s| s.channel == i)
+                .map(|s| s.values.as_slice()),
+        }
     }
     /// The short names of the channels this recording has, in [`CHANNELS`] order.
     pub fn channels(&self) -> Vec<&'static str> {
@@ -294,6 +326,39 @@ impl ImuRecording {
                 }
             }
         }
+        let mut lone_in_triplet = [false; 2];
+        for single in &self.single_axis {
+            let bad = |message: String| TableError::Csv {
+                path: path.to_path_buf(),
+                line: 1,
+                message,
+            };
+            let Some(column) = CHANNEL_COLUMNS.get(single.channel) else {
+                return Err(bad(format!(
+                    "single-axis channel index {} is not a channel (0..6)",
+                    single.channel
+                )));
+            };
+            let (kind, full) = if single.channel < 3 {
+                (0, self.gyro_rad_s.is_some())
+            } else {
+                (1, self.accel_m_s2.is_some())
+            };
+            if full || lone_in_triplet[kind] {
+                return Err(bad(format!(
+                    "single-axis column `{column}` beside another column of its triplet"
+                )));
+            }
+            lone_in_triplet[kind] = true;
+            if single.values.len() != self.t_s.len() {
+                return Err(TableError::LengthMismatch {
+                    path: path.to_path_buf(),
+                    column: (*column).to_string(),
+                    len: single.values.len(),
+                    expected: self.t_s.len(),
+                });
+            }
+        }
         check_time_increasing(path, &self.t_s)
     }
 
@@ -311,9 +376,22 @@ impl ImuRecording {
                 column: "t_s".into(),
             })?
             .to_vec();
-        let triplet = |names: &[&str; 3]| -> Result<Option<Triplet>, TableError> {
+        let mut single_axis = Vec::new();
+        let mut triplet = |names: &[&str; 3]| -> Result<Option<Triplet>, TableError> {
             let present: Vec<bool> = names.iter().map(|n| table.index(n).is_some()).collect();
             if present.iter().all(|p| !p) {
+                return Ok(None);
+            }
+            let lone_imu_channel = CHANNEL_COLUMNS
+                .iter()
+                .position(|c| c == &names[0])
+                .filter(|_| present.iter().filter(|p| **p).count() == 1);
+            if let Some(first) = lone_imu_channel {
+                let axis = present.iter().position(|p| *p).unwrap();
+                single_axis.push(SingleAxis {
+                    channel: first + axis,
+                    values: table.column(names[axis]).unwrap().to_vec(),
+                });
                 return Ok(None);
             }
             if let Some(missing) = names.iter().zip(&present).find(|(_, p)| !**p) {
@@ -326,13 +404,19 @@ impl ImuRecording {
             }
             Ok(Some(names.map(|n| table.column(n).unwrap().to_vec())))
         };
+        let gyro_rad_s = triplet(&GYRO)?;
+        let accel_m_s2 = triplet(&ACCEL)?;
+        let attitude_rad = triplet(&ATTITUDE)?;
+        let position = triplet(&POSITION)?;
+        let velocity_ned_m_s = triplet(&VELOCITY)?;
         let recording = ImuRecording {
-            gyro_rad_s: triplet(&GYRO)?,
-            accel_m_s2: triplet(&ACCEL)?,
-            attitude_rad: triplet(&ATTITUDE)?,
-            position: triplet(&POSITION)?,
-            velocity_ned_m_s: triplet(&VELOCITY)?,
             t_s,
+            gyro_rad_s,
+            accel_m_s2,
+            attitude_rad,
+            position,
+            velocity_ned_m_s,
+            single_axis,
         };
         recording.validate(path)?;
         Ok(recording)
@@ -348,12 +432,20 @@ impl ImuRecording {
             source,
         };
         let mut out = AtomicFile::create(path).map_err(io)?;
-        let columns: Vec<(&str, &Vec<f64>)> = std::iter::once(("t_s", &self.t_s))
-            .chain(self.triplets().into_iter().flat_map(|(names, t)| {
-                t.into_iter()
-                    .flat_map(move |t| names.iter().copied().zip(t.iter()))
-            }))
-            .collect();
+        let mut columns: Vec<(&str, &Vec<f64>)> = vec![("t_s", &self.t_s)];
+        for (k, (names, t)) in self.triplets().into_iter().enumerate() {
+            match t {
+                Some(t) => columns.extend(names.iter().copied().zip(t.iter())),
+                // Lone gyro / accelerometer axes take their triplet's place.
+                None if k < 2 => columns.extend(
+                    self.single_axis
+                        .iter()
+                        .filter(|s| s.channel / 3 == k)
+                        .map(|s| (CHANNEL_COLUMNS[s.channel], &s.values)),
+                ),
+                None => {}
+            }
+        }
         {
             let mut w = out.writer();
             let header: Vec<&str> = columns.iter().map(|c| c.0).collect();
@@ -442,6 +534,10 @@ mod tests {
         let msg = ImuRecording::read(&path).unwrap_err().to_string();
         assert!(msg.contains("line 4") && msg.contains("t_s"), "{msg}");
 
+        std::fs::write(&path, "t_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.1,1,2\n").unwrap();
+        let msg = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(msg.contains("line 3: 3 fields, expected 4"), "{msg}");
+
         std::fs::write(&path, "time,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n").unwrap();
         let msg = ImuRecording::read(&path).unwrap_err().to_string();
         assert!(msg.contains("missing required column `t_s`"), "{msg}");
@@ -463,6 +559,50 @@ mod tests {
         let rec = ImuRecording::read(&path).unwrap();
         assert_eq!(rec.channels(), vec!["ax", "ay", "az"]);
         assert_eq!(rec.channel("az").unwrap(), &[3.0, 3.0]);
+    }
+
+    #[test]
+    fn single_axis_gyro_and_reference_only_files_round_trip() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("gx.csv");
+        std::fs::write(&path, "t_s,gx_rad_s\n0,0.5\n0.01,-0.25\n").unwrap();
+        let rec = ImuRecording::read(&path).unwrap();
+        assert_eq!(rec.channels(), vec!["gx"]);
+        assert_eq!(rec.channel("gx").unwrap(), &[0.5, -0.25]);
+        assert!(rec.gyro_rad_s.is_none() && rec.channel("gy").is_none());
+        let out = dir.path().join("gx-out.csv");
+        rec.write(&out).unwrap();
+        assert_eq!(
+            std::fs::read_to_string(&out).unwrap(),
+            "t_s,gx_rad_s\n0,0.5\n0.01,-0.25\n"
+        );
+
+        // A lone accelerometer axis next to a full gyro triplet is fine too.
+        std::fs::write(
+            &path,
+            "t_s,gx_rad_s,gy_rad_s,gz_rad_s,az_m_s2\n0,1,2,3,-9.8\n",
+        )
+        .unwrap();
+        let rec = ImuRecording::read(&path).unwrap();
+        assert_eq!(rec.channels(), vec!["gx", "gy", "gz", "az"]);
+
+        // No IMU channel at all: a reference trajectory (attitude only).
+        std::fs::write(&path, "t_s,roll_rad,pitch_rad,yaw_rad\n0,0.1,0.2,0.3\n").unwrap();
+        let rec = ImuRecording::read(&path).unwrap();
+        assert!(rec.channels().is_empty());
+        assert_eq!(rec.attitude_rad.as_ref().unwrap()[2], vec![0.3]);
+
+        // Navigation triplets stay all-or-nothing; a lone channel cannot sit beside its triplet.
+        std::fs::write(&path, "t_s,roll_rad\n0,0.1\n").unwrap();
+        let msg = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(msg.contains("pitch_rad"), "{msg}");
+        let mut both = sample();
+        both.single_axis.push(SingleAxis {
+            channel: 1,
+            values: vec![0.0; 3],
+        });
+        let msg = both.write(&out).unwrap_err().to_string();
+        assert!(msg.contains("gy_rad_s"), "{msg}");
     }
 
     #[test]

@@ -4,8 +4,18 @@
 //! The `dynacal` binary is a thin command-line layer over this library; errors here are
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
+pub mod decode;
+pub mod diagnose;
+pub mod error_signal;
+pub mod errors;
+pub mod gmwm;
+pub mod import;
 pub mod interchange;
+pub mod nav_smoother;
 pub mod output;
+pub mod replay;
+pub mod regress;
+pub mod sim;
 pub mod wv;
 
 use std::path::PathBuf;

@@ -54,6 +54,14 @@ impl AtomicFile {
     pub fn commit(mut self) -> io::Result<()> {
         let temp = self.temp.take().expect("commit twice");
         temp.as_file().sync_all()?;
+        // Temporary files are created private (0600); a finished output gets the usual
+        // permissions of a new file.
+        #[cfg(unix)]
+        {
+            use std::os::unix::fs::PermissionsExt;
+            temp.as_file()
+                .set_permissions(std::fs::Permissions::from_mode(0o644))?;
+        }
         temp.persist(&self.target).map_err(|e| e.error)?;
         Ok(())
     }

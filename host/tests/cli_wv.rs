@@ -168,6 +168,7 @@ fn interchange_file_channels_in_si_units() {
         attitude_rad: None,
         position: None,
         velocity_ned_m_s: None,
+        single_axis: Vec::new(),
     };
     rec.write(&path).unwrap();
     let out = dir.path().join("wv.json");

@@ -5,4 +5,8 @@
 //! hardware: pins, buses and clocks live in the firmware's board layer.
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
+pub mod log;
+pub mod recorder;
+pub mod replay;
+pub mod nav;
 pub mod wavelet;

@@ -14,6 +14,22 @@ pub struct Cli {
 pub enum Command {
     /// Show the header and size of an interchange file.
     Info(info::Args),
+    /// Build a sensor's error signals against a reference IMU or navigation solution.
+    Errors(errors::Args),
+    /// Regress error signals on the dynamics (paper Tables II/III).
+    Regress(regress::Args),
+    /// Convert a measured dataset (file or folder) into interchange files, one per sensor.
+    Import(import::Args),
+    /// GMWM fit of a stochastic error model per channel, with intervals and J-test.
+    Fit(fit::Args),
+    /// Fit two recordings with one model and compare parameters (the paper's Table I).
+    Compare(compare::Args),
+    /// Decode a board log into per-IMU interchange CSVs and summary.json.
+    Decode(decode::Args),
+    /// Simulate a car or static run: reference IMU, MEMS IMUs, GNSS and PPS.
+    Simulate(simulate::Args),
+    /// Run the firmware in QEMU on a minute of real ADIS16405 data and check the log.
+    Demo(demo::Args),
     /// Haar wavelet variance and Allan variance of each channel, with 95% intervals.
     Wv(wv::Args),
 }
@@ -21,9 +37,25 @@ pub enum Command {
 pub fn run(cli: Cli) -> anyhow::Result<()> {
     match cli.command {
         Command::Info(args) => info::run(args),
+        Command::Import(args) => import::run(args),
+        Command::Decode(args) => decode::run(args),
+        Command::Simulate(args) => simulate::run(args),
+        Command::Demo(args) => demo::run(args),
+        Command::Errors(args) => errors::run(args),
+        Command::Regress(args) => regress::run(args),
+        Command::Fit(args) => fit::run(args),
+        Command::Compare(args) => compare::run(args),
         Command::Wv(args) => wv::run(args),
     }
 }
 
+mod compare;
+mod decode;
+mod demo;
+mod errors;
+mod fit;
+mod import;
 mod info;
+mod regress;
+mod simulate;
 mod wv;

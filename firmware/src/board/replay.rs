@@ -1,0 +1,471 @@
+//! Replay board: the application under QEMU (`-machine netduinoplus2`, an STM32F405), fed
+//! from a recording instead of sensors.
+//!
+//! The semihosting command line names two host files: the replay input
+//! (`dynacal_core::replay` format) and the log to write. Both are accessed with semihosting
+//! file calls; each call is a trap into QEMU, so input is read and output written in large
+//! chunks. The log is written to `OUT.part` and renamed to `OUT` only after a complete run,
+//! so a failed run never leaves a log that looks whole. The run report (counts and the
+//! instruction cost measured with SysTick) is printed on semihosting stderr as one
+//! `key=value` line; QEMU's exit status is the guest's exit code:
+//! 0 success, 1 run failed (bad input, I/O), 2 usage, 101 panic, 102 HardFault.
+
+// Error messages are formatted into fixed buffers (no allocator), so `Result`s carry them
+// inline; they are built only on the way to exit.
+#![allow(clippy::result_large_err)]
+
+use core::ffi::CStr;
+use core::fmt::Write as _;
+
+use dynacal_core::log::ImuSampleSet;
+use dynacal_core::log::{Header, ImuConfig, PpsEvent, IMU_MODEL_LEN, MAX_IMUS, PROTOCOL_VERSION};
+use dynacal_core::recorder::{
+    Accepted, LogSink, RecorderError, RecorderStats, SampleSource, SourceEvent,
+};
+use dynacal_core::replay::{
+    decode_header, decode_record, ReplayError, ReplayHeader, ReplayRecord, MAX_HEADER_LEN,
+};
+use heapless::String;
+use semihosting::fs::{File, OpenOptions};
+use semihosting::io::{Read as _, Write as _};
+
+use crate::cost::Calibration;
+// The defmt global logger: frames go to semihosting stdout (decode with defmt-print).
+use defmt_semihosting as _;
+
+/// Board name written in the log header.
+pub const NAME: &str = "replay-qemu-netduinoplus2";
+
+/// Bytes read from the input per semihosting call.
+const INPUT_CHUNK: usize = 16 * 1024;
+/// Bytes of log collected before one semihosting write.
+const OUTPUT_CHUNK: usize = 32 * 1024;
+/// Longest host path accepted, bytes (NUL excluded).
+const MAX_PATH: usize = 255;
+
+const EXIT_RUN_FAILED: i32 = 1;
+const EXIT_USAGE: i32 = 2;
+const EXIT_PANIC: i32 = 101;
+const EXIT_HARD_FAULT: i32 = 102;
+
+type Path = String<MAX_PATH>;
+
+/// What `main` runs the recorder on.
+pub struct Parts {
+    pub header: Header,
+    pub source: ReplaySource,
+    pub sink: SemihostingSink,
+}
+
+/// Reads the command line, opens both files and reads the replay header; on any failure
+/// prints why and exits.
+pub fn init() -> Parts {
+    let (input_path, output_path) = match command_line() {
+        Ok(paths) => paths,
+        Err(message) => {
+            semihosting::eprintln!("dynacal-firmware: {message}");
+            semihosting::eprintln!("usage: dynacal-firmware REPLAY_INPUT LOG_OUTPUT");
+            semihosting::process::exit(EXIT_USAGE)
+        }
+    };
+    match open(input_path, output_path) {
+        Ok(parts) => parts,
+        Err(message) => fail(&message),
+    }
+}
+
+fn command_line() -> Result<(Path, Path), Message> {
+    let args = semihosting::experimental::env::args::<1024>().map_err(|e| {
+        message(format_args!(
+            "cannot read the semihosting command line: {e}"
+        ))
+    })?;
+    let mut words = (&args).skip(1);
+    let mut next_path = |what: &str| -> Result<Path, Message> {
+        let word = words
+            .next()
+            .ok_or_else(|| message(format_args!("missing {what} path")))?
+            .map_err(|_| message(format_args!("{what} path is not UTF-8")))?;
+        Path::try_from(word)
+            .map_err(|_| message(format_args!("{what} path longer than {MAX_PATH} bytes")))
+    };
+    let input = next_path("replay input")?;
+    let output = next_path("log output")?;
+    Ok((input, output))
+}
+
+fn open(input_path: Path, output_path: Path) -> Result<Parts, Message> {
+    let mut c_path = [0u8; MAX_PATH + 1];
+    let input = File::open(c_str(&input_path, &mut c_path))
+        .map_err(|e| message(format_args!("{input_path}: cannot open: {e}")))?;
+    let input_buf = cortex_m::singleton!(: [u8; INPUT_CHUNK] = [0; INPUT_CHUNK])
+        .ok_or_else(|| message(format_args!("input buffer taken twice")))?;
+    let mut source = ReplaySource {
+        file: input,
+        path: input_path,
+        buf: input_buf,
+        start: 0,
+        end: 0,
+        eof: false,
+        buf_offset: 0,
+        header: ReplayHeader {
+            imus: heapless::Vec::new(),
+        },
+        imu_records: 0,
+        pps_records: 0,
+        ended: false,
+    };
+    source.fill()?;
+    let (replay_header, used) = loop {
+        match decode_header(source.pending()) {
+            Ok(done) => break done,
+            Err(ReplayError::Incomplete { .. })
+                if !source.eof && source.pending().len() < MAX_HEADER_LEN =>
+            {
+                source.fill()?
+            }
+            Err(e) => return Err(message(format_args!("{}: header: {e}", source.path))),
+        }
+    };
+    source.consume(used);
+    let header = log_header(&replay_header, &source.path)?;
+    source.header = replay_header;
+
+    let part_path = part_path(&output_path)?;
+    let output = OpenOptions::new()
+        .write(true)
+        .create(true)
+        .truncate(true)
+        .open(c_str(&part_path, &mut c_path))
+        .map_err(|e| message(format_args!("{part_path}: cannot create: {e}")))?;
+    let output_buf = cortex_m::singleton!(: [u8; OUTPUT_CHUNK] = [0; OUTPUT_CHUNK])
+        .ok_or_else(|| message(format_args!("output buffer taken twice")))?;
+    defmt::info!(
+        "replay: {=usize} IMU(s), log to {=str}",
+        header.imus.len(),
+        output_path.as_str()
+    );
+    Ok(Parts {
+        header,
+        source,
+        sink: SemihostingSink {
+            file: Some(output),
+            part_path,
+            path: output_path,
+            buf: output_buf,
+            len: 0,
+        },
+    })
+}
+
+/// The log header for the IMUs a replay file declares.
+fn log_header(replay: &ReplayHeader, path: &str) -> Result<Header, Message> {
+    let mut imus = heapless::Vec::new();
+    for imu in &replay.imus {
+        let mut model = String::<IMU_MODEL_LEN>::new();
+        // Both fields hold 16 bytes, so an ASCII model name always fits.
+        let _ = model.push_str(imu.model_str());
+        imus.push(ImuConfig {
+            imu_id: imu.imu_id,
+            model,
+            sample_rate_hz: imu.sample_rate_hz,
+            gyro_scale_rad_s_per_count: imu.gyro_scale_rad_s_per_count,
+            accel_scale_m_s2_per_count: imu.accel_scale_m_s2_per_count,
+        })
+        .map_err(|_| {
+            message(format_args!(
+                "{path}: {} IMUs declared, the log holds at most {MAX_IMUS}",
+                replay.imus.len()
+            ))
+        })?;
+    }
+    let mut board = String::new();
+    let _ = board.push_str(NAME);
+    Ok(Header {
+        protocol_version: PROTOCOL_VERSION,
+        board,
+        imus,
+    })
+}
+
+fn part_path(output_path: &Path) -> Result<Path, Message> {
+    let mut part = output_path.clone();
+    part.push_str(".part")
+        .map_err(|_| message(format_args!("{output_path}: path too long")))?;
+    Ok(part)
+}
+
+fn c_str<'a>(path: &str, buf: &'a mut [u8; MAX_PATH + 1]) -> &'a CStr {
+    let len = path.len().min(MAX_PATH);
+    buf[..len].copy_from_slice(&path.as_bytes()[..len]);
+    buf[len] = 0;
+    // A path holding a NUL is cut there; the open then fails naming the whole path.
+    CStr::from_bytes_until_nul(&buf[..=len]).unwrap_or(c"")
+}
+
+/// Sample sets and PPS edges read from the replay input.
+pub struct ReplaySource {
+    file: File,
+    path: Path,
+    buf: &'static mut [u8; INPUT_CHUNK],
+    /// `buf[start..end]` holds input not yet decoded.
+    start: usize,
+    end: usize,
+    eof: bool,
+    /// File offset of `buf[start]`, for error messages.
+    buf_offset: u64,
+    header: ReplayHeader,
+    imu_records: u64,
+    pps_records: u64,
+    ended: bool,
+}
+
+impl ReplaySource {
+    fn pending(&self) -> &[u8] {
+        &self.buf[self.start..self.end]
+    }
+
+    fn consume(&mut self, n: usize) {
+        self.start += n;
+        self.buf_offset += n as u64;
+    }
+
+    /// Moves undecoded bytes to the front and reads until the buffer is full or the file
+    /// ends.
+    fn fill(&mut self) -> Result<(), Message> {
+        self.buf.copy_within(self.start..self.end, 0);
+        self.end -= self.start;
+        self.start = 0;
+        while self.end < INPUT_CHUNK && !self.eof {
+            match self.file.read(&mut self.buf[self.end..]) {
+                Ok(0) => self.eof = true,
+                Ok(n) => self.end += n,
+                Err(e) => return Err(message(format_args!("{}: read failed: {e}", self.path))),
+            }
+        }
+        Ok(())
+    }
+
+    fn error_at(&self, what: core::fmt::Arguments<'_>) -> Message {
+        message(format_args!(
+            "{}: byte {}: {what}",
+            self.path, self.buf_offset
+        ))
+    }
+}
+
+impl SampleSource for ReplaySource {
+    type Error = Message;
+
+    fn next_event(&mut self) -> Result<Option<SourceEvent>, Message> {
+        if self.ended {
+            return Ok(None);
+        }
+        loop {
+            let record = match decode_record(self.pending()) {
+                Ok((record, used)) => {
+                    self.consume(used);
+                    record
+                }
+                Err(ReplayError::Incomplete { .. }) if !self.eof => {
+                    self.fill()?;
+                    continue;
+                }
+                Err(ReplayError::Incomplete { .. }) => {
+                    return Err(self.error_at(format_args!(
+                        "input ends without an end record (truncated file?)"
+                    )))
+                }
+                Err(e) => return Err(self.error_at(format_args!("{e}"))),
+            };
+            return match record {
+                ReplayRecord::Imu {
+                    t_us,
+                    imu_id,
+                    gyro_counts,
+                    accel_counts,
+                } => {
+                    if self.header.imu(imu_id).is_none() {
+                        return Err(self.error_at(format_args!(
+                            "record names IMU {imu_id}, which the header does not declare"
+                        )));
+                    }
+                    self.imu_records += 1;
+                    Ok(Some(SourceEvent::Imu(ImuSampleSet {
+                        t_us,
+                        imu_id,
+                        gyro_counts,
+                        accel_counts,
+                    })))
+                }
+                ReplayRecord::Pps { t_us } => {
+                    let sequence = self.pps_records as u32;
+                    self.pps_records += 1;
+                    Ok(Some(SourceEvent::Pps(PpsEvent { t_us, sequence })))
+                }
+                ReplayRecord::End {
+                    imu_sample_sets,
+                    pps_edges,
+                } => {
+                    if (imu_sample_sets, pps_edges) != (self.imu_records, self.pps_records) {
+                        return Err(self.error_at(format_args!(
+                            "end record counts {imu_sample_sets} IMU and {pps_edges} PPS records, \
+                             the file holds {} and {}",
+                            self.imu_records, self.pps_records
+                        )));
+                    }
+                    if self.start == self.end {
+                        self.fill()?;
+                    }
+                    if self.start != self.end {
+                        return Err(self.error_at(format_args!("bytes after the end record")));
+                    }
+                    self.ended = true;
+                    Ok(None)
+                }
+            };
+        }
+    }
+}
+
+/// The log, collected in large chunks and written to a host file.
+pub struct SemihostingSink {
+    file: Option<File>,
+    part_path: Path,
+    path: Path,
+    buf: &'static mut [u8; OUTPUT_CHUNK],
+    len: usize,
+}
+
+impl SemihostingSink {
+    fn write_out(&mut self) -> Result<(), Message> {
+        let Some(file) = self.file.as_mut() else {
+            return Err(message(format_args!(
+                "{}: written after close",
+                self.part_path
+            )));
+        };
+        file.write_all(&self.buf[..self.len])
+            .map_err(|e| message(format_args!("{}: write failed: {e}", self.part_path)))?;
+        self.len = 0;
+        Ok(())
+    }
+
+    /// Closes the log and gives it its final name.
+    fn commit(&mut self) -> Result<(), Message> {
+        self.write_out()?;
+        drop(self.file.take());
+        let mut from = [0u8; MAX_PATH + 1];
+        let mut to = [0u8; MAX_PATH + 1];
+        semihosting::fs::rename(
+            c_str(&self.part_path, &mut from),
+            c_str(&self.path, &mut to),
+        )
+        .map_err(|e| {
+            message(format_args!(
+                "cannot rename {} to {}: {e}",
+                self.part_path, self.path
+            ))
+        })
+    }
+}
+
+impl LogSink for SemihostingSink {
+    type Error = Message;
+
+    fn write_frame(&mut self, frame: &[u8]) -> Result<Accepted, Message> {
+        if self.len + frame.len() > OUTPUT_CHUNK {
+            self.write_out()?;
+        }
+        // A frame is far shorter than the chunk, so it fits after a write-out.
+        self.buf[self.len..self.len + frame.len()].copy_from_slice(frame);
+        self.len += frame.len();
+        Ok(Accepted::Written)
+    }
+
+    fn flush(&mut self) -> Result<(), Message> {
+        self.write_out()
+    }
+}
+
+/// Reports the run and exits with its status.
+pub fn finish(
+    result: Result<RecorderStats, RecorderError<Message, Message>>,
+    calibration: &Calibration,
+    sink: &mut SemihostingSink,
+) -> ! {
+    let stats = match result {
+        Ok(stats) => stats,
+        Err(RecorderError::Source(m)) | Err(RecorderError::Sink(m)) => fail(&m),
+        Err(RecorderError::Encode(e)) => fail(&message(format_args!("log encoding failed: {e}"))),
+        Err(RecorderError::UnknownImu { imu_id, t_us }) => fail(&message(format_args!(
+            "sample at t_us={t_us} names IMU {imu_id}, which the header does not declare"
+        ))),
+        Err(RecorderError::TimeWentBackwards {
+            t_us,
+            previous_t_us,
+        }) => fail(&message(format_args!(
+            "time went backwards: t_us={t_us} after t_us={previous_t_us}"
+        ))),
+    };
+    if let Err(m) = sink.commit() {
+        fail(&m)
+    }
+    let mut line = String::<512>::new();
+    let _ = write!(
+        line,
+        "dynacal-firmware: run-report board={NAME} imu_sample_sets={} pps_edges={} \
+         health_reports={} frames_written={} bytes_written={} frames_dropped={} \
+         record_instructions={} source_instructions={} total_instructions={} \
+         calibration_instructions={} calibration_ticks={}",
+        stats.total_imu_sample_sets(),
+        stats.pps_edges,
+        stats.health_reports,
+        stats.frames_written,
+        stats.bytes_written,
+        stats.frames_dropped,
+        calibration.instructions(stats.record_ticks),
+        calibration.instructions(stats.source_ticks),
+        calibration.instructions(stats.total_ticks),
+        calibration.instructions,
+        calibration.ticks,
+    );
+    semihosting::eprintln!("{line}");
+    defmt::info!(
+        "run complete: {=u64} sample sets",
+        stats.total_imu_sample_sets()
+    );
+    semihosting::process::exit(0)
+}
+
+/// Prints `message` on stderr and exits with the run-failed code.
+fn fail(message: &Message) -> ! {
+    semihosting::eprintln!("dynacal-firmware: error: {message}");
+    defmt::error!("run failed");
+    semihosting::process::exit(EXIT_RUN_FAILED)
+}
+
+pub fn fatal(what: &str) -> ! {
+    semihosting::eprintln!("dynacal-firmware: fatal: {what}");
+    semihosting::process::exit(EXIT_RUN_FAILED)
+}
+
+pub fn fatal_panic(info: &core::panic::PanicInfo) -> ! {
+    semihosting::eprintln!("dynacal-firmware: panic: {info}");
+    semihosting::process::exit(EXIT_PANIC)
+}
+
+pub fn fatal_hard_fault(pc: u32) -> ! {
+    semihosting::eprintln!("dynacal-firmware: HardFault at pc=0x{pc:08x}");
+    semihosting::process::exit(EXIT_HARD_FAULT)
+}
+
+/// An error message, formatted on the board (no allocator).
+pub type Message = String<320>;
+
+fn message(args: core::fmt::Arguments<'_>) -> Message {
+    let mut m = Message::new();
+    // A message longer than the buffer is cut, which still names the file first.
+    let _ = m.write_fmt(args);
+    m
+}

@@ -1,0 +1,34 @@
+//! `dynacal import PATH --out DIR`: convert a measured dataset (file or folder) into
+//! interchange files, one per sensor, written all together or not at all.
+
+use std::path::PathBuf;
+
+use dynacal::import::import_to_dir;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// A dataset file, or a folder searched (with its subfolders) for dataset files.
+    pub path: PathBuf,
+    /// Folder for the interchange files (`<sensor>.csv.gz`); created if needed.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let report = import_to_dir(&args.path, &args.out)?;
+    for w in &report.written {
+        println!(
+            "{}: {} samples, {:.3} s, [{}] <- {} ({})",
+            w.path.display(),
+            w.samples,
+            w.duration_s,
+            w.contents.join(" "),
+            w.source.display(),
+            w.dataset.describe()
+        );
+    }
+    for s in &report.skipped {
+        println!("skipped {} (not a dataset)", s.display());
+    }
+    Ok(())
+}

@@ -1,0 +1,4 @@
+//! The discrepancy engine: what the simulation gets wrong, the named cause, the extended
+//! model and the measured gain (`dynacal diagnose`).
+
+pub mod stats;

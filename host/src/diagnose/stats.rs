@@ -1,0 +1,431 @@
+//! Statistics that expose the causes a stochastic baseline model cannot explain: spectral
+//! lines, outliers, a shift in the mean, and a noise level that follows the dynamics. Each
+//! takes a residual error series (after the deterministic terms are removed) and returns an
+//! estimate in physical units plus a test statistic that the discrepancy engine compares
+//! with the same statistic on series simulated from the baseline model.
+
+use realfft::RealFftPlanner;
+use serde::{Deserialize, Serialize};
+
+/// One-sided power spectral density by Welch's method (Hann window, 50% overlap).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Psd {
+    /// Bin frequencies, Hz.
+    pub freq_hz: Vec<f64>,
+    /// Density, unit^2/Hz.
+    pub density: Vec<f64>,
+    /// Number of averaged segments.
+    pub segments: usize,
+    /// Bin width, Hz.
+    pub df_hz: f64,
+}
+
+/// Welch PSD of `x` sampled every `dt_s`, with segments of `segment_len` samples (a power of
+/// two is fastest). The mean of each segment is removed.
+pub fn welch_psd(x: &[f64], dt_s: f64, segment_len: usize) -> Psd {
+    let m = segment_len.min(x.len()).max(8);
+    let step = m / 2;
+    let window: Vec<f64> = (0..m)
+        .map(|i| 0.5 - 0.5 * (2.0 * std::f64::consts::PI * i as f64 / m as f64).cos())
+        .collect();
+    let window_power: f64 = window.iter().map(|w| w * w).sum();
+    let mut planner = RealFftPlanner::<f64>::new();
+    let fft = planner.plan_fft_forward(m);
+    let mut input = fft.make_input_vec();
+    let mut spectrum = fft.make_output_vec();
+    let mut acc = vec![0.0; m / 2 + 1];
+    let mut segments = 0;
+    let mut start = 0;
+    while start + m <= x.len() {
+        let seg = &x[start..start + m];
+        let mean = seg.iter().sum::<f64>() / m as f64;
+        for i in 0..m {
+            input[i] = (seg[i] - mean) * window[i];
+        }
+        if fft.process(&mut input, &mut spectrum).is_ok() {
+            for (a, c) in acc.iter_mut().zip(&spectrum) {
+                *a += c.norm_sqr();
+            }
+            segments += 1;
+        }
+        start += step;
+    }
+    let fs = 1.0 / dt_s;
+    let scale = 1.0 / (fs * window_power * segments.max(1) as f64);
+    let density = acc
+        .iter()
+        .enumerate()
+        .map(|(k, a)| {
+            let one_sided = if k == 0 || k == m / 2 { 1.0 } else { 2.0 };
+            a * scale * one_sided
+        })
+        .collect();
+    Psd {
+        freq_hz: (0..=m / 2).map(|k| k as f64 * fs / m as f64).collect(),
+        density,
+        segments,
+        df_hz: fs / m as f64,
+    }
+}
+
+/// A narrow-band line standing out of the broadband noise.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SpectralLine {
+    /// Frequency of the peak bin, Hz (as seen at the series' sample rate, i.e. after any
+    /// aliasing).
+    pub freq_hz: f64,
+    /// Amplitude of the equivalent sinusoid, error units.
+    pub amplitude: f64,
+    /// Peak density over the local background.
+    pub power_ratio: f64,
+    /// Bonferroni-corrected p-value of the peak under a smooth-spectrum null.
+    pub p_value: f64,
+}
+
+/// Finds lines: bins whose density exceeds a running-median background by more than chance
+/// allows (each Welch bin is background x chi2(2K)/2K for K segments), Bonferroni-corrected
+/// over the bins, at family-wise level `alpha`. Adjacent significant bins form one line.
+pub fn spectral_lines(psd: &Psd, alpha: f64) -> Vec<SpectralLine> {
+    let n = psd.density.len();
+    if n < 16 || psd.segments == 0 {
+        return Vec::new();
+    }
+    let half = 8usize;
+    let background: Vec<f64> = (0..n)
+        .map(|k| {
+            let lo = k.saturating_sub(half);
+            let hi = (k + half + 1).min(n);
+            let mut w: Vec<f64> = psd.density[lo..hi].to_vec();
+            let mid = w.len() / 2;
+            // Median of chi2(2K)/2K is below 1; correct so the background is the mean.
+            let med = *w.select_nth_unstable_by(mid, f64::total_cmp).1;
+            med / chi2_median_over_dof(2 * psd.segments)
+        })
+        .collect();
+    let dof = 2.0 * psd.segments as f64;
+    let chi = statrs::distribution::ChiSquared::new(dof).expect("dof > 0");
+    use statrs::distribution::ContinuousCDF;
+    let bins = (n - 1) as f64;
+    let mut lines: Vec<SpectralLine> = Vec::new();
+    let mut k = 1;
+    while k < n {
+        let ratio = psd.density[k] / background[k].max(f64::MIN_POSITIVE);
+        let p = (chi.sf(ratio * dof) * bins).min(1.0);
+        if p < alpha {
+            // Gather the contiguous run of significant bins: a Hann-windowed line spreads
+            // over about three bins.
+            let start = k;
+            let mut end = k;
+            while end + 1 < n {
+                let r = psd.density[end + 1] / background[end + 1].max(f64::MIN_POSITIVE);
+                if (chi.sf(r * dof) * bins).min(1.0) < alpha || r > 3.0 {
+                    end += 1;
+                } else {
+                    break;
+                }
+            }
+            let lo = start.saturating_sub(1);
+            let hi = (end + 1).min(n - 1);
+            let excess: f64 = (lo..=hi)
+                .map(|j| (psd.density[j] - background[j]).max(0.0))
+                .sum::<f64>()
+                * psd.df_hz;
+            // Hann window: a sinusoid's power spreads over bins with an equivalent noise
+            // bandwidth of 1.5 bins, and the density sum times df recovers A^2/2.
+            let amplitude = (2.0 * excess).sqrt();
+            let peak = (start..=end)
+                .max_by(|&a, &b| psd.density[a].total_cmp(&psd.density[b]))
+                .unwrap_or(start);
+            let peak_ratio = psd.density[peak] / background[peak].max(f64::MIN_POSITIVE);
+            lines.push(SpectralLine {
+                freq_hz: psd.freq_hz[peak],
+                amplitude,
+                power_ratio: peak_ratio,
+                p_value: (chi.sf(peak_ratio * dof) * bins).min(1.0),
+            });
+            k = end + 2;
+        } else {
+            k += 1;
+        }
+    }
+    lines
+}
+
+fn chi2_median_over_dof(dof: usize) -> f64 {
+    // Wilson-Hilferty: median of chi2(k) ~ k (1 - 2/(9k))^3.
+    let k = dof as f64;
+    (1.0 - 2.0 / (9.0 * k)).powi(3)
+}
+
+/// Isolated outliers found against a running median.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Outliers {
+    /// Indices of the outlying samples.
+    pub indices: Vec<usize>,
+    /// Fraction of samples that are outliers.
+    pub rate: f64,
+    /// Median absolute size of the outliers above the local level, error units.
+    pub median_size: f64,
+    /// Robust scale of the residual around its running median, error units.
+    pub robust_sigma: f64,
+    /// Largest |z| seen.
+    pub max_abs_z: f64,
+}
+
+/// Flags samples more than `threshold` robust standard deviations from the running median of
+/// the series over `window` samples (odd). Slow wander (Gauss-Markov, random walk) is absorbed
+/// by the running median, so only isolated spikes stand out.
+pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
+    let n = x.len();
+    let w = (window | 1).max(3);
+    let h = w / 2;
+    let mut dev = Vec::with_capacity(n);
+    let mut buf = Vec::with_capacity(w);
+    for i in 0..n {
+        let lo = i.saturating_sub(h);
+        let hi = (i + h + 1).min(n);
+        buf.clear();
+        buf.extend_from_slice(&x[lo..hi]);
+        let mid = buf.len() / 2;
+        let med = *buf.select_nth_unstable_by(mid, f64::total_cmp).1;
+        dev.push(x[i] - med);
+    }
+    let mut abs: Vec<f64> = dev.iter().map(|d| d.abs()).collect();
+    let mid = abs.len() / 2;
+    let mad = if abs.is_empty() {
+        0.0
+    } else {
+        *abs.select_nth_unstable_by(mid, f64::total_cmp).1
+    };
+    let sigma = 1.4826 * mad;
+    let z: Vec<f64> = dev
+        .iter()
+        .map(|d| if sigma > 0.0 { d / sigma } else { 0.0 })
+        .collect();
+    let indices: Vec<usize> = (0..n).filter(|&i| z[i].abs() > threshold).collect();
+    let mut sizes: Vec<f64> = indices.iter().map(|&i| dev[i].abs()).collect();
+    let median_size = if sizes.is_empty() {
+        0.0
+    } else {
+        let m = sizes.len() / 2;
+        *sizes.select_nth_unstable_by(m, f64::total_cmp).1
+    };
+    Outliers {
+        rate: indices.len() as f64 / n.max(1) as f64,
+        indices,
+        median_size,
+        robust_sigma: sigma,
+        max_abs_z: z.iter().fold(0.0f64, |a, b| a.max(b.abs())),
+    }
+}
+
+/// The most likely single shift in the mean of a series.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MeanShift {
+    /// Index of the first sample after the shift.
+    pub index: usize,
+    /// Mean after minus mean before, error units.
+    pub size: f64,
+    /// Max |CUSUM| scaled by the long-run standard deviation and sqrt(n): the
+    /// Kolmogorov-type statistic, compared against baseline simulations.
+    pub statistic: f64,
+    /// Standard error of `size` from the long-run variance.
+    pub size_std_error: f64,
+}
+
+/// CUSUM change-point statistic of `x` (see [`MeanShift`]). The long-run variance is
+/// estimated from the first differences' scale (robust to the shift itself) and a Bartlett
+/// long-run correction of the differences' autocorrelation is not attempted: the engine
+/// calibrates the statistic by simulation from the baseline model, so only its ordering
+/// matters.
+pub fn mean_shift(x: &[f64]) -> MeanShift {
+    let n = x.len();
+    let total: f64 = x.iter().sum();
+    let mut s = 0.0;
+    let mut best = (0usize, 0.0f64);
+    for (k, v) in x.iter().enumerate().take(n.saturating_sub(1)) {
+        s += v;
+        let dev = (s - (k + 1) as f64 / n as f64 * total).abs();
+        // Weight by the standard deviation of a Brownian bridge so edges are not favoured
+        // too little: the ordinary CUSUM maximiser.
+        if dev > best.1 {
+            best = (k + 1, dev);
+        }
+    }
+    let k = best.0.max(1).min(n - 1);
+    let before = x[..k].iter().sum::<f64>() / k as f64;
+    let after = x[k..].iter().sum::<f64>() / (n - k) as f64;
+    let lr_sd = long_run_sd(x, k);
+    MeanShift {
+        index: k,
+        size: after - before,
+        statistic: best.1 / (lr_sd * (n as f64).sqrt()).max(f64::MIN_POSITIVE),
+        size_std_error: lr_sd * (1.0 / k as f64 + 1.0 / (n - k) as f64).sqrt(),
+    }
+}
+
+/// Long-run standard deviation of `x` with the segment means (split at `k`) removed:
+/// Bartlett kernel with lag n^(1/3).
+fn long_run_sd(x: &[f64], k: usize) -> f64 {
+    let n = x.len();
+    let m1 = x[..k].iter().sum::<f64>() / k as f64;
+    let m2 = x[k..].iter().sum::<f64>() / (n - k) as f64;
+    let d: Vec<f64> = (0..n).map(|i| x[i] - if i < k { m1 } else { m2 }).collect();
+    let lag = ((n as f64).powf(1.0 / 3.0).ceil() as usize).max(1);
+    let gamma = |l: usize| (l..n).map(|t| d[t] * d[t - l]).sum::<f64>() / n as f64;
+    let mut v = gamma(0);
+    for l in 1..=lag.min(n - 1) {
+        v += 2.0 * (1.0 - l as f64 / (lag as f64 + 1.0)) * gamma(l);
+    }
+    v.max(gamma(0) * 1e-6).sqrt()
+}
+
+/// How the short-term noise level follows a dynamics magnitude.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NoiseVsDynamics {
+    /// Slope of the windowed noise standard deviation on the dynamics magnitude, error units
+    /// per dynamics unit.
+    pub slope: f64,
+    /// Its standard error (windows are nearly independent for white-noise-dominated short
+    /// scales).
+    pub slope_std_error: f64,
+    /// Noise standard deviation at zero dynamics, error units.
+    pub intercept: f64,
+    /// slope / std_error.
+    pub t: f64,
+}
+
+/// Regresses the short-term noise standard deviation (from first differences over windows of
+/// `window` samples, which removes slow correlated noise) on the window mean of `magnitude`
+/// (e.g. |omega| in rad/s). A stationary baseline gives a slope of zero.
+pub fn noise_vs_dynamics(x: &[f64], magnitude: &[f64], window: usize) -> NoiseVsDynamics {
+    let w = window.max(4);
+    let mut sd = Vec::new();
+    let mut mag = Vec::new();
+    for start in (0..x.len().saturating_sub(w)).step_by(w) {
+        let seg = &x[start..start + w];
+        let diffs: Vec<f64> = seg.windows(2).map(|p| p[1] - p[0]).collect();
+        let mean = diffs.iter().sum::<f64>() / diffs.len() as f64;
+        let var = diffs.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (diffs.len() - 1) as f64;
+        // A difference of white noise has twice its variance.
+        sd.push((var / 2.0).sqrt());
+        mag.push(magnitude[start..start + w].iter().sum::<f64>() / w as f64);
+    }
+    let n = sd.len() as f64;
+    if n < 3.0 {
+        return NoiseVsDynamics {
+            slope: 0.0,
+            slope_std_error: f64::INFINITY,
+            intercept: 0.0,
+            t: 0.0,
+        };
+    }
+    let mx = mag.iter().sum::<f64>() / n;
+    let my = sd.iter().sum::<f64>() / n;
+    let sxx: f64 = mag.iter().map(|m| (m - mx).powi(2)).sum();
+    let sxy: f64 = mag.iter().zip(&sd).map(|(m, s)| (m - mx) * (s - my)).sum();
+    if sxx <= 0.0 {
+        return NoiseVsDynamics {
+            slope: 0.0,
+            slope_std_error: f64::INFINITY,
+            intercept: my,
+            t: 0.0,
+        };
+    }
+    let slope = sxy / sxx;
+    let intercept = my - slope * mx;
+    let rss: f64 = mag
+        .iter()
+        .zip(&sd)
+        .map(|(m, s)| (s - intercept - slope * m).powi(2))
+        .sum();
+    let se = (rss / (n - 2.0) / sxx).sqrt();
+    NoiseVsDynamics {
+        slope,
+        slope_std_error: se,
+        intercept,
+        t: if se > 0.0 { slope / se } else { 0.0 },
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::StandardNormal;
+
+    fn white(rng: &mut ChaCha8Rng, n: usize, sd: f64) -> Vec<f64> {
+        (0..n)
+            .map(|_| sd * rng.sample::<f64, _>(StandardNormal))
+            .collect()
+    }
+
+    #[test]
+    fn finds_a_vibration_line_with_its_amplitude_and_nothing_in_pure_noise() {
+        let mut rng = ChaCha8Rng::seed_from_u64(1);
+        let dt = 0.01;
+        let mut x = white(&mut rng, 60_000, 0.05);
+        assert!(spectral_lines(&welch_psd(&x, dt, 1024), 0.01).is_empty());
+        for (i, v) in x.iter_mut().enumerate() {
+            *v += 0.02 * (2.0 * std::f64::consts::PI * 17.3 * i as f64 * dt).sin();
+        }
+        let lines = spectral_lines(&welch_psd(&x, dt, 1024), 0.01);
+        assert_eq!(lines.len(), 1, "{lines:?}");
+        assert!((lines[0].freq_hz - 17.3).abs() < 0.15, "{lines:?}");
+        assert!((lines[0].amplitude - 0.02).abs() < 0.004, "{lines:?}");
+    }
+
+    #[test]
+    fn outliers_are_counted_despite_slow_wander() {
+        let mut rng = ChaCha8Rng::seed_from_u64(2);
+        let n = 50_000;
+        let mut gm = 0.0;
+        let mut x: Vec<f64> = (0..n)
+            .map(|_| {
+                gm = 0.999 * gm + 0.01 * rng.sample::<f64, _>(StandardNormal);
+                gm + 0.01 * rng.sample::<f64, _>(StandardNormal)
+            })
+            .collect();
+        assert!(find_outliers(&x, 11, 6.0).indices.is_empty());
+        for k in 0..50 {
+            x[k * 997 + 13] += 0.2;
+        }
+        let o = find_outliers(&x, 11, 6.0);
+        assert_eq!(o.indices.len(), 50);
+        assert!((o.median_size - 0.2).abs() < 0.02, "{o:?}");
+    }
+
+    #[test]
+    fn mean_shift_is_located_and_sized() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let mut x = white(&mut rng, 20_000, 0.1);
+        let null = mean_shift(&x).statistic;
+        for v in &mut x[12_000..] {
+            *v += 0.02;
+        }
+        let s = mean_shift(&x);
+        assert!((s.index as i64 - 12_000).abs() < 1500, "{s:?}");
+        assert!((s.size - 0.02).abs() < 3.0 * s.size_std_error, "{s:?}");
+        assert!(s.statistic > 2.0 * null.max(1.0), "{s:?} vs {null}");
+    }
+
+    #[test]
+    fn noise_growing_with_rate_gives_a_positive_slope() {
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let n = 60_000;
+        let mag: Vec<f64> = (0..n)
+            .map(|i| (1.0 + (i as f64 * 0.001).sin()).abs())
+            .collect();
+        let flat = white(&mut rng, n, 0.01);
+        assert!(noise_vs_dynamics(&flat, &mag, 100).t.abs() < 4.0);
+        let grow: Vec<f64> = (0..n)
+            .map(|i| (0.01 + 0.02 * mag[i]) * rng.sample::<f64, _>(StandardNormal))
+            .collect();
+        let r = noise_vs_dynamics(&grow, &mag, 100);
+        assert!(
+            r.t > 10.0 && (r.slope - 0.02).abs() < 0.003 && (r.intercept - 0.01).abs() < 0.003,
+            "{r:?}"
+        );
+    }
+}

@@ -1,0 +1,196 @@
+//! The error-signal file: per-axis sensor errors (sensor minus reference, in the reference
+//! body frame) with the dynamics quantities of paper Section III beside them. Written by
+//! `dynacal errors`, read by `dynacal regress` and `dynacal diagnose`.
+//!
+//! Columns (CSV or CSV.gz, header row): `t_s`; errors `gx_err_rad_s gy_err_rad_s
+//! gz_err_rad_s ax_err_m_s2 ay_err_m_s2 az_err_m_s2`; dynamics in the body frame (FRD):
+//! angular rate `omega_{x,y,z}_rad_s`, angular acceleration `omega_dot_{x,y,z}_rad_s2`,
+//! angular jerk `omega_ddot_{x,y,z}_rad_s3`, linear acceleration (specific force plus
+//! gravity) `a_{x,y,z}_m_s2` and linear jerk `a_dot_{x,y,z}_m_s3`.
+
+use std::io::Write;
+use std::path::Path;
+
+use crate::interchange::{check_time_increasing, read_table, TableError, CHANNELS};
+use crate::output::AtomicFile;
+use crate::regress::DYNAMICS_REGRESSORS;
+
+/// Error column names, in [`CHANNELS`] order.
+pub const ERROR_COLUMNS: [&str; 6] = [
+    "gx_err_rad_s",
+    "gy_err_rad_s",
+    "gz_err_rad_s",
+    "ax_err_m_s2",
+    "ay_err_m_s2",
+    "az_err_m_s2",
+];
+
+/// Dynamics column names, in [`DYNAMICS_REGRESSORS`] order (the regressor name plus unit).
+pub const DYNAMICS_COLUMNS: [&str; 15] = [
+    "omega_x_rad_s",
+    "omega_y_rad_s",
+    "omega_z_rad_s",
+    "omega_dot_x_rad_s2",
+    "omega_dot_y_rad_s2",
+    "omega_dot_z_rad_s2",
+    "omega_ddot_x_rad_s3",
+    "omega_ddot_y_rad_s3",
+    "omega_ddot_z_rad_s3",
+    "a_x_m_s2",
+    "a_y_m_s2",
+    "a_z_m_s2",
+    "a_dot_x_m_s3",
+    "a_dot_y_m_s3",
+    "a_dot_z_m_s3",
+];
+
+/// Sensor errors with the dynamics they occurred under, column by column.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ErrorSignals {
+    /// Epoch times, seconds, strictly increasing.
+    pub t_s: Vec<f64>,
+    /// Errors per channel in [`CHANNELS`] order (rad/s for gyros, m/s^2 for accelerometers);
+    /// `None` where the sensor lacks the channel.
+    pub errors: [Option<Vec<f64>>; 6],
+    /// The 15 dynamics quantities in [`DYNAMICS_REGRESSORS`] order.
+    pub dynamics: [Vec<f64>; 15],
+}
+
+impl ErrorSignals {
+    /// The error series of a channel (`gx` ... `az`).
+    pub fn error(&self, channel: &str) -> Option<&[f64]> {
+        let i = CHANNELS.iter().position(|c| *c == channel)?;
+        self.errors[i].as_deref()
+    }
+
+    /// The dynamics regressors as (name, values) pairs, ready for regression.
+    pub fn regressors(&self) -> Vec<(&'static str, &[f64])> {
+        DYNAMICS_REGRESSORS
+            .iter()
+            .zip(self.dynamics.iter())
+            .map(|(n, v)| (*n, v.as_slice()))
+            .collect()
+    }
+
+    /// Reads an error-signal file; all dynamics columns and at least one error column are
+    /// required.
+    pub fn read(path: &Path) -> Result<Self, TableError> {
+        let table = read_table(path, None)?;
+        let col = |name: &str| -> Result<Vec<f64>, TableError> {
+            table
+                .column(name)
+                .map(<[f64]>::to_vec)
+                .ok_or_else(|| TableError::MissingColumn {
+                    path: path.to_path_buf(),
+                    column: name.to_string(),
+                })
+        };
+        let t_s = col("t_s")?;
+        check_time_increasing(path, &t_s)?;
+        let errors = ERROR_COLUMNS.map(|c| table.column(c).map(<[f64]>::to_vec));
+        if errors.iter().all(Option::is_none) {
+            return Err(TableError::MissingColumn {
+                path: path.to_path_buf(),
+                column: ERROR_COLUMNS.join("|"),
+            });
+        }
+        let mut dynamics: [Vec<f64>; 15] = Default::default();
+        for (slot, name) in dynamics.iter_mut().zip(DYNAMICS_COLUMNS) {
+            *slot = col(name)?;
+        }
+        if t_s.is_empty() {
+            return Err(TableError::Empty {
+                path: path.to_path_buf(),
+            });
+        }
+        Ok(Self {
+            t_s,
+            errors,
+            dynamics,
+        })
+    }
+
+    /// Writes the file whole or not at all (gzip when the name ends in `.gz`).
+    pub fn write(&self, path: &Path) -> Result<(), TableError> {
+        let io = |source| TableError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let n = self.t_s.len();
+        let mut columns: Vec<(&str, &[f64])> = vec![("t_s", &self.t_s)];
+        for (name, e) in ERROR_COLUMNS.iter().zip(&self.errors) {
+            if let Some(e) = e {
+                columns.push((name, e));
+            }
+        }
+        for (name, d) in DYNAMICS_COLUMNS.iter().zip(&self.dynamics) {
+            columns.push((name, d));
+        }
+        for (name, c) in &columns {
+            if c.len() != n {
+                return Err(TableError::LengthMismatch {
+                    path: path.to_path_buf(),
+                    column: (*name).to_string(),
+                    len: c.len(),
+                    expected: n,
+                });
+            }
+        }
+        check_time_increasing(path, &self.t_s)?;
+        let mut out = AtomicFile::create(path).map_err(io)?;
+        {
+            let mut w = out.writer();
+            let header: Vec<&str> = columns.iter().map(|c| c.0).collect();
+            writeln!(w, "{}", header.join(",")).map_err(io)?;
+            let mut line = String::new();
+            for row in 0..n {
+                line.clear();
+                for (k, (_, c)) in columns.iter().enumerate() {
+                    if k > 0 {
+                        line.push(',');
+                    }
+                    use std::fmt::Write as _;
+                    let _ = write!(line, "{}", c[row]);
+                }
+                line.push('\n');
+                w.write_all(line.as_bytes()).map_err(io)?;
+            }
+            w.flush().map_err(io)?;
+        }
+        out.commit().map_err(io)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn round_trip_and_missing_dynamics_column_is_named() {
+        let n = 4;
+        let sig = ErrorSignals {
+            t_s: vec![0.0, 0.1, 0.2, 0.3],
+            errors: [
+                Some(vec![1.0, 2.0, 3.0, 4.5]),
+                None,
+                None,
+                None,
+                None,
+                Some(vec![0.0; 4]),
+            ],
+            dynamics: std::array::from_fn(|k| (0..n).map(|i| (k * 10 + i) as f64 / 7.0).collect()),
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("e.csv.gz");
+        sig.write(&path).unwrap();
+        assert_eq!(ErrorSignals::read(&path).unwrap(), sig);
+
+        let bad = dir.path().join("bad.csv");
+        std::fs::write(&bad, "t_s,gx_err_rad_s\n0,1\n").unwrap();
+        let msg = ErrorSignals::read(&bad).unwrap_err().to_string();
+        assert!(
+            msg.contains("omega_x_rad_s") && msg.contains("bad.csv"),
+            "{msg}"
+        );
+    }
+}

@@ -1,0 +1,549 @@
+//! Importers: turn each measured dataset in the data folder (see its README) into
+//! interchange recordings ([`ImuRecording`]) in SI units, with the NED navigation frame and
+//! the forward-right-down body frame where the source's frames are known.
+//!
+//! One module per dataset; [`detect`] recognises a file by its first data line, and
+//! [`import_to_dir`] imports a file or folder and writes one interchange file per sensor,
+//! all of them or none. `docs/formats.md` states each conversion.
+
+pub mod adis16405;
+pub mod frames;
+pub mod mpu9250_tetra;
+pub mod mtig;
+pub mod psins_fog_mems;
+pub mod psins_lasergyro;
+
+use std::collections::BTreeMap;
+use std::io::{BufRead, Read as _};
+use std::path::{Path, PathBuf};
+
+use crate::interchange::{open_maybe_gz, ImuRecording, TableError, CHANNELS};
+
+/// Errors while importing. Each names the file, and the line (1-based) where there is one.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ImportError {
+    /// Reading a CSV table or writing an interchange file failed.
+    #[error(transparent)]
+    Table(#[from] TableError),
+    /// A line does not have the dataset's format.
+    #[error("{path}: line {line}: {message}")]
+    Malformed {
+        path: PathBuf,
+        line: u64,
+        message: String,
+    },
+    /// The file (or no file in the folder) is a dataset this importer knows.
+    #[error("{path}: not a dataset dynacal can import: {reason}")]
+    UnknownDataset { path: PathBuf, reason: String },
+    /// A file or folder could not be read, created or moved.
+    #[error("{path}: {source}")]
+    Io {
+        path: PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
+    /// Two inputs would produce the same output file.
+    #[error("{first} and {second} would both be written as {name}")]
+    OutputCollision {
+        name: String,
+        first: PathBuf,
+        second: PathBuf,
+    },
+}
+
+impl ImportError {
+    pub(crate) fn malformed(path: &Path, line: u64, message: impl Into<String>) -> Self {
+        ImportError::Malformed {
+            path: path.to_path_buf(),
+            line,
+            message: message.into(),
+        }
+    }
+    pub(crate) fn io(path: &Path, source: std::io::Error) -> Self {
+        ImportError::Io {
+            path: path.to_path_buf(),
+            source,
+        }
+    }
+}
+
+/// The datasets dynacal imports (see the data folder's README).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Dataset {
+    /// `adis16405/session*.csv.gz`: ADIS16405 integer counts, 100 Hz.
+    Adis16405,
+    /// `mtig/gyro_x_contaminated.csv.gz`: Xsens MTi-G gyro X, rad/s, 100 Hz.
+    MtigGyroX,
+    /// `psins-fog-mems/mems_increments.csv.gz`: MEMS angle/velocity increments, ENU/RFU.
+    PsinsMems,
+    /// `psins-fog-mems/fog_ins_reference.csv.gz`: FOG INS attitude/velocity/position.
+    PsinsFog,
+    /// `psins-lasergyro/lasergyro.imu.gz`: PSINS SIMU text log of a ring-laser-gyro IMU.
+    PsinsLaserGyro,
+    /// `mpu9250x4-tetra-static/static.csv.gz`: four MPU9250 sampled together.
+    Mpu9250Tetra,
+}
+
+impl Dataset {
+    /// A short human description.
+    pub fn describe(self) -> &'static str {
+        match self {
+            Dataset::Adis16405 => "ADIS16405 session (integer counts, 100 Hz)",
+            Dataset::MtigGyroX => "Xsens MTi-G gyro X (rad/s, 100 Hz)",
+            Dataset::PsinsMems => "PSINS MEMS increments (ENU / right-forward-up)",
+            Dataset::PsinsFog => "PSINS FOG INS reference (ENU attitude, velocity, position)",
+            Dataset::PsinsLaserGyro => "PSINS laser-gyro SIMU log (integer increments)",
+            Dataset::Mpu9250Tetra => "4 x MPU9250 tetra static rig",
+        }
+    }
+}
+
+/// Splits a CSV header line into trimmed names.
+fn header_fields(line: &str) -> Vec<&str> {
+    line.split(',').map(str::trim).collect()
+}
+
+/// Recognises a dataset from its first data line (the CSV header, or for the PSINS SIMU log
+/// its first numeric line; blank lines and `%` comment lines are skipped). `Ok(None)` means
+/// "not a known dataset"; errors are I/O failures.
+pub fn detect(path: &Path) -> Result<Option<Dataset>, ImportError> {
+    let Some((_, line)) = first_data_line(path)? else {
+        return Ok(None);
+    };
+    let fields = header_fields(&line);
+    let dataset = if fields == adis16405::COLUMNS {
+        Some(Dataset::Adis16405)
+    } else if fields == mtig::COLUMNS {
+        Some(Dataset::MtigGyroX)
+    } else if fields == psins_fog_mems::MEMS_COLUMNS {
+        Some(Dataset::PsinsMems)
+    } else if fields == psins_fog_mems::FOG_COLUMNS {
+        Some(Dataset::PsinsFog)
+    } else if fields == mpu9250_tetra::columns() {
+        Some(Dataset::Mpu9250Tetra)
+    } else if psins_lasergyro::parse_numbers(&line).is_some_and(|v| v.len() == 6) {
+        Some(Dataset::PsinsLaserGyro)
+    } else {
+        None
+    };
+    Ok(dataset)
+}
+
+/// The first line that is neither blank nor a `%` comment, with its 1-based line number.
+/// Reads at most 64 KiB of it, so a binary file costs nothing.
+fn first_data_line(path: &Path) -> Result<Option<(u64, String)>, ImportError> {
+    let reader = open_maybe_gz(path)?;
+    let mut reader = std::io::BufReader::new(reader.take(1 << 20));
+    let mut buf = Vec::new();
+    let mut line_no = 0;
+    loop {
+        buf.clear();
+        let n = (&mut reader)
+            .take(1 << 16)
+            .read_until(b'\n', &mut buf)
+            .map_err(|e| ImportError::io(path, e))?;
+        if n == 0 {
+            return Ok(None);
+        }
+        line_no += 1;
+        let text = String::from_utf8_lossy(&buf);
+        let text = text.trim();
+        if !text.is_empty() && !text.starts_with('%') {
+            return Ok(Some((line_no, text.to_string())));
+        }
+    }
+}
+
+/// One sensor's imported recording and the interchange file stem it is written under.
+#[derive(Debug, Clone)]
+pub struct ImportedSensor {
+    /// Output file name without `.csv.gz`, e.g. `adis16405-session1`, `psins-mems`.
+    pub name: String,
+    pub recording: ImuRecording,
+}
+
+/// Imports one dataset file into its sensors' recordings.
+pub fn import_file(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>, ImportError> {
+    let stem = file_stem(path);
+    let one = |name: String, recording| vec![ImportedSensor { name, recording }];
+    Ok(match dataset {
+        Dataset::Adis16405 => one(format!("adis16405-{stem}"), adis16405::read(path)?),
+        Dataset::MtigGyroX => one(format!("mtig-{stem}"), mtig::read(path)?),
+        Dataset::PsinsMems => one("psins-mems".into(), psins_fog_mems::read_mems(path)?),
+        Dataset::PsinsFog => one("psins-fog".into(), psins_fog_mems::read_fog(path)?),
+        Dataset::PsinsLaserGyro => one(
+            "psins-lasergyro".into(),
+            psins_lasergyro::read(path)?.recording,
+        ),
+        Dataset::Mpu9250Tetra => mpu9250_tetra::read(path)?
+            .into_iter()
+            .enumerate()
+            .map(|(k, recording)| ImportedSensor {
+                name: format!("mpu9250-imu{k}"),
+                recording,
+            })
+            .collect(),
+    })
+}
+
+/// The file name without directory and without `.gz` / `.csv` / `.imu` suffixes.
+fn file_stem(path: &Path) -> String {
+    let mut name = path
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    for suffix in [".gz", ".csv", ".imu"] {
+        if let Some(s) = name.strip_suffix(suffix) {
+            name = s.to_string();
+        }
+    }
+    name
+}
+
+/// Dataset files found (path and dataset), and the other files seen.
+pub type DatasetFiles = (Vec<(PathBuf, Dataset)>, Vec<PathBuf>);
+
+/// The dataset files under `path`: the file itself (an error if it is not a known dataset),
+/// or every known dataset file in the folder and its subfolders, in name order. The second
+/// list holds the folder's files that are not datasets (READMEs, JSON...).
+pub fn find_datasets(path: &Path) -> Result<DatasetFiles, ImportError> {
+    let meta = std::fs::metadata(path).map_err(|e| ImportError::io(path, e))?;
+    if !meta.is_dir() {
+        return match detect(path)? {
+            Some(d) => Ok((vec![(path.to_path_buf(), d)], Vec::new())),
+            None => Err(ImportError::UnknownDataset {
+                path: path.to_path_buf(),
+                reason: match first_data_line(path)? {
+                    Some((line, text)) => format!(
+                        "line {line} `{}` matches no known dataset header",
+                        text.chars().take(80).collect::<String>()
+                    ),
+                    None => "no data line".into(),
+                },
+            }),
+        };
+    }
+    let mut found = Vec::new();
+    let mut skipped = Vec::new();
+    walk(path, &mut found, &mut skipped)?;
+    if found.is_empty() {
+        return Err(ImportError::UnknownDataset {
+            path: path.to_path_buf(),
+            reason: "the folder holds no known dataset file".into(),
+        });
+    }
+    Ok((found, skipped))
+}
+
+fn walk(
+    dir: &Path,
+    found: &mut Vec<(PathBuf, Dataset)>,
+    skipped: &mut Vec<PathBuf>,
+) -> Result<(), ImportError> {
+    let mut entries: Vec<PathBuf> = std::fs::read_dir(dir)
+        .map_err(|e| ImportError::io(dir, e))?
+        .map(|e| e.map(|e| e.path()))
+        .collect::<Result<_, _>>()
+        .map_err(|e| ImportError::io(dir, e))?;
+    entries.sort();
+    for entry in entries {
+        if entry.is_dir() {
+            walk(&entry, found, skipped)?;
+        } else {
+            match detect(&entry)? {
+                Some(d) => found.push((entry, d)),
+                None => skipped.push(entry),
+            }
+        }
+    }
+    Ok(())
+}
+
+/// One interchange file written by [`import_to_dir`].
+#[derive(Debug, Clone, PartialEq)]
+pub struct WrittenFile {
+    /// The interchange file written.
+    pub path: PathBuf,
+    /// The dataset file it came from, and its dataset.
+    pub source: PathBuf,
+    pub dataset: Dataset,
+    pub samples: usize,
+    /// Last minus first sample time, s.
+    pub duration_s: f64,
+    /// What the file holds: IMU channel names (`gx` ... `az`) and `attitude`, `position`,
+    /// `velocity_ned` where present.
+    pub contents: Vec<&'static str>,
+}
+
+/// What [`import_to_dir`] did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ImportReport {
+    pub written: Vec<WrittenFile>,
+    /// Files in the input folder that are not datasets, left alone.
+    pub skipped: Vec<PathBuf>,
+}
+
+/// The contents of a recording, as listed in [`WrittenFile::contents`].
+pub fn contents(rec: &ImuRecording) -> Vec<&'static str> {
+    let mut out: Vec<&'static str> = CHANNELS
+        .iter()
+        .copied()
+        .filter(|c| rec.channel(c).is_some())
+        .collect();
+    for (name, present) in [
+        ("attitude", rec.attitude_rad.is_some()),
+        ("velocity_ned", rec.velocity_ned_m_s.is_some()),
+        ("position", rec.position.is_some()),
+    ] {
+        if present {
+            out.push(name);
+        }
+    }
+    out
+}
+
+/// Imports the dataset file or folder `input` and writes one `<name>.csv.gz` interchange
+/// file per sensor into `out_dir` (created if needed).
+///
+/// All or nothing: every file is first written into a private staging folder inside
+/// `out_dir`, and moved into place only once every input has imported; on any error the
+/// staging folder is removed and `out_dir` is left as it was.
+pub fn import_to_dir(input: &Path, out_dir: &Path) -> Result<ImportReport, ImportError> {
+    let (datasets, skipped) = find_datasets(input)?;
+    std::fs::create_dir_all(out_dir).map_err(|e| ImportError::io(out_dir, e))?;
+    let staging = tempfile::Builder::new()
+        .prefix(".dynacal-import-")
+        .tempdir_in(out_dir)
+        .map_err(|e| ImportError::io(out_dir, e))?;
+    let mut sources: BTreeMap<String, PathBuf> = BTreeMap::new();
+    let mut written = Vec::new();
+    for (source, dataset) in datasets {
+        for sensor in import_file(&source, dataset)? {
+            let file_name = format!("{}.csv.gz", sensor.name);
+            if let Some(first) = sources.get(&file_name) {
+                return Err(ImportError::OutputCollision {
+                    name: file_name,
+                    first: first.clone(),
+                    second: source,
+                });
+            }
+            sensor.recording.write(&staging.path().join(&file_name))?;
+            let rec = &sensor.recording;
+            written.push(WrittenFile {
+                path: out_dir.join(&file_name),
+                source: source.clone(),
+                dataset,
+                samples: rec.len(),
+                duration_s: rec.t_s[rec.len() - 1] - rec.t_s[0],
+                contents: contents(rec),
+            });
+            sources.insert(file_name, source.clone());
+        }
+    }
+    for file in &written {
+        let name = file.path.file_name().unwrap_or_default();
+        std::fs::rename(staging.path().join(name), &file.path)
+            .map_err(|e| ImportError::io(&file.path, e))?;
+    }
+    Ok(ImportReport { written, skipped })
+}
+
+/// Returns `time[k] = k / rate_hz` for `n` samples: the time column of a file that has none.
+pub(crate) fn uniform_time_s(n: usize, rate_hz: f64) -> Vec<f64> {
+    (0..n).map(|k| k as f64 / rate_hz).collect()
+}
+
+/// Reads a CSV with exactly the header `columns`, giving each data row to `row` with its
+/// 1-based line number (header = line 1). Used where fields need checks `read_table` does not
+/// make (integer counts).
+pub(crate) fn for_each_csv_row(
+    path: &Path,
+    columns: &[&str],
+    mut row: impl FnMut(u64, &csv::StringRecord) -> Result<(), ImportError>,
+) -> Result<(), ImportError> {
+    let reader = open_maybe_gz(path)?;
+    let mut csv = csv::ReaderBuilder::new()
+        .has_headers(true)
+        .trim(csv::Trim::All)
+        .from_reader(reader);
+    let csv_err = |e: csv::Error| {
+        let line = e.position().map_or(0, |p| p.line());
+        match e.into_kind() {
+            csv::ErrorKind::Io(source) => ImportError::io(path, source),
+            csv::ErrorKind::UnequalLengths {
+                expected_len, len, ..
+            } => {
+                ImportError::malformed(path, line, format!("{len} fields, expected {expected_len}"))
+            }
+            other => ImportError::malformed(path, line, format!("{other:?}")),
+        }
+    };
+    let header: Vec<String> = csv
+        .headers()
+        .map_err(csv_err)?
+        .iter()
+        .map(str::to_string)
+        .collect();
+    if header != columns {
+        return Err(ImportError::malformed(
+            path,
+            1,
+            format!(
+                "header `{}`, expected `{}`",
+                header.join(","),
+                columns.join(",")
+            ),
+        ));
+    }
+    let mut record = csv::StringRecord::new();
+    while csv.read_record(&mut record).map_err(csv_err)? {
+        let line = record.position().map_or(0, |p| p.line());
+        row(line, &record)?;
+    }
+    Ok(())
+}
+
+/// Reads a numeric CSV that must have all of `columns` (others are ignored), returning them
+/// in that order; errors name the file and line.
+pub(crate) fn read_columns(path: &Path, columns: &[&str]) -> Result<Vec<Vec<f64>>, ImportError> {
+    let table = crate::interchange::read_table(path, Some(columns))?;
+    let mut out = Vec::with_capacity(columns.len());
+    for name in columns {
+        match table.column(name) {
+            Some(c) => out.push(c.to_vec()),
+            None => {
+                return Err(TableError::MissingColumn {
+                    path: path.to_path_buf(),
+                    column: (*name).to_string(),
+                }
+                .into())
+            }
+        }
+    }
+    if out.first().is_none_or(Vec::is_empty) {
+        return Err(TableError::Empty {
+            path: path.to_path_buf(),
+        }
+        .into());
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn write(dir: &Path, name: &str, text: &str) -> PathBuf {
+        let path = dir.join(name);
+        std::fs::write(&path, text).unwrap();
+        path
+    }
+
+    #[test]
+    fn detects_each_dataset_by_its_first_line() {
+        let dir = tempfile::tempdir().unwrap();
+        let d = dir.path();
+        let mpu_header = mpu9250_tetra::columns().join(",");
+        let cases = [
+            (
+                "a.csv",
+                "gx,gy,gz,ax,ay,az\n1,2,3,4,5,6\n".to_string(),
+                Some(Dataset::Adis16405),
+            ),
+            ("b.csv", "gx_rad_s\n0.1\n".into(), Some(Dataset::MtigGyroX)),
+            (
+                "c.csv",
+                format!("{}\n", psins_fog_mems::MEMS_COLUMNS.join(",")),
+                Some(Dataset::PsinsMems),
+            ),
+            (
+                "d.csv",
+                format!("{}\n", psins_fog_mems::FOG_COLUMNS.join(",")),
+                Some(Dataset::PsinsFog),
+            ),
+            (
+                "e.imu",
+                "% comment\n\n0 0 -90.6 0 0 0\n".into(),
+                Some(Dataset::PsinsLaserGyro),
+            ),
+            (
+                "f.csv",
+                format!("{mpu_header}\n"),
+                Some(Dataset::Mpu9250Tetra),
+            ),
+            // An interchange file is not a raw dataset.
+            ("g.csv", "t_s,gx_rad_s\n0,1\n".into(), None),
+            ("h.txt", "% only comments\n".into(), None),
+        ];
+        for (name, text, expected) in cases {
+            let path = write(d, name, &text);
+            assert_eq!(detect(&path).unwrap(), expected, "{name}");
+        }
+    }
+
+    #[test]
+    fn unknown_file_and_empty_folder_are_errors_naming_the_path() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = write(dir.path(), "notes.csv", "time,value\n0,1\n");
+        let msg = find_datasets(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("notes.csv") && msg.contains("time,value"),
+            "{msg}"
+        );
+        let msg = find_datasets(dir.path()).unwrap_err().to_string();
+        assert!(msg.contains("no known dataset"), "{msg}");
+    }
+
+    #[test]
+    fn folder_import_writes_all_files_or_none() {
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("in");
+        std::fs::create_dir(&input).unwrap();
+        write(
+            &input,
+            "session1.csv",
+            "gx,gy,gz,ax,ay,az\n1,2,3,4,5,-300\n2,3,4,5,6,-301\n",
+        );
+        write(&input, "README.md", "# not data\n");
+        let out = dir.path().join("out");
+        let report = import_to_dir(&input, &out).unwrap();
+        assert_eq!(report.written.len(), 1);
+        let w = &report.written[0];
+        assert_eq!(w.path, out.join("adis16405-session1.csv.gz"));
+        assert_eq!((w.samples, w.duration_s), (2, 0.01));
+        assert_eq!(w.contents, vec!["gx", "gy", "gz", "ax", "ay", "az"]);
+        assert_eq!(report.skipped, vec![input.join("README.md")]);
+        let rec = ImuRecording::read(&w.path).unwrap();
+        assert_eq!(
+            rec.channel("az").unwrap()[1],
+            -301.0 * adis16405::ADIS16405_ACCEL_M_S2_PER_COUNT
+        );
+
+        // A second, malformed session: nothing new appears and no staging folder is left.
+        write(
+            &input,
+            "session2.csv",
+            "gx,gy,gz,ax,ay,az\n1,2,3,4,5,6\n1,2,x,4,5,6\n",
+        );
+        let out2 = dir.path().join("out2");
+        let msg = import_to_dir(&input, &out2).unwrap_err().to_string();
+        assert!(
+            msg.contains("session2.csv") && msg.contains("line 3"),
+            "{msg}"
+        );
+        assert_eq!(std::fs::read_dir(&out2).unwrap().count(), 0);
+    }
+
+    #[test]
+    fn two_inputs_with_one_output_name_collide() {
+        let dir = tempfile::tempdir().unwrap();
+        write(dir.path(), "x.csv", "gx_rad_s\n0.1\n");
+        std::fs::create_dir(dir.path().join("sub")).unwrap();
+        write(&dir.path().join("sub"), "x.csv.gz", "gx_rad_s\n0.2\n");
+        let msg = import_to_dir(dir.path(), &dir.path().join("out"))
+            .unwrap_err()
+            .to_string();
+        assert!(msg.contains("mtig-x.csv.gz"), "{msg}");
+    }
+}

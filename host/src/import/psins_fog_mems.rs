@@ -1,0 +1,185 @@
+//! The PSINS FOG/MEMS pair (`psins-fog-mems/`): a MEMS IMU's angle and velocity increments
+//! at 100 Hz, and a FOG-grade INS solution at 10 Hz, on one vehicle and one time base.
+//!
+//! Source conventions (PSINS toolbox): navigation frame East-North-Up, body frame
+//! right-forward-up (X right, Y forward, Z up), attitude `C_b^n = Rz(yaw) Rx(pitch) Ry(roll)`.
+//!
+//! MEMS: rate = angle increment / dt and specific force = velocity increment / dt, with
+//! dt = 0.01 s (the interval the source states; the `t_s` steps agree to 1e-12 s, which is
+//! checked), then RFU -> FRD: x = source y, y = source x, z = -source z. The time of each
+//! sample is the source's `t_s`; the rate is the mean over the interval the increment covers.
+//!
+//! FOG: an interchange file with no IMU channel, only attitude (roll, pitch, yaw of the FRD
+//! body w.r.t. NED, from `C_frd^ned = P C_rfu^enu P`, see [`super::frames`]), NED velocity
+//! (`vn, ve, -vu`) and position (lat, lon, h as given).
+
+use std::path::Path;
+
+use super::frames::{enu_to_ned, psins_attitude_to_ned, rfu_to_frd};
+use super::{read_columns, ImportError};
+use crate::interchange::ImuRecording;
+
+/// The header of `mems_increments.csv.gz`.
+pub const MEMS_COLUMNS: [&str; 7] = [
+    "t_s",
+    "dtheta_x_rad",
+    "dtheta_y_rad",
+    "dtheta_z_rad",
+    "dv_x_m_s",
+    "dv_y_m_s",
+    "dv_z_m_s",
+];
+
+/// The header of `fog_ins_reference.csv.gz`.
+pub const FOG_COLUMNS: [&str; 10] = [
+    "t_s",
+    "pitch_rad",
+    "roll_rad",
+    "yaw_rad",
+    "ve_m_s",
+    "vn_m_s",
+    "vu_m_s",
+    "lat_rad",
+    "lon_rad",
+    "h_m",
+];
+
+/// The MEMS increment interval, s.
+pub const MEMS_DT_S: f64 = 0.01;
+
+/// Largest accepted departure of a `t_s` step from [`MEMS_DT_S`], s (the file's time column
+/// is printed with 1e-10 s resolution).
+const MEMS_DT_TOLERANCE_S: f64 = 1e-6;
+
+/// Reads the MEMS increments as FRD rates (rad/s) and specific force (m/s^2).
+#[allow(clippy::needless_range_loop)] // one row index across seven columns
+pub fn read_mems(path: &Path) -> Result<ImuRecording, ImportError> {
+    let cols = read_columns(path, &MEMS_COLUMNS)?;
+    let t_s = cols[0].clone();
+    for (i, w) in t_s.windows(2).enumerate() {
+        if (w[1] - w[0] - MEMS_DT_S).abs() > MEMS_DT_TOLERANCE_S {
+            return Err(ImportError::malformed(
+                path,
+                i as u64 + 3,
+                format!(
+                    "column `t_s`: step {} s, expected {MEMS_DT_S} s (increments are over 0.01 s)",
+                    w[1] - w[0]
+                ),
+            ));
+        }
+    }
+    let n = t_s.len();
+    let mut gyro: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(n));
+    let mut accel: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(n));
+    for i in 0..n {
+        let omega_rfu = [cols[1][i], cols[2][i], cols[3][i]].map(|d| d / MEMS_DT_S);
+        let f_rfu = [cols[4][i], cols[5][i], cols[6][i]].map(|d| d / MEMS_DT_S);
+        for (k, v) in rfu_to_frd(omega_rfu).into_iter().enumerate() {
+            gyro[k].push(v);
+        }
+        for (k, v) in rfu_to_frd(f_rfu).into_iter().enumerate() {
+            accel[k].push(v);
+        }
+    }
+    let rec = ImuRecording {
+        t_s,
+        gyro_rad_s: Some(gyro),
+        accel_m_s2: Some(accel),
+        ..Default::default()
+    };
+    rec.validate(path)?;
+    Ok(rec)
+}
+
+/// Reads the FOG INS solution as NED attitude, velocity and position (no IMU channel).
+#[allow(clippy::needless_range_loop)] // one row index across ten columns
+pub fn read_fog(path: &Path) -> Result<ImuRecording, ImportError> {
+    let cols = read_columns(path, &FOG_COLUMNS)?;
+    let n = cols[0].len();
+    let mut attitude: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(n));
+    let mut velocity: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(n));
+    for i in 0..n {
+        let rpy = psins_attitude_to_ned(cols[1][i], cols[2][i], cols[3][i]);
+        let v_ned = enu_to_ned([cols[4][i], cols[5][i], cols[6][i]]);
+        for k in 0..3 {
+            attitude[k].push(rpy[k]);
+            velocity[k].push(v_ned[k]);
+        }
+    }
+    let mut cols = cols;
+    let h = cols.pop().unwrap_or_default();
+    let lon = cols.pop().unwrap_or_default();
+    let lat = cols.pop().unwrap_or_default();
+    let rec = ImuRecording {
+        t_s: cols.swap_remove(0),
+        attitude_rad: Some(attitude),
+        velocity_ned_m_s: Some(velocity),
+        position: Some([lat, lon, h]),
+        ..Default::default()
+    };
+    rec.validate(path)?;
+    Ok(rec)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn mems_increments_become_frd_rates_and_specific_force() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.csv");
+        let header = MEMS_COLUMNS.join(",");
+        // Right-axis increment 1e-3 rad, forward 2e-3, up 3e-3; dv up 0.098 m/s (1 g at rest).
+        std::fs::write(
+            &path,
+            format!("{header}\n0,1e-3,2e-3,3e-3,0.01,0.02,0.098\n0.01,0,0,0,0,0,0\n"),
+        )
+        .unwrap();
+        let rec = read_mems(&path).unwrap();
+        let at0 = |c: &str| rec.channel(c).unwrap()[0];
+        let close = |a: f64, b: f64| assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+        close(at0("gx"), 0.2); // forward
+        close(at0("gy"), 0.1); // right
+        close(at0("gz"), -0.3); // down
+        close(at0("ax"), 2.0);
+        close(at0("ay"), 1.0);
+        close(at0("az"), -9.8); // the down axis reads -g at rest
+        assert_eq!(rec.t_s, vec![0.0, 0.01]);
+
+        std::fs::write(
+            &path,
+            format!("{header}\n0,0,0,0,0,0,0\n0.02,0,0,0,0,0,0\n"),
+        )
+        .unwrap();
+        let msg = read_mems(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("m.csv: line 3") && msg.contains("t_s"),
+            "{msg}"
+        );
+    }
+
+    #[test]
+    fn fog_solution_becomes_ned() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("f.csv");
+        let header = FOG_COLUMNS.join(",");
+        let yaw = std::f64::consts::FRAC_PI_2; // source +90 deg: facing west
+        std::fs::write(
+            &path,
+            format!("{header}\n0.1,0.1,-0.2,{yaw},-5,1,0.5,0.6,1.9,172\n"),
+        )
+        .unwrap();
+        let rec = read_fog(&path).unwrap();
+        assert!(rec.channels().is_empty());
+        let att = rec.attitude_rad.as_ref().unwrap();
+        let close = |a: f64, b: f64| assert!((a - b).abs() < 1e-12, "{a} vs {b}");
+        close(att[0][0], -0.2);
+        close(att[1][0], 0.1);
+        close(att[2][0], -yaw);
+        let v = rec.velocity_ned_m_s.as_ref().unwrap();
+        assert_eq!([v[0][0], v[1][0], v[2][0]], [1.0, -5.0, -0.5]);
+        let p = rec.position.as_ref().unwrap();
+        assert_eq!([p[0][0], p[1][0], p[2][0]], [0.6, 1.9, 172.0]);
+    }
+}

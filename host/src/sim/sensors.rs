@@ -1,0 +1,234 @@
+//! Simulating one IMU: its clock gives the true sampling instants, the trajectory gives the
+//! kinematics there, the mount moves them to the sensor (lever arm, boresight), and each
+//! channel adds its error effects. Samples are computed in fixed-size chunks in parallel
+//! (rayon); every random draw comes from a ChaCha stream keyed by seed, sensor, channel
+//! and chunk, so the output does not depend on the number of threads.
+
+use std::collections::BTreeSet;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rand_distr::StandardNormal;
+use rayon::prelude::*;
+
+use super::clock::ClockRun;
+use super::effects::{sensor_kinematics, ChannelEffects, Mount};
+use super::model_file::ImuModel;
+use super::trajectory::Trajectory;
+use crate::interchange::{ImuRecording, Triplet};
+
+const CHUNK: usize = 8192;
+
+/// A random stream for one purpose of one sensor.
+pub(crate) fn stream(seed: u64, sensor: u64, purpose: u64, index: u64) -> ChaCha8Rng {
+    let mut rng = ChaCha8Rng::seed_from_u64(
+        seed ^ sensor.wrapping_mul(0x9E37_79B9_7F4A_7C15)
+            ^ purpose.wrapping_mul(0xC2B2_AE3D_27D4_EB4F),
+    );
+    rng.set_stream(index);
+    rng
+}
+
+/// One simulated IMU.
+#[derive(Debug, Clone)]
+pub struct ImuRun {
+    pub name: String,
+    /// The recording as the sensor reports it (t_s in the sensor's own time).
+    pub recording: ImuRecording,
+    /// The clock as realised (ticks and sampling instants in true time).
+    pub clock: ClockRun,
+    /// True instant of each sample including the time offset, s.
+    pub true_t_s: Vec<f64>,
+    /// Error-free sensor-frame outputs at the true instants (gx..az), when kept.
+    pub ideal: Option<[Vec<f64>; 6]>,
+    /// Effects of each channel as resolved (for the truth file).
+    pub channels: Vec<ChannelEffects>,
+    pub mount: Mount,
+    /// Effects switched off for this sensor (sensor list plus global list).
+    pub disabled: BTreeSet<String>,
+}
+
+/// Options of [`simulate_imu`].
+pub struct ImuJob<'a> {
+    pub model: &'a ImuModel,
+    /// Index of the sensor (0 = reference), keys its random streams.
+    pub sensor: u64,
+    pub duration_s: f64,
+    pub seed: u64,
+    /// Effects switched off globally.
+    pub disabled: &'a BTreeSet<String>,
+    /// Also write attitude, position and velocity (the reference IMU).
+    pub with_navigation: bool,
+    pub keep_ideal: bool,
+}
+
+/// Simulates one IMU over `[0, duration_s)` of its own time; `progress` is called with the
+/// number of samples finished, chunk by chunk.
+pub fn simulate_imu(traj: &Trajectory, job: &ImuJob, progress: &(dyn Fn(u64) + Sync)) -> ImuRun {
+    let model = job.model;
+    let n = (job.duration_s * model.rate_hz).floor().max(1.0) as usize;
+    let mut disabled: BTreeSet<String> = job.disabled.clone();
+    disabled.extend(model.disabled.iter().cloned());
+    let mut clock_rng = stream(job.seed, job.sensor, 1, 0);
+    let clock = ClockRun::realise(
+        &model.clock,
+        model.rate_hz,
+        n,
+        !disabled.contains("clock_drift"),
+        !disabled.contains("clock_jitter"),
+        &mut clock_rng,
+    );
+    let offset = if disabled.contains("time_offset") {
+        0.0
+    } else {
+        model.time_offset_s
+    };
+    let true_t_s: Vec<f64> = clock.sample_t_s.iter().map(|t| t - offset).collect();
+    let mount = Mount::of(model, &disabled);
+    let channels: Vec<ChannelEffects> = (0..6)
+        .map(|i| {
+            let ch = model.channel(i);
+            let mut off = disabled.clone();
+            off.extend(ch.disabled.iter().cloned());
+            ChannelEffects::resolve(ch, i, model.rate_hz, &off)
+        })
+        .collect();
+
+    // Stochastic processes: sequential within a channel, channels in parallel.
+    let mut out: Vec<Vec<f64>> = channels
+        .par_iter()
+        .map(|fx| match &fx.stochastic {
+            Some(spec) => spec.simulate(n, &mut stream(job.seed, job.sensor, 2, fx.index as u64)),
+            None => vec![0.0; n],
+        })
+        .collect();
+    let mut ideal: Vec<Vec<f64>> = if job.keep_ideal {
+        vec![vec![0.0; n]; 6]
+    } else {
+        Vec::new()
+    };
+    let nav_cols = if job.with_navigation { 9 } else { 0 };
+    let mut nav: Vec<Vec<f64>> = vec![vec![0.0; n]; nav_cols];
+
+    // Deterministic and per-sample random effects, chunk by chunk in parallel.
+    {
+        let mut out_chunks: Vec<Vec<&mut [f64]>> = Vec::new();
+        let mut views: Vec<std::slice::ChunksMut<f64>> =
+            out.iter_mut().map(|c| c.chunks_mut(CHUNK)).collect();
+        let mut ideal_views: Vec<std::slice::ChunksMut<f64>> =
+            ideal.iter_mut().map(|c| c.chunks_mut(CHUNK)).collect();
+        let mut nav_views: Vec<std::slice::ChunksMut<f64>> =
+            nav.iter_mut().map(|c| c.chunks_mut(CHUNK)).collect();
+        let n_chunks = n.div_ceil(CHUNK);
+        for _ in 0..n_chunks {
+            let mut row: Vec<&mut [f64]> = Vec::with_capacity(6 + 6 + 9);
+            for v in views
+                .iter_mut()
+                .chain(ideal_views.iter_mut())
+                .chain(nav_views.iter_mut())
+            {
+                row.push(v.next().unwrap_or_default());
+            }
+            out_chunks.push(row);
+        }
+        out_chunks
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(c, mut cols)| {
+                let start = c * CHUNK;
+                let len = cols[0].len();
+                let mut rngs: Vec<ChaCha8Rng> = (0..6)
+                    .map(|i| stream(job.seed, job.sensor, 3 + i as u64, c as u64))
+                    .collect();
+                for j in 0..len {
+                    let t = true_t_s[start + j];
+                    let truth = traj.truth(t);
+                    let kin = sensor_kinematics(&truth, &mount);
+                    for (i, fx) in channels.iter().enumerate() {
+                        let ideal_value = kin.channel(i);
+                        let mut y = ideal_value + cols[i][j] + fx.deterministic(&kin, t);
+                        let sigma = fx.dynamic_sigma(&kin);
+                        if sigma > 0.0 {
+                            let z: f64 = rngs[i].sample(StandardNormal);
+                            y += sigma * z;
+                        }
+                        if let Some(o) = fx.outliers {
+                            if o.probability > 0.0 && rngs[i].random_bool(o.probability) {
+                                let z: f64 = rngs[i].sample(StandardNormal);
+                                y += o.sigma * z;
+                            }
+                        }
+                        cols[i][j] = fx.finish(y);
+                        if job.keep_ideal {
+                            cols[6 + i][j] = ideal_value;
+                        }
+                    }
+                    if job.with_navigation {
+                        let b = if job.keep_ideal { 12 } else { 6 };
+                        let v = [
+                            truth.roll_rad,
+                            truth.pitch_rad,
+                            truth.yaw_rad,
+                            truth.lat_rad,
+                            truth.lon_rad,
+                            truth.h_m,
+                            truth.v_ned_m_s.x,
+                            truth.v_ned_m_s.y,
+                            truth.v_ned_m_s.z,
+                        ];
+                        for (k, x) in v.into_iter().enumerate() {
+                            cols[b + k][j] = x;
+                        }
+                    }
+                }
+                progress(len as u64);
+            });
+    }
+
+    let dt = 1.0 / model.rate_hz;
+    let t_s: Vec<f64> = (0..n).map(|k| k as f64 * dt).collect();
+    let mut it = out.into_iter();
+    let take3 = |it: &mut std::vec::IntoIter<Vec<f64>>| -> Triplet {
+        [
+            it.next().unwrap_or_default(),
+            it.next().unwrap_or_default(),
+            it.next().unwrap_or_default(),
+        ]
+    };
+    let gyro = take3(&mut it);
+    let accel = take3(&mut it);
+    let mut nav_it = nav.into_iter();
+    let (attitude, position, velocity) = if job.with_navigation {
+        (
+            Some(take3(&mut nav_it)),
+            Some(take3(&mut nav_it)),
+            Some(take3(&mut nav_it)),
+        )
+    } else {
+        (None, None, None)
+    };
+    let ideal = if job.keep_ideal {
+        let mut it = ideal.into_iter();
+        Some(std::array::from_fn(|_| it.next().unwrap_or_default()))
+    } else {
+        None
+    };
+    ImuRun {
+        name: model.name.clone(),
+        recording: ImuRecording {
+            t_s,
+            gyro_rad_s: Some(gyro),
+            accel_m_s2: Some(accel),
+            attitude_rad: attitude,
+            position,
+            velocity_ned_m_s: velocity,
+            single_axis: Vec::new(),
+        },
+        clock,
+        true_t_s,
+        ideal,
+        channels,
+        mount,
+        disabled,
+    }
+}

@@ -1,0 +1,141 @@
+//! `dynacal decode LOG --out DIR` end to end: the binary on a generated log.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use dynacal::decode::encode_log;
+use dynacal::interchange::ImuRecording;
+use dynacal_core::log::Frame;
+
+fn dynacal(args: &[&std::ffi::OsStr]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_dynacal"))
+        .args(args)
+        .output()
+        .expect("run dynacal")
+}
+
+fn decode(log: &Path, out: &Path) -> std::process::Output {
+    dynacal(&[
+        "decode".as_ref(),
+        log.as_os_str(),
+        "--out".as_ref(),
+        out.as_os_str(),
+    ])
+}
+
+#[test]
+fn decode_writes_bit_exact_csvs_and_summary() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = common::frames(11, 2);
+    let mut bytes = encode_log(&frames).unwrap();
+    // Damage one IMU frame in the middle: it must be counted, the rest decoded.
+    let mid = bytes.len() / 2;
+    bytes[mid] ^= 0x5A;
+    let log = dir.path().join("board.log");
+    std::fs::write(&log, &bytes).unwrap();
+    let out = dir.path().join("decoded");
+
+    let result = decode(&log, &out);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+
+    let header = common::header();
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["header_found"], true);
+    assert_eq!(summary["protocol_version"], 1);
+    assert_eq!(summary["header"]["board"], "dynacal-test rev A");
+    assert_eq!(summary["bytes_total"], bytes.len() as u64);
+    assert!(summary["frames_dropped"].as_u64().unwrap() >= 1);
+    assert!(summary["bytes_dropped"].as_u64().unwrap() >= 2);
+    let decoded_total = summary["frames_decoded_total"].as_u64().unwrap();
+    assert!(decoded_total < frames.len() as u64 && decoded_total + 2 >= frames.len() as u64);
+    assert_eq!(summary["frames_decoded"]["header"], 1);
+    assert_eq!(summary["frames_decoded"]["pps"], 2);
+
+    for config in &header.imus {
+        let sent: Vec<_> = frames
+            .iter()
+            .filter_map(|f| match f {
+                Frame::Imu(s) if s.imu_id == config.imu_id => Some(*s),
+                _ => None,
+            })
+            .collect();
+        let path = out.join(format!("imu{}.csv", config.imu_id));
+        let rec = ImuRecording::read(&path).unwrap();
+        let imu_summary = summary["imus"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|s| s["imu_id"] == config.imu_id)
+            .unwrap();
+        assert_eq!(imu_summary["samples"], rec.len() as u64);
+        assert!(rec.len() + 2 >= sent.len() && rec.len() <= sent.len());
+        // Every row is one sent sample, scaled bit-exactly from its counts.
+        let gyro = rec.gyro_rad_s.as_ref().unwrap();
+        let accel = rec.accel_m_s2.as_ref().unwrap();
+        let mut k = 0;
+        for (row, &t_s) in rec.t_s.iter().enumerate() {
+            while (sent[k].t_us as f64 * 1e-6).to_bits() != t_s.to_bits() {
+                k += 1;
+            }
+            for axis in 0..3 {
+                let g = sent[k].gyro_counts[axis] as f64 * config.gyro_scale_rad_s_per_count;
+                let a = sent[k].accel_counts[axis] as f64 * config.accel_scale_m_s2_per_count;
+                assert_eq!(gyro[axis][row].to_bits(), g.to_bits());
+                assert_eq!(accel[axis][row].to_bits(), a.to_bits());
+            }
+        }
+        // 2 s at the configured rate, no gap unless the damaged frame was this IMU's.
+        let missing = imu_summary["gaps"]["samples_missing"].as_u64().unwrap();
+        assert_eq!(missing as usize, sent.len() - rec.len());
+    }
+    // Nothing but the promised files (the staging folder is gone).
+    let mut names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(names, ["imu0.csv", "imu2.csv", "summary.json"]);
+}
+
+#[test]
+fn decode_fails_without_header_or_frames_and_writes_nothing() {
+    let dir = tempfile::tempdir().unwrap();
+    let frames = common::frames(12, 1);
+    let cases: [(&str, Vec<u8>, &str); 3] = [
+        (
+            "garbage.log",
+            (1..=255u8).cycle().take(5000).collect(),
+            "no frame",
+        ),
+        (
+            "headless.log",
+            encode_log(&frames[1..]).unwrap(),
+            "no header",
+        ),
+        ("empty.log", Vec::new(), "no frame"),
+    ];
+    for (name, bytes, message) in cases {
+        let log = dir.path().join(name);
+        std::fs::write(&log, bytes).unwrap();
+        let out = dir.path().join(format!("{name}.out"));
+        let result = decode(&log, &out);
+        let stderr = String::from_utf8_lossy(&result.stderr);
+        assert!(!result.status.success(), "{name} should fail");
+        assert!(
+            stderr.contains(name) && stderr.contains(message),
+            "{stderr}"
+        );
+        assert!(!out.exists(), "{name}: output folder created");
+    }
+    let missing = dir.path().join("missing.log");
+    let result = decode(&missing, &dir.path().join("m.out"));
+    assert!(!result.status.success());
+    assert!(String::from_utf8_lossy(&result.stderr).contains("missing.log"));
+}

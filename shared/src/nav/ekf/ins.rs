@@ -1,0 +1,147 @@
+//! The closed loop: a [`Strapdown`] mechanization corrected by the [`ErrorStateEkf`].
+//!
+//! [`InsEkf::propagate`] removes the estimated biases from the IMU increments, advances the
+//! mechanization and predicts the filter about the new nominal state; the `fuse_*` methods
+//! form innovations from the nominal state; [`InsEkf::correct`] folds the error estimate back
+//! into the mechanization (and the filter's own biases and calibrations) and zeroes it. Call
+//! `correct` after the updates of each epoch.
+
+use super::{
+    geodetic_difference_ned_m, small_rotation, BatchOutcome, ErrorStateEkf, InterImuSample,
+    NavCorrection, NavLinearization,
+};
+use crate::nav::earth::radii;
+use crate::nav::strapdown::{NavFault, NavState, Strapdown};
+use nalgebra::{RealField, Vector3};
+
+impl<T: RealField + Copy> NavLinearization<T> {
+    /// The linearisation point at a mechanization state, with bias-corrected specific force
+    /// `f_b_m_s2` (body, m/s²).
+    pub fn from_state(state: &NavState<T>, f_b_m_s2: Vector3<T>) -> Self {
+        Self::from_geodetic(
+            state.lat_rad,
+            state.h_m,
+            state.v_ned_m_s,
+            state.c_bn(),
+            f_b_m_s2,
+        )
+    }
+}
+
+/// Applies a filter correction to a mechanization state: position via the curvature radii,
+/// velocity additively, attitude as `C_b^n ← exp([ε×]) C_b^n`.
+pub fn apply_correction<T: RealField + Copy>(
+    state: &mut NavState<T>,
+    correction: &NavCorrection<T>,
+) {
+    let r = radii(state.lat_rad);
+    let d = correction.position_ned_m;
+    let cos_lat = state.lat_rad.cos();
+    state.lat_rad += d.x / (r.meridian_m + state.h_m);
+    if cos_lat.abs() > nalgebra::convert(1e-9) {
+        state.lon_rad += d.y / ((r.transverse_m + state.h_m) * cos_lat);
+    }
+    state.h_m -= d.z;
+    state.v_ned_m_s += correction.velocity_ned_m_s;
+    state.q_nb = small_rotation(correction.attitude_ned_rad) * state.q_nb;
+    state.q_nb.renormalize();
+}
+
+/// Strapdown INS with its error-state filter.
+#[derive(Clone, Debug)]
+pub struct InsEkf<T: RealField + Copy, const K: usize, const N: usize> {
+    /// The mechanization (nominal navigation state).
+    pub strapdown: Strapdown<T>,
+    /// The error-state filter.
+    pub ekf: ErrorStateEkf<T, K, N>,
+}
+
+impl<T: RealField + Copy, const K: usize, const N: usize> InsEkf<T, K, N> {
+    /// Pairs a mechanization with a filter.
+    pub fn new(strapdown: Strapdown<T>, ekf: ErrorStateEkf<T, K, N>) -> Self {
+        Self { strapdown, ekf }
+    }
+
+    /// The nominal navigation state.
+    pub fn state(&self) -> &NavState<T> {
+        self.strapdown.state()
+    }
+
+    /// One IMU step from raw increments over `dt_s`: `delta_theta_b_rad` (rad) and
+    /// `delta_v_b_m_s` (m/s), body axes, before bias removal. On a mechanization fault the
+    /// filter is not predicted and the fault is returned.
+    pub fn propagate(
+        &mut self,
+        delta_theta_b_rad: Vector3<T>,
+        delta_v_b_m_s: Vector3<T>,
+        dt_s: T,
+    ) -> Result<(), NavFault> {
+        let delta_theta = delta_theta_b_rad - self.ekf.gyro_bias_b_rad_s() * dt_s;
+        let delta_v = delta_v_b_m_s - self.ekf.accel_bias_b_m_s2() * dt_s;
+        self.strapdown.step(delta_theta, delta_v, dt_s)?;
+        let lin = NavLinearization::from_state(self.strapdown.state(), delta_v / dt_s);
+        if self.ekf.predict(&lin, dt_s) {
+            Ok(())
+        } else {
+            Err(NavFault::NonFinite)
+        }
+    }
+
+    /// Fuses a GNSS position (WGS84 latitude, longitude in rad, height in m) with one-sigma
+    /// noise `sigma_ned_m` (NED, m).
+    pub fn fuse_gnss_position(
+        &mut self,
+        lat_rad: T,
+        lon_rad: T,
+        h_m: T,
+        sigma_ned_m: &Vector3<T>,
+    ) -> BatchOutcome {
+        let s = *self.strapdown.state();
+        let r = radii(s.lat_rad);
+        let innovation = geodetic_difference_ned_m(
+            [lat_rad, lon_rad, h_m],
+            [s.lat_rad, s.lon_rad, s.h_m],
+            r.meridian_m + s.h_m,
+            r.transverse_m + s.h_m,
+        );
+        self.ekf.fuse_gnss_position(&innovation, sigma_ned_m)
+    }
+
+    /// Fuses a GNSS velocity (NED, m/s) with one-sigma noise `sigma_ned_m_s`.
+    pub fn fuse_gnss_velocity(
+        &mut self,
+        v_ned_m_s: &Vector3<T>,
+        sigma_ned_m_s: &Vector3<T>,
+    ) -> BatchOutcome {
+        let innovation = v_ned_m_s - self.strapdown.state().v_ned_m_s;
+        self.ekf.fuse_gnss_velocity(&innovation, sigma_ned_m_s)
+    }
+
+    /// Zero-velocity update with one-sigma residual motion `sigma_m_s`.
+    pub fn fuse_zero_velocity(&mut self, sigma_m_s: T) -> BatchOutcome {
+        let v = self.strapdown.state().v_ned_m_s;
+        self.ekf.fuse_zero_velocity(&v, sigma_m_s)
+    }
+
+    /// Joint boresight/lever-arm update of extra IMU `imu` (see
+    /// [`ErrorStateEkf::fuse_inter_imu`]); `None` if `imu >= K`.
+    pub fn fuse_inter_imu(
+        &mut self,
+        imu: usize,
+        sample: &InterImuSample<T>,
+        sigma_rate_rad_s: &Vector3<T>,
+        sigma_force_m_s2: &Vector3<T>,
+    ) -> Option<BatchOutcome> {
+        self.ekf
+            .fuse_inter_imu(imu, sample, sigma_rate_rad_s, sigma_force_m_s2)
+    }
+
+    /// Folds the error estimate into the mechanization and the filter's nominal values.
+    pub fn correct(&mut self) -> NavCorrection<T> {
+        let correction = self.ekf.reset();
+        let mut state = *self.strapdown.state();
+        apply_correction(&mut state, &correction);
+        self.strapdown.set_state(state);
+        correction
+    }
+}

@@ -1,0 +1,620 @@
+//! Error-state extended Kalman filter for strapdown INS/GNSS navigation with inter-IMU
+//! calibration (Stebler, Guerrier, Skaloud, IEEE TIM 2015, Section II).
+//!
+//! The filter estimates the *errors* of a strapdown mechanization that runs outside it (the
+//! nominal navigation state: position, NED velocity, attitude). Its state vector is
+//!
+//! | index           | state                                  | unit   | frame |
+//! |-----------------|----------------------------------------|--------|-------|
+//! | 0..3            | position error `δr` (true − nominal)   | m      | NED   |
+//! | 3..6            | velocity error `δv`                    | m/s    | NED   |
+//! | 6..9            | attitude error `ε`, `C_b^n = (I+[ε×]) Ĉ_b^n` | rad | NED |
+//! | 9..12           | accelerometer bias error               | m/s²   | body  |
+//! | 12..15          | gyroscope bias error                   | rad/s  | body  |
+//! | 15+6i..15+6i+3  | boresight error `δψ_b→s` of extra IMU i| rad    | body  |
+//! | 15+6i+3..15+6i+6| lever-arm error `δr_b→s` of extra IMU i| m      | body  |
+//!
+//! so `N = 15 + 6K` for `K` extra IMUs. Position errors are kept in metres along NED rather
+//! than the paper's `δφ, δλ, δh` (radians): the two differ only by the curvature radii, and
+//! metres keep the covariance well scaled in `f32`.
+//!
+//! The filter owns the nominal values of the states the mechanization does not carry (IMU
+//! biases, inter-IMU boresight `Ĉ_b^s` and lever arm `r̂_b→s`) and folds its error estimate
+//! into them in [`ErrorStateEkf::reset`], which also hands the navigation part back to the
+//! caller to correct its mechanization (closed-loop error-state filter).
+//!
+//! Numerics follow what works for `f32` on a microcontroller (PX4 EKF2, ArduPilot EKF3):
+//! block-sparse covariance prediction (only the 15-state navigation block is dynamic, the
+//! calibration states are constant), sequential scalar updates with a chi-square innovation
+//! gate, the Joseph form for every scalar update, exact symmetry by computing one triangle
+//! and mirroring it, and variance floors once per cycle. Nothing here allocates or panics:
+//! numerical trouble is counted in [`FusionStats`] and reported through return values.
+
+mod fuse_gnss;
+mod fuse_inter_imu;
+mod ins;
+mod predict;
+
+pub use fuse_gnss::geodetic_difference_ned_m;
+pub use fuse_inter_imu::{InterImuSample, RateDifferentiator};
+pub use ins::{apply_correction, InsEkf};
+pub use predict::NavLinearization;
+
+use nalgebra::{Matrix3, Quaternion, RealField, SMatrix, SVector, UnitQuaternion, Vector3};
+
+/// Index of the first position-error state (NED, m).
+pub const POS: usize = 0;
+/// Index of the first velocity-error state (NED, m/s).
+pub const VEL: usize = 3;
+/// Index of the first attitude-error state (NED, rad).
+pub const ATT: usize = 6;
+/// Index of the first accelerometer-bias state (body, m/s²).
+pub const ACCEL_BIAS: usize = 9;
+/// Index of the first gyroscope-bias state (body, rad/s).
+pub const GYRO_BIAS: usize = 12;
+/// Number of navigation states (the dynamic block).
+pub const NAV_STATES: usize = 15;
+/// Number of calibration states per extra IMU (boresight 3, lever arm 3).
+pub const CALIBRATION_STATES_PER_IMU: usize = 6;
+
+/// Index of the first boresight-error state of extra IMU `imu` (body, rad).
+pub const fn boresight_index(imu: usize) -> usize {
+    NAV_STATES + CALIBRATION_STATES_PER_IMU * imu
+}
+
+/// Index of the first lever-arm-error state of extra IMU `imu` (body, m).
+pub const fn lever_arm_index(imu: usize) -> usize {
+    boresight_index(imu) + 3
+}
+
+/// The filter with no extra IMU: 15 states.
+pub type NavEkf<T> = ErrorStateEkf<T, 0, 15>;
+/// The filter with one extra IMU: 21 states.
+pub type NavEkf1<T> = ErrorStateEkf<T, 1, 21>;
+/// The filter with two extra IMUs: 27 states.
+pub type NavEkf2<T> = ErrorStateEkf<T, 2, 27>;
+
+/// Noise, gating and floor settings. Power spectral densities are one-sided and continuous
+/// time; variances are in the squared state units of the module table.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct EkfConfig<T> {
+    /// Accelerometer white noise PSD, (m/s²)²/Hz = (m/s)²/s (velocity random walk squared).
+    pub accel_noise_psd: T,
+    /// Gyroscope white noise PSD, (rad/s)²/Hz = rad²/s (angle random walk squared).
+    pub gyro_noise_psd: T,
+    /// Accelerometer bias driving-noise PSD, (m/s²)²/s.
+    pub accel_bias_psd: T,
+    /// Gyroscope bias driving-noise PSD, (rad/s)²/s.
+    pub gyro_bias_psd: T,
+    /// Inverse correlation time of the accelerometer bias Gauss–Markov process, 1/s
+    /// (0 makes it a random walk).
+    pub accel_bias_inv_tau_s: T,
+    /// Inverse correlation time of the gyroscope bias Gauss–Markov process, 1/s.
+    pub gyro_bias_inv_tau_s: T,
+    /// Boresight driving-noise PSD, rad²/s (0: a random constant, as the mount is rigid).
+    pub boresight_psd: T,
+    /// Lever-arm driving-noise PSD, m²/s.
+    pub lever_arm_psd: T,
+    /// Chi-square gate on the normalised squared innovation `ν²/S` of one scalar update
+    /// (1 degree of freedom: 3.84 is 95 %, 10.83 is 99.9 %, 25 is PX4's 5-sigma gate).
+    pub innovation_gate: T,
+    /// Variance floors applied to the diagonal once per prediction and after each update
+    /// batch, in state order: position, velocity, attitude, accel bias, gyro bias (each for
+    /// all three axes), then boresight and lever arm for every extra IMU.
+    pub variance_floor: [T; 7],
+}
+
+impl<T: RealField + Copy> EkfConfig<T> {
+    /// Settings for a consumer MEMS IMU in a car (angle random walk 0.3 deg/√h, velocity
+    /// random walk 0.1 m/s/√h raised to cover vibration, bias instabilities of tens of mg and
+    /// tens of deg/h), with a 5-sigma innovation gate.
+    pub fn automotive_mems() -> Self {
+        let c = |x: f64| nalgebra::convert::<f64, T>(x);
+        Self {
+            accel_noise_psd: c(0.02 * 0.02),
+            gyro_noise_psd: c(0.005_f64.to_radians() * 0.005_f64.to_radians()),
+            accel_bias_psd: c(1e-4 * 1e-4),
+            gyro_bias_psd: c(1e-5 * 1e-5),
+            accel_bias_inv_tau_s: c(0.0),
+            gyro_bias_inv_tau_s: c(0.0),
+            boresight_psd: c(0.0),
+            lever_arm_psd: c(0.0),
+            innovation_gate: c(25.0),
+            variance_floor: [
+                c(1e-6),  // position, m²
+                c(1e-8),  // velocity, (m/s)²
+                c(1e-10), // attitude, rad²
+                c(1e-10), // accel bias, (m/s²)²
+                c(1e-14), // gyro bias, (rad/s)²
+                c(1e-12), // boresight, rad²
+                c(1e-10), // lever arm, m²
+            ],
+        }
+    }
+}
+
+/// Initial one-sigma uncertainties, in the units of the module table.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InitialSigmas<T> {
+    /// Position, m (NED).
+    pub position_m: Vector3<T>,
+    /// Velocity, m/s (NED).
+    pub velocity_m_s: Vector3<T>,
+    /// Attitude, rad (NED axes: roll-like, pitch-like, heading-like).
+    pub attitude_rad: Vector3<T>,
+    /// Accelerometer bias, m/s² (body).
+    pub accel_bias_m_s2: Vector3<T>,
+    /// Gyroscope bias, rad/s (body).
+    pub gyro_bias_rad_s: Vector3<T>,
+    /// Boresight of every extra IMU, rad (body).
+    pub boresight_rad: Vector3<T>,
+    /// Lever arm of every extra IMU, m (body).
+    pub lever_arm_m: Vector3<T>,
+}
+
+/// Nominal calibration of one extra IMU (the `s` frame) against the filter's body frame `b`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InterImuCalibration<T: RealField + Copy> {
+    /// Rotation taking body-frame vectors into the extra IMU's frame: `v_s = C_b^s v_b`.
+    pub q_b_to_s: UnitQuaternion<T>,
+    /// Lever arm from the body origin to the extra IMU's origin, m, body axes.
+    pub lever_arm_b_m: Vector3<T>,
+}
+
+impl<T: RealField + Copy> InterImuCalibration<T> {
+    /// Identity boresight and zero lever arm (the paper's initialisation).
+    pub fn identity() -> Self {
+        Self {
+            q_b_to_s: UnitQuaternion::identity(),
+            lever_arm_b_m: Vector3::zeros(),
+        }
+    }
+
+    /// `C_b^s`, the direction cosine matrix from body to extra-IMU axes.
+    pub fn c_b_s(&self) -> Matrix3<T> {
+        self.q_b_to_s.to_rotation_matrix().into_inner()
+    }
+
+    /// Boresight angles `ψ_b→s`, rad: the rotation vector turning the body axes into the
+    /// extra IMU's axes, `C_s^b = exp([ψ×])`, so that for small angles
+    /// `C_b^s ≈ I − [ψ×]` as in the paper's eq. (10).
+    pub fn boresight_rad(&self) -> Vector3<T> {
+        self.q_b_to_s.inverse().scaled_axis()
+    }
+}
+
+/// Counters of one kind of scalar measurement.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FusionCounters {
+    /// Scalar updates applied.
+    pub accepted: u32,
+    /// Scalar updates refused by the innovation gate.
+    pub rejected: u32,
+    /// Scalar updates refused because the innovation variance was not finite and positive.
+    pub numerical_faults: u32,
+}
+
+/// Per-measurement-kind statistics since the filter was created.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct FusionStats {
+    /// GNSS position components.
+    pub gnss_position: FusionCounters,
+    /// GNSS velocity components.
+    pub gnss_velocity: FusionCounters,
+    /// Zero-velocity update components.
+    pub zero_velocity: FusionCounters,
+    /// Extra-IMU angular-rate components (eq. 10).
+    pub inter_imu_rate: FusionCounters,
+    /// Extra-IMU specific-force components (eq. 11).
+    pub inter_imu_force: FusionCounters,
+    /// Attitude-update components (eq. 7).
+    pub attitude: FusionCounters,
+    /// Predictions refused (non-finite input or non-positive step).
+    pub rejected_predictions: u32,
+    /// Times a non-finite value was found on the covariance diagonal (the covariance was then
+    /// re-initialised to its floors plus the initial sigmas; see [`ErrorStateEkf::reset_covariance`]).
+    pub covariance_resets: u32,
+}
+
+/// What happened to a batch of scalar updates (one measurement vector).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BatchOutcome {
+    /// Components applied.
+    pub accepted: u8,
+    /// Components refused by the innovation gate.
+    pub rejected: u8,
+    /// Components refused for numerical reasons.
+    pub faults: u8,
+}
+
+/// The result of one scalar update.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ScalarOutcome<T> {
+    /// Applied; carries the normalised squared innovation `ν²/S`.
+    Accepted(T),
+    /// Refused by the gate; carries `ν²/S`.
+    Rejected(T),
+    /// Refused: the innovation variance was not finite and positive.
+    NumericalFault,
+}
+
+/// Errors folded into the mechanization by the caller after [`ErrorStateEkf::reset`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NavCorrection<T> {
+    /// Add to the nominal position, m, NED (north and east via the curvature radii; down is
+    /// minus height).
+    pub position_ned_m: Vector3<T>,
+    /// Add to the nominal NED velocity, m/s.
+    pub velocity_ned_m_s: Vector3<T>,
+    /// Rotate the nominal attitude: `C_b^n ← exp([ε×]) C_b^n`, rad, NED axes.
+    pub attitude_ned_rad: Vector3<T>,
+}
+
+/// A row of the measurement matrix with at most six non-zero entries.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct SparseRow<T> {
+    pub index: [usize; 6],
+    pub value: [T; 6],
+    pub len: usize,
+}
+
+impl<T: RealField + Copy> SparseRow<T> {
+    pub fn unit(index: usize) -> Self {
+        let mut row = Self {
+            index: [0; 6],
+            value: [T::zero(); 6],
+            len: 1,
+        };
+        row.index[0] = index;
+        row.value[0] = T::one();
+        row
+    }
+
+    /// A row with three entries at `first..first + 3`, plus optionally three at `second`.
+    pub fn from_blocks(first: usize, a: [T; 3], second: Option<(usize, [T; 3])>) -> Self {
+        let mut row = Self {
+            index: [first, first + 1, first + 2, 0, 0, 0],
+            value: [a[0], a[1], a[2], T::zero(), T::zero(), T::zero()],
+            len: 3,
+        };
+        if let Some((start, b)) = second {
+            row.index[3..6].copy_from_slice(&[start, start + 1, start + 2]);
+            row.value[3..6].copy_from_slice(&b);
+            row.len = 6;
+        }
+        row
+    }
+}
+
+/// The error-state EKF with `K` extra IMUs and `N = 15 + 6K` states (checked at compile time).
+#[derive(Clone, Debug)]
+pub struct ErrorStateEkf<T: RealField + Copy, const K: usize, const N: usize> {
+    config: EkfConfig<T>,
+    initial: InitialSigmas<T>,
+    /// Error-state covariance, exactly symmetric.
+    p: SMatrix<T, N, N>,
+    /// Error-state mean since the last reset.
+    dx: SVector<T, N>,
+    accel_bias_b_m_s2: Vector3<T>,
+    gyro_bias_b_rad_s: Vector3<T>,
+    calibration: [InterImuCalibration<T>; K],
+    /// The navigation block of the last prediction's transition matrix, as 5×5 blocks of 3×3.
+    transition: predict::BlockTransition<T>,
+    stats: FusionStats,
+}
+
+impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
+    const STATE_COUNT_CHECK: () = assert!(
+        N == NAV_STATES + CALIBRATION_STATES_PER_IMU * K,
+        "ErrorStateEkf<T, K, N> needs N = 15 + 6K"
+    );
+
+    /// A filter with zero error estimate, zero biases, identity boresights, zero lever arms
+    /// and a diagonal covariance from `initial`.
+    pub fn new(config: EkfConfig<T>, initial: InitialSigmas<T>) -> Self {
+        #[allow(clippy::let_unit_value)]
+        let () = Self::STATE_COUNT_CHECK;
+        let mut filter = Self {
+            config,
+            initial,
+            p: SMatrix::zeros(),
+            dx: SVector::zeros(),
+            accel_bias_b_m_s2: Vector3::zeros(),
+            gyro_bias_b_rad_s: Vector3::zeros(),
+            calibration: [InterImuCalibration::identity(); K],
+            transition: predict::BlockTransition::identity(),
+            stats: FusionStats::default(),
+        };
+        filter.reset_covariance();
+        filter
+    }
+
+    /// Re-initialises the covariance to the initial sigmas (diagonal). Used after a
+    /// numerical fault; callable by the application too (e.g. after a long GNSS outage).
+    pub fn reset_covariance(&mut self) {
+        self.p = SMatrix::zeros();
+        let blocks = [
+            (POS, self.initial.position_m),
+            (VEL, self.initial.velocity_m_s),
+            (ATT, self.initial.attitude_rad),
+            (ACCEL_BIAS, self.initial.accel_bias_m_s2),
+            (GYRO_BIAS, self.initial.gyro_bias_rad_s),
+        ];
+        for (start, sigma) in blocks {
+            for axis in 0..3 {
+                self.p[(start + axis, start + axis)] = sigma[axis] * sigma[axis];
+            }
+        }
+        for imu in 0..K {
+            for axis in 0..3 {
+                let b = self.initial.boresight_rad[axis];
+                let l = self.initial.lever_arm_m[axis];
+                self.p[(boresight_index(imu) + axis, boresight_index(imu) + axis)] = b * b;
+                self.p[(lever_arm_index(imu) + axis, lever_arm_index(imu) + axis)] = l * l;
+            }
+        }
+        self.apply_variance_floors();
+    }
+
+    /// The configuration in use.
+    pub fn config(&self) -> &EkfConfig<T> {
+        &self.config
+    }
+
+    /// The error-state covariance (symmetric, units of the module table).
+    pub fn covariance(&self) -> &SMatrix<T, N, N> {
+        &self.p
+    }
+
+    /// Replaces the covariance (e.g. to restore a saved filter). It is symmetrised and floored.
+    pub fn set_covariance(&mut self, p: &SMatrix<T, N, N>) {
+        let half: T = nalgebra::convert(0.5);
+        for i in 0..N {
+            for j in i..N {
+                let v = (p[(i, j)] + p[(j, i)]) * half;
+                self.p[(i, j)] = v;
+                self.p[(j, i)] = v;
+            }
+        }
+        self.apply_variance_floors();
+    }
+
+    /// The error estimate accumulated since the last [`reset`](Self::reset).
+    pub fn error_estimate(&self) -> &SVector<T, N> {
+        &self.dx
+    }
+
+    /// Counters of accepted, gated and faulty updates.
+    pub fn stats(&self) -> &FusionStats {
+        &self.stats
+    }
+
+    /// Nominal accelerometer bias, m/s², body axes (subtract from the raw specific force).
+    pub fn accel_bias_b_m_s2(&self) -> Vector3<T> {
+        self.accel_bias_b_m_s2
+    }
+
+    /// Nominal gyroscope bias, rad/s, body axes (subtract from the raw angular rate).
+    pub fn gyro_bias_b_rad_s(&self) -> Vector3<T> {
+        self.gyro_bias_b_rad_s
+    }
+
+    /// Sets the nominal IMU biases (e.g. from a static alignment).
+    pub fn set_biases(&mut self, accel_bias_b_m_s2: Vector3<T>, gyro_bias_b_rad_s: Vector3<T>) {
+        self.accel_bias_b_m_s2 = accel_bias_b_m_s2;
+        self.gyro_bias_b_rad_s = gyro_bias_b_rad_s;
+    }
+
+    /// The nominal calibration of extra IMU `imu`, or `None` if `imu >= K`.
+    pub fn calibration(&self, imu: usize) -> Option<&InterImuCalibration<T>> {
+        self.calibration.get(imu)
+    }
+
+    /// Sets the nominal calibration of extra IMU `imu` (e.g. a surveyed prior); returns
+    /// `false` if `imu >= K`.
+    pub fn set_calibration(&mut self, imu: usize, calibration: InterImuCalibration<T>) -> bool {
+        match self.calibration.get_mut(imu) {
+            Some(slot) => {
+                *slot = calibration;
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// One-sigma uncertainty of state `index` (units of the module table); `None` if out of
+    /// range.
+    pub fn sigma(&self, index: usize) -> Option<T> {
+        (index < N).then(|| self.p[(index, index)].max(T::zero()).sqrt())
+    }
+
+    /// Folds the error estimate into the nominal values the filter owns (biases, boresights,
+    /// lever arms), zeroes it, and returns the navigation part for the caller to apply to its
+    /// mechanization. Call once after the updates of an epoch.
+    ///
+    /// The covariance is left unchanged: the reset Jacobian differs from identity only by
+    /// `[δψ/2 ×]`-sized terms, which EKF2 and EKF3 neglect too.
+    pub fn reset(&mut self) -> NavCorrection<T> {
+        let v3 =
+            |start: usize| Vector3::new(self.dx[start], self.dx[start + 1], self.dx[start + 2]);
+        let correction = NavCorrection {
+            position_ned_m: v3(POS),
+            velocity_ned_m_s: v3(VEL),
+            attitude_ned_rad: v3(ATT),
+        };
+        self.accel_bias_b_m_s2 += v3(ACCEL_BIAS);
+        self.gyro_bias_b_rad_s += v3(GYRO_BIAS);
+        for imu in 0..K {
+            let delta_psi = v3(boresight_index(imu));
+            let delta_lever = v3(lever_arm_index(imu));
+            let cal = &mut self.calibration[imu];
+            // True C_b^s = (I − [δψ×]) Ĉ_b^s, i.e. exp(−δψ) applied on the s side.
+            cal.q_b_to_s = small_rotation(-delta_psi) * cal.q_b_to_s;
+            cal.q_b_to_s.renormalize();
+            cal.lever_arm_b_m += delta_lever;
+        }
+        self.dx = SVector::zeros();
+        correction
+    }
+
+    /// Sequential scalar update with measurement row `h`, raw innovation
+    /// `z − h(x_nominal)`, and measurement variance `r`. The current error estimate is taken
+    /// into account (`ν = raw − h·δx`), so several updates may precede one reset.
+    ///
+    /// The covariance update is the Joseph form `(I − k hᵀ) P (I − k hᵀ)ᵀ + k r kᵀ`,
+    /// evaluated on one triangle and mirrored so that `P` stays exactly symmetric.
+    pub(crate) fn fuse_scalar(
+        &mut self,
+        h: &SparseRow<T>,
+        raw_innovation: T,
+        r: T,
+    ) -> ScalarOutcome<T> {
+        let len = h.len.min(6);
+        let mut innovation = raw_innovation;
+        for m in 0..len {
+            innovation -= h.value[m] * self.dx[h.index[m]];
+        }
+        // P h
+        let mut pht = SVector::<T, N>::zeros();
+        for m in 0..len {
+            let (col, val) = (h.index[m], h.value[m]);
+            for i in 0..N {
+                pht[i] += self.p[(i, col)] * val;
+            }
+        }
+        let mut s = r;
+        for m in 0..len {
+            s += h.value[m] * pht[h.index[m]];
+        }
+        if !(s.is_finite() && s > T::zero() && r >= T::zero() && innovation.is_finite()) {
+            return ScalarOutcome::NumericalFault;
+        }
+        let test_ratio = innovation * innovation / s;
+        if test_ratio > self.config.innovation_gate {
+            return ScalarOutcome::Rejected(test_ratio);
+        }
+        let gain = pht / s;
+        self.dx += gain * innovation;
+
+        // Joseph form P⁺ = A − (A h) kᵀ + r k kᵀ with A = (I − k hᵀ) P = P − k (P h)ᵀ, evaluated
+        // element by element on the upper triangle without forming A: its needed product is
+        // A h = P h − k (hᵀ P h). Each element is then
+        // P⁺_ij = P_ij − k_i (Ph)_j − (Ah)_i k_j + r k_i k_j, a sum of the Joseph form's terms,
+        // so no N×N temporary is needed.
+        let h_p_h = s - r;
+        let mut ah = SVector::<T, N>::zeros();
+        for i in 0..N {
+            ah[i] = pht[i] - gain[i] * h_p_h;
+        }
+        for j in 0..N {
+            let (kj, phtj, rkj) = (gain[j], pht[j], r * gain[j]);
+            for i in 0..=j {
+                let v = self.p[(i, j)] - gain[i] * phtj - ah[i] * kj + gain[i] * rkj;
+                self.p[(i, j)] = v;
+                self.p[(j, i)] = v;
+            }
+        }
+        ScalarOutcome::Accepted(test_ratio)
+    }
+
+    /// Clamps the diagonal to the configured floors; re-initialises the covariance if a
+    /// non-finite variance appears. Adding to the diagonal keeps `P` positive definite.
+    pub(crate) fn apply_variance_floors(&mut self) {
+        let floor = self.config.variance_floor;
+        let mut finite = true;
+        for i in 0..N {
+            let class = if i < NAV_STATES {
+                i / 3
+            } else if (i - NAV_STATES) % CALIBRATION_STATES_PER_IMU < 3 {
+                5
+            } else {
+                6
+            };
+            let v = self.p[(i, i)];
+            if !v.is_finite() {
+                finite = false;
+            } else if v < floor[class] {
+                self.p[(i, i)] = floor[class];
+            }
+        }
+        if !finite {
+            self.stats.covariance_resets = self.stats.covariance_resets.saturating_add(1);
+            self.reset_covariance();
+        }
+    }
+}
+
+/// Counts one scalar outcome into `counters` and `batch`.
+pub(crate) fn tally<T>(
+    outcome: ScalarOutcome<T>,
+    counters: &mut FusionCounters,
+    batch: &mut BatchOutcome,
+) {
+    match outcome {
+        ScalarOutcome::Accepted(_) => {
+            counters.accepted = counters.accepted.saturating_add(1);
+            batch.accepted = batch.accepted.saturating_add(1);
+        }
+        ScalarOutcome::Rejected(_) => {
+            counters.rejected = counters.rejected.saturating_add(1);
+            batch.rejected = batch.rejected.saturating_add(1);
+        }
+        ScalarOutcome::NumericalFault => {
+            counters.numerical_faults = counters.numerical_faults.saturating_add(1);
+            batch.faults = batch.faults.saturating_add(1);
+        }
+    }
+}
+
+/// `exp([θ×])` as a unit quaternion from the half-angle approximation `(1, θ/2)`,
+/// normalised: exact to third order in |θ| and free of trigonometry, which matters on the
+/// Cortex-M4F where `sinf`/`cosf` run in software double precision. Used for corrections,
+/// which are small.
+pub fn small_rotation<T: RealField + Copy>(theta: Vector3<T>) -> UnitQuaternion<T> {
+    let half: T = nalgebra::convert(0.5);
+    UnitQuaternion::new_normalize(Quaternion::new(
+        T::one(),
+        theta.x * half,
+        theta.y * half,
+        theta.z * half,
+    ))
+}
+
+/// The inverse of [`small_rotation`]: `2 (x, y, z) / w` of the quaternion (twice the Gibbs
+/// vector, `2 tan(θ/2)` along the axis), equal to the rotation vector to third order, free of
+/// trigonometry, and independent of the quaternion's sign. Rotations near 180° (|w| below
+/// 1e-6) are clamped rather than divided by zero.
+pub fn small_rotation_vector<T: RealField + Copy>(q: &UnitQuaternion<T>) -> Vector3<T> {
+    let tiny: T = nalgebra::convert(1e-6);
+    let two: T = nalgebra::convert(2.0);
+    let w = if q.w.abs() < tiny {
+        if q.w < T::zero() {
+            -tiny
+        } else {
+            tiny
+        }
+    } else {
+        q.w
+    };
+    Vector3::new(q.i, q.j, q.k) * (two / w)
+}
+
+/// The skew-symmetric cross-product matrix `[v×]`.
+pub fn skew<T: RealField + Copy>(v: &Vector3<T>) -> Matrix3<T> {
+    Matrix3::new(
+        T::zero(),
+        -v.z,
+        v.y,
+        v.z,
+        T::zero(),
+        -v.x,
+        -v.y,
+        v.x,
+        T::zero(),
+    )
+}
+
+#[cfg(test)]
+mod tests;
+#[cfg(test)]
+mod tests_ins;

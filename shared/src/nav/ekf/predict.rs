@@ -1,0 +1,328 @@
+//! Covariance prediction: the linearised INS error model (paper eqs. 3–6, in NED metres and
+//! the `C_b^n = (I + [ε×]) Ĉ_b^n` attitude-error convention), discretised to first order,
+//! and propagated block-sparsely.
+//!
+//! The transition matrix is `Φ = blockdiag(Φ_nav, I)`: only the 15-state navigation block is
+//! dynamic and the calibration states are constant (eq. 6). Of `Φ_nav`'s 25 blocks of 3×3
+//! only 11 are non-zero and six of those are diagonal, so the prediction multiplies blocks
+//! instead of forming a dense `N×N` `Φ P Φᵀ` (3–10× fewer operations on the Cortex-M4F, see
+//! BENCHMARKS.md).
+//!
+//! Neglected, as in most car-grade INS filters: the position-rate terms of order `|v|/R`
+//! (below 5·10⁻⁶ /s at road speeds) and the dependence of the Earth rate on latitude error.
+//! Kept: Schuler and vertical-channel gravity gradients, Coriolis and transport rate, the
+//! transport-rate dependence on velocity error, and Gauss–Markov biases.
+
+// Block indices address Φ, P and δx together; iterator chains would hide that.
+#![allow(clippy::needless_range_loop)]
+
+use super::{boresight_index, skew, ErrorStateEkf, ACCEL_BIAS, ATT, GYRO_BIAS, NAV_STATES, VEL};
+use crate::nav::earth::{
+    earth_rate_ned_rad_s, normal_gravity_m_s2, radii, transport_rate_ned_rad_s,
+};
+use nalgebra::{Matrix3, RealField, SMatrix, Vector3};
+
+/// The nominal quantities the error model is linearised about, for one prediction step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct NavLinearization<T> {
+    /// Nominal attitude `Ĉ_b^n` (body to NED).
+    pub c_b_n: Matrix3<T>,
+    /// Bias-corrected specific force over the step, m/s², body axes (`Δv / Δt`).
+    pub f_b_m_s2: Vector3<T>,
+    /// Nominal velocity, m/s, NED.
+    pub v_ned_m_s: Vector3<T>,
+    /// Earth rate in the navigation frame, rad/s, NED.
+    pub omega_ie_n_rad_s: Vector3<T>,
+    /// Transport rate in the navigation frame, rad/s, NED.
+    pub omega_en_n_rad_s: Vector3<T>,
+    /// Normal gravity magnitude at the nominal position, m/s².
+    pub gravity_m_s2: T,
+    /// Meridian radius of curvature plus height, `R_N + h`, m.
+    pub meridian_radius_plus_h_m: T,
+    /// Transverse radius of curvature plus height, `R_E + h`, m.
+    pub transverse_radius_plus_h_m: T,
+    /// Tangent of the nominal geodetic latitude.
+    pub tan_lat: T,
+}
+
+impl<T: RealField + Copy> NavLinearization<T> {
+    /// Builds the linearisation point from a geodetic nominal state: latitude `lat_rad`,
+    /// height `h_m` (WGS84), NED velocity, attitude `c_b_n` and bias-corrected specific force
+    /// `f_b_m_s2`, with the WGS84 model of [`crate::nav::earth`].
+    pub fn from_geodetic(
+        lat_rad: T,
+        h_m: T,
+        v_ned_m_s: Vector3<T>,
+        c_b_n: Matrix3<T>,
+        f_b_m_s2: Vector3<T>,
+    ) -> Self {
+        let r = radii(lat_rad);
+        let (sin_lat, cos_lat) = lat_rad.sin_cos();
+        Self {
+            c_b_n,
+            f_b_m_s2,
+            v_ned_m_s,
+            omega_ie_n_rad_s: earth_rate_ned_rad_s(lat_rad),
+            omega_en_n_rad_s: transport_rate_ned_rad_s(lat_rad, h_m, &v_ned_m_s),
+            gravity_m_s2: normal_gravity_m_s2(lat_rad, h_m),
+            meridian_radius_plus_h_m: r.meridian_m + h_m,
+            transverse_radius_plus_h_m: r.transverse_m + h_m,
+            tan_lat: sin_lat / cos_lat,
+        }
+    }
+
+    fn is_finite(&self) -> bool {
+        self.c_b_n.iter().all(|x| x.is_finite())
+            && self.f_b_m_s2.iter().all(|x| x.is_finite())
+            && self.v_ned_m_s.iter().all(|x| x.is_finite())
+            && self.omega_ie_n_rad_s.iter().all(|x| x.is_finite())
+            && self.omega_en_n_rad_s.iter().all(|x| x.is_finite())
+            && self.gravity_m_s2.is_finite()
+            && self.meridian_radius_plus_h_m.is_finite()
+            && self.meridian_radius_plus_h_m > T::zero()
+            && self.transverse_radius_plus_h_m.is_finite()
+            && self.transverse_radius_plus_h_m > T::zero()
+            && self.tan_lat.is_finite()
+    }
+}
+
+/// One 3×3 block of the transition matrix.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Block3<T: RealField + Copy> {
+    Zero,
+    Diag(Vector3<T>),
+    Full(Matrix3<T>),
+}
+
+impl<T: RealField + Copy> Block3<T> {
+    /// `self · x`.
+    fn left_mul(&self, x: &Matrix3<T>) -> Option<Matrix3<T>> {
+        match self {
+            Block3::Zero => None,
+            Block3::Diag(d) => {
+                let mut y = *x;
+                for r in 0..3 {
+                    for c in 0..3 {
+                        y[(r, c)] *= d[r];
+                    }
+                }
+                Some(y)
+            }
+            Block3::Full(m) => Some(m * x),
+        }
+    }
+
+    /// `x · selfᵀ`.
+    fn right_mul_transpose(&self, x: &Matrix3<T>) -> Option<Matrix3<T>> {
+        match self {
+            Block3::Zero => None,
+            Block3::Diag(d) => {
+                let mut y = *x;
+                for r in 0..3 {
+                    for c in 0..3 {
+                        y[(r, c)] *= d[c];
+                    }
+                }
+                Some(y)
+            }
+            Block3::Full(m) => Some(x * m.transpose()),
+        }
+    }
+
+    /// `self · v` for a 3-vector.
+    fn mul_vector(&self, v: &Vector3<T>) -> Vector3<T> {
+        match self {
+            Block3::Zero => Vector3::zeros(),
+            Block3::Diag(d) => d.component_mul(v),
+            Block3::Full(m) => m * v,
+        }
+    }
+}
+
+/// `Φ_nav` as 5×5 blocks (position, velocity, attitude, accel bias, gyro bias).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct BlockTransition<T: RealField + Copy> {
+    pub blocks: [[Block3<T>; 5]; 5],
+}
+
+impl<T: RealField + Copy> BlockTransition<T> {
+    pub fn identity() -> Self {
+        let mut blocks = [[Block3::Zero; 5]; 5];
+        for (i, row) in blocks.iter_mut().enumerate() {
+            row[i] = Block3::Diag(Vector3::repeat(T::one()));
+        }
+        Self { blocks }
+    }
+
+    /// `Φ_nav = I + F dt` for the error model in the module documentation.
+    fn first_order(lin: &NavLinearization<T>, config: &super::EkfConfig<T>, dt: T) -> Self {
+        let one = T::one();
+        let two: T = nalgebra::convert(2.0);
+        let identity = Matrix3::<T>::identity();
+        // Schuler (horizontal) and vertical-channel gravity gradients about a mean radius.
+        let radius = (lin.meridian_radius_plus_h_m * lin.transverse_radius_plus_h_m).sqrt();
+        let g_over_r = lin.gravity_m_s2 / radius;
+        // ∂ω_en/∂v: transport rate dependence on velocity error.
+        let mut d_omega_en_dv = Matrix3::<T>::zeros();
+        d_omega_en_dv[(0, 1)] = one / lin.transverse_radius_plus_h_m;
+        d_omega_en_dv[(1, 0)] = -one / lin.meridian_radius_plus_h_m;
+        d_omega_en_dv[(2, 1)] = -lin.tan_lat / lin.transverse_radius_plus_h_m;
+        let f_n = lin.c_b_n * lin.f_b_m_s2;
+        let omega_in = lin.omega_ie_n_rad_s + lin.omega_en_n_rad_s;
+        let coriolis = lin.omega_ie_n_rad_s * two + lin.omega_en_n_rad_s;
+
+        let f_vv = -skew(&coriolis) + skew(&lin.v_ned_m_s) * d_omega_en_dv;
+        let mut blocks = [[Block3::Zero; 5]; 5];
+        blocks[0][0] = Block3::Diag(Vector3::repeat(one));
+        blocks[0][1] = Block3::Diag(Vector3::repeat(dt));
+        blocks[1][0] = Block3::Diag(Vector3::new(-g_over_r, -g_over_r, two * g_over_r) * dt);
+        blocks[1][1] = Block3::Full(identity + f_vv * dt);
+        blocks[1][2] = Block3::Full(-skew(&f_n) * dt);
+        blocks[1][3] = Block3::Full(-lin.c_b_n * dt);
+        blocks[2][1] = Block3::Full(-d_omega_en_dv * dt);
+        blocks[2][2] = Block3::Full(identity - skew(&omega_in) * dt);
+        blocks[2][4] = Block3::Full(-lin.c_b_n * dt);
+        blocks[3][3] = Block3::Diag(Vector3::repeat(one - config.accel_bias_inv_tau_s * dt));
+        blocks[4][4] = Block3::Diag(Vector3::repeat(one - config.gyro_bias_inv_tau_s * dt));
+        Self { blocks }
+    }
+
+    /// The dense 15×15 matrix (for the host smoother).
+    pub fn to_dense(self) -> SMatrix<T, NAV_STATES, NAV_STATES> {
+        let mut dense = SMatrix::<T, NAV_STATES, NAV_STATES>::zeros();
+        for (bi, row) in self.blocks.iter().enumerate() {
+            for (bj, block) in row.iter().enumerate() {
+                if let Some(b) = block.left_mul(&Matrix3::identity()) {
+                    dense.fixed_view_mut::<3, 3>(3 * bi, 3 * bj).copy_from(&b);
+                }
+            }
+        }
+        dense
+    }
+}
+
+fn block<T: RealField + Copy, const N: usize>(
+    p: &SMatrix<T, N, N>,
+    bi: usize,
+    bj: usize,
+) -> Matrix3<T> {
+    p.fixed_view::<3, 3>(3 * bi, 3 * bj).into_owned()
+}
+
+impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
+    /// Propagates the error state and its covariance over `dt_s` seconds about the nominal
+    /// trajectory `lin`. Returns `false` (and counts it) if `dt_s` is not positive and finite
+    /// or `lin` holds a non-finite value; the filter is then unchanged.
+    pub fn predict(&mut self, lin: &NavLinearization<T>, dt_s: T) -> bool {
+        if !(dt_s.is_finite() && dt_s > T::zero() && lin.is_finite()) {
+            self.stats.rejected_predictions = self.stats.rejected_predictions.saturating_add(1);
+            return false;
+        }
+        let phi = BlockTransition::first_order(lin, &self.config, dt_s);
+        let blocks = &phi.blocks;
+
+        // M = Φ_nav P_nav,nav (block-sparse on the left).
+        let mut m = SMatrix::<T, NAV_STATES, NAV_STATES>::zeros();
+        for bi in 0..5 {
+            for bj in 0..5 {
+                let mut acc = Matrix3::<T>::zeros();
+                for (bl, phi_block) in blocks[bi].iter().enumerate() {
+                    if let Some(prod) = phi_block.left_mul(&block(&self.p, bl, bj)) {
+                        acc += prod;
+                    }
+                }
+                m.fixed_view_mut::<3, 3>(3 * bi, 3 * bj).copy_from(&acc);
+            }
+        }
+        // P_nav,nav ← M Φ_navᵀ on the upper block triangle, mirrored.
+        let half: T = nalgebra::convert(0.5);
+        for bi in 0..5 {
+            for bj in bi..5 {
+                let mut acc = Matrix3::<T>::zeros();
+                for (bl, phi_block) in blocks[bj].iter().enumerate() {
+                    if let Some(prod) = phi_block.right_mul_transpose(&block(&m, bi, bl)) {
+                        acc += prod;
+                    }
+                }
+                if bi == bj {
+                    acc = (acc + acc.transpose()) * half;
+                }
+                self.p
+                    .fixed_view_mut::<3, 3>(3 * bi, 3 * bj)
+                    .copy_from(&acc);
+                self.p
+                    .fixed_view_mut::<3, 3>(3 * bj, 3 * bi)
+                    .copy_from(&acc.transpose());
+            }
+        }
+        // Navigation–calibration cross-covariance: P_nav,cal ← Φ_nav P_nav,cal.
+        for col in NAV_STATES..N {
+            let mut column = [Vector3::<T>::zeros(); 5];
+            for (bl, slot) in column.iter_mut().enumerate() {
+                *slot = Vector3::new(
+                    self.p[(3 * bl, col)],
+                    self.p[(3 * bl + 1, col)],
+                    self.p[(3 * bl + 2, col)],
+                );
+            }
+            for bi in 0..5 {
+                let mut acc = Vector3::<T>::zeros();
+                for (bl, phi_block) in blocks[bi].iter().enumerate() {
+                    acc += phi_block.mul_vector(&column[bl]);
+                }
+                for axis in 0..3 {
+                    self.p[(3 * bi + axis, col)] = acc[axis];
+                    self.p[(col, 3 * bi + axis)] = acc[axis];
+                }
+            }
+        }
+        self.add_process_noise(dt_s);
+
+        // Error mean: δx_nav ← Φ_nav δx_nav (zero right after a reset).
+        let mut nav = [Vector3::<T>::zeros(); 5];
+        for (bl, slot) in nav.iter_mut().enumerate() {
+            *slot = Vector3::new(self.dx[3 * bl], self.dx[3 * bl + 1], self.dx[3 * bl + 2]);
+        }
+        for bi in 0..5 {
+            let mut acc = Vector3::<T>::zeros();
+            for (bl, phi_block) in blocks[bi].iter().enumerate() {
+                acc += phi_block.mul_vector(&nav[bl]);
+            }
+            for axis in 0..3 {
+                self.dx[3 * bi + axis] = acc[axis];
+            }
+        }
+        self.transition = phi;
+        self.apply_variance_floors();
+        true
+    }
+
+    /// `Q_d ≈ G Q Gᵀ dt`: white accelerometer and gyro noise (isotropic, so rotating it into
+    /// NED leaves it diagonal), bias and calibration driving noise on the diagonal.
+    fn add_process_noise(&mut self, dt: T) {
+        let cfg = self.config;
+        for axis in 0..3 {
+            self.p[(VEL + axis, VEL + axis)] += cfg.accel_noise_psd * dt;
+            self.p[(ATT + axis, ATT + axis)] += cfg.gyro_noise_psd * dt;
+            self.p[(ACCEL_BIAS + axis, ACCEL_BIAS + axis)] += cfg.accel_bias_psd * dt;
+            self.p[(GYRO_BIAS + axis, GYRO_BIAS + axis)] += cfg.gyro_bias_psd * dt;
+        }
+        for imu in 0..K {
+            for axis in 0..6 {
+                let i = boresight_index(imu) + axis;
+                let psd = if axis < 3 {
+                    cfg.boresight_psd
+                } else {
+                    cfg.lever_arm_psd
+                };
+                self.p[(i, i)] += psd * dt;
+            }
+        }
+    }
+
+    /// The navigation block of the last prediction's transition matrix `Φ_nav` (dense
+    /// 15×15; the calibration block is the identity). Identity before the first prediction.
+    pub fn last_transition_nav(&self) -> SMatrix<T, NAV_STATES, NAV_STATES> {
+        self.transition.to_dense()
+    }
+}

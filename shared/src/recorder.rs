@@ -1,0 +1,527 @@
+//! The board application: turns a stream of timestamped raw IMU sample sets and PPS edges
+//! into the log (`crate::log`), with periodic health reports.
+//!
+//! It knows no hardware. A board supplies a [`SampleSource`] (SPI IMUs and timer captures on
+//! the STM32F405, a recording read through semihosting under QEMU), a [`LogSink`] (UART, SD
+//! card, a host file) and a [`TickClock`] for measuring its own cost; the same code then runs
+//! on every board and on the host in tests. It writes one `Header` frame, then every event
+//! as it arrives (an `Imu` or `Pps` frame), a `Health` frame each time log time crosses a
+//! whole [`Recorder::health_period_us`] after the first event, and a last `Health` frame when
+//! the source ends.
+
+use crate::log::{
+    encode_frame, Frame, Header, Health, ImuSampleSet, LogError, PpsEvent, MAX_FRAME_LEN, MAX_IMUS,
+};
+
+/// One event from the sensors, stamped on the log timescale.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum SourceEvent {
+    Imu(ImuSampleSet),
+    Pps(PpsEvent),
+}
+
+impl SourceEvent {
+    /// The event's time, microseconds on the log timescale.
+    pub fn t_us(&self) -> u64 {
+        match self {
+            SourceEvent::Imu(s) => s.t_us,
+            SourceEvent::Pps(p) => p.t_us,
+        }
+    }
+}
+
+/// Where sample sets and PPS edges come from.
+pub trait SampleSource {
+    type Error;
+    /// The next event in time order; blocks until one is ready. `Ok(None)` when the source
+    /// has ended (a recording's last record; a live board never ends).
+    fn next_event(&mut self) -> Result<Option<SourceEvent>, Self::Error>;
+    /// Sample sets lost to FIFO or driver overrun since start.
+    fn samples_overrun(&self) -> u32 {
+        0
+    }
+    /// Whether any IMU failed its last read.
+    fn imu_fault(&self) -> bool {
+        false
+    }
+    /// Die temperature of each IMU in header order, degrees Celsius; NaN when not measured.
+    fn imu_temperatures_deg_c(&mut self) -> [f32; MAX_IMUS] {
+        [f32::NAN; MAX_IMUS]
+    }
+}
+
+/// What a sink did with one frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Accepted {
+    /// The whole frame is queued or written.
+    Written,
+    /// No room: the frame was discarded whole (never cut), and is counted as dropped.
+    Dropped,
+}
+
+/// Where the log's bytes go.
+pub trait LogSink {
+    type Error;
+    /// Takes one complete wire frame.
+    fn write_frame(&mut self, frame: &[u8]) -> Result<Accepted, Self::Error>;
+    /// Pushes out everything taken so far.
+    fn flush(&mut self) -> Result<(), Self::Error>;
+}
+
+/// A free-running tick counter used to measure the recorder's own cost.
+pub trait TickClock {
+    /// Ticks since an arbitrary origin; never decreases.
+    fn now_ticks(&mut self) -> u64;
+}
+
+/// What a run did and what it cost.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct RecorderStats {
+    /// IMU sample sets received, per IMU in header order.
+    pub imu_sample_sets: [u64; MAX_IMUS],
+    /// PPS edges received.
+    pub pps_edges: u64,
+    /// Health frames produced (written or dropped).
+    pub health_reports: u64,
+    /// Frames the sink took.
+    pub frames_written: u64,
+    /// Bytes of the frames the sink took.
+    pub bytes_written: u64,
+    /// Frames the sink had no room for.
+    pub frames_dropped: u32,
+    /// Ticks spent waiting for and fetching events from the source.
+    pub source_ticks: u64,
+    /// Ticks spent framing events and handing them to the sink (the application's own work).
+    pub record_ticks: u64,
+    /// Ticks from the header to the final flush.
+    pub total_ticks: u64,
+}
+
+impl RecorderStats {
+    /// All IMU sample sets received.
+    pub fn total_imu_sample_sets(&self) -> u64 {
+        self.imu_sample_sets.iter().sum()
+    }
+}
+
+/// Why a run stopped early.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RecorderError<S, K> {
+    /// The sample source failed.
+    Source(S),
+    /// The log sink failed.
+    Sink(K),
+    /// A frame could not be encoded.
+    Encode(LogError),
+    /// A sample set names an IMU the header does not declare.
+    UnknownImu { imu_id: u8, t_us: u64 },
+    /// An event is older than the one before it.
+    TimeWentBackwards { t_us: u64, previous_t_us: u64 },
+}
+
+/// The board application; see the module documentation.
+pub struct Recorder {
+    header: Header,
+    /// Log time between two periodic health reports, microseconds.
+    pub health_period_us: u64,
+    /// A PPS edge seen within this long before a health report sets `FLAG_PPS_LOCKED`.
+    pub pps_lock_window_us: u64,
+}
+
+impl Recorder {
+    /// A recorder writing `header` first; health once per second of log time.
+    pub fn new(header: Header) -> Self {
+        Recorder {
+            header,
+            health_period_us: 1_000_000,
+            pps_lock_window_us: 2_000_000,
+        }
+    }
+
+    /// The header this recorder writes.
+    pub fn header(&self) -> &Header {
+        &self.header
+    }
+
+    /// Records until the source ends (or, for a live source, forever); flushes the sink and
+    /// returns what happened.
+    pub fn run<Src: SampleSource, Snk: LogSink, C: TickClock>(
+        &self,
+        source: &mut Src,
+        sink: &mut Snk,
+        clock: &mut C,
+    ) -> Result<RecorderStats, RecorderError<Src::Error, Snk::Error>> {
+        let mut run = Run {
+            stats: RecorderStats::default(),
+            frame_buf: [0u8; MAX_FRAME_LEN],
+            sink,
+        };
+        let start = clock.now_ticks();
+        run.emit(&Frame::Header(self.header.clone()))?;
+        run.stats.record_ticks += clock.now_ticks().saturating_sub(start);
+
+        let mut previous_t_us: Option<u64> = None;
+        let mut next_health_t_us: Option<u64> = None;
+        let mut last_pps_t_us: Option<u64> = None;
+        let mut dropped_at_last_health = 0u32;
+        let mut ticks_at_last_health = start;
+        let mut record_ticks_at_last_health = 0u64;
+        loop {
+            let fetch_start = clock.now_ticks();
+            let event = source.next_event().map_err(RecorderError::Source)?;
+            let fetched = clock.now_ticks();
+            run.stats.source_ticks += fetched.saturating_sub(fetch_start);
+            let Some(event) = event else { break };
+
+            let t_us = event.t_us();
+            if let Some(previous) = previous_t_us {
+                if t_us < previous {
+                    return Err(RecorderError::TimeWentBackwards {
+                        t_us,
+                        previous_t_us: previous,
+                    });
+                }
+            }
+            previous_t_us = Some(t_us);
+            let due = *next_health_t_us.get_or_insert(t_us.saturating_add(self.health_period_us));
+            if t_us >= due {
+                let now = clock.now_ticks();
+                let health = self.health(
+                    t_us,
+                    source,
+                    &run.stats,
+                    last_pps_t_us,
+                    dropped_at_last_health,
+                    load_permille(
+                        run.stats
+                            .record_ticks
+                            .saturating_sub(record_ticks_at_last_health),
+                        now.saturating_sub(ticks_at_last_health),
+                    ),
+                );
+                dropped_at_last_health = run.stats.frames_dropped;
+                ticks_at_last_health = now;
+                record_ticks_at_last_health = run.stats.record_ticks;
+                run.emit(&Frame::Health(health))?;
+                run.stats.health_reports += 1;
+                // Skip whole periods with no events rather than reporting them in a burst.
+                let periods_late = (t_us - due) / self.health_period_us.max(1) + 1;
+                next_health_t_us =
+                    Some(due.saturating_add(periods_late * self.health_period_us.max(1)));
+            }
+
+            match event {
+                SourceEvent::Imu(sample) => {
+                    let Some(index) = self
+                        .header
+                        .imus
+                        .iter()
+                        .position(|imu| imu.imu_id == sample.imu_id)
+                    else {
+                        return Err(RecorderError::UnknownImu {
+                            imu_id: sample.imu_id,
+                            t_us,
+                        });
+                    };
+                    run.emit(&Frame::Imu(sample))?;
+                    run.stats.imu_sample_sets[index] += 1;
+                }
+                SourceEvent::Pps(pps) => {
+                    run.emit(&Frame::Pps(pps))?;
+                    run.stats.pps_edges += 1;
+                    last_pps_t_us = Some(pps.t_us);
+                }
+            }
+            run.stats.record_ticks += clock.now_ticks().saturating_sub(fetched);
+        }
+
+        let final_start = clock.now_ticks();
+        let health = self.health(
+            previous_t_us.unwrap_or(0),
+            source,
+            &run.stats,
+            last_pps_t_us,
+            dropped_at_last_health,
+            load_permille(
+                run.stats
+                    .record_ticks
+                    .saturating_sub(record_ticks_at_last_health),
+                final_start.saturating_sub(ticks_at_last_health),
+            ),
+        );
+        run.emit(&Frame::Health(health))?;
+        run.stats.health_reports += 1;
+        run.sink.flush().map_err(RecorderError::Sink)?;
+        let end = clock.now_ticks();
+        run.stats.record_ticks += end.saturating_sub(final_start);
+        run.stats.total_ticks = end.saturating_sub(start);
+        Ok(run.stats)
+    }
+
+    fn health<Src: SampleSource>(
+        &self,
+        t_us: u64,
+        source: &mut Src,
+        stats: &RecorderStats,
+        last_pps_t_us: Option<u64>,
+        dropped_at_last_health: u32,
+        cpu_load_permille: u16,
+    ) -> Health {
+        let mut flags = 0;
+        if last_pps_t_us.is_some_and(|pps| t_us.saturating_sub(pps) <= self.pps_lock_window_us) {
+            flags |= Health::FLAG_PPS_LOCKED;
+        }
+        if source.imu_fault() {
+            flags |= Health::FLAG_IMU_FAULT;
+        }
+        if stats.frames_dropped > dropped_at_last_health {
+            flags |= Health::FLAG_LOG_BACKPRESSURE;
+        }
+        Health {
+            t_us,
+            frames_dropped: stats.frames_dropped,
+            samples_overrun: source.samples_overrun(),
+            flags,
+            cpu_load_permille,
+            imu_temperature_deg_c: source.imu_temperatures_deg_c(),
+        }
+    }
+}
+
+/// Share of `interval_ticks` spent in the recorder's own work, per mille.
+fn load_permille(busy_ticks: u64, interval_ticks: u64) -> u16 {
+    if interval_ticks == 0 {
+        return 0;
+    }
+    (busy_ticks.min(interval_ticks) * 1000 / interval_ticks) as u16
+}
+
+struct Run<'a, K> {
+    stats: RecorderStats,
+    frame_buf: [u8; MAX_FRAME_LEN],
+    sink: &'a mut K,
+}
+
+impl<K: LogSink> Run<'_, K> {
+    fn emit<S>(&mut self, frame: &Frame) -> Result<(), RecorderError<S, K::Error>> {
+        let len = encode_frame(frame, &mut self.frame_buf).map_err(RecorderError::Encode)?;
+        let bytes = self
+            .frame_buf
+            .get(..len)
+            .ok_or(RecorderError::Encode(LogError::BufferTooSmall))?;
+        match self.sink.write_frame(bytes).map_err(RecorderError::Sink)? {
+            Accepted::Written => {
+                self.stats.frames_written += 1;
+                self.stats.bytes_written += len as u64;
+            }
+            Accepted::Dropped => {
+                self.stats.frames_dropped = self.stats.frames_dropped.saturating_add(1)
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::log::{ImuConfig, LogAccumulator, PROTOCOL_VERSION};
+
+    fn header(ids: &[u8]) -> Header {
+        let mut imus = heapless::Vec::new();
+        for &imu_id in ids {
+            imus.push(ImuConfig {
+                imu_id,
+                model: heapless::String::try_from("ICM-42688-P").unwrap(),
+                sample_rate_hz: 200.0,
+                gyro_scale_rad_s_per_count: 1e-3,
+                accel_scale_m_s2_per_count: 4e-3,
+            })
+            .unwrap();
+        }
+        Header {
+            protocol_version: PROTOCOL_VERSION,
+            board: heapless::String::try_from("test").unwrap(),
+            imus,
+        }
+    }
+
+    struct VecSource(std::vec::IntoIter<SourceEvent>);
+    impl SampleSource for VecSource {
+        type Error = ();
+        fn next_event(&mut self) -> Result<Option<SourceEvent>, ()> {
+            Ok(self.0.next())
+        }
+    }
+
+    /// A sink with room for `capacity` bytes in total, like a transmit queue never drained.
+    struct BoundedSink {
+        bytes: std::vec::Vec<u8>,
+        capacity: usize,
+        flushed: bool,
+    }
+    impl LogSink for BoundedSink {
+        type Error = ();
+        fn write_frame(&mut self, frame: &[u8]) -> Result<Accepted, ()> {
+            if self.bytes.len() + frame.len() > self.capacity {
+                return Ok(Accepted::Dropped);
+            }
+            self.bytes.extend_from_slice(frame);
+            Ok(Accepted::Written)
+        }
+        fn flush(&mut self) -> Result<(), ()> {
+            self.flushed = true;
+            Ok(())
+        }
+    }
+
+    /// Advances 10 ticks per reading.
+    struct StepClock(u64);
+    impl TickClock for StepClock {
+        fn now_ticks(&mut self) -> u64 {
+            self.0 += 10;
+            self.0
+        }
+    }
+
+    fn imu(t_us: u64, imu_id: u8, k: i32) -> SourceEvent {
+        SourceEvent::Imu(ImuSampleSet {
+            t_us,
+            imu_id,
+            gyro_counts: [k, -k, 3 * k],
+            accel_counts: [i32::MAX - k.abs(), 0, -k],
+        })
+    }
+
+    fn decode(bytes: &[u8]) -> std::vec::Vec<Frame> {
+        let mut acc = LogAccumulator::default();
+        let frames: std::vec::Vec<_> = acc.feed(bytes).map(|f| f.unwrap()).collect();
+        assert_eq!(acc.stats().frames_dropped, 0);
+        frames
+    }
+
+    #[test]
+    fn writes_header_events_in_order_and_health_each_second() {
+        // Two IMUs at 100 Hz for 2.5 s, PPS at 0, 1 and 2 s.
+        let mut events = std::vec::Vec::new();
+        for k in 0..250u64 {
+            if k % 100 == 0 {
+                events.push(SourceEvent::Pps(PpsEvent {
+                    t_us: k * 10_000,
+                    sequence: (k / 100) as u32,
+                }));
+            }
+            events.push(imu(k * 10_000, 4, k as i32));
+            events.push(imu(k * 10_000 + 3, 7, -(k as i32)));
+        }
+        let recorder = Recorder::new(header(&[4, 7]));
+        let mut sink = BoundedSink {
+            bytes: std::vec::Vec::new(),
+            capacity: usize::MAX,
+            flushed: false,
+        };
+        let stats = recorder
+            .run(
+                &mut VecSource(events.clone().into_iter()),
+                &mut sink,
+                &mut StepClock(0),
+            )
+            .unwrap();
+        assert!(sink.flushed);
+        assert_eq!(stats.imu_sample_sets[..2], [250, 250]);
+        assert_eq!(stats.pps_edges, 3);
+        assert_eq!(stats.frames_dropped, 0);
+        assert_eq!(stats.bytes_written, sink.bytes.len() as u64);
+
+        let frames = decode(&sink.bytes);
+        assert_eq!(stats.frames_written, frames.len() as u64);
+        assert_eq!(frames[0], Frame::Header(recorder.header().clone()));
+        // Health at 1 s and 2 s (before the events stamped then) and at the end.
+        let health: std::vec::Vec<&Health> = frames
+            .iter()
+            .filter_map(|f| match f {
+                Frame::Health(h) => Some(h),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(stats.health_reports, 3);
+        assert_eq!(
+            health.iter().map(|h| h.t_us).collect::<std::vec::Vec<_>>(),
+            [1_000_000, 2_000_000, 2_490_003]
+        );
+        assert!(health
+            .iter()
+            .all(|h| h.flags == Health::FLAG_PPS_LOCKED && h.frames_dropped == 0));
+        assert!(health.iter().all(|h| h.cpu_load_permille <= 1000));
+        // Every event comes out unchanged and in order.
+        let replayed: std::vec::Vec<SourceEvent> = frames
+            .iter()
+            .filter_map(|f| match f {
+                Frame::Imu(s) => Some(SourceEvent::Imu(*s)),
+                Frame::Pps(p) => Some(SourceEvent::Pps(*p)),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(replayed, events);
+    }
+
+    #[test]
+    fn a_full_sink_drops_whole_frames_counts_them_and_flags_backpressure() {
+        let events: std::vec::Vec<_> = (0..300u64).map(|k| imu(k * 10_000, 1, k as i32)).collect();
+        let recorder = Recorder::new(header(&[1]));
+        let mut sink = BoundedSink {
+            bytes: std::vec::Vec::new(),
+            capacity: 1000,
+            flushed: false,
+        };
+        let stats = recorder
+            .run(
+                &mut VecSource(events.into_iter()),
+                &mut sink,
+                &mut StepClock(0),
+            )
+            .unwrap();
+        let frames = decode(&sink.bytes);
+        let written = frames.len() as u64;
+        assert_eq!(stats.frames_written, written);
+        // 300 samples + header + health at 1 s and 2 s + final health.
+        assert_eq!(written + stats.frames_dropped as u64, 300 + 1 + 3);
+        assert!(stats.frames_dropped > 250);
+        // No PPS was ever seen: not locked.
+        assert!(frames
+            .iter()
+            .all(|f| !matches!(f, Frame::Health(h) if h.flags & Health::FLAG_PPS_LOCKED != 0)));
+        assert!(matches!(frames.last(), Some(Frame::Imu(_))));
+    }
+
+    #[test]
+    fn undeclared_imus_and_time_going_backwards_stop_the_run() {
+        let recorder = Recorder::new(header(&[1]));
+        let sink = || BoundedSink {
+            bytes: std::vec::Vec::new(),
+            capacity: usize::MAX,
+            flushed: false,
+        };
+        let unknown = recorder.run(
+            &mut VecSource(vec![imu(5, 1, 0), imu(6, 2, 0)].into_iter()),
+            &mut sink(),
+            &mut StepClock(0),
+        );
+        assert_eq!(
+            unknown,
+            Err(RecorderError::UnknownImu { imu_id: 2, t_us: 6 })
+        );
+        let backwards = recorder.run(
+            &mut VecSource(vec![imu(5, 1, 0), imu(4, 1, 0)].into_iter()),
+            &mut sink(),
+            &mut StepClock(0),
+        );
+        assert_eq!(
+            backwards,
+            Err(RecorderError::TimeWentBackwards {
+                t_us: 4,
+                previous_t_us: 5
+            })
+        );
+    }
+}

@@ -1,0 +1,360 @@
+//! The importers on the real datasets in the data folder: sample counts and durations, and
+//! physical facts each converted recording must show (gravity, Earth rate, the MEMS gyro
+//! tracking the FOG attitude), which would fail on a wrong scale, sign or axis. Malformed
+//! copies of real files give errors naming file and line. Every test skips with a message
+//! when its dataset is absent.
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+
+use dynacal::import::{
+    adis16405, detect, frames, import_to_dir, mpu9250_tetra, mtig, psins_fog_mems, psins_lasergyro,
+    Dataset,
+};
+use dynacal::interchange::{open_maybe_gz, ImuRecording};
+use nalgebra::{Rotation3, Vector3};
+
+/// WGS-84 Earth rotation rate, rad/s.
+const EARTH_RATE_RAD_S: f64 = 7.292115e-5;
+const DEG: f64 = std::f64::consts::PI / 180.0;
+
+fn dataset(rel: &str) -> Option<PathBuf> {
+    let path = dynacal_tests::data_dir().join(rel);
+    if path.exists() {
+        Some(path)
+    } else {
+        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", path.display());
+        None
+    }
+}
+
+fn mean(x: &[f64]) -> f64 {
+    x.iter().sum::<f64>() / x.len() as f64
+}
+
+/// Mean of the gyro (or accelerometer) triplet over samples `range`, as a vector.
+fn mean_vec(t: &[Vec<f64>; 3], range: std::ops::Range<usize>) -> Vector3<f64> {
+    Vector3::from_fn(|k, _| mean(&t[k][range.clone()]))
+}
+
+fn duration_s(rec: &ImuRecording) -> f64 {
+    rec.t_s[rec.len() - 1] - rec.t_s[0]
+}
+
+#[test]
+fn adis16405_sessions_have_one_million_samples_and_read_gravity() {
+    let Some(dir) = dataset("adis16405") else {
+        return;
+    };
+    for s in 1..=6 {
+        let path = dir.join(format!("session{s}.csv.gz"));
+        assert_eq!(detect(&path).unwrap(), Some(Dataset::Adis16405));
+        let rec = adis16405::read(&path).unwrap();
+        assert_eq!(rec.len(), 1_000_000);
+        assert!((duration_s(&rec) - 9999.99).abs() < 1e-9);
+        let accel = rec.accel_m_s2.as_ref().unwrap();
+        let f = mean_vec(accel, 0..rec.len());
+        println!(
+            "session{s}: mean specific force {f:?} m/s^2, |f| = {:.4}",
+            f.norm()
+        );
+        assert!(
+            (f.norm() / 9.80665 - 1.0).abs() < 0.02,
+            "session{s}: |f| = {}",
+            f.norm()
+        );
+        // The sensor z axis points down: it reads -g.
+        assert!(f[2] < -0.99 * f.norm());
+    }
+}
+
+#[test]
+fn mtig_imports_as_a_single_axis_gyro_with_outliers() {
+    let Some(path) = dataset("mtig/gyro_x_contaminated.csv.gz") else {
+        return;
+    };
+    let rec = mtig::read(&path).unwrap();
+    assert_eq!(rec.len(), 500_000);
+    assert!((duration_s(&rec) - 4999.99).abs() < 1e-9);
+    assert_eq!(rec.channels(), vec!["gx"]);
+    // The README's figure: 132 samples beyond 6 standard deviations from the mean.
+    let gx = rec.channel("gx").unwrap();
+    let m = mean(gx);
+    let sd = (gx.iter().map(|v| (v - m).powi(2)).sum::<f64>() / gx.len() as f64).sqrt();
+    let outliers = gx.iter().filter(|v| (*v - m).abs() > 6.0 * sd).count();
+    println!("MTi-G gx: mean {m:.3e}, sd {sd:.4e} rad/s, {outliers} samples beyond 6 sd");
+    assert_eq!(outliers, 132);
+}
+
+#[test]
+fn psins_mems_reads_minus_g_on_the_down_axis_and_fog_speed_reaches_16_m_s() {
+    let Some(dir) = dataset("psins-fog-mems") else {
+        return;
+    };
+    let mems = psins_fog_mems::read_mems(&dir.join("mems_increments.csv.gz")).unwrap();
+    let fog = psins_fog_mems::read_fog(&dir.join("fog_ins_reference.csv.gz")).unwrap();
+    assert_eq!((mems.len(), fog.len()), (10_001, 1_000));
+    assert!((duration_s(&mems) - 100.0).abs() < 1e-6);
+    assert!((duration_s(&fog) - 99.9).abs() < 1e-6);
+
+    // First 10 s: the FOG says the vehicle is nearly level (|roll|, |pitch| < 5 deg).
+    let att = fog.attitude_rad.as_ref().unwrap();
+    let first_10_s = fog.t_s.iter().take_while(|t| **t <= 10.0).count();
+    for angle in &att[..2] {
+        assert!(angle[..first_10_s].iter().all(|a| a.abs() < 5.0 * DEG));
+    }
+    let accel = mems.accel_m_s2.as_ref().unwrap();
+    let f = mean_vec(accel, 0..1001);
+    println!("PSINS MEMS mean specific force over the first 10 s (FRD): {f:?}");
+    assert!((f[2] / -9.8 - 1.0).abs() < 0.015, "{f:?}");
+    assert!(f[0].abs() < 0.5 && f[1].abs() < 0.5, "{f:?}");
+
+    let v = fog.velocity_ned_m_s.as_ref().unwrap();
+    let speed: Vec<f64> = (0..fog.len())
+        .map(|i| (v[0][i].powi(2) + v[1][i].powi(2) + v[2][i].powi(2)).sqrt())
+        .collect();
+    let max_speed = speed.iter().cloned().fold(0.0, f64::max);
+    println!("PSINS FOG max speed {max_speed:.3} m/s");
+    assert!((15.5..16.5).contains(&max_speed));
+    // Heading about north: the north velocity dominates and is positive.
+    assert!(v[0].iter().zip(&v[1]).all(|(n, e)| *n > 5.0 * e.abs()));
+}
+
+/// Integrates `omega_b` (FRD, rad/s, one per MEMS sample) from the FOG attitude at the FOG's
+/// first sample, and returns the largest roll, pitch, yaw differences (rad) from the FOG at
+/// each FOG sample. Earth and transport rate are neglected (< 0.5 deg over 100 s).
+fn max_attitude_error(
+    mems: &ImuRecording,
+    fog: &ImuRecording,
+    omega_b: &[Vector3<f64>],
+) -> [f64; 3] {
+    let att = fog.attitude_rad.as_ref().unwrap();
+    let c_of = |i: usize| Rotation3::from_euler_angles(att[0][i], att[1][i], att[2][i]);
+    let mut c: Rotation3<f64> = c_of(0);
+    let mut fog_i = 1;
+    let mut worst = [0.0f64; 3];
+    for (i, t) in mems.t_s.iter().enumerate() {
+        if *t <= fog.t_s[0] + 1e-6 {
+            continue;
+        }
+        c *= Rotation3::new(omega_b[i] * psins_fog_mems::MEMS_DT_S);
+        if fog_i < fog.len() && (fog.t_s[fog_i] - t).abs() < 1e-6 {
+            let got = frames::euler_zyx_from_c_b_to_n(c.matrix());
+            let want = frames::euler_zyx_from_c_b_to_n(c_of(fog_i).matrix());
+            for k in 0..3 {
+                let d = (got[k] - want[k] + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU)
+                    - std::f64::consts::PI;
+                worst[k] = worst[k].max(d.abs());
+            }
+            fog_i += 1;
+        }
+    }
+    assert_eq!(fog_i, fog.len(), "every FOG epoch is compared");
+    worst
+}
+
+#[test]
+fn psins_mems_gyro_integrated_in_frd_tracks_the_fog_attitude_in_ned() {
+    let Some(dir) = dataset("psins-fog-mems") else {
+        return;
+    };
+    let mems = psins_fog_mems::read_mems(&dir.join("mems_increments.csv.gz")).unwrap();
+    let fog = psins_fog_mems::read_fog(&dir.join("fog_ins_reference.csv.gz")).unwrap();
+    let g = mems.gyro_rad_s.as_ref().unwrap();
+    let omega: Vec<Vector3<f64>> = (0..mems.len())
+        .map(|i| Vector3::new(g[0][i], g[1][i], g[2][i]))
+        .collect();
+    let att = fog.attitude_rad.as_ref().unwrap();
+    let (lo, hi) = att[0]
+        .iter()
+        .fold((0.0f64, 0.0f64), |(l, h), r| (l.min(*r), h.max(*r)));
+    println!("FOG roll spans {:.1} .. {:.1} deg", lo / DEG, hi / DEG);
+    assert!(
+        hi - lo > 60.0 * DEG,
+        "the run rolls enough for the check to mean something"
+    );
+
+    let worst = max_attitude_error(&mems, &fog, &omega).map(|e| e / DEG);
+    println!("MEMS-integrated vs FOG, max |error| roll, pitch, yaw: {worst:?} deg");
+    // Gyro biases of the MEMS unit (about 0.06 deg/s on the pitch axis) and the unknown
+    // mounting misalignment leave a few degrees over 100 s.
+    assert!(
+        worst[0] < 6.0 && worst[1] < 7.0 && worst[2] < 4.0,
+        "{worst:?}"
+    );
+
+    // Control: with the source's right/forward axes left unswapped (a frame mistake), the
+    // same integration is far off, so the check above can fail.
+    let unswapped: Vec<Vector3<f64>> = omega
+        .iter()
+        .map(|w| Vector3::new(w[1], w[0], w[2]))
+        .collect();
+    let wrong = max_attitude_error(&mems, &fog, &unswapped).map(|e| e / DEG);
+    println!("with right/forward unswapped: {wrong:?} deg");
+    assert!(wrong[0] > 30.0, "{wrong:?}");
+}
+
+#[test]
+fn lasergyro_senses_header_gravity_and_earth_rate_and_gyrocompasses_to_header_heading() {
+    let Some(path) = dataset("psins-lasergyro/lasergyro.imu.gz") else {
+        return;
+    };
+    assert_eq!(detect(&path).unwrap(), Some(Dataset::PsinsLaserGyro));
+    let log = psins_lasergyro::read(&path).unwrap();
+    let (h, rec) = (&log.header, &log.recording);
+    assert_eq!(rec.len(), 184_718);
+    assert!((duration_s(rec) - 1847.17).abs() < 1e-6);
+    assert_eq!((h.dt_s, h.g_m_s2), (0.01, 9.780327));
+
+    let f = mean_vec(rec.accel_m_s2.as_ref().unwrap(), 0..rec.len());
+    let w = mean_vec(rec.gyro_rad_s.as_ref().unwrap(), 0..rec.len());
+    println!(
+        "laser gyro mean f {f:?} (|f| {:.5}), mean omega {w:?} (|w| {:.3} deg/h)",
+        f.norm(),
+        w.norm() / DEG * 3600.0
+    );
+    assert!((f.norm() / h.g_m_s2 - 1.0).abs() < 0.005);
+    assert!(f[2] < -0.999 * f.norm(), "FRD: the down axis reads -g");
+    assert!((w.norm() / EARTH_RATE_RAD_S - 1.0).abs() < 0.05);
+
+    // Up component of Earth rate = Omega sin(lat); f points up at rest.
+    let up = f.normalize();
+    let lat = h.initial_lat_lon_rad_h_m[0];
+    let omega_up = w.dot(&up);
+    println!(
+        "Earth rate up: measured {omega_up:.4e}, expected {:.4e} rad/s",
+        EARTH_RATE_RAD_S * lat.sin()
+    );
+    assert!((omega_up / (EARTH_RATE_RAD_S * lat.sin()) - 1.0).abs() < 0.03);
+
+    // Gyrocompass: the horizontal Earth rate points north; heading of the forward axis.
+    let down = -up;
+    let north = (w - down * w.dot(&down)).normalize();
+    let east = down.cross(&north);
+    let forward = Vector3::x();
+    let heading = forward.dot(&east).atan2(forward.dot(&north));
+    let header_heading = h.initial_attitude_ned_rad()[2];
+    println!(
+        "gyrocompass heading {:.2} deg, header (NED) {:.2} deg",
+        heading / DEG,
+        header_heading / DEG
+    );
+    assert!((heading - header_heading).abs() < 4.0 * DEG);
+}
+
+#[test]
+fn mpu9250_imports_four_imus_and_imu0_reads_gravity_18_percent_low() {
+    let Some(path) = dataset("mpu9250x4-tetra-static/static.csv.gz") else {
+        return;
+    };
+    let recs = mpu9250_tetra::read(&path).unwrap();
+    assert_eq!(recs.len(), 4);
+    for (k, rec) in recs.iter().enumerate() {
+        assert_eq!(rec.len(), 41_671);
+        assert!((duration_s(rec) - 967.975).abs() < 1e-9);
+        let f = mean_vec(rec.accel_m_s2.as_ref().unwrap(), 0..rec.len());
+        let ratio = f.norm() / 9.81;
+        println!(
+            "imu{k}: |mean f| = {:.3} m/s^2 ({:.1}% of 9.81)",
+            f.norm(),
+            100.0 * ratio
+        );
+        if k == 0 {
+            assert!((0.80..0.84).contains(&ratio), "imu0 {ratio}");
+        } else {
+            assert!((ratio - 1.0).abs() < 0.02, "imu{k} {ratio}");
+        }
+    }
+}
+
+/// The first `lines` lines of a real dataset file, decompressed.
+fn head(path: &Path, lines: usize) -> Vec<String> {
+    BufReader::new(open_maybe_gz(path).unwrap())
+        .lines()
+        .take(lines)
+        .map(Result::unwrap)
+        .collect()
+}
+
+#[test]
+fn malformed_copies_of_real_files_fail_naming_file_and_line_and_write_nothing() {
+    let Some(data) = dataset("") else { return };
+    // (source file, copy name, 1-based line to spoil, how, expected message part)
+    type Spoil = fn(&str) -> String;
+    let cases: [(&str, &str, usize, Spoil, &str); 6] = [
+        (
+            "adis16405/session1.csv.gz",
+            "session1.csv",
+            30,
+            |l| l.replacen(',', ",1.5", 1),
+            "not an integer",
+        ),
+        (
+            "mtig/gyro_x_contaminated.csv.gz",
+            "gyro_x.csv",
+            12,
+            |_| "abc".into(),
+            "gx_rad_s",
+        ),
+        (
+            "psins-fog-mems/mems_increments.csv.gz",
+            "mems.csv",
+            20,
+            |l| l.replacen(',', ",x", 1),
+            "dtheta_x_rad",
+        ),
+        (
+            "psins-fog-mems/fog_ins_reference.csv.gz",
+            "fog.csv",
+            9,
+            |l| l.rsplit_once(',').unwrap().0.into(),
+            "fields",
+        ),
+        (
+            "psins-lasergyro/lasergyro.imu.gz",
+            "laser.imu",
+            10,
+            |l| l.rsplit_once(' ').unwrap().0.into(),
+            "5 fields",
+        ),
+        (
+            "mpu9250x4-tetra-static/static.csv.gz",
+            "static.csv",
+            7,
+            |l| {
+                let mut fields: Vec<&str> = l.split(',').collect();
+                fields[3] = "nan";
+                fields.join(",")
+            },
+            "`imu0_gz_rad_s`: `nan` is not a finite number",
+        ),
+    ];
+    let tmp = tempfile::tempdir().unwrap();
+    for (source, name, line, spoil, what) in cases {
+        let source = data.join(source);
+        if !source.exists() {
+            eprintln!("SKIP: {} not found", source.display());
+            continue;
+        }
+        let mut lines = head(&source, 40);
+        lines[line - 1] = spoil(&lines[line - 1]);
+        let copy = tmp.path().join(name);
+        std::fs::write(&copy, lines.join("\n") + "\n").unwrap();
+        let out = tmp.path().join(format!("out-{name}"));
+        let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+        println!("{msg}");
+        assert!(
+            msg.contains(name) && msg.contains(&format!("line {line}")) && msg.contains(what),
+            "{msg}"
+        );
+        assert_eq!(
+            std::fs::read_dir(&out).unwrap().count(),
+            0,
+            "nothing written for {name}"
+        );
+        // The unspoilt copy imports.
+        lines = head(&source, 40);
+        std::fs::write(&copy, lines.join("\n") + "\n").unwrap();
+        assert!(!import_to_dir(&copy, &out).unwrap().written.is_empty());
+    }
+}
