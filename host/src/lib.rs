@@ -13,8 +13,8 @@ pub mod import;
 pub mod interchange;
 pub mod nav_smoother;
 pub mod output;
-pub mod replay;
 pub mod regress;
+pub mod replay;
 pub mod sim;
 pub mod wv;
 

@@ -208,6 +208,7 @@ fn adis_session1_through_cli_reproduces_reference() {
     let out = dir.path().join("adis.json");
     let o = dynacal(&[
         session.to_str().unwrap(),
+        "--raw",
         "--rate",
         "100",
         "--scale",
@@ -237,4 +238,48 @@ fn adis_session1_through_cli_reproduces_reference() {
         checked += 1;
     }
     assert_eq!(checked, 6);
+}
+
+#[test]
+fn known_dataset_is_imported_in_si_units() {
+    let session = dynacal::data_dir().join("adis16405/session1.csv.gz");
+    if !session.exists() {
+        println!("SKIP: {} absent", session.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (si, raw) = (dir.path().join("si.json"), dir.path().join("raw.json"));
+    let o = dynacal(&[
+        session.to_str().unwrap(),
+        "--columns",
+        "gz",
+        "--json",
+        si.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = dynacal(&[
+        session.to_str().unwrap(),
+        "--raw",
+        "--rate",
+        "100",
+        "--columns",
+        "gz",
+        "--json",
+        raw.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let si: serde_json::Value = serde_json::from_slice(&std::fs::read(&si).unwrap()).unwrap();
+    let raw: serde_json::Value = serde_json::from_slice(&std::fs::read(&raw).unwrap()).unwrap();
+    // Imported: rad/s (0.05 deg/s per count) and t = row / 100 s; raw: counts^2.
+    let rad_per_count = 0.05f64.to_radians();
+    assert!((si["dt_s"].as_f64().unwrap() - 0.01).abs() < 1e-12);
+    for i in 0..18 {
+        let ratio = si["channels"]["gz"]["variance"][i].as_f64().unwrap()
+            / raw["channels"]["gz"]["variance"][i].as_f64().unwrap();
+        assert!(
+            (ratio / rad_per_count.powi(2) - 1.0).abs() < 1e-9,
+            "level {}: {ratio}",
+            i + 1
+        );
+    }
 }

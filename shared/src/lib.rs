@@ -6,7 +6,7 @@
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
 pub mod log;
+pub mod nav;
 pub mod recorder;
 pub mod replay;
-pub mod nav;
 pub mod wavelet;
