@@ -376,11 +376,10 @@ pub fn haar_wv_counts(
 /// chunk its starting value, then every chunk continues the compensated running sum.
 fn centred_prefix_sums(x: &[f64]) -> Vec<f64> {
     const CHUNK: usize = 1 << 16;
-    let mean = x
-        .par_chunks(CHUNK)
-        .map(|c| c.iter().sum::<f64>())
-        .sum::<f64>()
-        / x.len() as f64;
+    // Partial sums collected in order (not rayon's `sum`, whose order varies between runs) so
+    // results are bit-for-bit reproducible.
+    let partial: Vec<f64> = x.par_chunks(CHUNK).map(|c| c.iter().sum()).collect();
+    let mean = partial.iter().sum::<f64>() / x.len() as f64;
     let chunk_sums: Vec<(f64, f64)> = x
         .par_chunks(CHUNK)
         .map(|c| {
@@ -631,13 +630,19 @@ impl BiweightScale {
         // g(log sigma) = mean rho(w / sigma) - b decreases in sigma. Bracket, then Newton in
         // log sigma with bisection fallback.
         let g = |sigma: f64| -> (f64, f64) {
-            let (sr, srp) = w
-                .par_iter()
-                .map(|&v| {
-                    let r = v / sigma;
-                    (rho(r, self.c), r * rho_prime(r, self.c))
+            // Fixed chunks summed in order: reproducible bit for bit whatever the threads do.
+            let partial: Vec<(f64, f64)> = w
+                .par_chunks(1 << 14)
+                .map(|chunk| {
+                    chunk.iter().fold((0.0, 0.0), |acc, &v| {
+                        let r = v / sigma;
+                        (acc.0 + rho(r, self.c), acc.1 + r * rho_prime(r, self.c))
+                    })
                 })
-                .reduce(|| (0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
+                .collect();
+            let (sr, srp) = partial
+                .iter()
+                .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1));
             (sr / n - self.b, -srp / n)
         };
         let (mut lo, mut hi) = (sigma, sigma);

@@ -91,6 +91,32 @@ fn no_time_column_needs_rate_and_errors_name_place() {
     assert_eq!(json["channels"]["gx"]["robust"], true);
     assert_eq!(json["dt_s"], 0.01);
 
+    // Per-channel scale: variances scale by its square, the other channel is untouched.
+    let scaled = dir.path().join("scaled.json");
+    let o = dynacal(&[
+        csv.to_str().unwrap(),
+        "--rate",
+        "100",
+        "--max-level",
+        "5",
+        "--robust",
+        "--scale",
+        "gy=0.5",
+        "--json",
+        scaled.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let s: serde_json::Value = serde_json::from_slice(&std::fs::read(&scaled).unwrap()).unwrap();
+    for i in 0..5 {
+        let ratio = s["channels"]["gy"]["variance"][i].as_f64().unwrap()
+            / json["channels"]["gy"]["variance"][i].as_f64().unwrap();
+        assert!((ratio - 0.25).abs() < 1e-12, "{ratio}");
+        assert_eq!(
+            s["channels"]["gx"]["variance"][i],
+            json["channels"]["gx"]["variance"][i]
+        );
+    }
+
     // A bad field: the error names file, line and column, and the old output stays intact.
     let before = std::fs::read(&out).unwrap();
     let last_line = text[..text.len() - 1].rfind('\n').unwrap() + 1;
@@ -167,4 +193,93 @@ fn interchange_file_channels_in_si_units() {
         out.to_str().unwrap(),
     ]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("no channel `ax`"));
+}
+
+#[test]
+fn adis_session1_through_cli_reproduces_reference() {
+    let data = dynacal::data_dir();
+    let session = data.join("adis16405/session1.csv.gz");
+    let golden = data.join("golden/smac_wavelet_variance.json");
+    if !session.exists() || !golden.exists() {
+        println!("SKIP: {} or {} absent", session.display(), golden.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("adis.json");
+    let o = dynacal(&[
+        session.to_str().unwrap(),
+        "--raw",
+        "--rate",
+        "100",
+        "--scale",
+        "gx=0.05,gy=0.05,gz=0.05,ax=0.00333,ay=0.00333,az=0.00333",
+        "--json",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let json: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    let reference = dynacal::wv::read_smac_golden(&golden).unwrap();
+    let mut checked = 0;
+    for g in reference.iter().filter(|g| g.sensor_key == "adis") {
+        let key = g.channel_key().unwrap();
+        let got: dynacal::wv::WaveletVariance =
+            serde_json::from_value(json["channels"][key].clone()).unwrap();
+        assert_eq!(got.levels, g.wv.levels);
+        for (ours, theirs) in [
+            (&got.variance, &g.wv.variance),
+            (&got.ci_low, &g.wv.ci_low),
+            (&got.ci_high, &g.wv.ci_high),
+            (&got.scales_s, &g.wv.scales_s),
+        ] {
+            for (a, b) in ours.iter().zip(theirs) {
+                assert!(((a - b) / b).abs() < 1e-9, "{key}: {a} vs {b}");
+            }
+        }
+        checked += 1;
+    }
+    assert_eq!(checked, 6);
+}
+
+#[test]
+fn known_dataset_is_imported_in_si_units() {
+    let session = dynacal::data_dir().join("adis16405/session1.csv.gz");
+    if !session.exists() {
+        println!("SKIP: {} absent", session.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let (si, raw) = (dir.path().join("si.json"), dir.path().join("raw.json"));
+    let o = dynacal(&[
+        session.to_str().unwrap(),
+        "--columns",
+        "gz",
+        "--json",
+        si.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let o = dynacal(&[
+        session.to_str().unwrap(),
+        "--raw",
+        "--rate",
+        "100",
+        "--columns",
+        "gz",
+        "--json",
+        raw.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let si: serde_json::Value = serde_json::from_slice(&std::fs::read(&si).unwrap()).unwrap();
+    let raw: serde_json::Value = serde_json::from_slice(&std::fs::read(&raw).unwrap()).unwrap();
+    // Imported: rad/s (0.05 deg/s per count) and t = row / 100 s; raw: counts^2.
+    let rad_per_count = 0.05f64.to_radians();
+    assert!((si["dt_s"].as_f64().unwrap() - 0.01).abs() < 1e-12);
+    for i in 0..18 {
+        let ratio = si["channels"]["gz"]["variance"][i].as_f64().unwrap()
+            / raw["channels"]["gz"]["variance"][i].as_f64().unwrap();
+        assert!(
+            (ratio / rad_per_count.powi(2) - 1.0).abs() < 1e-9,
+            "level {}: {ratio}",
+            i + 1
+        );
+    }
 }

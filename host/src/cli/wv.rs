@@ -1,11 +1,15 @@
 //! `dynacal wv FILE --json OUT`: Haar wavelet variance (and overlapping Allan variance) of each
 //! channel of a recording, with 95% intervals, written as one JSON file.
 //!
-//! Inputs: an interchange CSV (channels `gx` .. `az`, SI units, time from `t_s`), or any CSV
-//! with a header (channels are its columns, `--columns` to choose; time from a `t_s` column or
-//! `--rate`), e.g. the ADIS16405 sessions (integer counts, 100 Hz, no time column:
-//! `--rate 100`). Columns holding only integers are processed exactly as counts. Values keep
-//! the input's unit; the variances are in its square.
+//! Inputs: an interchange CSV (channels `gx` .. `az`, SI units, time from `t_s`); a dataset
+//! file that `dynacal::import` recognises (imported to SI units first; with several sensors in
+//! one file, channels are named `sensor/gx` ...); or any CSV with a header (channels are its
+//! columns, `--columns` to choose; time from a `t_s` column or `--rate`). `--raw` reads a known
+//! dataset as a plain CSV, e.g. the ADIS16405 sessions as integer counts (100 Hz, no time
+//! column): `--raw --rate 100 --scale gx=0.05,gy=0.05,gz=0.05,ax=0.00333,ay=0.00333,az=0.00333`
+//! gives deg/s and g, the reference WV's units. Columns holding only integers are processed
+//! exactly as counts. Values keep the input's unit times `--scale`; variances are in its
+//! square.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -35,6 +39,14 @@ pub struct Args {
     /// Highest level J (default floor(log2 N) - 1, as the `wv` R package).
     #[arg(long)]
     pub max_level: Option<u32>,
+    /// Physical units per input unit (e.g. per count), one factor for every channel (`0.05`)
+    /// or per channel (`gx=0.05,ax=0.00333`); variances scale by its square.
+    #[arg(long, value_delimiter = ',')]
+    pub scale: Vec<String>,
+    /// Read a known dataset file (see the data README) as a plain CSV instead of importing it
+    /// into SI units with `dynacal::import` (e.g. to keep ADIS16405 integer counts exact).
+    #[arg(long)]
+    pub raw: bool,
     /// Output JSON file (written whole or not at all).
     #[arg(long)]
     pub json: PathBuf,
@@ -53,17 +65,19 @@ struct Report {
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let (dt_s, channels) = read_channels(&args)?;
+    let scales = parse_scales(&args, &channels)?;
     let opts = WvOptions {
         max_level: args.max_level,
         robust: args.robust,
         efficiency: args.efficiency,
     };
     let mut out = BTreeMap::new();
-    for (name, values) in channels {
+    for ((name, values), scale) in channels.into_iter().zip(scales) {
         let wv = if let Some(counts) = as_counts(&values) {
-            haar_wv_counts(&counts, 1.0, dt_s, &opts)
+            haar_wv_counts(&counts, scale, dt_s, &opts)
         } else {
-            haar_wv(&values, dt_s, &opts)
+            let scaled: Vec<f64> = values.iter().map(|v| v * scale).collect();
+            haar_wv(&scaled, dt_s, &opts)
         }
         .with_context(|| format!("{}: column `{name}`", args.file.display()))?;
         out.insert(name, wv);
@@ -90,6 +104,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     println!("wrote {}", args.json.display());
     Ok(())
+}
+
+/// The `--scale` factor of each channel (1 where none is given).
+fn parse_scales(args: &Args, channels: &Channels) -> anyhow::Result<Vec<f64>> {
+    let mut scales = vec![1.0; channels.len()];
+    for item in &args.scale {
+        let (target, text) = match item.split_once('=') {
+            Some((name, factor)) => (Some(name.trim()), factor),
+            None => (None, item.as_str()),
+        };
+        let factor: f64 = text
+            .trim()
+            .parse()
+            .ok()
+            .filter(|f: &f64| f.is_finite() && *f != 0.0)
+            .with_context(|| format!("--scale `{item}`: not a finite non-zero number"))?;
+        match target {
+            None => scales.iter_mut().for_each(|s| *s = factor),
+            Some(name) => {
+                let Some(i) = channels.iter().position(|(n, _)| n == name) else {
+                    bail!("--scale `{item}`: no selected channel `{name}`");
+                };
+                scales[i] = factor;
+            }
+        }
+    }
+    Ok(scales)
 }
 
 /// The column as i32 counts if every value is an integer in i32 range.
@@ -136,27 +177,27 @@ fn read_channels(args: &Args) -> anyhow::Result<(f64, Channels)> {
             .any(|h| CHANNEL_COLUMNS.contains(&h.as_str()));
     if interchange {
         let rec = ImuRecording::read(path)?;
-        let available = rec.channels();
-        let names: Vec<String> = match &args.columns {
-            Some(c) => c.clone(),
-            None => available.iter().map(|s| s.to_string()).collect(),
-        };
-        let mut channels = Vec::new();
-        for name in names {
-            let Some(values) = rec.channel(&name) else {
-                bail!(
-                    "{}: line 1: no channel `{name}` (this interchange file has: {})",
-                    path.display(),
-                    available.join(",")
-                );
-            };
-            channels.push((name, values.to_vec()));
+        return from_recordings(args, &[(String::new(), rec)]);
+    }
+    if !args.raw {
+        if let Some(dataset) = dynacal::import::detect(path)? {
+            let sensors = dynacal::import::import_file(path, dataset)?;
+            let prefixed = sensors.len() > 1;
+            let recordings: Vec<(String, ImuRecording)> = sensors
+                .into_iter()
+                .map(|s| {
+                    (
+                        if prefixed {
+                            s.name + "/"
+                        } else {
+                            String::new()
+                        },
+                        s.recording,
+                    )
+                })
+                .collect();
+            return from_recordings(args, &recordings);
         }
-        let dt_s = match args.rate {
-            Some(rate) => rate_dt(path, rate)?,
-            None => uniform_dt(path, &rec.t_s)?,
-        };
-        return Ok((dt_s, channels));
     }
     let names: Vec<String> = match &args.columns {
         Some(c) => c.clone(),
@@ -201,6 +242,51 @@ fn read_channels(args: &Args) -> anyhow::Result<(f64, Channels)> {
             (name, values)
         })
         .collect();
+    Ok((dt_s, channels))
+}
+
+/// Channels of interchange recordings (imported datasets give one per sensor; with several,
+/// channel names are prefixed `sensor/`), and their common sampling interval.
+fn from_recordings(
+    args: &Args,
+    recordings: &[(String, ImuRecording)],
+) -> anyhow::Result<(f64, Channels)> {
+    let path = &args.file;
+    let mut available = Vec::new();
+    for (prefix, rec) in recordings {
+        available.extend(rec.channels().iter().map(|c| format!("{prefix}{c}")));
+    }
+    let names: Vec<String> = args.columns.clone().unwrap_or_else(|| available.clone());
+    let mut channels = Vec::new();
+    let mut dt_s = None;
+    for name in names {
+        let found = recordings.iter().find_map(|(prefix, rec)| {
+            let short = name.strip_prefix(prefix.as_str())?;
+            rec.channel(short).map(|values| (values.to_vec(), rec))
+        });
+        let Some((values, rec)) = found else {
+            bail!(
+                "{}: line 1: no channel `{name}` (this file has: {})",
+                path.display(),
+                available.join(",")
+            );
+        };
+        let dt = match args.rate {
+            Some(rate) => rate_dt(path, rate)?,
+            None => uniform_dt(path, &rec.t_s)?,
+        };
+        if dt_s.is_some_and(|d: f64| (d - dt).abs() > 1e-9 * d) {
+            bail!(
+                "{}: channel `{name}` has another sampling interval",
+                path.display()
+            );
+        }
+        dt_s = Some(dt);
+        channels.push((name, values));
+    }
+    let Some(dt_s) = dt_s else {
+        bail!("{}: no channel selected", path.display());
+    };
     Ok((dt_s, channels))
 }
 
