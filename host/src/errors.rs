@@ -301,6 +301,37 @@ fn reference_from_solution(
     Ok(out)
 }
 
+/// Derivative of a sampled triplet at its own sample times by a nine-point central stencil
+/// (exact for polynomials of degree 8; at 200 Hz it keeps a 26 Hz engine vibration's
+/// derivative within 0.05%, where a five-point stencil loses 1.3% and a three-point
+/// difference on a 100 Hz grid a third, which biases lever arms by as much), falling back
+/// to shorter differences at the ends.
+fn native_derivative(t_s: &[f64], x: &[Vec<f64>; 3]) -> [Vec<f64>; 3] {
+    let n = t_s.len();
+    std::array::from_fn(|i| {
+        (0..n)
+            .map(|k| {
+                if k >= 4 && k + 4 < n {
+                    let h = (t_s[k + 4] - t_s[k - 4]) / 8.0;
+                    let c = [3.0, -32.0, 168.0, -672.0, 0.0, 672.0, -168.0, 32.0, -3.0];
+                    (0..9).map(|j| c[j] * x[i][k + j - 4]).sum::<f64>() / (840.0 * h)
+                } else if k >= 2 && k + 2 < n {
+                    let h = (t_s[k + 2] - t_s[k - 2]) / 4.0;
+                    (x[i][k - 2] - 8.0 * x[i][k - 1] + 8.0 * x[i][k + 1] - x[i][k + 2]) / (12.0 * h)
+                } else if k >= 1 && k + 1 < n {
+                    (x[i][k + 1] - x[i][k - 1]) / (t_s[k + 1] - t_s[k - 1])
+                } else if k + 1 < n {
+                    (x[i][k + 1] - x[i][k]) / (t_s[k + 1] - t_s[k])
+                } else if k >= 1 {
+                    (x[i][k] - x[i][k - 1]) / (t_s[k] - t_s[k - 1])
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    })
+}
+
 /// Central-difference derivative of an epoch series at the epoch mid-times.
 fn derivative(t_s: &[f64], x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
     let n = x.len();
@@ -551,6 +582,22 @@ pub fn build_error_signals(
         .accel_m_s2
         .as_ref()
         .map(|a| integrals(&sensor.t_s, a));
+    // Derivatives of a reference IMU at its own rate, interpolated to the epochs like the
+    // rates themselves.
+    let reference_derivatives = if ref_is_imu {
+        Some((
+            native_derivative(
+                &reference.t_s,
+                reference.gyro_rad_s.as_ref().expect("reference IMU"),
+            ),
+            native_derivative(
+                &reference.t_s,
+                reference.accel_m_s2.as_ref().expect("reference IMU"),
+            ),
+        ))
+    } else {
+        None
+    };
     let raw_at = |x: &[Vec<f64>; 3]| -> Vec<Vector3<f64>> {
         sensor_idx
             .iter()
@@ -596,8 +643,23 @@ pub fn build_error_signals(
                     .map(|a| interval_means(a, &bounds, shift_s)),
             ),
         };
-        let omega_dot = derivative(&mid_t, &reference_epochs.omega_ib_b_rad_s);
-        let f_dot = derivative(&mid_t, &reference_epochs.f_b_m_s2);
+        let (omega_dot, f_dot) = match &reference_derivatives {
+            Some((wd, fd)) => {
+                let at = |x: &[Vec<f64>; 3]| -> Vec<Vector3<f64>> {
+                    epoch_t
+                        .iter()
+                        .map(|&t| {
+                            Vector3::from_fn(|i, _| lerp_at(&reference.t_s, &x[i], t - shift_s))
+                        })
+                        .collect()
+                };
+                (at(wd), at(fd))
+            }
+            None => (
+                derivative(&mid_t, &reference_epochs.omega_ib_b_rad_s),
+                derivative(&mid_t, &reference_epochs.f_b_m_s2),
+            ),
+        };
         Ok(EpochData {
             reference: reference_epochs,
             omega_dot,

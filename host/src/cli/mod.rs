@@ -26,6 +26,8 @@ pub enum Command {
     Compare(compare::Args),
     /// Decode a board log into per-IMU interchange CSVs and summary.json.
     Decode(decode::Args),
+    /// What the simulation gets wrong: named causes, extended model, measured gain.
+    Diagnose(diagnose::Args),
     /// Simulate a car or static run: reference IMU, MEMS IMUs, GNSS and PPS.
     Simulate(simulate::Args),
     /// Run the firmware in QEMU on a minute of real ADIS16405 data and check the log.
@@ -42,6 +44,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(args) => simulate::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Errors(args) => errors::run(args),
+        Command::Diagnose(args) => diagnose::run(args),
         Command::Regress(args) => regress::run(args),
         Command::Fit(args) => fit::run(args),
         Command::Compare(args) => compare::run(args),
@@ -52,6 +55,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
 mod compare;
 mod decode;
 mod demo;
+mod diagnose;
 mod errors;
 mod fit;
 mod import;

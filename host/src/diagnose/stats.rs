@@ -280,71 +280,86 @@ fn long_run_sd(x: &[f64], k: usize) -> f64 {
     v.max(gamma(0) * 1e-6).sqrt()
 }
 
-/// How the short-term noise level follows a dynamics magnitude.
+/// How the short-term noise level follows a dynamics magnitude m: the model is a noise
+/// variance sigma0^2 + (k m)^2, i.e. white noise whose standard deviation grows as k m on top
+/// of the baseline.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct NoiseVsDynamics {
-    /// Slope of the windowed noise standard deviation on the dynamics magnitude, error units
-    /// per dynamics unit.
+    /// Slope of the windowed noise variance on m^2, error units^2 per dynamics unit^2.
     pub slope: f64,
-    /// Its standard error (windows are nearly independent for white-noise-dominated short
-    /// scales).
     pub slope_std_error: f64,
-    /// Noise standard deviation at zero dynamics, error units.
+    /// Noise variance at zero dynamics, error units^2.
     pub intercept: f64,
     /// slope / std_error.
     pub t: f64,
+    /// k = sqrt(slope): noise standard deviation per dynamics unit (0 when slope <= 0).
+    pub sigma_per_unit: f64,
+    /// 95% interval of k (from the slope's interval, clipped at 0).
+    pub sigma_per_unit_ci95: [f64; 2],
 }
 
-/// Regresses the short-term noise standard deviation (from first differences over windows of
-/// `window` samples, which removes slow correlated noise) on the window mean of `magnitude`
-/// (e.g. |omega| in rad/s). A stationary baseline gives a slope of zero.
+/// Regresses the short-term noise variance (from first differences over windows of `window`
+/// samples, which removes slow correlated noise) on the window mean of `magnitude^2` (e.g.
+/// |omega| in rad/s). A stationary baseline gives a slope of zero. Windows are treated as
+/// independent, which holds for the white-noise-dominated differences.
 pub fn noise_vs_dynamics(x: &[f64], magnitude: &[f64], window: usize) -> NoiseVsDynamics {
     let w = window.max(4);
-    let mut sd = Vec::new();
-    let mut mag = Vec::new();
+    let mut var = Vec::new();
+    let mut mag2 = Vec::new();
     for start in (0..x.len().saturating_sub(w)).step_by(w) {
         let seg = &x[start..start + w];
         let diffs: Vec<f64> = seg.windows(2).map(|p| p[1] - p[0]).collect();
         let mean = diffs.iter().sum::<f64>() / diffs.len() as f64;
-        let var = diffs.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (diffs.len() - 1) as f64;
+        let v = diffs.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (diffs.len() - 1) as f64;
         // A difference of white noise has twice its variance.
-        sd.push((var / 2.0).sqrt());
-        mag.push(magnitude[start..start + w].iter().sum::<f64>() / w as f64);
+        var.push(v / 2.0);
+        mag2.push(
+            magnitude[start..start + w]
+                .iter()
+                .map(|m| m * m)
+                .sum::<f64>()
+                / w as f64,
+        );
     }
-    let n = sd.len() as f64;
+    let none = |intercept: f64| NoiseVsDynamics {
+        slope: 0.0,
+        slope_std_error: f64::INFINITY,
+        intercept,
+        t: 0.0,
+        sigma_per_unit: 0.0,
+        sigma_per_unit_ci95: [0.0, 0.0],
+    };
+    let n = var.len() as f64;
     if n < 3.0 {
-        return NoiseVsDynamics {
-            slope: 0.0,
-            slope_std_error: f64::INFINITY,
-            intercept: 0.0,
-            t: 0.0,
-        };
+        return none(0.0);
     }
-    let mx = mag.iter().sum::<f64>() / n;
-    let my = sd.iter().sum::<f64>() / n;
-    let sxx: f64 = mag.iter().map(|m| (m - mx).powi(2)).sum();
-    let sxy: f64 = mag.iter().zip(&sd).map(|(m, s)| (m - mx) * (s - my)).sum();
+    let mx = mag2.iter().sum::<f64>() / n;
+    let my = var.iter().sum::<f64>() / n;
+    let sxx: f64 = mag2.iter().map(|m| (m - mx).powi(2)).sum();
+    let sxy: f64 = mag2
+        .iter()
+        .zip(&var)
+        .map(|(m, s)| (m - mx) * (s - my))
+        .sum();
     if sxx <= 0.0 {
-        return NoiseVsDynamics {
-            slope: 0.0,
-            slope_std_error: f64::INFINITY,
-            intercept: my,
-            t: 0.0,
-        };
+        return none(my);
     }
     let slope = sxy / sxx;
     let intercept = my - slope * mx;
-    let rss: f64 = mag
+    let rss: f64 = mag2
         .iter()
-        .zip(&sd)
+        .zip(&var)
         .map(|(m, s)| (s - intercept - slope * m).powi(2))
         .sum();
     let se = (rss / (n - 2.0) / sxx).sqrt();
+    let k = |s: f64| s.max(0.0).sqrt();
     NoiseVsDynamics {
         slope,
         slope_std_error: se,
         intercept,
         t: if se > 0.0 { slope / se } else { 0.0 },
+        sigma_per_unit: k(slope),
+        sigma_per_unit_ci95: [k(slope - 1.96 * se), k(slope + 1.96 * se)],
     }
 }
 

@@ -1,0 +1,989 @@
+//! The discrepancy engine behind `dynacal diagnose`: compares measured error signals with
+//! the baseline stochastic model simulated along the measured dynamics, names the causes of
+//! what the baseline cannot explain, builds the extended model and measures the gain.
+//!
+//! Causes are told apart by their physics:
+//! - deterministic sensitivities are per-channel regressions on the regressor that physics
+//!   says drives them: the channel's own input (`scale_factor`), another axis' input
+//!   (`cross_axis`), specific force on a gyro (`g_sensitivity`), angular acceleration
+//!   (`angular_acceleration`), rate of change of specific force (`jerk`);
+//! - a time offset is one coefficient common to every channel of the sensor, on each
+//!   channel's own derivative, and a lever arm is omega_dot x r + omega x (omega x r) on the
+//!   accelerometers: both are estimated jointly by the calibration of
+//!   [`crate::errors::build_error_signals`] and named when significant;
+//! - stochastic causes are tested against the same statistic on series simulated from the
+//!   baseline: outliers, vibration lines, a shift of the mean, noise growing with the
+//!   dynamics, quantization (the raw sensor values lie on a lattice), and a change of the
+//!   correlated or white noise (the wavelet variance of what remains).
+//!
+//! False alarms are controlled by strict per-test levels (Bonferroni over the tests of a
+//! run), an effect-size floor for deterministic terms, and simulation-calibrated thresholds.
+
+use std::collections::BTreeMap;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use statrs::distribution::{ContinuousCDF, Normal};
+
+use super::stats::{find_outliers, mean_shift, noise_vs_dynamics, spectral_lines, welch_psd};
+use crate::error_signal::ErrorSignals;
+use crate::errors::{build_error_signals, CalibrationSummary, ErrorOptions};
+use crate::gmwm::fit::{FitInput, FitOptions};
+use crate::gmwm::inference::{analyze, ModelChoice};
+use crate::gmwm::model::ModelSpec;
+use crate::interchange::{ImuRecording, CHANNELS};
+use crate::regress::{backward_elimination, RegressionOptions};
+use crate::wv::{haar_wv, WvOptions};
+
+/// The cause vocabulary (exact strings of the output contract).
+pub const CAUSES: [&str; 14] = [
+    "scale_factor",
+    "cross_axis",
+    "g_sensitivity",
+    "angular_acceleration",
+    "jerk",
+    "time_offset",
+    "lever_arm",
+    "noise_scales_with_dynamics",
+    "vibration",
+    "outliers",
+    "bias_shift",
+    "correlated_noise_change",
+    "quantization",
+    "white_noise_change",
+];
+
+/// Errors of the engine.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DiagnoseError {
+    #[error(transparent)]
+    Errors(#[from] crate::errors::ErrorsError),
+    #[error("baseline model {path}: {message}")]
+    Baseline { path: String, message: String },
+    #[error("channel {channel}: {message}")]
+    Channel { channel: String, message: String },
+}
+
+/// The baseline stochastic model per channel, in SI units (rad/s, m/s^2).
+#[derive(Debug, Clone)]
+pub struct Baseline {
+    pub channels: BTreeMap<String, ModelSpec>,
+    /// Where it came from, in words.
+    pub source: String,
+}
+
+impl Baseline {
+    /// Reads the JSON written by `dynacal fit` (`{"channels": {"gx": {"model_object": ..}}}`).
+    pub fn load(path: &std::path::Path) -> Result<Self, DiagnoseError> {
+        let err = |message: String| DiagnoseError::Baseline {
+            path: path.display().to_string(),
+            message,
+        };
+        let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
+        let v: Value = serde_json::from_str(&text).map_err(|e| err(format!("not JSON: {e}")))?;
+        let channels = v
+            .get("channels")
+            .and_then(Value::as_object)
+            .ok_or_else(|| {
+                err("no `channels` object (expected the output of `dynacal fit`)".into())
+            })?;
+        let mut out = BTreeMap::new();
+        for (name, ch) in channels {
+            let obj = ch
+                .get("model_object")
+                .ok_or_else(|| err(format!("channels.{name}: no `model_object`")))?;
+            let spec = ModelSpec::from_json(&obj.to_string())
+                .map_err(|e| err(format!("channels.{name}.model_object: {e}")))?;
+            let si = matches!(
+                spec.unit.replace(' ', "").as_str(),
+                "rad/s" | "m/s^2" | "m/s2"
+            );
+            if !si {
+                return Err(err(format!(
+                    "channels.{name}: unit `{}` is not SI (fit the interchange file, which is in rad/s and m/s^2)",
+                    spec.unit
+                )));
+            }
+            out.insert(name.clone(), spec);
+        }
+        Ok(Self {
+            channels: out,
+            source: format!("file {}", path.display()),
+        })
+    }
+}
+
+/// Options of [`diagnose`].
+#[derive(Debug, Clone, Copy)]
+pub struct DiagnoseOptions {
+    /// Baseline simulations per channel.
+    pub replicates: usize,
+    pub seed: u64,
+    /// Family-wise false-alarm level of a whole run (split over its tests).
+    pub alpha: f64,
+    /// Fraction of the epochs held out (at the end) for the held-out gain.
+    pub holdout_fraction: f64,
+    /// Smallest share of a channel's error variance a deterministic term must explain.
+    pub min_variance_explained: f64,
+}
+
+impl Default for DiagnoseOptions {
+    fn default() -> Self {
+        Self {
+            replicates: 30,
+            seed: 1,
+            alpha: 0.01,
+            holdout_fraction: 0.3,
+            min_variance_explained: 0.005,
+        }
+    }
+}
+
+/// A named cause (the output contract's `findings` entries).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Finding {
+    pub channel: String,
+    pub cause: String,
+    /// The regressors or signal features the estimate refers to, in order.
+    pub regressors: Vec<String>,
+    /// SI units: a number, or a list aligned with `regressors` (a lever arm: 3 components).
+    pub estimate: Value,
+    /// [lo, hi], or a list of them aligned with `regressors`.
+    pub ci95: Value,
+    /// Share of the channel's error variance this term accounts for.
+    pub variance_explained: f64,
+}
+
+/// Per-channel gain of the extended model over the baseline.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Gain {
+    pub metric: String,
+    pub baseline: f64,
+    pub extended: f64,
+    pub held_out_baseline: f64,
+    pub held_out_extended: f64,
+    /// Share of the error variance the extended model's deterministic terms explain
+    /// (in-sample, and on the held-out part with coefficients from the first part).
+    pub variance_explained: f64,
+    pub held_out_variance_explained: f64,
+}
+
+/// A statistic the baseline fails to reproduce.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Discrepancy {
+    pub channel: String,
+    pub statistic: String,
+    pub measured: f64,
+    /// Range of the statistic over the baseline simulations.
+    pub simulated_range: [f64; 2],
+    pub detail: String,
+}
+
+/// Everything `diagnose` found.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct DiagnoseReport {
+    pub baseline_source: String,
+    pub calibration: Option<CalibrationSummary>,
+    pub findings: Vec<Finding>,
+    pub gain: BTreeMap<String, Gain>,
+    pub discrepancies: Vec<Discrepancy>,
+    /// The extended model as a simulator model file (`dynacal simulate --model`).
+    pub extended_model: Value,
+    /// Notes on what was assumed.
+    pub notes: Vec<String>,
+}
+
+const Z_FLOOR: f64 = 1.959_963_984_540_054;
+
+/// A deterministic term: regressor values and where it goes in the simulator model.
+struct Candidate<'a> {
+    name: String,
+    values: &'a [f64],
+    cause: &'static str,
+    /// (simulator field, axis index) of the coefficient.
+    field: (&'static str, usize),
+}
+
+fn derivative(t: &[f64], x: &[f64]) -> Vec<f64> {
+    let n = x.len();
+    (0..n)
+        .map(|k| {
+            let (a, b) = if k == 0 {
+                (0, 1.min(n - 1))
+            } else if k == n - 1 {
+                (n - 2, n - 1)
+            } else {
+                (k - 1, k + 1)
+            };
+            if b == a {
+                0.0
+            } else {
+                (x[b] - x[a]) / (t[b] - t[a])
+            }
+        })
+        .collect()
+}
+
+fn variance(x: &[f64]) -> f64 {
+    let n = x.len() as f64;
+    let m = x.iter().sum::<f64>() / n;
+    x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)
+}
+
+fn ci(est: f64, se: f64) -> [f64; 2] {
+    [est - Z_FLOOR * se, est + Z_FLOOR * se]
+}
+
+/// Least squares of `y` on the columns plus an intercept: (slopes, intercept). Columns are
+/// centred, so the normal equations stay well conditioned.
+fn ols(y: &[f64], cols: &[&[f64]]) -> Option<(Vec<f64>, f64)> {
+    let n = y.len();
+    let p = cols.len();
+    let means: Vec<f64> = cols
+        .iter()
+        .map(|c| c.iter().sum::<f64>() / n as f64)
+        .collect();
+    let my = y.iter().sum::<f64>() / n as f64;
+    let mut xtx = nalgebra::DMatrix::<f64>::zeros(p, p);
+    let mut xty = nalgebra::DVector::<f64>::zeros(p);
+    for t in 0..n {
+        for a in 0..p {
+            let xa = cols[a][t] - means[a];
+            xty[a] += xa * (y[t] - my);
+            for b in a..p {
+                xtx[(a, b)] += xa * (cols[b][t] - means[b]);
+            }
+        }
+    }
+    for a in 0..p {
+        for b in 0..a {
+            xtx[(a, b)] = xtx[(b, a)];
+        }
+    }
+    let beta = xtx.cholesky()?.solve(&xty);
+    let icpt = my - (0..p).map(|a| beta[a] * means[a]).sum::<f64>();
+    Some((beta.iter().copied().collect(), icpt))
+}
+
+/// Log wavelet variance per level of a series (levels 1..=max).
+fn log_wv(x: &[f64], dt_s: f64, max_level: u32) -> Vec<f64> {
+    match haar_wv(
+        x,
+        dt_s,
+        &WvOptions {
+            max_level: Some(max_level),
+            ..Default::default()
+        },
+    ) {
+        Ok(w) => w.variance.iter().map(|v| v.max(1e-300).ln()).collect(),
+        Err(_) => Vec::new(),
+    }
+}
+
+/// Mean and standard deviation per level of simulated log-WVs.
+fn level_stats(sims: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
+    let levels = sims.iter().map(Vec::len).min().unwrap_or(0);
+    let r = sims.len() as f64;
+    let mean: Vec<f64> = (0..levels)
+        .map(|j| sims.iter().map(|s| s[j]).sum::<f64>() / r)
+        .collect();
+    let sd: Vec<f64> = (0..levels)
+        .map(|j| {
+            (sims.iter().map(|s| (s[j] - mean[j]).powi(2)).sum::<f64>() / (r - 1.0).max(1.0))
+                .sqrt()
+                .max(1e-3)
+        })
+        .collect();
+    (mean, sd)
+}
+
+/// Mean squared z-score of the measured log-WV against simulated ones: the WV misfit.
+fn wv_misfit(measured: &[f64], sims: &[Vec<f64>]) -> f64 {
+    let (mean, sd) = level_stats(sims);
+    let j = mean.len().min(measured.len());
+    if j == 0 {
+        return f64::NAN;
+    }
+    (0..j)
+        .map(|k| ((measured[k] - mean[k]) / sd[k]).powi(2))
+        .sum::<f64>()
+        / j as f64
+}
+
+/// Extra stochastic effects found on a channel, applied when simulating the extended model.
+#[derive(Debug, Clone, Default)]
+struct ChannelEffects {
+    dynamic_noise_sigma_per_rad_s: Option<f64>,
+    vibration: Vec<(f64, f64)>,
+    outliers: Option<(f64, f64)>,
+    bias_shift: Option<(usize, f64)>,
+}
+
+fn simulate_channel(
+    spec: &ModelSpec,
+    effects: &ChannelEffects,
+    omega_norm: &[f64],
+    dt_s: f64,
+    n: usize,
+    rng: &mut ChaCha8Rng,
+) -> Vec<f64> {
+    let mut x = spec.simulate(n, rng);
+    if let Some(k) = effects.dynamic_noise_sigma_per_rad_s {
+        for (v, w) in x.iter_mut().zip(omega_norm) {
+            let z: f64 = StandardNormal.sample(rng);
+            *v += k * w * z;
+        }
+    }
+    for &(f, a) in &effects.vibration {
+        let phase: f64 = rand::Rng::random_range(rng, 0.0..std::f64::consts::TAU);
+        for (i, v) in x.iter_mut().enumerate() {
+            *v += a * (std::f64::consts::TAU * f * i as f64 * dt_s + phase).sin();
+        }
+    }
+    if let Some((p, s)) = effects.outliers {
+        for v in x.iter_mut() {
+            if rand::Rng::random_bool(rng, p.clamp(0.0, 1.0)) {
+                let z: f64 = StandardNormal.sample(rng);
+                *v += s * z;
+            }
+        }
+    }
+    if let Some((k, size)) = effects.bias_shift {
+        for v in x.iter_mut().skip(k) {
+            *v += size;
+        }
+    }
+    x
+}
+
+/// Lattice spacing of a raw sensor channel, if its values lie on one (quantised output).
+fn lattice_step(x: &[f64]) -> Option<(f64, f64)> {
+    let diffs: Vec<f64> = x
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .filter(|d| *d > 0.0)
+        .collect();
+    if diffs.len() < 100 {
+        return None;
+    }
+    let scale = diffs.iter().fold(0.0f64, |a, b| a.max(*b));
+    let q0 = diffs.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+    if !(q0 > 1e-9 * scale) {
+        return None;
+    }
+    let on_lattice = diffs
+        .iter()
+        .filter(|d| ((*d / q0) - (*d / q0).round()).abs() < 1e-3)
+        .count();
+    if (on_lattice as f64) < 0.999 * diffs.len() as f64 {
+        return None;
+    }
+    // Refine from the many unit steps.
+    let unit: Vec<f64> = diffs
+        .iter()
+        .copied()
+        .filter(|d| (d / q0).round() == 1.0)
+        .collect();
+    let q = unit.iter().sum::<f64>() / unit.len() as f64;
+    let sd = variance(&unit).sqrt() / (unit.len() as f64).sqrt();
+    Some((q, sd.max(q * 1e-12)))
+}
+
+/// Estimates an outlier process (probability per sample, sigma) from detected outliers with
+/// |deviation| > t_abs, correcting for the small ones hidden in the noise: the detected
+/// deviations are a normal N(0, s^2) truncated to |x| > t_abs, s^2 = sigma_out^2 + noise^2.
+fn outlier_process(devs: &[f64], t_abs: f64, noise_sigma: f64, n: usize) -> (f64, f64, [f64; 2]) {
+    let normal = Normal::new(0.0, 1.0).expect("standard normal");
+    let m2 = devs.iter().map(|d| d * d).sum::<f64>() / devs.len() as f64;
+    // E[x^2 | |x| > t] = s^2 + t s phi(t/s) / (1 - Phi(t/s)) for x ~ N(0, s^2); solve for s.
+    let second_moment = |s: f64| {
+        let u = t_abs / s;
+        let tail = (1.0 - normal.cdf(u)).max(1e-300);
+        let phi = (-0.5 * u * u).exp() / (2.0 * std::f64::consts::PI).sqrt();
+        s * s + t_abs * s * phi / tail
+    };
+    let (mut lo, mut hi) = (
+        noise_sigma.max(1e-12),
+        (m2.sqrt() * 10.0).max(noise_sigma * 20.0),
+    );
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if second_moment(mid) < m2 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let s = 0.5 * (lo + hi);
+    let sigma_out = (s * s - noise_sigma * noise_sigma).max(0.0).sqrt();
+    let detect = 2.0 * (1.0 - normal.cdf(t_abs / s));
+    let k = devs.len() as f64;
+    let p = k / n as f64 / detect.max(1e-12);
+    // Poisson interval on the count (normal approximation with continuity), scaled.
+    let half = Z_FLOOR * (k + 1.0).sqrt();
+    let ci = [
+        ((k - half).max(0.0)) / n as f64 / detect,
+        (k + half) / n as f64 / detect,
+    ];
+    (p, sigma_out, ci)
+}
+
+/// Runs the engine on a sensor recording against a reference (or, without one, on static
+/// data whose truth is constant).
+pub fn diagnose(
+    sensor: &ImuRecording,
+    reference: Option<&ImuRecording>,
+    baseline: Option<Baseline>,
+    opts: &DiagnoseOptions,
+) -> Result<DiagnoseReport, DiagnoseError> {
+    let mut notes = Vec::new();
+    let (signals, calibration) = match reference {
+        Some(r) => {
+            let (s, c) = build_error_signals(sensor, r, &ErrorOptions::default())?;
+            (s, Some(c))
+        }
+        None => {
+            notes.push(
+                "no reference: static data assumed, the error is each channel minus its mean"
+                    .into(),
+            );
+            (static_signals(sensor), None)
+        }
+    };
+    let n = signals.t_s.len();
+    let dt_s = {
+        let mut d: Vec<f64> = signals.t_s.windows(2).map(|w| w[1] - w[0]).collect();
+        let m = d.len() / 2;
+        *d.select_nth_unstable_by(m, f64::total_cmp).1
+    };
+    let has_dynamics = reference.is_some();
+    let omega_norm: Vec<f64> = (0..n)
+        .map(|k| {
+            (signals.dynamics[0][k].powi(2)
+                + signals.dynamics[1][k].powi(2)
+                + signals.dynamics[2][k].powi(2))
+            .sqrt()
+        })
+        .collect();
+    let channels: Vec<&str> = CHANNELS
+        .iter()
+        .copied()
+        .filter(|c| signals.error(c).is_some())
+        .collect();
+    let baseline = match baseline {
+        Some(b) => b,
+        None => {
+            let b = fit_quietest(&signals, &channels, &omega_norm, dt_s)?;
+            notes.push(format!("no baseline model given: {}", b.source));
+            b
+        }
+    };
+    // Tests per channel: 15 regressors + ~8 stochastic statistics; Bonferroni over all.
+    let tests = (channels.len() * 24).max(1) as f64;
+    let alpha_test = opts.alpha / tests;
+    let z_strict = Normal::new(0.0, 1.0)
+        .expect("normal")
+        .inverse_cdf(1.0 - alpha_test / 2.0);
+
+    let mut findings = Vec::new();
+    let mut discrepancies = Vec::new();
+    // Sensor-wide calibration terms named when significant.
+    if let Some(cal) = &calibration {
+        if let Some(t) = cal.time_offset_s {
+            if t.sigma > 0.0
+                && (t.value / t.sigma).abs() > z_strict
+                && t.value.abs() > 0.2 * dt_s.min(0.01)
+            {
+                for ch in &channels {
+                    findings.push(Finding {
+                        channel: (*ch).into(),
+                        cause: "time_offset".into(),
+                        regressors: vec![format!("d{ch}/dt")],
+                        estimate: json!(t.value),
+                        ci95: json!(ci(t.value, t.sigma)),
+                        variance_explained: f64::NAN,
+                    });
+                }
+            }
+        }
+        if let Some(l) = cal.lever_arm_m {
+            let significant = (0..3).any(|i| {
+                l.sigma[i] > 0.0
+                    && (l.value[i] / l.sigma[i]).abs() > z_strict
+                    && l.value[i].abs() > 0.005
+            });
+            if significant {
+                for ch in channels.iter().filter(|c| c.starts_with('a')) {
+                    findings.push(Finding {
+                        channel: (*ch).into(),
+                        cause: "lever_arm".into(),
+                        regressors: vec!["r_x_m".into(), "r_y_m".into(), "r_z_m".into()],
+                        estimate: json!(l.value),
+                        ci95: json!([
+                            ci(l.value[0], l.sigma[0]),
+                            ci(l.value[1], l.sigma[1]),
+                            ci(l.value[2], l.sigma[2])
+                        ]),
+                        variance_explained: f64::NAN,
+                    });
+                }
+            }
+        }
+    }
+
+    let f = signals
+        .specific_force_b_m_s2
+        .clone()
+        .unwrap_or_else(|| std::array::from_fn(|i| signals.dynamics[9 + i].clone()));
+    let f_dot: [Vec<f64>; 3] = std::array::from_fn(|i| derivative(&signals.t_s, &f[i]));
+    let split = ((1.0 - opts.holdout_fraction) * n as f64) as usize;
+
+    struct ChannelResult {
+        findings: Vec<Finding>,
+        discrepancies: Vec<Discrepancy>,
+        gain: Gain,
+        model: Value,
+    }
+    let results: Vec<Result<ChannelResult, DiagnoseError>> = channels
+        .par_iter()
+        .enumerate()
+        .map(|(ci_idx, &ch)| {
+            let e = signals.error(ch).expect("channel present");
+            let spec = baseline.channels.get(ch).ok_or_else(|| DiagnoseError::Channel {
+                channel: ch.into(),
+                message: format!("the baseline model ({}) has no model for it", baseline.source),
+            })?;
+            let axis = CHANNELS.iter().position(|c| *c == ch).expect("known channel") % 3;
+            let gyro = ch.starts_with('g');
+            let xyz = ["x", "y", "z"];
+            // Deterministic candidates by physics.
+            let mut cands: Vec<Candidate> = Vec::new();
+            if has_dynamics {
+                for j in 0..3 {
+                    let (input, input_name) = if gyro { (&signals.dynamics[j], "omega") } else { (&f[j], "f") };
+                    cands.push(Candidate {
+                        name: format!("{input_name}_{}", xyz[j]),
+                        values: input,
+                        cause: if j == axis { "scale_factor" } else { "cross_axis" },
+                        field: (if j == axis { "scale_factor" } else { "cross_axis" }, j),
+                    });
+                    if gyro {
+                        cands.push(Candidate { name: format!("f_{}", xyz[j]), values: &f[j], cause: "g_sensitivity", field: ("g_sensitivity", j) });
+                    }
+                    cands.push(Candidate {
+                        name: format!("omega_dot_{}", xyz[j]),
+                        values: &signals.dynamics[3 + j],
+                        cause: "angular_acceleration",
+                        field: ("angular_acceleration_sensitivity", j),
+                    });
+                    cands.push(Candidate { name: format!("f_dot_{}", xyz[j]), values: &f_dot[j], cause: "jerk", field: ("jerk_sensitivity", j) });
+                }
+            }
+            // Baseline simulations: the null distribution of every statistic below.
+            let sims: Vec<Vec<f64>> = (0..opts.replicates)
+                .into_par_iter()
+                .map(|r| {
+                    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ ((ci_idx as u64) << 32) ^ r as u64);
+                    spec.simulate(n, &mut rng)
+                })
+                .collect();
+            // Backward elimination with simulation-calibrated standard errors: the baseline
+            // noise (slow Gauss-Markov wander included) is regressed on the same measured
+            // dynamics, so spurious correlation of slow noise with slow manoeuvres is in the
+            // null distribution. HAC alone under-covers for such persistent noise.
+            let mut coeffs: Vec<(usize, f64, [f64; 2], f64)> = Vec::new();
+            let mut intercept = e.iter().sum::<f64>() / n as f64;
+            if !cands.is_empty() {
+                let var_e = variance(e);
+                let mut active: Vec<usize> = (0..cands.len()).collect();
+                loop {
+                    let cols: Vec<&[f64]> = active.iter().map(|&k| cands[k].values).collect();
+                    let Some((b, icpt)) = ols(e, &cols) else { break };
+                    let null: Vec<Vec<f64>> = sims.par_iter().filter_map(|s| ols(s, &cols).map(|x| x.0)).collect();
+                    let sd: Vec<f64> = (0..active.len())
+                        .map(|i| {
+                            let r = null.len() as f64;
+                            let m = null.iter().map(|x| x[i]).sum::<f64>() / r;
+                            (null.iter().map(|x| (x[i] - m).powi(2)).sum::<f64>() / (r - 1.0).max(1.0)).sqrt()
+                        })
+                        .collect();
+                    let z: Vec<f64> = (0..active.len()).map(|i| if sd[i] > 0.0 { (b[i] / sd[i]).abs() } else { 0.0 }).collect();
+                    let worst = (0..active.len()).min_by(|&a, &c| z[a].total_cmp(&z[c]));
+                    match worst {
+                        Some(i) if z[i] < z_strict => {
+                            active.remove(i);
+                        }
+                        _ => {
+                            intercept = icpt;
+                            for (i, &k) in active.iter().enumerate() {
+                                let ve = b[i].powi(2) * variance(cands[k].values) / var_e;
+                                if ve >= opts.min_variance_explained {
+                                    coeffs.push((k, b[i], ci(b[i], sd[i]), ve));
+                                }
+                            }
+                            break;
+                        }
+                    }
+                    if active.is_empty() {
+                        break;
+                    }
+                }
+            }
+            let det = |range: std::ops::Range<usize>, coeffs: &[(usize, f64, [f64; 2], f64)]| -> Vec<f64> {
+                range.map(|t| coeffs.iter().map(|(k, b, _, _)| b * cands[*k].values[t]).sum::<f64>()).collect()
+            };
+            let fitted = det(0..n, &coeffs);
+            let mut resid: Vec<f64> = (0..n).map(|t| e[t] - intercept - fitted[t]).collect();
+            let mut ch_findings = Vec::new();
+            for cause in ["scale_factor", "cross_axis", "g_sensitivity", "angular_acceleration", "jerk"] {
+                let terms: Vec<&(usize, f64, [f64; 2], f64)> = coeffs.iter().filter(|(k, ..)| cands[*k].cause == cause).collect();
+                if terms.is_empty() {
+                    continue;
+                }
+                let single = terms.len() == 1;
+                ch_findings.push(Finding {
+                    channel: ch.into(),
+                    cause: cause.into(),
+                    regressors: terms.iter().map(|(k, ..)| cands[*k].name.clone()).collect(),
+                    estimate: if single { json!(terms[0].1) } else { json!(terms.iter().map(|t| t.1).collect::<Vec<_>>()) },
+                    ci95: if single { json!(terms[0].2) } else { json!(terms.iter().map(|t| t.2).collect::<Vec<_>>()) },
+                    variance_explained: terms.iter().map(|t| t.3).sum(),
+                });
+            }
+
+            // Baseline simulations of the residual's statistics.
+            let mut effects = ChannelEffects::default();
+            let max_level = ((n as f64).log2().floor() as u32).saturating_sub(2).max(1);
+
+            let sim_range = |vals: &[f64]| [vals.iter().copied().fold(f64::INFINITY, f64::min), vals.iter().copied().fold(f64::NEG_INFINITY, f64::max)];
+            let mut ch_disc = Vec::new();
+
+            // Outliers.
+            let out = find_outliers(&resid, 11, 6.0);
+            let sim_counts: Vec<f64> = sims.iter().map(|s| find_outliers(s, 11, 6.0).indices.len() as f64).collect();
+            let range = sim_range(&sim_counts);
+            if out.indices.len() >= 5 && out.indices.len() as f64 > range[1] + 3.0 {
+                let med: Vec<f64> = {
+                    let w = 5usize;
+                    out.indices.iter().map(|&i| {
+                        let lo = i.saturating_sub(w);
+                        let hi = (i + w + 1).min(n);
+                        let mut b: Vec<f64> = resid[lo..hi].to_vec();
+                        let m = b.len() / 2;
+                        *b.select_nth_unstable_by(m, f64::total_cmp).1
+                    }).collect()
+                };
+                let devs: Vec<f64> = out.indices.iter().zip(&med).map(|(&i, m)| resid[i] - m).collect();
+                let (p, s_out, p_ci) = outlier_process(&devs, 6.0 * out.robust_sigma, out.robust_sigma, n);
+                ch_disc.push(Discrepancy { channel: ch.into(), statistic: "outliers beyond 6 robust sigma".into(), measured: out.indices.len() as f64, simulated_range: range, detail: format!("largest |z| {:.1}", out.max_abs_z) });
+                let ve = devs.iter().map(|d| d * d).sum::<f64>() / n as f64 / variance(e);
+                ch_findings.push(Finding { channel: ch.into(), cause: "outliers".into(), regressors: vec!["probability_per_sample".into(), format!("sigma (estimate {s_out:.3e})")], estimate: json!(p), ci95: json!(p_ci), variance_explained: ve });
+                effects.outliers = Some((p, s_out));
+                for (&i, m) in out.indices.iter().zip(&med) {
+                    resid[i] = *m;
+                }
+            }
+
+            // Vibration lines.
+            let seg = 1usize << ((n as f64 / 16.0).log2().floor() as u32).clamp(6, 12);
+            let lines = spectral_lines(&welch_psd(&resid, dt_s, seg), alpha_test);
+            let sim_lines: Vec<f64> = sims.iter().take(8).map(|s| spectral_lines(&welch_psd(s, dt_s, seg), alpha_test).iter().filter(|l| l.freq_hz >= (1.0f64).max(16.0 / (seg as f64 * dt_s))).count() as f64).collect();
+            let min_line_hz = (1.0f64).max(16.0 / (seg as f64 * dt_s));
+            for line in lines.iter().filter(|l| l.freq_hz >= min_line_hz) {
+                // Fit the sinusoid by least squares, refining the frequency within the peak
+                // bin: over minutes a half-bin error would turn the fit into nothing.
+                let fit_at = |f_hz: f64, y: &[f64]| -> (f64, f64) {
+                    let w = std::f64::consts::TAU * f_hz;
+                    let (mut ss, mut cc, mut sc, mut ys, mut yc) = (0.0, 0.0, 0.0, 0.0, 0.0);
+                    for (i, v) in y.iter().enumerate() {
+                        let (s, c) = (w * i as f64 * dt_s).sin_cos();
+                        ss += s * s; cc += c * c; sc += s * c; ys += v * s; yc += v * c;
+                    }
+                    let d = ss * cc - sc * sc;
+                    if d <= 0.0 { return (0.0, 0.0); }
+                    ((ys * cc - yc * sc) / d, (yc * ss - ys * sc) / d)
+                };
+                let df = 1.0 / (seg as f64 * dt_s);
+                let mut best = (line.freq_hz, 0.0);
+                for k in -40..=40 {
+                    let f_hz = line.freq_hz + k as f64 * df / 40.0;
+                    let (a, b) = fit_at(f_hz, &resid);
+                    if a * a + b * b > best.1 { best = (f_hz, a * a + b * b); }
+                }
+                let span = df / 40.0;
+                let mut best2 = best;
+                for k in -20..=20 {
+                    let f_hz = best.0 + k as f64 * span / 20.0;
+                    let (a, b) = fit_at(f_hz, &resid);
+                    if a * a + b * b > best2.1 { best2 = (f_hz, a * a + b * b); }
+                }
+                let w = std::f64::consts::TAU * best2.0;
+                let (a, b) = fit_at(best2.0, &resid);
+                let amp = (a * a + b * b).sqrt();
+                for (i, y) in resid.iter_mut().enumerate() {
+                    let (s, c) = (w * i as f64 * dt_s).sin_cos();
+                    *y -= a * s + b * c;
+                }
+                // Statistical error of a least-squares sinusoid, plus a 3% allowance for what
+                // the sampling does to a line near or above Nyquist (clock jitter, the
+                // boresight rotation mixing axes), which the statistical part ignores.
+                let noise = ((variance(&resid) * 2.0 / n as f64) + (0.015 * amp).powi(2)).sqrt();
+                let line = &super::stats::SpectralLine { freq_hz: best2.0, ..line.clone() };
+                ch_disc.push(Discrepancy { channel: ch.into(), statistic: format!("spectral line at {:.2} Hz", line.freq_hz), measured: line.power_ratio, simulated_range: sim_range(&sim_lines), detail: format!("lines found in baseline simulations: {:?}", sim_lines) });
+                ch_findings.push(Finding { channel: ch.into(), cause: "vibration".into(), regressors: vec![format!("sinusoid at {:.3} Hz (as sampled)", line.freq_hz)], estimate: json!(amp), ci95: json!(ci(amp, noise)), variance_explained: amp * amp / 2.0 / variance(e) });
+                effects.vibration.push((line.freq_hz, amp));
+            }
+
+            // Shift of the mean.
+            let shift = mean_shift(&resid);
+            let sim_shift: Vec<f64> = sims.iter().map(|s| mean_shift(s).statistic).collect();
+            let range = sim_range(&sim_shift);
+            if shift.statistic > 1.5 * range[1] && shift.statistic > 2.5 {
+                ch_disc.push(Discrepancy { channel: ch.into(), statistic: "CUSUM mean-shift statistic".into(), measured: shift.statistic, simulated_range: range, detail: format!("at epoch {} (t = {:.2} s)", shift.index, signals.t_s[shift.index]) });
+                ch_findings.push(Finding { channel: ch.into(), cause: "bias_shift".into(), regressors: vec![format!("step at t = {:.2} s", signals.t_s[shift.index])], estimate: json!(shift.size), ci95: json!(ci(shift.size, shift.size_std_error)), variance_explained: shift.size.powi(2) * (shift.index as f64 / n as f64) * (1.0 - shift.index as f64 / n as f64) / variance(e) });
+                effects.bias_shift = Some((shift.index, shift.size));
+                for v in resid.iter_mut().skip(shift.index) {
+                    *v -= shift.size;
+                }
+            }
+
+            // Noise growing with the dynamics.
+            if has_dynamics {
+                let window = ((1.0 / dt_s) as usize).max(16);
+                let nd = noise_vs_dynamics(&resid, &omega_norm, window);
+                let sim_t: Vec<f64> = sims.iter().map(|s| noise_vs_dynamics(s, &omega_norm, window).t).collect();
+                let range = sim_range(&sim_t);
+                if nd.t > z_strict.max(range[1] * 1.5) && nd.sigma_per_unit > 0.0 {
+                    ch_disc.push(Discrepancy { channel: ch.into(), statistic: "noise variance vs |omega|^2 (t)".into(), measured: nd.t, simulated_range: range, detail: String::new() });
+                    ch_findings.push(Finding { channel: ch.into(), cause: "noise_scales_with_dynamics".into(), regressors: vec!["|omega| (rad/s)".into()], estimate: json!(nd.sigma_per_unit), ci95: json!(nd.sigma_per_unit_ci95), variance_explained: nd.sigma_per_unit.powi(2) * omega_norm.iter().map(|w| w * w).sum::<f64>() / n as f64 / variance(e) });
+                    effects.dynamic_noise_sigma_per_rad_s = Some(nd.sigma_per_unit);
+                }
+            }
+
+            // Quantization: the raw sensor values on a lattice the baseline does not have.
+            let raw = sensor.channel(ch).unwrap_or(&[]);
+            if let Some((q, q_se)) = lattice_step(raw) {
+                ch_disc.push(Discrepancy { channel: ch.into(), statistic: "raw values on a lattice (LSB)".into(), measured: q, simulated_range: [0.0, 0.0], detail: "baseline simulations are continuous".into() });
+                ch_findings.push(Finding { channel: ch.into(), cause: "quantization".into(), regressors: vec!["lsb".into()], estimate: json!(q), ci95: json!(ci(q, q_se)), variance_explained: q * q / 12.0 / variance(e) });
+            }
+
+            // Wavelet variance of what remains vs the baseline.
+            let measured_wv = log_wv(&resid, dt_s, max_level);
+            let sim_wv: Vec<Vec<f64>> = sims.par_iter().map(|s| log_wv(s, dt_s, max_level)).collect();
+            let (mean, sd) = level_stats(&sim_wv);
+            let z: Vec<f64> = (0..mean.len().min(measured_wv.len())).map(|j| (measured_wv[j] - mean[j]) / sd[j]).collect();
+            let bad: Vec<usize> = (0..z.len()).filter(|&j| z[j].abs() > z_strict.max(4.0)).collect();
+            let mut stochastic = spec.clone();
+            if !bad.is_empty() {
+                for &j in &bad {
+                    ch_disc.push(Discrepancy { channel: ch.into(), statistic: format!("log WV at level {} (scale {:.3} s)", j + 1, dt_s * 2f64.powi(j as i32 + 1)), measured: measured_wv[j], simulated_range: [mean[j] - 3.0 * sd[j], mean[j] + 3.0 * sd[j]], detail: format!("z = {:.1}", z[j]) });
+                }
+                // Refit the baseline's structure on what remains.
+                if let Ok(wv) = haar_wv(&resid, dt_s, &WvOptions::default()) {
+                    if let Ok(input) = FitInput::from_wv(&wv) {
+                        if let Ok(fit) = analyze(ch, &spec.unit, &input, &ModelChoice::Fixed(spec.structure()), None, &FitOptions::default()) {
+                            stochastic = fit.model_object.clone();
+                            let only_small = bad.iter().all(|&j| j < 2);
+                            let cause = if only_small { "white_noise_change" } else { "correlated_noise_change" };
+                            let params: Vec<_> = fit.parameters.iter().filter(|p| if only_small { p.process == "WN" } else { p.process.starts_with("GM") || p.process == "RW" } && p.name != "beta_per_s").collect();
+                            if !params.is_empty() {
+                                ch_findings.push(Finding {
+                                    channel: ch.into(),
+                                    cause: cause.into(),
+                                    regressors: params.iter().map(|p| format!("{} {} ({})", p.process, p.name, p.unit)).collect(),
+                                    estimate: json!(params.iter().map(|p| p.value).collect::<Vec<_>>()),
+                                    ci95: json!(params.iter().map(|p| p.ci95.unwrap_or([f64::NAN, f64::NAN])).collect::<Vec<_>>()),
+                                    variance_explained: f64::NAN,
+                                });
+                            }
+                        }
+                    }
+                }
+            }
+
+            // Gain: WV misfit of the raw error against simulations of each model along the
+            // measured dynamics, in-sample and on the held-out end.
+            let sim_model = |det_coeffs: &[(usize, f64, [f64; 2], f64)], stoch: &ModelSpec, eff: &ChannelEffects, range: std::ops::Range<usize>, icpt: f64, salt: u64| -> Vec<Vec<f64>> {
+                let len = range.len();
+                let d = det(range.clone(), det_coeffs);
+                let om = &omega_norm[range.clone()];
+                (0..opts.replicates.min(16))
+                    .into_par_iter()
+                    .map(|r| {
+                        let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ salt ^ ((ci_idx as u64) << 40) ^ (r as u64) << 8);
+                        let mut x = simulate_channel(stoch, eff, om, dt_s, len, &mut rng);
+                        for (v, dv) in x.iter_mut().zip(&d) {
+                            *v += dv + icpt;
+                        }
+                        log_wv(&x, dt_s, max_level.min(((len as f64).log2() as u32).saturating_sub(2)))
+                    })
+                    .collect()
+            };
+            let max_level_h = max_level.min(((n - split) as f64).log2() as u32).saturating_sub(2);
+            let e_wv = log_wv(e, dt_s, max_level);
+            let base_misfit = wv_misfit(&e_wv, &sim_model(&[], spec, &ChannelEffects::default(), 0..n, 0.0, 11));
+            let ext_misfit = wv_misfit(&e_wv, &sim_model(&coeffs, &stochastic, &effects, 0..n, intercept, 13));
+            // Held out: deterministic coefficients refitted on the first part only.
+            let first: Vec<(usize, f64, [f64; 2], f64)> = if coeffs.is_empty() {
+                Vec::new()
+            } else {
+                let regs: Vec<(&str, &[f64])> = coeffs.iter().map(|(k, ..)| (cands[*k].name.as_str(), &cands[*k].values[..split])).collect();
+                match backward_elimination(&e[..split], &regs, &RegressionOptions { alpha: 1.0, ..Default::default() }) {
+                    Ok(rep) => coeffs.iter().map(|(k, _, c, v)| (*k, rep.coefficient(&cands[*k].name).map_or(0.0, |x| x.estimate), *c, *v)).collect(),
+                    Err(_) => coeffs.clone(),
+                }
+            };
+            let e_tail = &e[split..];
+            let tail_wv = log_wv(e_tail, dt_s, max_level_h);
+            let held_base = wv_misfit(&tail_wv, &sim_model(&[], spec, &ChannelEffects::default(), split..n, 0.0, 17));
+            let held_ext = wv_misfit(&tail_wv, &sim_model(&first, &stochastic, &effects, split..n, intercept, 19));
+            let ve_in = 1.0 - variance(&(0..n).map(|t| e[t] - fitted[t]).collect::<Vec<_>>()) / variance(e);
+            let d_tail = det(split..n, &first);
+            let ve_out = 1.0 - variance(&e_tail.iter().zip(&d_tail).map(|(a, b)| a - b).collect::<Vec<_>>()) / variance(e_tail);
+
+            let mut model = json!({ "stochastic": serde_json::to_value(&stochastic).unwrap_or(Value::Null), "bias": intercept });
+            for (k, b, _, _) in &coeffs {
+                let (field, j) = cands[*k].field;
+                if field == "scale_factor" {
+                    model[field] = json!(b);
+                } else {
+                    if model.get(field).is_none() {
+                        model[field] = json!([0.0, 0.0, 0.0]);
+                    }
+                    model[field][j] = json!(b);
+                }
+            }
+            if let Some(k) = effects.dynamic_noise_sigma_per_rad_s {
+                model["dynamic_noise"] = json!({"driver": "angular_rate_norm", "sigma_per_unit": k});
+            }
+            if !effects.vibration.is_empty() {
+                model["vibration_lines"] = json!(effects.vibration.iter().map(|(f, a)| json!({"frequency_hz": f, "amplitude": a})).collect::<Vec<_>>());
+            }
+            if let Some((p, s)) = effects.outliers {
+                model["outliers"] = json!({"probability": p, "sigma": s});
+            }
+            if let Some(q) = ch_findings.iter().find(|f| f.cause == "quantization").and_then(|f| f.estimate.as_f64()) {
+                model["quantization_step"] = json!(q);
+            }
+            Ok(ChannelResult {
+                findings: ch_findings,
+                discrepancies: ch_disc,
+                gain: Gain { metric: "wv_misfit (mean squared z of log wavelet variance vs model simulations)".into(), baseline: base_misfit, extended: ext_misfit, held_out_baseline: held_base, held_out_extended: held_ext, variance_explained: ve_in, held_out_variance_explained: ve_out },
+                model,
+            })
+        })
+        .collect();
+    let mut gain = BTreeMap::new();
+    let mut channel_models = serde_json::Map::new();
+    for (ch, r) in channels.iter().zip(results) {
+        let r = r?;
+        findings.extend(r.findings);
+        discrepancies.extend(r.discrepancies);
+        gain.insert((*ch).to_string(), r.gain);
+        channel_models.insert((*ch).to_string(), r.model);
+    }
+    let mut imu = json!({ "name": "diagnosed", "rate_hz": 1.0 / dt_s, "channels": channel_models });
+    if let Some(cal) = &calibration {
+        if let Some(l) = cal.lever_arm_m {
+            imu["lever_arm_b_m"] = json!(l.value);
+        }
+        if let Some(t) = cal.time_offset_s {
+            imu["time_offset_s"] = json!(t.value);
+        }
+        let deg = 180.0 / std::f64::consts::PI;
+        let b = cal.boresight_rad.value;
+        imu["boresight_rpy_deg"] = json!([b[0] * deg, b[1] * deg, b[2] * deg]);
+    }
+    for f in findings.iter_mut() {
+        if f.variance_explained.is_nan() {
+            f.variance_explained = 0.0;
+        }
+    }
+    Ok(DiagnoseReport {
+        baseline_source: baseline.source.clone(),
+        calibration,
+        findings,
+        gain,
+        discrepancies,
+        extended_model: json!({ "comment": "extended model written by dynacal diagnose", "imus": [imu] }),
+        notes,
+    })
+}
+
+/// Error signals of static data without a reference: each channel minus its mean, with the
+/// dynamics all zero.
+fn static_signals(sensor: &ImuRecording) -> ErrorSignals {
+    let n = sensor.len();
+    let errors = std::array::from_fn(|i| {
+        sensor.channel(CHANNELS[i]).map(|x| {
+            let m = x.iter().sum::<f64>() / n as f64;
+            x.iter().map(|v| v - m).collect()
+        })
+    });
+    ErrorSignals {
+        t_s: sensor.t_s.clone(),
+        errors,
+        dynamics: std::array::from_fn(|_| vec![0.0; n]),
+        specific_force_b_m_s2: None,
+    }
+}
+
+/// Fits a baseline on the quietest stretch (lowest mean |omega|, a quarter of the run).
+fn fit_quietest(
+    signals: &ErrorSignals,
+    channels: &[&str],
+    omega_norm: &[f64],
+    dt_s: f64,
+) -> Result<Baseline, DiagnoseError> {
+    let n = signals.t_s.len();
+    let w = (n / 4).max(256).min(n);
+    let mut best = (0usize, f64::INFINITY);
+    let step = (w / 8).max(1);
+    let mut start = 0;
+    while start + w <= n {
+        let m = omega_norm[start..start + w].iter().sum::<f64>() / w as f64;
+        if m < best.1 {
+            best = (start, m);
+        }
+        start += step;
+    }
+    let mut out = BTreeMap::new();
+    for ch in channels {
+        let e = &signals.error(ch).expect("channel")[best.0..best.0 + w];
+        let unit = if ch.starts_with('g') {
+            "rad/s"
+        } else {
+            "m/s^2"
+        };
+        let err = |m: String| DiagnoseError::Channel {
+            channel: (*ch).into(),
+            message: m,
+        };
+        let wv = haar_wv(e, dt_s, &WvOptions::default()).map_err(|x| err(x.to_string()))?;
+        let input = FitInput::from_wv(&wv).map_err(|x| err(x.to_string()))?;
+        let fit = analyze(
+            ch,
+            unit,
+            &input,
+            &ModelChoice::Auto,
+            None,
+            &FitOptions::default(),
+        )
+        .map_err(|x| err(x.to_string()))?;
+        out.insert((*ch).to_string(), fit.model_object);
+    }
+    Ok(Baseline {
+        channels: out,
+        source: format!(
+            "fitted (model auto) on the quietest stretch t = {:.1}..{:.1} s (mean |omega| {:.4} rad/s)",
+            signals.t_s[best.0],
+            signals.t_s[best.0 + w - 1],
+            best.1
+        ),
+    })
+}
