@@ -16,7 +16,7 @@ fn plot_err<E: std::fmt::Display>(e: E) -> PlotError {
 }
 
 /// Most points drawn per curve; longer traces are decimated evenly (the SVG stays small).
-const MAX_POINTS: usize = 1500;
+const MAX_POINTS: usize = 600;
 
 const AXIS_COLOURS: [RGBColor; 3] = [RGBColor(200, 30, 30), RGBColor(20, 140, 40), BLUE];
 const AXIS_NAMES: [&str; 3] = ["x", "y", "z"];
