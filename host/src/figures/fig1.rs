@@ -158,7 +158,7 @@ pub fn fig1_model() -> SimModel {
 
 /// Runs the simulator on [`fig1_model`] for the car scenario.
 pub fn simulate_fig1(seconds: f64, seed: u64) -> Result<SimOutput, Fig1Error> {
-    if !(seconds >= 5.0) {
+    if seconds.is_nan() || seconds < 5.0 {
         return Err(Fig1Error::TooShort(seconds));
     }
     let opts = SimOptions {
