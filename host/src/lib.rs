@@ -8,6 +8,7 @@ pub mod decode;
 pub mod diagnose;
 pub mod error_signal;
 pub mod errors;
+pub mod figures;
 pub mod gmwm;
 pub mod import;
 pub mod interchange;

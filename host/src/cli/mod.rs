@@ -34,6 +34,8 @@ pub enum Command {
     Demo(demo::Args),
     /// Haar wavelet variance and Allan variance of each channel, with 95% intervals.
     Wv(wv::Args),
+    /// Paper Fig. 1 on simulated data: boresight and lever-arm estimates of two IMUs (SVG, JSON).
+    Fig1(fig1::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -49,6 +51,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Fit(args) => fit::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Wv(args) => wv::run(args),
+        Command::Fig1(args) => fig1::run(args),
     }
 }
 
@@ -57,6 +60,7 @@ mod decode;
 mod demo;
 mod diagnose;
 mod errors;
+mod fig1;
 mod fit;
 mod import;
 mod info;
