@@ -18,12 +18,13 @@ use dynacal::replay::{
 use dynacal::wv::{haar_wv_counts, WvOptions};
 
 const SECONDS: u32 = 60;
-/// Instructions per sample set the firmware may spend framing and queueing the log
-/// (measured 1214 with the protocol of this commit; the bound leaves room for protocol growth
-/// while catching a regression of about 65%).
-const MAX_RECORD_INSTRUCTIONS_PER_SAMPLE: f64 = 2000.0;
-/// Instructions per sample set for the whole loop, replay decoding included (measured 1423).
-const MAX_TOTAL_INSTRUCTIONS_PER_SAMPLE: f64 = 2500.0;
+/// Instructions per sample set the firmware may spend framing and queueing the log and
+/// accumulating the wavelet variance of the six channels (measured 2927: 1214 for the log
+/// alone, about 285 per channel for `RecorderWv::push`; the bound catches a regression of
+/// about 20%).
+const MAX_RECORD_INSTRUCTIONS_PER_SAMPLE: f64 = 3500.0;
+/// Instructions per sample set for the whole loop, replay decoding included (measured 3130).
+const MAX_TOTAL_INSTRUCTIONS_PER_SAMPLE: f64 = 3750.0;
 
 fn required() -> bool {
     std::env::var_os("CI").is_some() || std::env::var_os("DYNACAL_REQUIRE_QEMU").is_some()
