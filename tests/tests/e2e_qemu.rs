@@ -61,11 +61,12 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
     let report = run.report;
     eprintln!(
         "firmware: {} sample sets, {} frames, {} bytes, {:.1} instructions/sample recording, \
-         {:.1} in total, {:.2} s in QEMU",
+         {:.1} fetching from the source, {:.1} in total, {:.2} s in QEMU",
         report.imu_sample_sets,
         report.frames_written,
         report.bytes_written,
         report.record_instructions_per_sample(),
+        report.source_instructions as f64 / report.imu_sample_sets as f64,
         report.total_instructions_per_sample(),
         run.wall_time.as_secs_f64()
     );
