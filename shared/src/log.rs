@@ -81,8 +81,13 @@ pub type LogAccumulator = FrameAccumulator<MAX_FRAME_LEN>;
 /// frame's leading tag, so existing variants must never be reordered, removed or changed.
 /// New kinds are appended at the end, their size added to [`MAX_POSTCARD_LEN`], and their
 /// kind named in [`Frame::kind_name`].
+///
+/// A `Frame` is as large as its largest variant (a 32-level [`WvFrame`], about 1.5 KiB): the
+/// no-alloc core cannot box it, and frames are built one at a time and passed by reference,
+/// so the size costs stack once, not per frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[non_exhaustive]
+#[allow(clippy::large_enum_variant)]
 pub enum Frame {
     /// Tag 0: what the log holds; written first and may be repeated.
     Header(Header),
