@@ -12,6 +12,12 @@
 //! (`imu_samples_before_header`, `imu_samples_unknown_imu`); samples whose time does not
 //! increase on their IMU (a duplicated or reordered stretch) are dropped and counted per IMU
 //! (`samples_out_of_order`), because recordings need strictly increasing time.
+//!
+//! WaveletVariance frames (the board's streaming wavelet-variance snapshots) are kept in log
+//! order; [`DecodedLog::latest_wavelet_variance`] picks the newest per IMU and channel and
+//! [`DecodedLog::wavelet_variance_si`] converts them with the header's scale factors. Frames
+//! for an IMU the header does not list, or a channel outside 0..=5, are counted and dropped
+//! like IMU samples (`wv_frames_unknown`).
 
 use std::collections::BTreeMap;
 use std::io::{self, Read};
@@ -19,11 +25,12 @@ use std::path::{Path, PathBuf};
 
 use dynacal_core::log::{
     FilterState, Frame, GnssFix, Header, Health, ImuConfig, LogAccumulator, LogError, PpsEvent,
-    StreamStats, PROTOCOL_VERSION,
+    StreamStats, WvFrame, PROTOCOL_VERSION,
 };
 use serde::Serialize;
 
 use crate::interchange::ImuRecording;
+use crate::wv::WaveletVariance;
 
 /// Why a log cannot be read or used.
 #[derive(Debug, thiserror::Error)]
@@ -171,6 +178,32 @@ pub struct DecodedLog {
     pub gnss: Vec<GnssFix>,
     pub filter: Vec<FilterState>,
     pub health: Vec<Health>,
+    /// WaveletVariance frames of IMUs and channels the header lists, in log order.
+    pub wavelet_variance: Vec<WvFrame>,
+    /// WaveletVariance frames before the first header, for an IMU id the header does not
+    /// list, or with a channel outside 0..=5 (dropped).
+    pub wv_frames_unknown: u64,
+}
+
+/// The newest wavelet-variance snapshot of one IMU channel, in SI units.
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct ChannelWv {
+    pub imu_id: u8,
+    /// Channel index, 0..=5.
+    pub channel: u8,
+    /// Channel name (`gx gy gz ax ay az`).
+    pub name: &'static str,
+    /// Time of the last sample in the snapshot, microseconds.
+    pub t_us: u64,
+    /// Samples accumulated.
+    pub n_samples: u64,
+    /// Number of full (overlapping) levels; the following ones are decimated.
+    pub full_levels: u8,
+    /// The wavelet variance in (rad/s)^2 or (m/s^2)^2; None when the snapshot cannot be
+    /// used (see `error`).
+    pub wv: Option<WaveletVariance>,
+    /// Why the snapshot cannot be used (a saturated level, levels out of order, a bad rate).
+    pub error: Option<String>,
 }
 
 /// A short snake_case name of an error, as counted in [`DecodedLog::dropped_by_error`].
@@ -281,11 +314,68 @@ impl DecodedLog {
             Frame::Gnss(fix) => self.gnss.push(fix),
             Frame::Filter(state) => self.filter.push(state),
             Frame::Health(health) => self.health.push(health),
+            Frame::WaveletVariance(wv) => {
+                let known = self.header.is_some()
+                    && usize::from(wv.channel) < WvFrame::CHANNELS.len()
+                    && self.imus.iter().any(|s| s.config.imu_id == wv.imu_id);
+                if known {
+                    self.wavelet_variance.push(wv);
+                } else {
+                    self.wv_frames_unknown += 1;
+                }
+            }
             // Kinds appended to the protocol after this decoder was written are counted
             // above and otherwise kept by nobody yet.
             #[allow(unreachable_patterns)]
             _ => {}
         }
+    }
+
+    /// The last WaveletVariance frame of each (IMU id, channel).
+    pub fn latest_wavelet_variance(&self) -> BTreeMap<(u8, u8), &WvFrame> {
+        let mut latest = BTreeMap::new();
+        for frame in &self.wavelet_variance {
+            latest.insert((frame.imu_id, frame.channel), frame);
+        }
+        latest
+    }
+
+    /// The latest snapshot of each IMU channel in SI units, IMUs in header order and channels
+    /// in `gx gy gz ax ay az` order: variance scaled by the header's gyro or accelerometer
+    /// scale factor squared, scales from the IMU's configured sample rate.
+    pub fn wavelet_variance_si(&self) -> Vec<ChannelWv> {
+        let latest = self.latest_wavelet_variance();
+        let mut out = Vec::new();
+        for imu in &self.imus {
+            let config = &imu.config;
+            for channel in 0..WvFrame::CHANNELS.len() as u8 {
+                let Some(frame) = latest.get(&(config.imu_id, channel)) else {
+                    continue;
+                };
+                let lsb = if channel < 3 {
+                    config.gyro_scale_rad_s_per_count
+                } else {
+                    config.accel_scale_m_s2_per_count
+                };
+                let dt_s = 1.0 / f64::from(config.sample_rate_hz);
+                let (wv, error) =
+                    match WaveletVariance::from_stream_snapshot(&frame.snapshot, lsb, dt_s) {
+                        Ok(wv) => (Some(wv), None),
+                        Err(e) => (None, Some(e.to_string())),
+                    };
+                out.push(ChannelWv {
+                    imu_id: config.imu_id,
+                    channel,
+                    name: WvFrame::CHANNELS[usize::from(channel)],
+                    t_us: frame.t_us,
+                    n_samples: frame.snapshot.n_samples,
+                    full_levels: frame.snapshot.full_levels,
+                    wv,
+                    error,
+                });
+            }
+        }
+        out
     }
 
     /// Frames decoded, all kinds.
@@ -369,6 +459,8 @@ impl DecodedLog {
             gnss_fixes: self.gnss.len() as u64,
             filter_states: self.filter.len() as u64,
             health_reports: self.health.len() as u64,
+            wavelet_variance_frames: self.wavelet_variance.len() as u64,
+            wv_frames_unknown: self.wv_frames_unknown,
         }
     }
 }
@@ -402,6 +494,10 @@ pub struct LogSummary {
     pub gnss_fixes: u64,
     pub filter_states: u64,
     pub health_reports: u64,
+    /// WaveletVariance frames kept (the latest per IMU channel goes to `wv.json`).
+    pub wavelet_variance_frames: u64,
+    /// WaveletVariance frames dropped (no header yet, unknown IMU id or channel).
+    pub wv_frames_unknown: u64,
 }
 
 /// Per-IMU part of [`LogSummary`].

@@ -139,3 +139,128 @@ fn decode_fails_without_header_or_frames_and_writes_nothing() {
     assert!(!result.status.success());
     assert!(String::from_utf8_lossy(&result.stderr).contains("missing.log"));
 }
+
+#[test]
+fn decode_writes_the_latest_wavelet_variance_of_each_channel_in_si() {
+    use dynacal::wv::{haar_wv_counts, WvOptions};
+    use dynacal_core::log::{ImuSampleSet, WvFrame};
+    use dynacal_core::recorder::RecorderWv;
+
+    let header = common::header();
+    let imu0 = &header.imus[0];
+    let mut frames = vec![Frame::Header(header.clone())];
+    let mut streams: [RecorderWv; 6] = std::array::from_fn(|_| RecorderWv::new());
+    let mut counts: [Vec<i32>; 6] = Default::default();
+    let snapshot_round = |streams: &[RecorderWv; 6], t_us: u64| -> Vec<Frame> {
+        (0..6u8)
+            .map(|channel| {
+                Frame::WaveletVariance(WvFrame {
+                    t_us,
+                    imu_id: 0,
+                    channel,
+                    snapshot: streams[channel as usize].snapshot(),
+                })
+            })
+            .collect()
+    };
+    let n = 3000u64;
+    for k in 0..n {
+        // Deterministic, non-trivial counts: a slow ramp plus a pseudo-random walk.
+        let c = |ch: u64| ((k * (7919 + 13 * ch)) % 601) as i32 - 300 + (k / 7) as i32;
+        let sample = ImuSampleSet {
+            t_us: common::T0_US + k * 5_000,
+            imu_id: 0,
+            gyro_counts: [c(0), c(1), c(2)],
+            accel_counts: [c(3), c(4), c(5)],
+        };
+        for (ch, &v) in sample
+            .gyro_counts
+            .iter()
+            .chain(&sample.accel_counts)
+            .enumerate()
+        {
+            streams[ch].push(v);
+            counts[ch].push(v);
+        }
+        frames.push(Frame::Imu(sample));
+        if k == n / 2 {
+            // An earlier round: superseded by the last one.
+            frames.extend(snapshot_round(&streams, sample.t_us));
+        }
+    }
+    let t_last = common::T0_US + (n - 1) * 5_000;
+    let mut last_round = snapshot_round(&streams, t_last);
+    // A saturated level makes that channel's snapshot unusable; it is reported, not fatal.
+    if let Frame::WaveletVariance(wv) = &mut last_round[5] {
+        wv.snapshot.levels[2].saturated = true;
+    }
+    frames.extend(last_round);
+    // A snapshot for an IMU the header does not list is counted and dropped.
+    frames.push(Frame::WaveletVariance(WvFrame {
+        t_us: t_last,
+        imu_id: 9,
+        channel: 0,
+        snapshot: streams[0].snapshot(),
+    }));
+
+    let dir = tempfile::tempdir().unwrap();
+    let log = dir.path().join("wv.log");
+    std::fs::write(&log, encode_log(&frames).unwrap()).unwrap();
+    let out = dir.path().join("decoded");
+    let result = decode(&log, &out);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+    let summary: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(summary["frames_decoded"]["wavelet_variance"], 13);
+    assert_eq!(summary["wavelet_variance_frames"], 12);
+    assert_eq!(summary["wv_frames_unknown"], 1);
+
+    let wv: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("wv.json")).unwrap()).unwrap();
+    let channels = wv.as_array().unwrap();
+    assert_eq!(channels.len(), 6);
+    let dt_s = 1.0 / f64::from(imu0.sample_rate_hz);
+    for (ch, entry) in channels.iter().enumerate() {
+        assert_eq!(entry["imu_id"], 0);
+        assert_eq!(entry["channel"], ch);
+        assert_eq!(entry["name"], ["gx", "gy", "gz", "ax", "ay", "az"][ch]);
+        assert_eq!(entry["t_us"], t_last);
+        assert_eq!(entry["n_samples"], n);
+        if ch == 5 {
+            assert!(entry["wv"].is_null());
+            assert!(entry["error"].as_str().unwrap().contains("saturated"));
+            continue;
+        }
+        assert!(entry["error"].is_null());
+        let lsb = if ch < 3 {
+            imu0.gyro_scale_rad_s_per_count
+        } else {
+            imu0.accel_scale_m_s2_per_count
+        };
+        let batch = haar_wv_counts(&counts[ch], lsb, dt_s, &WvOptions::default()).unwrap();
+        let got = &entry["wv"];
+        assert_eq!(got["scales_s"][0].as_f64().unwrap(), 2.0 * dt_s);
+        // Full levels 1..=4: the batch estimator's sums, scaled by the channel's lsb^2.
+        for level in 0..4 {
+            let b = got["variance"][level].as_f64().unwrap();
+            let h = batch.variance[level];
+            assert!(
+                ((b - h) / h).abs() <= 1e-12,
+                "channel {ch} level {}: {b:e} vs {h:e}",
+                level + 1
+            );
+        }
+        // Decimated levels up to 2 x 2^(j-1) <= 3000 samples: level 11.
+        assert_eq!(got["levels"].as_array().unwrap().len(), 11);
+    }
+    let mut names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(names, ["imu0.csv", "summary.json", "wv.json"]);
+}

@@ -15,6 +15,8 @@ use core::fmt;
 
 use serde::{Deserialize, Serialize};
 
+use crate::wavelet::{WvSnapshot, SNAPSHOT_MAX_ENCODED_LEN};
+
 /// Version of this wire format, written in [`Header::protocol_version`]. Bump it when a
 /// frame's field layout changes; appending a new [`Frame`] variant or a new health flag does
 /// not change existing frames and needs no bump (readers count unknown kinds as dropped).
@@ -41,6 +43,7 @@ pub const MAX_POSTCARD_LEN: usize = 1 + max_of(&[
     GnssFix::MAX_POSTCARD_LEN,
     FilterState::MAX_POSTCARD_LEN,
     Health::MAX_POSTCARD_LEN,
+    WvFrame::MAX_POSTCARD_LEN,
 ]);
 
 /// Largest COBS-decoded frame (postcard bytes + CRC), bytes.
@@ -48,7 +51,26 @@ pub const MAX_DECODED_LEN: usize = MAX_POSTCARD_LEN + CRC_LEN;
 
 /// Largest complete frame on the wire: COBS overhead and the 0x00 delimiter included.
 /// Size transmit buffers with this; a [`FrameAccumulator`] needs `MAX_FRAME_LEN - 1`.
+///
+/// Since tag 6 this is the worst-case [`WvFrame`] (32 levels of maximal varints, 1059 bytes);
+/// every other kind fits in [`MAX_REGULAR_FRAME_LEN`]. One bound for all kinds on purpose: a
+/// reader sized for regular frames only would drop every snapshot as `FrameTooLong`, and the
+/// board holds a single frame buffer, so the extra 0.9 KiB is a small share of the
+/// STM32F405's 128 KiB (see `docs/log-format.md`).
 pub const MAX_FRAME_LEN: usize = cobs::max_encoding_length(MAX_DECODED_LEN) + 1;
+
+/// Largest wire frame of the kinds other than [`Frame::WaveletVariance`] (a header with three
+/// IMUs and full-length strings), delimiter included.
+pub const MAX_REGULAR_FRAME_LEN: usize = cobs::max_encoding_length(
+    1 + max_of(&[
+        Header::MAX_POSTCARD_LEN,
+        ImuSampleSet::MAX_POSTCARD_LEN,
+        PpsEvent::MAX_POSTCARD_LEN,
+        GnssFix::MAX_POSTCARD_LEN,
+        FilterState::MAX_POSTCARD_LEN,
+        Health::MAX_POSTCARD_LEN,
+    ]) + CRC_LEN,
+) + 1;
 
 /// An accumulator large enough for every frame of this protocol.
 pub type LogAccumulator = FrameAccumulator<MAX_FRAME_LEN>;
@@ -57,10 +79,15 @@ pub type LogAccumulator = FrameAccumulator<MAX_FRAME_LEN>;
 ///
 /// Append-only: postcard writes the variant index (0 for `Header`, 1 for `Imu`, ...) as the
 /// frame's leading tag, so existing variants must never be reordered, removed or changed.
-/// New kinds (for example a wavelet-variance snapshot) are appended at the end, their size
-/// added to [`MAX_POSTCARD_LEN`], and their kind named in [`Frame::kind_name`].
+/// New kinds are appended at the end, their size added to [`MAX_POSTCARD_LEN`], and their
+/// kind named in [`Frame::kind_name`].
+///
+/// A `Frame` is as large as its largest variant (a 32-level [`WvFrame`], about 1.5 KiB): the
+/// no-alloc core cannot box it, and frames are built one at a time and passed by reference,
+/// so the size costs stack once, not per frame.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[non_exhaustive]
+#[allow(clippy::large_enum_variant)]
 pub enum Frame {
     /// Tag 0: what the log holds; written first and may be repeated.
     Header(Header),
@@ -74,11 +101,13 @@ pub enum Frame {
     Filter(FilterState),
     /// Tag 5: board health counters.
     Health(Health),
+    /// Tag 6: the streaming Haar wavelet-variance sums of one IMU channel.
+    WaveletVariance(WvFrame),
 }
 
 /// Number of [`Frame`] variants this build knows; tags at or above it are reported as
 /// [`LogError::UnknownKind`].
-pub const FRAME_KINDS: u32 = 6;
+pub const FRAME_KINDS: u32 = 7;
 
 impl Frame {
     /// The postcard tag (variant index) of this frame.
@@ -90,6 +119,7 @@ impl Frame {
             Frame::Gnss(_) => 3,
             Frame::Filter(_) => 4,
             Frame::Health(_) => 5,
+            Frame::WaveletVariance(_) => 6,
         }
     }
 
@@ -102,6 +132,7 @@ impl Frame {
             Frame::Gnss(_) => "gnss",
             Frame::Filter(_) => "filter",
             Frame::Health(_) => "health",
+            Frame::WaveletVariance(_) => "wavelet_variance",
         }
     }
 
@@ -114,6 +145,7 @@ impl Frame {
             Frame::Gnss(f) => Some(f.t_us),
             Frame::Filter(f) => Some(f.t_us),
             Frame::Health(f) => Some(f.t_us),
+            Frame::WaveletVariance(f) => Some(f.t_us),
         }
     }
 }
@@ -254,6 +286,25 @@ impl Health {
     pub const FLAG_LOG_BACKPRESSURE: u32 = 1 << 4;
 }
 
+/// A snapshot of the board's streaming Haar wavelet variance of one IMU channel
+/// ([`crate::wavelet::HaarStream`] over the raw counts since the start of the run).
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize)]
+pub struct WvFrame {
+    /// Time of the last sample included, log timescale, microseconds.
+    pub t_us: u64,
+    /// The IMU whose counts were accumulated.
+    pub imu_id: u8,
+    /// The channel: 0..=5 = gyro x, y, z, accelerometer x, y, z (see [`WvFrame::CHANNELS`]).
+    pub channel: u8,
+    /// The accumulated sums, in counts^2 (scale with the header's scale factor squared).
+    pub snapshot: WvSnapshot,
+}
+
+impl WvFrame {
+    /// Channel names by `channel` index.
+    pub const CHANNELS: [&'static str; 6] = ["gx", "gy", "gz", "ax", "ay", "az"];
+}
+
 // Postcard's `MaxSize` derive does not cover heapless 0.9 containers, so the largest
 // encodings are written out here; `max_sizes_are_attained_exactly` checks each against the
 // encoding of a worst-case value.
@@ -315,6 +366,11 @@ impl Health {
     /// Largest postcard encoding (without the frame tag), bytes.
     pub const MAX_POSTCARD_LEN: usize =
         VARINT_U64_MAX + 3 * VARINT_U32_MAX + VARINT_U16_MAX + MAX_IMUS * 4;
+}
+
+impl WvFrame {
+    /// Largest postcard encoding (without the frame tag), bytes.
+    pub const MAX_POSTCARD_LEN: usize = VARINT_U64_MAX + 1 + 1 + SNAPSHOT_MAX_ENCODED_LEN;
 }
 
 /// Why a frame could not be encoded or decoded.
@@ -660,6 +716,7 @@ impl<const N: usize> Iterator for Feed<'_, N> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::wavelet::{LevelSums, MAX_SNAPSHOT_LEVELS};
     use proptest::prelude::*;
 
     fn encode(frame: &Frame) -> std::vec::Vec<u8> {
@@ -745,6 +802,33 @@ mod tests {
         })
     }
 
+    fn wv_example() -> Frame {
+        let levels = [
+            (1, 0, 5999, 123_456_789u128, false),
+            (2, 1, 2999, (1u128 << 70) + 5, false),
+            (3, 2, 0, 0, false),
+        ]
+        .into_iter()
+        .map(|(level, stride_log2, count, sum_sq, saturated)| LevelSums {
+            level,
+            stride_log2,
+            count,
+            sum_sq,
+            saturated,
+        })
+        .collect();
+        Frame::WaveletVariance(WvFrame {
+            t_us: 59_990_000,
+            imu_id: 0,
+            channel: 2,
+            snapshot: WvSnapshot {
+                n_samples: 6000,
+                full_levels: 1,
+                levels,
+            },
+        })
+    }
+
     /// Decodes one wire frame (delimiter included).
     fn decode_bytes(wire: &[u8]) -> Result<Frame, LogError> {
         let (last, body) = wire.split_last().unwrap();
@@ -765,6 +849,7 @@ mod tests {
             gnss_example(),
             filter_example(),
             health_example(),
+            wv_example(),
         ]
     }
 
@@ -839,6 +924,21 @@ mod tests {
         assert_eq!(encode(&health_example()), expected);
         // NaN != NaN, so compare the decoded frame bit for bit through its encoding.
         assert_eq!(encode(&decode_bytes(expected).unwrap()), expected);
+    }
+
+    #[test]
+    fn wavelet_variance_encodes_to_exact_bytes() {
+        // postcard: 06 | t_us f0 bf cd 1c | imu 00 | channel 02 | n_samples f0 2e | full 01 |
+        // 3 levels 03 | 01 00 ef2e 959aef3a 00 | 02 01 b717 85 80x8 01 00 (2^70 + 5) |
+        // 03 02 00 00 00; CRC 0x57692293.
+        let expected: &[u8] = &[
+            0x06, 0x06, 0xF0, 0xBF, 0xCD, 0x1C, 0x07, 0x02, 0xF0, 0x2E, 0x01, 0x03, 0x01, 0x07,
+            0xEF, 0x2E, 0x95, 0x9A, 0xEF, 0x3A, 0x10, 0x02, 0x01, 0xB7, 0x17, 0x85, 0x80, 0x80,
+            0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x80, 0x01, 0x03, 0x03, 0x02, 0x01, 0x01, 0x05,
+            0x93, 0x22, 0x69, 0x57, 0x00,
+        ];
+        assert_eq!(encode(&wv_example()), expected);
+        assert_eq!(decode_bytes(expected), Ok(wv_example()));
     }
 
     #[test]
@@ -928,6 +1028,24 @@ mod tests {
                 cpu_load_permille: u16::MAX,
                 imu_temperature_deg_c: [f; MAX_IMUS],
             }),
+            Frame::WaveletVariance(WvFrame {
+                t_us: u64::MAX,
+                imu_id: 0xFF,
+                channel: 0xFF,
+                snapshot: WvSnapshot {
+                    n_samples: u64::MAX,
+                    full_levels: 0xFF,
+                    levels: (0..MAX_SNAPSHOT_LEVELS)
+                        .map(|_| LevelSums {
+                            level: 0xFF,
+                            stride_log2: 0xFF,
+                            count: u64::MAX,
+                            sum_sq: u128::MAX,
+                            saturated: true,
+                        })
+                        .collect(),
+                },
+            }),
         ]
     }
 
@@ -940,8 +1058,10 @@ mod tests {
             GnssFix::MAX_POSTCARD_LEN,
             FilterState::MAX_POSTCARD_LEN,
             Health::MAX_POSTCARD_LEN,
+            WvFrame::MAX_POSTCARD_LEN,
         ];
         let mut largest_wire = 0;
+        let mut largest_regular_wire = 0;
         for (frame, max) in worst_case_frames().iter().zip(kind_max) {
             let postcard = postcard_bytes(frame);
             assert_eq!(postcard.len(), 1 + max, "{}", frame.kind_name());
@@ -955,12 +1075,17 @@ mod tests {
             let wire = encode(frame);
             assert!(wire.len() <= MAX_FRAME_LEN, "{}", frame.kind_name());
             largest_wire = largest_wire.max(wire.len());
+            if !matches!(frame, Frame::WaveletVariance(_)) {
+                largest_regular_wire = largest_regular_wire.max(wire.len());
+            }
             assert_eq!(encode(&decode_bytes(&wire).unwrap()), wire);
         }
         // The bound is tight: the largest frame uses all of it.
         assert_eq!(largest_wire, MAX_FRAME_LEN);
-        // The figure quoted in docs/log-format.md.
-        assert_eq!(MAX_FRAME_LEN, 158);
+        assert_eq!(largest_regular_wire, MAX_REGULAR_FRAME_LEN);
+        // The figures quoted in docs/log-format.md.
+        assert_eq!(MAX_FRAME_LEN, 1059);
+        assert_eq!(MAX_REGULAR_FRAME_LEN, 158);
     }
 
     #[test]
@@ -1240,6 +1365,38 @@ mod tests {
                     imu_temperature_deg_c: temp,
                 })
             ),
+            (
+                any::<(u64, u8, u8, u64, u8)>(),
+                proptest::collection::vec(
+                    any::<(u8, u8, u64, u128, bool)>(),
+                    0..=MAX_SNAPSHOT_LEVELS
+                )
+            )
+                .prop_map(
+                    |((t_us, imu_id, channel, n_samples, full_levels), levels)| {
+                        Frame::WaveletVariance(WvFrame {
+                            t_us,
+                            imu_id,
+                            channel,
+                            snapshot: WvSnapshot {
+                                n_samples,
+                                full_levels,
+                                levels: levels
+                                    .into_iter()
+                                    .map(|(level, stride_log2, count, sum_sq, saturated)| {
+                                        LevelSums {
+                                            level,
+                                            stride_log2,
+                                            count,
+                                            sum_sq,
+                                            saturated,
+                                        }
+                                    })
+                                    .collect(),
+                            },
+                        })
+                    }
+                ),
         ]
     }
 

@@ -8,10 +8,26 @@
 //! as it arrives (an `Imu` or `Pps` frame), a `Health` frame each time log time crosses a
 //! whole [`Recorder::health_period_us`] after the first event, and a last `Health` frame when
 //! the source ends.
+//!
+//! Each IMU's six channels (gyro x y z, accelerometer x y z, raw counts) also feed a streaming
+//! Haar wavelet-variance accumulator ([`RecorderWv`]); their snapshots go out as one
+//! `WaveletVariance` frame per declared IMU and channel each time log time crosses a whole
+//! [`Recorder::wv_period_us`] after the first event, and once more when the source ends.
 
 use crate::log::{
-    encode_frame, Frame, Header, Health, ImuSampleSet, LogError, PpsEvent, MAX_FRAME_LEN, MAX_IMUS,
+    encode_frame, Frame, Header, Health, ImuSampleSet, LogError, PpsEvent, WvFrame, MAX_FRAME_LEN,
+    MAX_IMUS,
 };
+use crate::wavelet::HaarStream;
+
+/// The recorder's wavelet-variance accumulator of one channel: 4 full (overlapping) levels
+/// from a 16-sample ring, then 16 decimated levels, i.e. levels 1..=20 (up to 2^20 samples,
+/// 87 min at 200 Hz). Depths are small because the board keeps 3 IMUs x 6 channels of them:
+/// about 1.2 KiB each, 21 KiB in all, and the cost per sample grows with the full levels.
+pub type RecorderWv = HaarStream<4, 16, 16>;
+
+/// Channels accumulated per IMU, in [`WvFrame::CHANNELS`] order.
+const WV_CHANNELS: usize = 6;
 
 /// One event from the sensors, stamped on the log timescale.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -83,6 +99,8 @@ pub struct RecorderStats {
     pub pps_edges: u64,
     /// Health frames produced (written or dropped).
     pub health_reports: u64,
+    /// WaveletVariance frames produced (written or dropped).
+    pub wv_frames: u64,
     /// Frames the sink took.
     pub frames_written: u64,
     /// Bytes of the frames the sink took.
@@ -126,6 +144,9 @@ pub struct Recorder {
     pub health_period_us: u64,
     /// A PPS edge seen within this long before a health report sets `FLAG_PPS_LOCKED`.
     pub pps_lock_window_us: u64,
+    /// Log time between two periodic rounds of WaveletVariance frames, microseconds (a live
+    /// board never reaches the end-of-run round).
+    pub wv_period_us: u64,
 }
 
 impl Recorder {
@@ -135,6 +156,7 @@ impl Recorder {
             header,
             health_period_us: 1_000_000,
             pps_lock_window_us: 2_000_000,
+            wv_period_us: 60_000_000,
         }
     }
 
@@ -155,6 +177,8 @@ impl Recorder {
             stats: RecorderStats::default(),
             frame_buf: [0u8; MAX_FRAME_LEN],
             sink,
+            wv: [const { [const { RecorderWv::new() }; WV_CHANNELS] }; MAX_IMUS],
+            wv_last_t_us: [0; MAX_IMUS],
         };
         let start = clock.now_ticks();
         run.emit(&Frame::Header(self.header.clone()))?;
@@ -162,6 +186,7 @@ impl Recorder {
 
         let mut previous_t_us: Option<u64> = None;
         let mut next_health_t_us: Option<u64> = None;
+        let mut next_wv_t_us: Option<u64> = None;
         let mut last_pps_t_us: Option<u64> = None;
         let mut dropped_at_last_health = 0u32;
         let mut ticks_at_last_health = start;
@@ -209,6 +234,13 @@ impl Recorder {
                 next_health_t_us =
                     Some(due.saturating_add(periods_late * self.health_period_us.max(1)));
             }
+            let wv_period_us = self.wv_period_us.max(1);
+            let wv_due = *next_wv_t_us.get_or_insert(t_us.saturating_add(wv_period_us));
+            if t_us >= wv_due {
+                run.emit_wv(&self.header)?;
+                let periods_late = (t_us - wv_due) / wv_period_us + 1;
+                next_wv_t_us = Some(wv_due.saturating_add(periods_late * wv_period_us));
+            }
 
             match event {
                 SourceEvent::Imu(sample) => {
@@ -225,6 +257,15 @@ impl Recorder {
                     };
                     run.emit(&Frame::Imu(sample))?;
                     run.stats.imu_sample_sets[index] += 1;
+                    if let Some(channels) = run.wv.get_mut(index) {
+                        let counts = sample.gyro_counts.iter().chain(&sample.accel_counts);
+                        for (stream, &c) in channels.iter_mut().zip(counts) {
+                            stream.push(c);
+                        }
+                    }
+                    if let Some(last) = run.wv_last_t_us.get_mut(index) {
+                        *last = sample.t_us;
+                    }
                 }
                 SourceEvent::Pps(pps) => {
                     run.emit(&Frame::Pps(pps))?;
@@ -236,6 +277,7 @@ impl Recorder {
         }
 
         let final_start = clock.now_ticks();
+        run.emit_wv(&self.header)?;
         let health = self.health(
             previous_t_us.unwrap_or(0),
             source,
@@ -300,9 +342,36 @@ struct Run<'a, K> {
     stats: RecorderStats,
     frame_buf: [u8; MAX_FRAME_LEN],
     sink: &'a mut K,
+    /// Wavelet-variance accumulators per IMU (header order) and channel.
+    wv: [[RecorderWv; WV_CHANNELS]; MAX_IMUS],
+    /// Time of the last sample accumulated per IMU, microseconds.
+    wv_last_t_us: [u64; MAX_IMUS],
 }
 
 impl<K: LogSink> Run<'_, K> {
+    /// One WaveletVariance frame per declared IMU and channel.
+    fn emit_wv<S>(&mut self, header: &Header) -> Result<(), RecorderError<S, K::Error>> {
+        for (index, imu) in header.imus.iter().enumerate() {
+            let Some(&t_us) = self.wv_last_t_us.get(index) else {
+                continue;
+            };
+            for channel in 0..WV_CHANNELS {
+                let Some(stream) = self.wv.get(index).and_then(|c| c.get(channel)) else {
+                    continue;
+                };
+                let frame = Frame::WaveletVariance(WvFrame {
+                    t_us,
+                    imu_id: imu.imu_id,
+                    channel: channel as u8,
+                    snapshot: stream.snapshot(),
+                });
+                self.emit(&frame)?;
+                self.stats.wv_frames += 1;
+            }
+        }
+        Ok(())
+    }
+
     fn emit<S>(&mut self, frame: &Frame) -> Result<(), RecorderError<S, K::Error>> {
         let len = encode_frame(frame, &mut self.frame_buf).map_err(RecorderError::Encode)?;
         let bytes = self
@@ -429,6 +498,7 @@ mod tests {
             .unwrap();
         assert!(sink.flushed);
         assert_eq!(stats.imu_sample_sets[..2], [250, 250]);
+        assert_eq!(stats.wv_frames, 12);
         assert_eq!(stats.pps_edges, 3);
         assert_eq!(stats.frames_dropped, 0);
         assert_eq!(stats.bytes_written, sink.bytes.len() as u64);
@@ -484,14 +554,87 @@ mod tests {
         let frames = decode(&sink.bytes);
         let written = frames.len() as u64;
         assert_eq!(stats.frames_written, written);
-        // 300 samples + header + health at 1 s and 2 s + final health.
-        assert_eq!(written + stats.frames_dropped as u64, 300 + 1 + 3);
+        // 300 samples + header + health at 1 s and 2 s + final health + 6 WV frames.
+        assert_eq!(written + stats.frames_dropped as u64, 300 + 1 + 3 + 6);
         assert!(stats.frames_dropped > 250);
         // No PPS was ever seen: not locked.
         assert!(frames
             .iter()
             .all(|f| !matches!(f, Frame::Health(h) if h.flags & Health::FLAG_PPS_LOCKED != 0)));
         assert!(matches!(frames.last(), Some(Frame::Imu(_))));
+    }
+
+    #[test]
+    fn wavelet_variance_snapshots_match_direct_accumulation_periodically_and_at_the_end() {
+        // Two IMUs at 100 Hz for 25 s; snapshots every 10 s (at 10 s and 20 s) and at the end.
+        let events: std::vec::Vec<_> = (0..2500u64)
+            .flat_map(|k| {
+                let c = ((k * 7919) % 263) as i32 - 131;
+                [imu(k * 10_000, 4, c), imu(k * 10_000 + 3, 7, -3 * c + 5)]
+            })
+            .collect();
+        let mut recorder = Recorder::new(header(&[4, 7]));
+        recorder.wv_period_us = 10_000_000;
+        let mut sink = BoundedSink {
+            bytes: std::vec::Vec::new(),
+            capacity: usize::MAX,
+            flushed: false,
+        };
+        let stats = recorder
+            .run(
+                &mut VecSource(events.clone().into_iter()),
+                &mut sink,
+                &mut StepClock(0),
+            )
+            .unwrap();
+        assert_eq!(stats.wv_frames, 3 * 2 * 6);
+        let frames = decode(&sink.bytes);
+        // Replays the log: each WV frame must equal an accumulator fed the samples of its
+        // IMU logged before it.
+        let mut direct: std::vec::Vec<[RecorderWv; 6]> = std::vec![
+            core::array::from_fn(|_| RecorderWv::new()),
+            core::array::from_fn(|_| RecorderWv::new())
+        ];
+        let mut last_t_us = [0u64; 2];
+        let mut seen = std::vec::Vec::new();
+        for frame in &frames {
+            match frame {
+                Frame::Imu(s) => {
+                    let i = if s.imu_id == 4 { 0 } else { 1 };
+                    for (ch, &c) in s.gyro_counts.iter().chain(&s.accel_counts).enumerate() {
+                        direct[i][ch].push(c);
+                    }
+                    last_t_us[i] = s.t_us;
+                }
+                Frame::WaveletVariance(wv) => {
+                    let i = if wv.imu_id == 4 { 0 } else { 1 };
+                    assert_eq!(wv.snapshot, direct[i][wv.channel as usize].snapshot());
+                    assert_eq!(wv.t_us, last_t_us[i]);
+                    assert_eq!(wv.snapshot.levels.len(), 20);
+                    seen.push((wv.imu_id, wv.channel, wv.snapshot.n_samples));
+                }
+                _ => {}
+            }
+        }
+        let mut expected = std::vec::Vec::new();
+        // The round at 10 s comes before the 10 s sample of IMU 4 (1000 samples each); the
+        // one at 20 s likewise; the last after all 2500.
+        for n in [1000u64, 2000, 2500] {
+            for imu_id in [4u8, 7] {
+                for channel in 0..6u8 {
+                    expected.push((imu_id, channel, n));
+                }
+            }
+        }
+        assert_eq!(seen, expected);
+        // The accumulated sums are not trivially zero.
+        assert!(direct[1][0].level(3).unwrap().sum_sq > 0);
+        // The final round comes just before the final health report.
+        assert!(matches!(frames[frames.len() - 1], Frame::Health(_)));
+        assert!(matches!(
+            frames[frames.len() - 2],
+            Frame::WaveletVariance(_)
+        ));
     }
 
     #[test]

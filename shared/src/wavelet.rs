@@ -55,8 +55,14 @@ pub struct LevelSums {
 
 impl LevelSums {
     fn add(&mut self, haar_difference: i64) {
-        let magnitude = haar_difference.unsigned_abs() as u128;
-        match self.sum_sq.checked_add(magnitude * magnitude) {
+        let magnitude = haar_difference.unsigned_abs();
+        // Differences of 16-bit counts fit 32 bits, and their square is then one 32x32->64
+        // multiply on a Cortex-M4 instead of a 128-bit multiply routine (the same value).
+        let square = match u32::try_from(magnitude) {
+            Ok(small) => u128::from(u64::from(small) * u64::from(small)),
+            Err(_) => u128::from(magnitude) * u128::from(magnitude),
+        };
+        match self.sum_sq.checked_add(square) {
             Some(sum) => self.sum_sq = sum,
             None => {
                 self.sum_sq = u128::MAX;

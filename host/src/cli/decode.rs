@@ -1,5 +1,6 @@
 //! `dynacal decode LOG --out DIR`: the board's log as one interchange CSV per IMU plus a
-//! `summary.json` of what was decoded and what was dropped.
+//! `summary.json` of what was decoded and what was dropped, and, when the log holds
+//! WaveletVariance frames, `wv.json`: the latest snapshot of each IMU channel in SI units.
 
 use std::path::PathBuf;
 
@@ -11,7 +12,8 @@ use dynacal::output::write_json_atomic;
 pub struct Args {
     /// Log file written by the board.
     pub log: PathBuf,
-    /// Output folder (created if absent): imu<ID>.csv per IMU and summary.json.
+    /// Output folder (created if absent): imu<ID>.csv per IMU, summary.json, and wv.json
+    /// when the log holds wavelet-variance snapshots.
     #[arg(long)]
     pub out: PathBuf,
 }
@@ -33,6 +35,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for imu in log.imus.iter().filter(|imu| !imu.is_empty()) {
         let name = imu_file_name(imu.config.imu_id);
         imu.to_recording().write(&staging.path().join(&name))?;
+        files.push(name);
+    }
+    let wv = log.wavelet_variance_si();
+    if !wv.is_empty() {
+        let name = "wv.json".to_string();
+        write_json_atomic(&staging.path().join(&name), &wv)
+            .with_context(|| format!("{}: cannot write", args.out.join(&name).display()))?;
         files.push(name);
     }
     let name = "summary.json".to_string();
