@@ -480,7 +480,7 @@ impl ImuRecording {
 /// round-tripping digits closest to the exact value, so the bytes are the same
 /// (`fast_float_text_equals_display` checks this over millions of values).
 pub fn push_f64_display(out: &mut Vec<u8>, x: f64, ryu_buf: &mut ryu::Buffer) {
-    if !x.is_finite() {
+    if !x.is_finite() || shortest_digits_may_tie(x) {
         use std::io::Write as _;
         let _ = write!(out, "{x}");
         return;
@@ -539,6 +539,36 @@ pub fn push_f64_display(out: &mut Vec<u8>, x: f64, ryu_buf: &mut ryu::Buffer) {
         out.push(b'.');
         out.extend_from_slice(&digits[point as usize..]);
     }
+}
+
+/// Whether two shortest decimal strings could be equally close to `x`. Then `ryu` and
+/// `Display` may break the tie differently (e.g. 2031695609939685.25 gives `...685.2` and
+/// `...685.3`), so [`push_f64_display`] leaves such values to `Display`. A tie between two
+/// n-digit strings puts `x` exactly on an (n+1)-digit decimal, n <= 17; the exact decimal
+/// expansion of `x = m 2^-k` (m odd) has as many significant digits as `m 5^k`, so when
+/// `m 5^k >= 10^18` no tie is possible. Integers (k <= 0) and short dyadic fractions are
+/// left to `Display`.
+fn shortest_digits_may_tie(x: f64) -> bool {
+    let bits = x.to_bits();
+    let biased = ((bits >> 52) & 0x7ff) as i32;
+    let fraction = bits & ((1u64 << 52) - 1);
+    let (mut m, mut e) = if biased == 0 {
+        (fraction, -1074)
+    } else {
+        (fraction | (1u64 << 52), biased - 1075)
+    };
+    if m == 0 {
+        return false;
+    }
+    let zeros = m.trailing_zeros();
+    m >>= zeros;
+    e += zeros as i32;
+    if e >= 0 {
+        return true;
+    }
+    // log2(m 5^k) >= (bit length - 1) + k log2(5); 10^18 < 2^59.8.
+    let log2_lower = (63 - m.leading_zeros()) as f64 + f64::from(-e) * 5f64.log2();
+    log2_lower < 60.5
 }
 
 /// Checks that `t_s` strictly increases; the error names the 1-based file line (header = 1).
@@ -604,6 +634,12 @@ mod tests {
             f64::INFINITY,
             f64::NEG_INFINITY,
             0.1 + 0.2,
+            2031695609939685.25,
+            0.5,
+            0.375,
+            3.0,
+            1e23,
+            9007199254740993.0,
         ] {
             check(x);
         }
@@ -613,6 +649,9 @@ mod tests {
             let q: i32 = rng.random_range(-60_000..60_000);
             check(q as f64 / 1e4);
             check(rng.random_range(-1.0..1.0) * 10f64.powi(rng.random_range(-12..8)));
+            // Few-bit values, where ties live.
+            let few_bits: i64 = rng.random_range(-(1 << 20)..(1 << 20));
+            check(few_bits as f64 * 2f64.powi(rng.random_range(-80..80)));
         }
     }
 
