@@ -247,3 +247,43 @@ fn models_the_board_cannot_log_are_refused_with_the_reason() {
     let e = board_recording(&out, &model).unwrap_err();
     assert!(matches!(e, BoardError::TooManyImus(4)), "{e}");
 }
+
+/// The simulated replay through the real firmware (`board-replay` under QEMU): the log it
+/// writes decodes to exactly the simulated counts. Skips without qemu-system-arm, except in
+/// CI (`CI` or `DYNACAL_REQUIRE_QEMU` set).
+#[test]
+fn a_simulated_replay_passes_through_the_firmware_under_qemu_bit_exact() {
+    use dynacal::replay::{
+        build_replay_firmware, check_log_against_replay, qemu_available, run_replay_in_qemu,
+        workspace_root, FIRMWARE_TARGET_DIR,
+    };
+    if !qemu_available() {
+        let required =
+            std::env::var_os("CI").is_some() || std::env::var_os("DYNACAL_REQUIRE_QEMU").is_some();
+        assert!(
+            !required,
+            "qemu-system-arm is missing but CI/DYNACAL_REQUIRE_QEMU requires it: run scripts/setup"
+        );
+        eprintln!("SKIPPED: qemu-system-arm not found (run scripts/setup to install it)");
+        return;
+    }
+    let model = example("three-mems-1khz.json");
+    let out = run(&model, 3.0);
+    let board = board_recording(&out, &model).unwrap();
+    let input = board.to_replay_input().unwrap();
+    // The streamed writer and the host's canonical replay encoder agree byte for byte.
+    assert!(board.replay_bytes().unwrap() == input.encode().unwrap());
+
+    let dir = tempfile::tempdir().unwrap();
+    let input_path = dir.path().join("sim.replay");
+    input.write(&input_path).unwrap();
+    let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
+    let log_path = dir.path().join("board.log");
+    let qemu = run_replay_in_qemu(&elf, &input_path, &log_path).unwrap();
+    assert_eq!(qemu.report.imu_sample_sets, 9000);
+    assert_eq!(qemu.report.pps_edges, 3);
+    let decoded = decode_file(&log_path).unwrap();
+    let check = check_log_against_replay(&input, &decoded);
+    assert!(check.is_exact(), "{check:?}");
+    assert_eq!(check.samples_exact, 9000);
+}

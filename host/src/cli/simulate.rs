@@ -35,7 +35,7 @@ pub struct Args {
     /// Write gzip-compressed `.csv.gz` files.
     #[arg(long)]
     pub gzip: bool,
-    /// Also write the MEMS IMUs (at most 3) as the board records them: `replay.bin`, the
+    /// Also write the MEMS IMUs (at most 3) as the board records them: `board.replay`, the
     /// firmware replay input, and `board.log`, the board log (raw counts with each IMU's
     /// quantization_step as LSB, or 1e-6 rad/s and 1e-5 m/s^2; GPS-time microsecond
     /// stamps; PPS every second; GNSS fixes in the log).

@@ -383,6 +383,32 @@ impl BoardRecording {
         Ok(())
     }
 
+    /// The replay input as [`crate::replay::ReplayInput`] (records held in memory: for short
+    /// runs and checks; [`BoardRecording::write_replay`] streams the same bytes).
+    pub fn to_replay_input(&self) -> Result<crate::replay::ReplayInput, BoardError> {
+        let configs: Vec<ReplayImu> = self.imus.iter().map(|i| i.config).collect();
+        let header = ReplayHeader::new(&configs).map_err(BoardError::Replay)?;
+        let records = self
+            .events(false)
+            .filter_map(|e| match e {
+                Event::Pps(k) => Some(ReplayRecord::Pps {
+                    t_us: self.pps_t_us[k],
+                }),
+                Event::Imu { imu, sample } => {
+                    let s = self.imu_sample(imu, sample);
+                    Some(ReplayRecord::Imu {
+                        t_us: s.t_us,
+                        imu_id: s.imu_id,
+                        gyro_counts: s.gyro_counts,
+                        accel_counts: s.accel_counts,
+                    })
+                }
+                Event::Gnss(_) => None,
+            })
+            .collect();
+        Ok(crate::replay::ReplayInput { header, records })
+    }
+
     /// The replay input's bytes.
     pub fn replay_bytes(&self) -> Result<Vec<u8>, BoardError> {
         let mut v = Vec::new();

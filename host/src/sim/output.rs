@@ -1,7 +1,7 @@
 //! Writing a simulation: one interchange CSV per IMU (the reference with attitude, position
 //! and velocity columns), `gnss.csv`, `pps.csv` and `truth.json`, optionally the error-free
 //! `<name>-ideal.csv` of each IMU, and on request the board's view of the MEMS IMUs
-//! (`replay.bin`, the firmware replay input, and `board.log`, the board log; see
+//! (`board.replay`, the firmware replay input, and `board.log`, the board log; see
 //! [`super::board`]). Files are staged in a hidden folder inside the output
 //! folder and moved into place only when all are written, `truth.json` last, so a failed
 //! run leaves no partial set.
@@ -35,7 +35,7 @@ pub enum SimWriteError {
 }
 
 /// Name of the firmware replay input written with a board recording.
-pub const REPLAY_FILE: &str = "replay.bin";
+pub const REPLAY_FILE: &str = "board.replay";
 /// Name of the board log written with a board recording.
 pub const LOG_FILE: &str = "board.log";
 
