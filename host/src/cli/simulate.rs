@@ -35,6 +35,12 @@ pub struct Args {
     /// Write gzip-compressed `.csv.gz` files.
     #[arg(long)]
     pub gzip: bool,
+    /// Also write the MEMS IMUs (at most 3) as the board records them: `board.replay`, the
+    /// firmware replay input, and `board.log`, the board log (raw counts with each IMU's
+    /// quantization_step as LSB, or 1e-6 rad/s and 1e-5 m/s^2; GPS-time microsecond
+    /// stamps; PPS every second; GNSS fixes in the log).
+    #[arg(long)]
+    pub replay: bool,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -62,7 +68,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let out = sim::simulate(&model, &opts, &|n| bar.inc(n))?;
     bar.finish_and_clear();
     let simulated = started.elapsed();
-    let files = sim::output::write_outputs(&out, &args.out, args.gzip, args.ideal)?;
+    let board = if args.replay {
+        Some(sim::board::board_recording(&out, &model)?)
+    } else {
+        None
+    };
+    let files = sim::output::write_outputs_with_board(
+        &out,
+        &args.out,
+        args.gzip,
+        args.ideal,
+        board.as_ref(),
+    )?;
     eprintln!(
         "simulated {} s ({} IMU samples) in {:.2} s, wrote {} files to {} in {:.2} s",
         args.seconds,

@@ -15,27 +15,33 @@ pub struct Jet(pub [f64; 4]);
 
 impl Jet {
     /// A constant.
+    #[inline]
     pub const fn constant(value: f64) -> Self {
         Jet([value, 0.0, 0.0, 0.0])
     }
     /// The independent variable itself at `t`.
+    #[inline]
     pub const fn variable(t: f64) -> Self {
         Jet([t, 1.0, 0.0, 0.0])
     }
     /// The value.
+    #[inline]
     pub fn value(self) -> f64 {
         self.0[0]
     }
     /// The k-th derivative (k <= 3).
+    #[inline]
     pub fn d(self, k: usize) -> f64 {
         self.0[k]
     }
     /// The jet of the derivative. Its third derivative is unknown and set to 0, so only
     /// orders 0..=2 of the result are exact.
+    #[inline]
     pub fn derivative(self) -> Self {
         Jet([self.0[1], self.0[2], self.0[3], 0.0])
     }
     /// g(self) for a scalar function g with derivatives `g = [g, g', g'', g''']` at the value.
+    #[inline]
     fn compose(self, g: [f64; 4]) -> Self {
         let [_, f1, f2, f3] = self.0;
         Jet([
@@ -45,33 +51,40 @@ impl Jet {
             g[3] * f1 * f1 * f1 + 3.0 * g[2] * f1 * f2 + g[1] * f3,
         ])
     }
+    #[inline]
     pub fn sin(self) -> Self {
         let (s, c) = self.0[0].sin_cos();
         self.compose([s, c, -s, -c])
     }
+    #[inline]
     pub fn cos(self) -> Self {
         let (s, c) = self.0[0].sin_cos();
         self.compose([c, -s, -c, s])
     }
     /// (sin, cos) sharing one evaluation.
+    #[inline]
     pub fn sin_cos(self) -> (Self, Self) {
         let (s, c) = self.0[0].sin_cos();
         (self.compose([s, c, -s, -c]), self.compose([c, -s, -c, s]))
     }
+    #[inline]
     pub fn tan(self) -> Self {
         let t = self.0[0].tan();
         let sec2 = 1.0 + t * t;
         self.compose([t, sec2, 2.0 * t * sec2, 2.0 * sec2 * (1.0 + 3.0 * t * t)])
     }
+    #[inline]
     pub fn recip(self) -> Self {
         let r = 1.0 / self.0[0];
         self.compose([r, -r * r, 2.0 * r * r * r, -6.0 * r * r * r * r])
     }
+    #[inline]
     pub fn sqrt(self) -> Self {
         let s = self.0[0].sqrt();
         let x = self.0[0];
         self.compose([s, 0.5 / s, -0.25 / (s * x), 0.375 / (s * x * x)])
     }
+    #[inline]
     pub fn scale(self, k: f64) -> Self {
         Jet(self.0.map(|v| v * k))
     }
@@ -79,6 +92,7 @@ impl Jet {
 
 impl Add for Jet {
     type Output = Jet;
+    #[inline]
     fn add(self, o: Jet) -> Jet {
         Jet([
             self.0[0] + o.0[0],
@@ -90,6 +104,7 @@ impl Add for Jet {
 }
 impl Sub for Jet {
     type Output = Jet;
+    #[inline]
     fn sub(self, o: Jet) -> Jet {
         Jet([
             self.0[0] - o.0[0],
@@ -101,12 +116,14 @@ impl Sub for Jet {
 }
 impl Neg for Jet {
     type Output = Jet;
+    #[inline]
     fn neg(self) -> Jet {
         Jet(self.0.map(|v| -v))
     }
 }
 impl Mul for Jet {
     type Output = Jet;
+    #[inline]
     fn mul(self, o: Jet) -> Jet {
         let [a0, a1, a2, a3] = self.0;
         let [b0, b1, b2, b3] = o.0;
@@ -121,18 +138,21 @@ impl Mul for Jet {
 impl Div for Jet {
     type Output = Jet;
     #[allow(clippy::suspicious_arithmetic_impl)] // a / b is a times the jet of 1/b
+    #[inline]
     fn div(self, o: Jet) -> Jet {
         self * o.recip()
     }
 }
 impl Add<f64> for Jet {
     type Output = Jet;
+    #[inline]
     fn add(self, k: f64) -> Jet {
         Jet([self.0[0] + k, self.0[1], self.0[2], self.0[3]])
     }
 }
 impl Mul<f64> for Jet {
     type Output = Jet;
+    #[inline]
     fn mul(self, k: f64) -> Jet {
         self.scale(k)
     }
@@ -142,6 +162,7 @@ impl Mul<f64> for Jet {
 pub type JetVec3 = [Jet; 3];
 
 /// Cross product of jet vectors.
+#[inline]
 pub fn cross(a: &JetVec3, b: &JetVec3) -> JetVec3 {
     [
         a[1] * b[2] - a[2] * b[1],
@@ -151,16 +172,19 @@ pub fn cross(a: &JetVec3, b: &JetVec3) -> JetVec3 {
 }
 
 /// Matrix (rows of jets) times jet vector.
+#[inline]
 pub fn mat_vec(m: &[JetVec3; 3], v: &JetVec3) -> JetVec3 {
     [0, 1, 2].map(|i| m[i][0] * v[0] + m[i][1] * v[1] + m[i][2] * v[2])
 }
 
 /// Transposed matrix times jet vector.
+#[inline]
 pub fn mat_t_vec(m: &[JetVec3; 3], v: &JetVec3) -> JetVec3 {
     [0, 1, 2].map(|j| m[0][j] * v[0] + m[1][j] * v[1] + m[2][j] * v[2])
 }
 
 /// Values, first or second derivatives of a jet vector.
+#[inline]
 pub fn order(v: &JetVec3, k: usize) -> [f64; 3] {
     [v[0].d(k), v[1].d(k), v[2].d(k)]
 }

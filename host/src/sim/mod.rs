@@ -4,8 +4,10 @@
 //!
 //! Layers: [`trajectory`] (exact kinematics on Taylor [`jet`]s), [`effects`] (lever arm,
 //! boresight and per-channel error effects), [`clock`], [`sensors`] (one IMU, in parallel
-//! chunks), [`gnss`] (fixes and PPS), [`model_file`] (the JSON model), [`output`] (files).
+//! chunks), [`gnss`] (fixes and PPS), [`model_file`] (the JSON model), [`output`] (files), [`board`] (raw counts for the
+//! firmware replay input and the board log).
 
+pub mod board;
 pub mod clock;
 pub mod effects;
 pub mod gnss;

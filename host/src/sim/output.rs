@@ -1,12 +1,15 @@
 //! Writing a simulation: one interchange CSV per IMU (the reference with attitude, position
 //! and velocity columns), `gnss.csv`, `pps.csv` and `truth.json`, optionally the error-free
-//! `<name>-ideal.csv` of each IMU. Files are staged in a hidden folder inside the output
+//! `<name>-ideal.csv` of each IMU, and on request the board's view of the MEMS IMUs
+//! (`board.replay`, the firmware replay input, and `board.log`, the board log; see
+//! [`super::board`]). Files are staged in a hidden folder inside the output
 //! folder and moved into place only when all are written, `truth.json` last, so a failed
 //! run leaves no partial set.
 
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use super::board::{BoardError, BoardRecording};
 use super::SimOutput;
 use crate::interchange::{ImuRecording, TableError};
 use crate::output::{write_json_atomic, AtomicFile};
@@ -23,7 +26,18 @@ pub enum SimWriteError {
     },
     #[error(transparent)]
     Table(#[from] TableError),
+    #[error("{path}: {source}")]
+    Board {
+        path: PathBuf,
+        #[source]
+        source: BoardError,
+    },
 }
+
+/// Name of the firmware replay input written with a board recording.
+pub const REPLAY_FILE: &str = "board.replay";
+/// Name of the board log written with a board recording.
+pub const LOG_FILE: &str = "board.log";
 
 /// Writes `out` into `dir` (created if absent); returns the files written.
 pub fn write_outputs(
@@ -31,6 +45,18 @@ pub fn write_outputs(
     dir: &Path,
     gzip: bool,
     write_ideal: bool,
+) -> Result<Vec<PathBuf>, SimWriteError> {
+    write_outputs_with_board(out, dir, gzip, write_ideal, None)
+}
+
+/// [`write_outputs`], plus [`REPLAY_FILE`] and [`LOG_FILE`] from `board` when given (never
+/// compressed: the firmware and the decoder read them as they are).
+pub fn write_outputs_with_board(
+    out: &SimOutput,
+    dir: &Path,
+    gzip: bool,
+    write_ideal: bool,
+    board: Option<&BoardRecording>,
 ) -> Result<Vec<PathBuf>, SimWriteError> {
     let io = |path: &Path| {
         let path = path.to_path_buf();
@@ -141,6 +167,27 @@ pub fn write_outputs(
         }
         f.commit().map_err(io(&path))?;
         names.push(name);
+    }
+    if let Some(board) = board {
+        type Writer = fn(&BoardRecording, &mut dyn Write) -> Result<(), BoardError>;
+        let files: [(&str, Writer); 2] = [
+            (REPLAY_FILE, BoardRecording::write_replay),
+            (LOG_FILE, BoardRecording::write_log),
+        ];
+        for (name, write) in files {
+            let path = stage.path().join(name);
+            let mut f = AtomicFile::create(&path).map_err(io(&path))?;
+            {
+                let mut w = f.writer();
+                write(board, &mut *w).map_err(|source| SimWriteError::Board {
+                    path: path.clone(),
+                    source,
+                })?;
+                w.flush().map_err(io(&path))?;
+            }
+            f.commit().map_err(io(&path))?;
+            names.push(name.to_string());
+        }
     }
     let truth_path = stage.path().join("truth.json");
     write_json_atomic(&truth_path, &out.truth).map_err(io(&truth_path))?;

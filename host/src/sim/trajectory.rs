@@ -488,9 +488,22 @@ impl Trajectory {
             }
             (x, dx)
         };
+        // Roll and pitch need only the displacement itself (their rates come from the jets),
+        // so their lines skip the rate terms: the same operations on the same values as
+        // `line(..).0`, hence the same bits.
+        let line_value = |lines: &[(MotionLine, f64)]| -> Jet {
+            let mut x = Jet::constant(0.0);
+            for (l, phase) in lines {
+                let w = 2.0 * PI * l.frequency_hz;
+                let m = j.speed * l.amplitude_per_m_s + l.amplitude_at_rest;
+                let (s, _) = (time * w + *phase).sin_cos();
+                x = x + m * s;
+            }
+            x
+        };
         let (d_vib, d_vib_rate) = line(&self.vibration[0]);
-        let (roll_vib, _) = line(&self.vibration[1]);
-        let (pitch_vib, _) = line(&self.vibration[2]);
+        let roll_vib = line_value(&self.vibration[1]);
+        let pitch_vib = line_value(&self.vibration[2]);
 
         let cfg = &self.config;
         let lateral = j.speed * j.yaw_rate;
