@@ -435,12 +435,17 @@ mod tests {
         let flat = white(&mut rng, n, 0.01);
         assert!(noise_vs_dynamics(&flat, &mag, 100).t.abs() < 4.0);
         let grow: Vec<f64> = (0..n)
-            .map(|i| (0.01 + 0.02 * mag[i]) * rng.sample::<f64, _>(StandardNormal))
+            .map(|i| {
+                let sd = (0.01f64.powi(2) + (0.02 * mag[i]).powi(2)).sqrt();
+                sd * rng.sample::<f64, _>(StandardNormal)
+            })
             .collect();
         let r = noise_vs_dynamics(&grow, &mag, 100);
+        assert!(r.t > 10.0, "{r:?}");
         assert!(
-            r.t > 10.0 && (r.slope - 0.02).abs() < 0.003 && (r.intercept - 0.01).abs() < 0.003,
+            r.sigma_per_unit_ci95[0] < 0.02 && 0.02 < r.sigma_per_unit_ci95[1],
             "{r:?}"
         );
+        assert!((r.intercept - 1e-4).abs() < 2e-5, "{r:?}");
     }
 }
