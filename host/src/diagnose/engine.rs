@@ -78,7 +78,7 @@ pub struct Baseline {
 }
 
 impl Baseline {
-    /// Reads the JSON written by `dynacal fit` (`{"channels": {"gx": {"model_object": ..}}}`).
+    /// Reads the JSON written by `dynacal fit` (`{"channels": [{"channel": "gx", "model_object": ..}]}`).
     pub fn load(path: &std::path::Path) -> Result<Self, DiagnoseError> {
         let err = |message: String| DiagnoseError::Baseline {
             path: path.display().to_string(),
@@ -86,14 +86,28 @@ impl Baseline {
         };
         let text = std::fs::read_to_string(path).map_err(|e| err(e.to_string()))?;
         let v: Value = serde_json::from_str(&text).map_err(|e| err(format!("not JSON: {e}")))?;
-        let channels = v
-            .get("channels")
-            .and_then(Value::as_object)
-            .ok_or_else(|| {
-                err("no `channels` object (expected the output of `dynacal fit`)".into())
-            })?;
+        // `dynacal fit` writes a list of channel fits, each naming its channel; a map keyed
+        // by channel is accepted too.
+        let entries: Vec<(String, &Value)> = match v.get("channels") {
+            Some(Value::Array(list)) => list
+                .iter()
+                .enumerate()
+                .map(|(i, ch)| {
+                    ch.get("channel")
+                        .and_then(Value::as_str)
+                        .map(|name| (name.to_string(), ch))
+                        .ok_or_else(|| err(format!("channels[{i}]: no `channel` name")))
+                })
+                .collect::<Result<_, _>>()?,
+            Some(Value::Object(map)) => map.iter().map(|(k, ch)| (k.clone(), ch)).collect(),
+            _ => {
+                return Err(err(
+                    "no `channels` list (expected the output of `dynacal fit`)".into(),
+                ))
+            }
+        };
         let mut out = BTreeMap::new();
-        for (name, ch) in channels {
+        for (name, ch) in entries {
             let obj = ch
                 .get("model_object")
                 .ok_or_else(|| err(format!("channels.{name}: no `model_object`")))?;
@@ -109,7 +123,7 @@ impl Baseline {
                     spec.unit
                 )));
             }
-            out.insert(name.clone(), spec);
+            out.insert(name, spec);
         }
         Ok(Self {
             channels: out,
