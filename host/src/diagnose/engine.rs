@@ -35,6 +35,8 @@ use crate::errors::{build_error_signals, CalibrationSummary, ErrorOptions};
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
+#[cfg(test)]
+use crate::gmwm::model::Process;
 use crate::interchange::{ImuRecording, CHANNELS};
 use crate::regress::{backward_elimination, RegressionOptions};
 use crate::wv::{haar_wv, WvOptions};
@@ -1000,4 +1002,37 @@ fn fit_quietest(
             best.1
         ),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn baseline_reads_the_fit_output_and_rejects_non_si_units() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = |unit: &str| {
+            json!({"model": "WN", "unit": unit, "sample_rate_hz": 100.0,
+                   "processes": [{"kind": "white_noise", "sigma2": 1e-6}]})
+        };
+        let good = dir.path().join("fit.json");
+        let list = json!({"channels": [{"channel": "gx", "model_object": model("rad/s")},
+                                       {"channel": "ax", "model_object": model("m/s^2")}]});
+        std::fs::write(&good, list.to_string()).unwrap();
+        let b = Baseline::load(&good).unwrap();
+        assert_eq!(b.channels.keys().collect::<Vec<_>>(), vec!["ax", "gx"]);
+        assert_eq!(
+            b.channels["gx"].processes,
+            vec![Process::WhiteNoise { sigma2: 1e-6 }]
+        );
+
+        let bad = dir.path().join("deg.json");
+        std::fs::write(
+            &bad,
+            json!({"channels": [{"channel": "gx", "model_object": model("deg/s")}]}).to_string(),
+        )
+        .unwrap();
+        let msg = Baseline::load(&bad).unwrap_err().to_string();
+        assert!(msg.contains("deg.json") && msg.contains("not SI"), "{msg}");
+    }
 }
