@@ -23,6 +23,23 @@ use dynacal_core::replay::{
 
 use crate::interchange::{open_maybe_gz, CHANNELS};
 
+/// The emulated board and deterministic clock every firmware run uses: an STM32F405
+/// (`netduinoplus2`), no display, monitor or serial, and `-icount shift=0` so the virtual
+/// clock advances one nanosecond per instruction (instruction counts are reproducible).
+pub const QEMU_BOARD_ARGS: [&str; 11] = [
+    "-cpu",
+    "cortex-m4",
+    "-machine",
+    "netduinoplus2",
+    "-nographic",
+    "-monitor",
+    "none",
+    "-serial",
+    "none",
+    "-icount",
+    "shift=0",
+];
+
 /// Standard gravity, m/s^2 (the conventional value, as the ADIS16405 "g" is taken to be).
 pub const STANDARD_GRAVITY_M_S2: f64 = 9.80665;
 /// ADIS16405 gyro scale: 0.05 deg/s per count, in rad/s per count.
@@ -443,20 +460,8 @@ pub fn run_replay_in_qemu(
     );
     let started = Instant::now();
     let output = Command::new("qemu-system-arm")
-        .args([
-            "-cpu",
-            "cortex-m4",
-            "-machine",
-            "netduinoplus2",
-            "-nographic",
-            "-monitor",
-            "none",
-            "-serial",
-            "none",
-            "-icount",
-            "shift=0",
-            "-semihosting-config",
-        ])
+        .args(QEMU_BOARD_ARGS)
+        .arg("-semihosting-config")
         .arg(semihosting)
         .arg("-kernel")
         .arg(elf)

@@ -85,18 +85,8 @@ fn navigation_filter_epoch_cost_on_cortex_m4f_stays_within_bounds() {
     let run = Command::new("timeout")
         .arg("300")
         .arg("qemu-system-arm")
+        .args(dynacal::replay::QEMU_BOARD_ARGS)
         .args([
-            "-cpu",
-            "cortex-m4",
-            "-machine",
-            "netduinoplus2",
-            "-nographic",
-            "-monitor",
-            "none",
-            "-serial",
-            "none",
-            "-icount",
-            "shift=0",
             "-semihosting-config",
             "enable=on,target=native,arg=ekf_cost",
             "-kernel",
