@@ -29,7 +29,9 @@ use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use statrs::distribution::{ContinuousCDF, Normal};
 
-use super::stats::{find_outliers, mean_shift, noise_vs_dynamics, spectral_lines, welch_psd};
+use super::stats::{
+    find_outliers, mean_shift, noise_vs_dynamics, outlier_process, spectral_lines, welch_psd,
+};
 use crate::error_signal::ErrorSignals;
 use crate::errors::{build_error_signals, CalibrationSummary, ErrorOptions};
 use crate::gmwm::fit::{FitInput, FitOptions};
@@ -208,10 +210,47 @@ pub struct DiagnoseReport {
     pub findings: Vec<Finding>,
     pub gain: BTreeMap<String, Gain>,
     pub discrepancies: Vec<Discrepancy>,
+    /// Per channel, the measured error's wavelet variance against the simulated bands of the
+    /// baseline and the extended model (what the gain's misfit compares; the report plots it).
+    pub wv_curves: BTreeMap<String, WvCurves>,
     /// The extended model as a simulator model file (`dynacal simulate --model`).
     pub extended_model: Value,
     /// Notes on what was assumed.
     pub notes: Vec<String>,
+}
+
+/// Haar wavelet variance of a channel's measured error and the 95% bands of the same
+/// statistic over simulations of the baseline and of the extended model, in the channel's
+/// squared SI unit ((rad/s)^2 or (m/s^2)^2), at scales `scale_s` = 2^j dt.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct WvCurves {
+    pub scale_s: Vec<f64>,
+    pub measured: Vec<f64>,
+    pub baseline_lo: Vec<f64>,
+    pub baseline_hi: Vec<f64>,
+    pub extended_lo: Vec<f64>,
+    pub extended_hi: Vec<f64>,
+}
+
+impl WvCurves {
+    fn new(dt_s: f64, measured_log: &[f64], base: &[Vec<f64>], ext: &[Vec<f64>]) -> Self {
+        let (bm, bs) = level_stats(base);
+        let (em, es) = level_stats(ext);
+        let j = measured_log.len().min(bm.len()).min(em.len());
+        let band = |m: &[f64], s: &[f64], sign: f64| -> Vec<f64> {
+            (0..j)
+                .map(|k| (m[k] + sign * Z_FLOOR * s[k]).exp())
+                .collect()
+        };
+        Self {
+            scale_s: (0..j).map(|k| dt_s * 2f64.powi(k as i32 + 1)).collect(),
+            measured: measured_log[..j].iter().map(|v| v.exp()).collect(),
+            baseline_lo: band(&bm, &bs, -1.0),
+            baseline_hi: band(&bm, &bs, 1.0),
+            extended_lo: band(&em, &es, -1.0),
+            extended_hi: band(&em, &es, 1.0),
+        }
+    }
 }
 
 const Z_FLOOR: f64 = 1.959_963_984_540_054;
@@ -410,45 +449,6 @@ fn lattice_step(x: &[f64]) -> Option<(f64, f64)> {
     Some((q, sd.max(q * 1e-12)))
 }
 
-/// Estimates an outlier process (probability per sample, sigma) from detected outliers with
-/// |deviation| > t_abs, correcting for the small ones hidden in the noise: the detected
-/// deviations are a normal N(0, s^2) truncated to |x| > t_abs, s^2 = sigma_out^2 + noise^2.
-fn outlier_process(devs: &[f64], t_abs: f64, noise_sigma: f64, n: usize) -> (f64, f64, [f64; 2]) {
-    let normal = Normal::new(0.0, 1.0).expect("standard normal");
-    let m2 = devs.iter().map(|d| d * d).sum::<f64>() / devs.len() as f64;
-    // E[x^2 | |x| > t] = s^2 + t s phi(t/s) / (1 - Phi(t/s)) for x ~ N(0, s^2); solve for s.
-    let second_moment = |s: f64| {
-        let u = t_abs / s;
-        let tail = (1.0 - normal.cdf(u)).max(1e-300);
-        let phi = (-0.5 * u * u).exp() / (2.0 * std::f64::consts::PI).sqrt();
-        s * s + t_abs * s * phi / tail
-    };
-    let (mut lo, mut hi) = (
-        noise_sigma.max(1e-12),
-        (m2.sqrt() * 10.0).max(noise_sigma * 20.0),
-    );
-    for _ in 0..100 {
-        let mid = 0.5 * (lo + hi);
-        if second_moment(mid) < m2 {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    let s = 0.5 * (lo + hi);
-    let sigma_out = (s * s - noise_sigma * noise_sigma).max(0.0).sqrt();
-    let detect = 2.0 * (1.0 - normal.cdf(t_abs / s));
-    let k = devs.len() as f64;
-    let p = k / n as f64 / detect.max(1e-12);
-    // Poisson interval on the count (normal approximation with continuity), scaled.
-    let half = Z_FLOOR * (k + 1.0).sqrt();
-    let ci = [
-        ((k - half).max(0.0)) / n as f64 / detect,
-        (k + half) / n as f64 / detect,
-    ];
-    (p, sigma_out, ci)
-}
-
 /// Runs the engine on a sensor recording against a reference (or, without one, on static
 /// data whose truth is constant).
 pub fn diagnose(
@@ -563,6 +563,7 @@ pub fn diagnose(
         findings: Vec<Finding>,
         discrepancies: Vec<Discrepancy>,
         gain: Gain,
+        wv_curves: WvCurves,
         model: Value,
     }
     let results: Vec<Result<ChannelResult, DiagnoseError>> = channels
@@ -842,8 +843,11 @@ pub fn diagnose(
             };
             let max_level_h = max_level.min(((n - split) as f64).log2() as u32).saturating_sub(2);
             let e_wv = log_wv(e, dt_s, max_level);
-            let base_misfit = wv_misfit(&e_wv, &sim_model(&[], spec, &ChannelEffects::default(), 0..n, 0.0, 11));
-            let ext_misfit = wv_misfit(&e_wv, &sim_model(&coeffs, &stochastic, &effects, 0..n, intercept, 13));
+            let base_sims = sim_model(&[], spec, &ChannelEffects::default(), 0..n, 0.0, 11);
+            let ext_sims = sim_model(&coeffs, &stochastic, &effects, 0..n, intercept, 13);
+            let base_misfit = wv_misfit(&e_wv, &base_sims);
+            let ext_misfit = wv_misfit(&e_wv, &ext_sims);
+            let wv_curves = WvCurves::new(dt_s, &e_wv, &base_sims, &ext_sims);
             // Held out: deterministic coefficients refitted on the first part only.
             let first: Vec<(usize, f64, [f64; 2], f64)> = if coeffs.is_empty() {
                 Vec::new()
@@ -889,18 +893,21 @@ pub fn diagnose(
             Ok(ChannelResult {
                 findings: ch_findings,
                 discrepancies: ch_disc,
+                wv_curves,
                 gain: Gain { metric: "wv_misfit (mean squared z of log wavelet variance vs model simulations)".into(), baseline: base_misfit, extended: ext_misfit, held_out_baseline: held_base, held_out_extended: held_ext, variance_explained: ve_in, held_out_variance_explained: ve_out },
                 model,
             })
         })
         .collect();
     let mut gain = BTreeMap::new();
+    let mut wv_curves = BTreeMap::new();
     let mut channel_models = serde_json::Map::new();
     for (ch, r) in channels.iter().zip(results) {
         let r = r?;
         findings.extend(r.findings);
         discrepancies.extend(r.discrepancies);
         gain.insert((*ch).to_string(), r.gain);
+        wv_curves.insert((*ch).to_string(), r.wv_curves);
         channel_models.insert((*ch).to_string(), r.model);
     }
     let mut imu = json!({ "name": "diagnosed", "rate_hz": 1.0 / dt_s, "channels": channel_models });
@@ -926,6 +933,7 @@ pub fn diagnose(
         findings,
         gain,
         discrepancies,
+        wv_curves,
         extended_model: json!({ "comment": "extended model written by dynacal diagnose", "imus": [imu] }),
         notes,
     })

@@ -6,6 +6,7 @@
 
 use realfft::RealFftPlanner;
 use serde::{Deserialize, Serialize};
+use statrs::distribution::{ContinuousCDF, Normal};
 
 /// One-sided power spectral density by Welch's method (Hann window, 50% overlap).
 #[derive(Debug, Clone, PartialEq)]
@@ -361,6 +362,50 @@ pub fn noise_vs_dynamics(x: &[f64], magnitude: &[f64], window: usize) -> NoiseVs
         sigma_per_unit: k(slope),
         sigma_per_unit_ci95: [k(slope - 1.96 * se), k(slope + 1.96 * se)],
     }
+}
+
+/// Estimates an outlier process (probability per sample, sigma) from detected outliers with
+/// |deviation| > t_abs, correcting for the small ones hidden in the noise: the detected
+/// deviations are a normal N(0, s^2) truncated to |x| > t_abs, s^2 = sigma_out^2 + noise^2.
+pub fn outlier_process(
+    devs: &[f64],
+    t_abs: f64,
+    noise_sigma: f64,
+    n: usize,
+) -> (f64, f64, [f64; 2]) {
+    let normal = Normal::new(0.0, 1.0).expect("standard normal");
+    let m2 = devs.iter().map(|d| d * d).sum::<f64>() / devs.len() as f64;
+    // E[x^2 | |x| > t] = s^2 + t s phi(t/s) / (1 - Phi(t/s)) for x ~ N(0, s^2); solve for s.
+    let second_moment = |s: f64| {
+        let u = t_abs / s;
+        let tail = (1.0 - normal.cdf(u)).max(1e-300);
+        let phi = (-0.5 * u * u).exp() / (2.0 * std::f64::consts::PI).sqrt();
+        s * s + t_abs * s * phi / tail
+    };
+    let (mut lo, mut hi) = (
+        noise_sigma.max(1e-12),
+        (m2.sqrt() * 10.0).max(noise_sigma * 20.0),
+    );
+    for _ in 0..100 {
+        let mid = 0.5 * (lo + hi);
+        if second_moment(mid) < m2 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    let s = 0.5 * (lo + hi);
+    let sigma_out = (s * s - noise_sigma * noise_sigma).max(0.0).sqrt();
+    let detect = 2.0 * (1.0 - normal.cdf(t_abs / s));
+    let k = devs.len() as f64;
+    let p = k / n as f64 / detect.max(1e-12);
+    // Poisson interval on the count (normal approximation with continuity), scaled.
+    let half = 1.959_963_984_540_054 * (k + 1.0).sqrt();
+    let ci = [
+        ((k - half).max(0.0)) / n as f64 / detect,
+        (k + half) / n as f64 / detect,
+    ];
+    (p, sigma_out, ci)
 }
 
 #[cfg(test)]
