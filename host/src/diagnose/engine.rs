@@ -30,7 +30,8 @@ use serde_json::{json, Value};
 use statrs::distribution::{ContinuousCDF, Normal};
 
 use super::stats::{
-    find_outliers, mean_shift, noise_vs_dynamics, outlier_process, spectral_lines, welch_psd,
+    find_outliers, local_step_null_sd, local_step_scan, noise_vs_dynamics, outlier_process,
+    spectral_lines, welch_psd,
 };
 use crate::error_signal::ErrorSignals;
 use crate::errors::{build_error_signals, CalibrationSummary, ErrorOptions};
@@ -325,6 +326,22 @@ fn ols(y: &[f64], cols: &[&[f64]]) -> Option<(Vec<f64>, f64)> {
     Some((beta.iter().copied().collect(), icpt))
 }
 
+/// The deterministic part of a channel's error over `range`: the sum of the kept terms.
+fn det_terms(
+    cands: &[Candidate],
+    coeffs: &[(usize, f64, [f64; 2], f64)],
+    range: std::ops::Range<usize>,
+) -> Vec<f64> {
+    range
+        .map(|t| {
+            coeffs
+                .iter()
+                .map(|(k, b, _, _)| b * cands[*k].values[t])
+                .sum::<f64>()
+        })
+        .collect()
+}
+
 /// Log wavelet variance per level of a series (levels 1..=max).
 fn log_wv(x: &[f64], dt_s: f64, max_level: u32) -> Vec<f64> {
     match haar_wv(
@@ -376,7 +393,6 @@ struct ChannelEffects {
     dynamic_noise_sigma_per_rad_s: Option<f64>,
     vibration: Vec<(f64, f64)>,
     outliers: Option<(f64, f64)>,
-    bias_shift: Option<(usize, f64)>,
 }
 
 fn simulate_channel(
@@ -406,11 +422,6 @@ fn simulate_channel(
                 let z: f64 = StandardNormal.sample(rng);
                 *v += s * z;
             }
-        }
-    }
-    if let Some((k, size)) = effects.bias_shift {
-        for v in x.iter_mut().skip(k) {
-            *v += size;
         }
     }
     x
@@ -579,6 +590,8 @@ pub fn diagnose(
             let gyro = ch.starts_with('g');
             let xyz = ["x", "y", "z"];
             // Deterministic candidates by physics.
+            // A step of the bias, if one is found below, joins the candidates.
+            let step_values: Vec<f64>;
             let mut cands: Vec<Candidate> = Vec::new();
             if has_dynamics {
                 for j in 0..3 {
@@ -613,12 +626,13 @@ pub fn diagnose(
             // noise (slow Gauss-Markov wander included) is regressed on the same measured
             // dynamics, so spurious correlation of slow noise with slow manoeuvres is in the
             // null distribution. HAC alone under-covers for such persistent noise.
-            let mut coeffs: Vec<(usize, f64, [f64; 2], f64)> = Vec::new();
-            let mut intercept = e.iter().sum::<f64>() / n as f64;
-            if !cands.is_empty() {
-                let var_e = variance(e);
+            type Coeffs = Vec<(usize, f64, [f64; 2], f64)>;
+            let var_e = variance(e);
+            let eliminate = |cands: &[Candidate]| -> (Coeffs, f64) {
+                let mut coeffs: Coeffs = Vec::new();
+                let mut intercept = e.iter().sum::<f64>() / n as f64;
                 let mut active: Vec<usize> = (0..cands.len()).collect();
-                loop {
+                while !active.is_empty() {
                     let cols: Vec<&[f64]> = active.iter().map(|&k| cands[k].values).collect();
                     let Some((b, icpt)) = ols(e, &cols) else { break };
                     let null: Vec<Vec<f64>> = sims.par_iter().filter_map(|s| ols(s, &cols).map(|x| x.0)).collect();
@@ -646,18 +660,44 @@ pub fn diagnose(
                             break;
                         }
                     }
-                    if active.is_empty() {
-                        break;
+                }
+                (coeffs, intercept)
+            };
+            let (mut coeffs, mut intercept) = eliminate(&cands);
+            let sim_range = |vals: &[f64]| [vals.iter().copied().fold(f64::INFINITY, f64::min), vals.iter().copied().fold(f64::NEG_INFINITY, f64::max)];
+            let mut ch_disc = Vec::new();
+
+            // A step of the bias. It is looked for at short windows (the difference of the
+            // means just after and just before each epoch), where slow Gauss-Markov wander
+            // barely moves while a step stands whole, on the residual of the kept terms, with
+            // the null spread at each window from the baseline simulations. When found, the
+            // step joins the candidates and the elimination runs again, so terms that were
+            // standing in for it (a scale factor, when the input's level changes during the
+            // run) drop out and its size and interval come from the joint fit.
+            let mut step_at_s = None;
+            {
+                let windows: Vec<usize> = (6..20).map(|j| 1usize << j).take_while(|&w| w <= n / 8).collect();
+                let null_sd = local_step_null_sd(&sims, &windows);
+                let fit = det_terms(&cands, &coeffs, 0..n);
+                let resid0: Vec<f64> = (0..n).map(|t| e[t] - intercept - fit[t]).collect();
+                let sim_z: Vec<f64> = sims.par_iter().filter_map(|s| local_step_scan(s, &windows, &null_sd)).map(|m| m.z).collect();
+                let range = sim_range(&sim_z);
+                if let Some(step) = local_step_scan(&resid0, &windows, &null_sd) {
+                    if step.z > (1.25 * range[1]).max(z_strict) {
+                        let at_s = signals.t_s[step.index] - signals.t_s[0];
+                        ch_disc.push(Discrepancy { channel: ch.into(), statistic: "largest local step of the mean (|z| at its window)".into(), measured: step.z, simulated_range: range, detail: format!("at t = {:.2} s, window {} samples, local size {:.4e}", signals.t_s[step.index], step.window, step.size) });
+                        step_values = (0..n).map(|t| if t >= step.index { 1.0 } else { 0.0 }).collect();
+                        cands.push(Candidate { name: format!("step_at_{at_s:.2}_s"), values: &step_values, cause: "bias_shift", field: ("bias_steps", 0) });
+                        step_at_s = Some(at_s);
+                        (coeffs, intercept) = eliminate(&cands);
                     }
                 }
             }
-            let det = |range: std::ops::Range<usize>, coeffs: &[(usize, f64, [f64; 2], f64)]| -> Vec<f64> {
-                range.map(|t| coeffs.iter().map(|(k, b, _, _)| b * cands[*k].values[t]).sum::<f64>()).collect()
-            };
+            let det = |range: std::ops::Range<usize>, coeffs: &[(usize, f64, [f64; 2], f64)]| -> Vec<f64> { det_terms(&cands, coeffs, range) };
             let fitted = det(0..n, &coeffs);
             let mut resid: Vec<f64> = (0..n).map(|t| e[t] - intercept - fitted[t]).collect();
             let mut ch_findings = Vec::new();
-            for cause in ["scale_factor", "cross_axis", "g_sensitivity", "angular_acceleration", "jerk"] {
+            for cause in ["scale_factor", "cross_axis", "g_sensitivity", "angular_acceleration", "jerk", "bias_shift"] {
                 let terms: Vec<&(usize, f64, [f64; 2], f64)> = coeffs.iter().filter(|(k, ..)| cands[*k].cause == cause).collect();
                 if terms.is_empty() {
                     continue;
@@ -676,9 +716,6 @@ pub fn diagnose(
             // Baseline simulations of the residual's statistics.
             let mut effects = ChannelEffects::default();
             let max_level = ((n as f64).log2().floor() as u32).saturating_sub(2).max(1);
-
-            let sim_range = |vals: &[f64]| [vals.iter().copied().fold(f64::INFINITY, f64::min), vals.iter().copied().fold(f64::NEG_INFINITY, f64::max)];
-            let mut ch_disc = Vec::new();
 
             // Outliers.
             let out = find_outliers(&resid, 11, 6.0);
@@ -754,19 +791,6 @@ pub fn diagnose(
                 ch_disc.push(Discrepancy { channel: ch.into(), statistic: format!("spectral line at {:.2} Hz", line.freq_hz), measured: line.power_ratio, simulated_range: sim_range(&sim_lines), detail: format!("lines found in baseline simulations: {:?}", sim_lines) });
                 ch_findings.push(Finding { channel: ch.into(), cause: "vibration".into(), regressors: vec![format!("sinusoid at {:.3} Hz (as sampled)", line.freq_hz)], estimate: json!(amp), ci95: json!(ci(amp, noise)), variance_explained: amp * amp / 2.0 / variance(e) });
                 effects.vibration.push((line.freq_hz, amp));
-            }
-
-            // Shift of the mean.
-            let shift = mean_shift(&resid);
-            let sim_shift: Vec<f64> = sims.iter().map(|s| mean_shift(s).statistic).collect();
-            let range = sim_range(&sim_shift);
-            if shift.statistic > 1.5 * range[1] && shift.statistic > 2.5 {
-                ch_disc.push(Discrepancy { channel: ch.into(), statistic: "CUSUM mean-shift statistic".into(), measured: shift.statistic, simulated_range: range, detail: format!("at epoch {} (t = {:.2} s)", shift.index, signals.t_s[shift.index]) });
-                ch_findings.push(Finding { channel: ch.into(), cause: "bias_shift".into(), regressors: vec![format!("step at t = {:.2} s", signals.t_s[shift.index])], estimate: json!(shift.size), ci95: json!(ci(shift.size, shift.size_std_error)), variance_explained: shift.size.powi(2) * (shift.index as f64 / n as f64) * (1.0 - shift.index as f64 / n as f64) / variance(e) });
-                effects.bias_shift = Some((shift.index, shift.size));
-                for v in resid.iter_mut().skip(shift.index) {
-                    *v -= shift.size;
-                }
             }
 
             // Noise growing with the dynamics.
@@ -869,7 +893,9 @@ pub fn diagnose(
             let mut model = json!({ "stochastic": serde_json::to_value(&stochastic).unwrap_or(Value::Null), "bias": intercept });
             for (k, b, _, _) in &coeffs {
                 let (field, j) = cands[*k].field;
-                if field == "scale_factor" {
+                if field == "bias_steps" {
+                    model[field] = json!([{ "at_s": step_at_s, "size": b }]);
+                } else if field == "scale_factor" {
                     model[field] = json!(b);
                 } else {
                     if model.get(field).is_none() {

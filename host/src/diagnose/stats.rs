@@ -208,9 +208,13 @@ pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
     };
     let blocks = (n / OUTLIER_SCALE_BLOCK).max(1);
     let block_bounds = |b: usize| (b * n / blocks, (b + 1) * n / blocks);
+    // Each block's scale is measured over it and its two neighbours on each side: short
+    // enough to follow a manoeuvre, long enough that a scale underestimated by chance does
+    // not flag ordinary noise.
     let block_sigma: Vec<f64> = (0..blocks)
         .map(|b| {
-            let (lo, hi) = block_bounds(b);
+            let lo = block_bounds(b.saturating_sub(2)).0;
+            let hi = block_bounds((b + 2).min(blocks - 1)).1;
             mad_sigma(&dev[lo..hi])
         })
         .collect();
@@ -243,65 +247,86 @@ pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
     }
 }
 
-/// The most likely single shift in the mean of a series.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct MeanShift {
-    /// Index of the first sample after the shift.
-    pub index: usize,
-    /// Mean after minus mean before, error units.
-    pub size: f64,
-    /// Max |CUSUM| scaled by the long-run standard deviation and sqrt(n): the
-    /// Kolmogorov-type statistic, compared against baseline simulations.
-    pub statistic: f64,
-    /// Standard error of `size` from the long-run variance.
-    pub size_std_error: f64,
+/// Difference of the means of the `window` samples after and before each index k
+/// (k = window..=n - window), error units: a Haar wavelet coefficient at that scale, placed
+/// at every k. A step of size s gives s at its own index, while Gauss-Markov wander with a
+/// correlation time much longer than the window barely moves it, so at short windows steps
+/// stand out from slow noise that a whole-run CUSUM cannot tell them from.
+pub fn local_steps(x: &[f64], window: usize) -> Vec<f64> {
+    let n = x.len();
+    if window == 0 || n < 2 * window {
+        return Vec::new();
+    }
+    let mut prefix = Vec::with_capacity(n + 1);
+    prefix.push(0.0);
+    let mut acc = 0.0;
+    for v in x {
+        acc += v;
+        prefix.push(acc);
+    }
+    let l = window as f64;
+    (window..=n - window)
+        .map(|k| ((prefix[k + window] - prefix[k]) - (prefix[k] - prefix[k - window])) / l)
+        .collect()
 }
 
-/// CUSUM change-point statistic of `x` (see [`MeanShift`]). The long-run variance is
-/// estimated from the first differences' scale (robust to the shift itself) and a Bartlett
-/// long-run correction of the differences' autocorrelation is not attempted: the engine
-/// calibrates the statistic by simulation from the baseline model, so only its ordering
-/// matters.
-pub fn mean_shift(x: &[f64]) -> MeanShift {
-    let n = x.len();
-    let total: f64 = x.iter().sum();
-    let mut s = 0.0;
-    let mut best = (0usize, 0.0f64);
-    for (k, v) in x.iter().enumerate().take(n.saturating_sub(1)) {
-        s += v;
-        let dev = (s - (k + 1) as f64 / n as f64 * total).abs();
-        // Weight by the standard deviation of a Brownian bridge so edges are not favoured
-        // too little: the ordinary CUSUM maximiser.
-        if dev > best.1 {
-            best = (k + 1, dev);
+/// The most significant step of a series over several window lengths.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LocalStep {
+    /// Index of the first sample after the step.
+    pub index: usize,
+    /// Window (samples) at which it is most significant.
+    pub window: usize,
+    /// Difference of the window means at the step, error units.
+    pub size: f64,
+    /// |size| over the null standard deviation at that window.
+    pub z: f64,
+}
+
+/// Scans `x` for its most significant step: at each window of `windows`, the local step
+/// [`local_steps`] divided by `null_sd` (the same window's standard deviation under the
+/// baseline noise, from simulations), maximised over windows and indices.
+pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<LocalStep> {
+    let mut best: Option<LocalStep> = None;
+    for (&w, &sd) in windows.iter().zip(null_sd) {
+        if !(sd > 0.0) {
+            continue;
+        }
+        for (i, d) in local_steps(x, w).into_iter().enumerate() {
+            let z = d.abs() / sd;
+            if best.as_ref().is_none_or(|b| z > b.z) {
+                best = Some(LocalStep {
+                    index: i + w,
+                    window: w,
+                    size: d,
+                    z,
+                });
+            }
         }
     }
-    let k = best.0.max(1).min(n - 1);
-    let before = x[..k].iter().sum::<f64>() / k as f64;
-    let after = x[k..].iter().sum::<f64>() / (n - k) as f64;
-    let lr_sd = long_run_sd(x, k);
-    MeanShift {
-        index: k,
-        size: after - before,
-        statistic: best.1 / (lr_sd * (n as f64).sqrt()).max(f64::MIN_POSITIVE),
-        size_std_error: lr_sd * (1.0 / k as f64 + 1.0 / (n - k) as f64).sqrt(),
-    }
+    best
 }
 
-/// Long-run standard deviation of `x` with the segment means (split at `k`) removed:
-/// Bartlett kernel with lag n^(1/3).
-fn long_run_sd(x: &[f64], k: usize) -> f64 {
-    let n = x.len();
-    let m1 = x[..k].iter().sum::<f64>() / k as f64;
-    let m2 = x[k..].iter().sum::<f64>() / (n - k) as f64;
-    let d: Vec<f64> = (0..n).map(|i| x[i] - if i < k { m1 } else { m2 }).collect();
-    let lag = ((n as f64).powf(1.0 / 3.0).ceil() as usize).max(1);
-    let gamma = |l: usize| (l..n).map(|t| d[t] * d[t - l]).sum::<f64>() / n as f64;
-    let mut v = gamma(0);
-    for l in 1..=lag.min(n - 1) {
-        v += 2.0 * (1.0 - l as f64 / (lag as f64 + 1.0)) * gamma(l);
-    }
-    v.max(gamma(0) * 1e-6).sqrt()
+/// Standard deviation of [`local_steps`] at each window over a set of series (simulations of
+/// the baseline), pooled over indices.
+pub fn local_step_null_sd(series: &[Vec<f64>], windows: &[usize]) -> Vec<f64> {
+    windows
+        .iter()
+        .map(|&w| {
+            let (mut ss, mut count) = (0.0, 0usize);
+            for s in series {
+                for d in local_steps(s, w) {
+                    ss += d * d;
+                    count += 1;
+                }
+            }
+            if count == 0 {
+                0.0
+            } else {
+                (ss / count as f64).sqrt()
+            }
+        })
+        .collect()
 }
 
 /// How the short-term noise level follows a dynamics magnitude m: the model is a noise
@@ -480,17 +505,37 @@ mod tests {
     }
 
     #[test]
-    fn mean_shift_is_located_and_sized() {
+    fn a_step_stands_out_of_slow_wander_at_a_short_window() {
+        // Slow wander (a random walk of the same total excursion as the step) and a step:
+        // at a short window only the step is large.
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let mut x = white(&mut rng, 20_000, 0.1);
-        let null = mean_shift(&x).statistic;
+        let n = 20_000;
+        let windows = [64usize, 256, 1024];
+        let noise = |rng: &mut ChaCha8Rng| -> Vec<f64> {
+            let w = white(rng, n, 0.1);
+            let mut level = 0.0;
+            w.iter()
+                .map(|v| {
+                    let z: f64 = rng.sample(rand_distr::StandardNormal);
+                    level += 0.0005 * z;
+                    level + v
+                })
+                .collect()
+        };
+        let sims: Vec<Vec<f64>> = (0..10).map(|_| noise(&mut rng)).collect();
+        let sd = local_step_null_sd(&sims, &windows);
+        let null_max = sims
+            .iter()
+            .map(|s| local_step_scan(s, &windows, &sd).unwrap().z)
+            .fold(0.0f64, f64::max);
+        let mut x = noise(&mut rng);
         for v in &mut x[12_000..] {
-            *v += 0.02;
+            *v += 0.08;
         }
-        let s = mean_shift(&x);
-        assert!((s.index as i64 - 12_000).abs() < 1500, "{s:?}");
-        assert!((s.size - 0.02).abs() < 3.0 * s.size_std_error, "{s:?}");
-        assert!(s.statistic > 2.0 * null.max(1.0), "{s:?} vs {null}");
+        let s = local_step_scan(&x, &windows, &sd).unwrap();
+        assert!((s.index as i64 - 12_000).abs() < 64, "{s:?}");
+        assert!((s.size - 0.08).abs() < 0.03, "{s:?}");
+        assert!(s.z > 1.5 * null_max, "{s:?} vs null max {null_max}");
     }
 
     #[test]

@@ -9,7 +9,8 @@ use nalgebra::{Matrix3, Rotation3, Vector3};
 use serde_json::{json, Value};
 
 use super::model_file::{
-    unit_to_si, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers, VibrationLine,
+    unit_to_si, BiasStep, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers,
+    VibrationLine,
 };
 use super::trajectory::Truth;
 use crate::gmwm::model::{ModelSpec, Process, Structure};
@@ -105,6 +106,7 @@ pub struct ChannelEffects {
     pub dynamic_noise: Option<DynamicNoise>,
     pub vibration_lines: Vec<VibrationLine>,
     pub outliers: Option<Outliers>,
+    pub bias_steps: Vec<BiasStep>,
     pub saturation: Option<f64>,
     pub quantization_step: Option<f64>,
     report: Vec<Value>,
@@ -268,6 +270,16 @@ impl ChannelEffects {
                 fx.vibration_lines = model.vibration_lines.clone();
             }
         }
+        if !model.bias_steps.is_empty() {
+            note(
+                "bias_step",
+                on("bias_step"),
+                serde_json::to_value(&model.bias_steps).unwrap_or(Value::Null),
+            );
+            if on("bias_step") {
+                fx.bias_steps = model.bias_steps.clone();
+            }
+        }
         if let Some(o) = model.outliers {
             note(
                 "outliers",
@@ -311,6 +323,9 @@ impl ChannelEffects {
         e += dot(&self.g_sensitivity, &k.f_m_s2);
         e += dot(&self.angular_acceleration_sensitivity, &k.omega_dot_rad_s2);
         e += dot(&self.jerk_sensitivity, &k.f_dot_m_s3);
+        for b in self.bias_steps.iter().filter(|b| t_true_s >= b.at_s) {
+            e += b.size;
+        }
         for l in &self.vibration_lines {
             e += l.amplitude
                 * (2.0 * std::f64::consts::PI * l.frequency_hz * t_true_s + l.phase_rad).sin();

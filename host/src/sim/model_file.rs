@@ -56,6 +56,7 @@ pub const EFFECTS: &[&str] = &[
     "dynamic_noise",
     "vibration",
     "outliers",
+    "bias_step",
     "saturation",
     "quantization",
     // per-sensor effects
@@ -155,12 +156,25 @@ pub struct ChannelModel {
     pub vibration_lines: Vec<VibrationLine>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub outliers: Option<Outliers>,
+    /// Steps of the bias during the run (e.g. after a shock or a thermal event).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bias_steps: Vec<BiasStep>,
     /// Output clipped to +-saturation, channel unit.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub saturation: Option<f64>,
     /// Output rounded to multiples of this step (LSB), channel unit.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub quantization_step: Option<f64>,
+}
+
+/// A step of the bias: from true time `at_s` on, the channel's bias is larger by `size`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BiasStep {
+    /// True time of the step, s from the start of the run.
+    pub at_s: f64,
+    /// Size of the step, channel unit (rad/s or m/s^2).
+    pub size: f64,
 }
 
 /// The sample clock of an IMU: samples are evenly spaced in the IMU's own time, which runs
@@ -642,6 +656,14 @@ impl SimModel {
                         return Err(bad(
                             f("dynamic_noise.sigma_per_unit"),
                             format!("{} must be finite and non-negative", d.sigma_per_unit),
+                        ));
+                    }
+                }
+                for (j, b) in ch.bias_steps.iter().enumerate() {
+                    if !(b.at_s.is_finite() && b.at_s >= 0.0 && b.size.is_finite()) {
+                        return Err(bad(
+                            f(&format!("bias_steps[{j}]")),
+                            "at_s must be finite and non-negative, size finite".into(),
                         ));
                     }
                 }
