@@ -412,17 +412,52 @@ pub fn noise_vs_dynamics(x: &[f64], magnitude: &[f64], window: usize) -> NoiseVs
     }
 }
 
-/// Estimates an outlier process (probability per sample, sigma) from detected outliers with
-/// |deviation| > t_abs, correcting for the small ones hidden in the noise: the detected
-/// deviations are a normal N(0, s^2) truncated to |x| > t_abs, s^2 = sigma_out^2 + noise^2.
-pub fn outlier_process(
-    devs: &[f64],
-    t_abs: f64,
-    noise_sigma: f64,
-    n: usize,
-) -> (f64, f64, [f64; 2]) {
+/// Smallest fraction of a fitted outlier population that must lie beyond the detection
+/// threshold for the exceedances to be called a separate population. Below it the fitted
+/// population is mostly hidden in the noise: its size would be an extrapolation of the tail's
+/// shape by more than a factor 20, and the exceedances are better read as the noise's own
+/// heavier-than-Gaussian tail (on the ADIS16405 az channel they pile up just above the
+/// threshold, the fit puts 99.99% of its population inside the noise, and the corrected
+/// count was 0.49 per sample). The bound also caps the hidden-outlier correction at 20x.
+pub const MIN_OUTLIER_DETECTION_PROBABILITY: f64 = 0.05;
+
+/// An outlier process estimated from the deviations beyond a detection threshold.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct OutlierProcess {
+    /// True when the exceedances form a population separate from the noise (at least
+    /// [`MIN_OUTLIER_DETECTION_PROBABILITY`] of the fitted population shows beyond the
+    /// threshold); false when they are the tip of a heavier-tailed noise.
+    pub separated: bool,
+    /// Outlier probability per sample. Separated: corrected for the outliers hidden in the
+    /// noise. Not separated: the detected rate only, with no extrapolation.
+    pub probability_per_sample: f64,
+    /// 95% interval of `probability_per_sample` (Poisson on the count, scaled alike).
+    pub probability_ci95: [f64; 2],
+    /// Standard deviation of an outlier, error units (population scale minus the noise).
+    pub sigma: f64,
+    /// Fitted scale of the deviations (outlier plus noise), error units.
+    pub population_sigma: f64,
+    /// Fraction of the fitted population beyond the threshold.
+    pub detection_probability: f64,
+}
+
+/// Estimates an outlier process from the detected deviations `devs` (|deviation| > t_abs,
+/// error units) of a series of `n` samples whose noise has standard deviation `noise_sigma`.
+/// The detected deviations are modelled as a normal N(0, s^2), s^2 = sigma_out^2 + noise^2,
+/// truncated to |x| > t_abs; s is solved from their second moment. The count is corrected for
+/// the small outliers hidden in the noise (divided by the detection probability) only when the
+/// fit shows a population that stands out of the noise (see
+/// [`MIN_OUTLIER_DETECTION_PROBABILITY`]); otherwise the process is flagged as not separated
+/// and the detected rate is returned as it is.
+pub fn outlier_process(devs: &[f64], t_abs: f64, noise_sigma: f64, n: usize) -> OutlierProcess {
     let normal = Normal::new(0.0, 1.0).expect("standard normal");
-    let m2 = devs.iter().map(|d| d * d).sum::<f64>() / devs.len() as f64;
+    let k = devs.len() as f64;
+    let n_f = n.max(1) as f64;
+    let m2 = if devs.is_empty() {
+        0.0
+    } else {
+        devs.iter().map(|d| d * d).sum::<f64>() / k
+    };
     // E[x^2 | |x| > t] = s^2 + t s phi(t/s) / (1 - Phi(t/s)) for x ~ N(0, s^2); solve for s.
     let second_moment = |s: f64| {
         let u = t_abs / s;
@@ -445,15 +480,20 @@ pub fn outlier_process(
     let s = 0.5 * (lo + hi);
     let sigma_out = (s * s - noise_sigma * noise_sigma).max(0.0).sqrt();
     let detect = 2.0 * (1.0 - normal.cdf(t_abs / s));
-    let k = devs.len() as f64;
-    let p = k / n as f64 / detect.max(1e-12);
+    let separated = !devs.is_empty() && detect >= MIN_OUTLIER_DETECTION_PROBABILITY;
+    // Separated: every detected outlier stands for 1/detect outliers. Not separated: the
+    // hidden part is not observed, so nothing is extrapolated.
+    let scale = if separated { 1.0 / detect } else { 1.0 };
     // Poisson interval on the count (normal approximation with continuity), scaled.
     let half = 1.959_963_984_540_054 * (k + 1.0).sqrt();
-    let ci = [
-        ((k - half).max(0.0)) / n as f64 / detect,
-        (k + half) / n as f64 / detect,
-    ];
-    (p, sigma_out, ci)
+    OutlierProcess {
+        separated,
+        probability_per_sample: k / n_f * scale,
+        probability_ci95: [(k - half).max(0.0) / n_f * scale, (k + half) / n_f * scale],
+        sigma: sigma_out,
+        population_sigma: s,
+        detection_probability: detect,
+    }
 }
 
 #[cfg(test)]
@@ -502,6 +542,75 @@ mod tests {
         let o = find_outliers(&x, 11, 6.0);
         assert_eq!(o.indices.len(), 50);
         assert!((o.median_size - 0.2).abs() < 0.02, "{o:?}");
+    }
+
+    /// Deviations of the flagged samples from their local median (the engine's measure).
+    fn flagged_deviations(x: &[f64], o: &Outliers) -> Vec<f64> {
+        o.indices
+            .iter()
+            .map(|&i| {
+                let mut b = x[i.saturating_sub(5)..(i + 6).min(x.len())].to_vec();
+                let m = b.len() / 2;
+                x[i] - *b.select_nth_unstable_by(m, f64::total_cmp).1
+            })
+            .collect()
+    }
+
+    #[test]
+    fn heavy_tailed_noise_is_not_an_outlier_process() {
+        // Laplace noise (scale b): its exceedances beyond 6 robust sigma decay like exp(-x/b),
+        // piling up just above the threshold, as on the ADIS16405 az channel. No outlier
+        // population exists; the old estimator extrapolated the count by ~50x.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let n = 200_000;
+        let b = 0.01;
+        let x: Vec<f64> = (0..n)
+            .map(|_| {
+                let u: f64 = rng.random_range(-0.5..0.5);
+                -b * u.signum() * (1.0 - 2.0 * u.abs()).ln()
+            })
+            .collect();
+        let o = find_outliers(&x, 11, 6.0);
+        assert!(o.indices.len() > 50, "{} exceedances", o.indices.len());
+        let devs = flagged_deviations(&x, &o);
+        let p = outlier_process(&devs, 6.0 * o.robust_sigma, o.robust_sigma, n);
+        assert!(!p.separated, "{p:?}");
+        assert!(
+            p.detection_probability < MIN_OUTLIER_DETECTION_PROBABILITY,
+            "{p:?}"
+        );
+        // No extrapolation: the detected rate, a few per thousand, not a large fraction.
+        assert!((p.probability_per_sample - o.rate).abs() < 1e-15, "{p:?}");
+        assert!(p.probability_per_sample < 5e-3, "{p:?}");
+    }
+
+    #[test]
+    fn an_outlier_population_is_counted_with_its_hidden_part() {
+        // Gaussian noise with outliers only 5x the noise: a quarter of them show beyond
+        // 6 sigma, the rest must be inferred from the spread of those that do.
+        let mut rng = ChaCha8Rng::seed_from_u64(6);
+        let n = 400_000;
+        let (p_true, sigma_true) = (1e-3, 0.05);
+        let mut x = white(&mut rng, n, 0.01);
+        for v in x.iter_mut() {
+            if rng.random_bool(p_true) {
+                *v += sigma_true * rng.sample::<f64, _>(StandardNormal);
+            }
+        }
+        let o = find_outliers(&x, 11, 6.0);
+        let devs = flagged_deviations(&x, &o);
+        let p = outlier_process(&devs, 6.0 * o.robust_sigma, o.robust_sigma, n);
+        assert!(p.separated, "{p:?}");
+        assert!(
+            p.probability_ci95[0] <= p_true && p_true <= p.probability_ci95[1],
+            "{p:?}"
+        );
+        assert!(
+            p.probability_per_sample > 2.0 * o.rate,
+            "{p:?} vs {}",
+            o.rate
+        );
+        assert!((p.sigma - sigma_true).abs() < 0.3 * sigma_true, "{p:?}");
     }
 
     #[test]
