@@ -609,11 +609,14 @@ fn draw_legend<DB: DrawingBackend>(
     Ok(())
 }
 
+/// One of a channel's four misfits.
+type GainValue = fn(&Gain) -> f64;
+
 /// Bar chart of the WV misfit per channel, baseline against extended, in-sample and held-out,
 /// on a log scale with the line a fitting model sits on (misfit 1). `None` without any
 /// positive misfit to draw.
 pub fn gain_svg(gain: &BTreeMap<String, Gain>) -> Result<Option<String>, PlotError> {
-    let series: [(&str, fn(&Gain) -> f64); 4] = [
+    let series: [(&str, GainValue); 4] = [
         ("baseline, in-sample", |g| g.baseline),
         ("extended, in-sample", |g| g.extended),
         ("baseline, held-out", |g| g.held_out_baseline),
