@@ -2,4 +2,5 @@
 //! model and the measured gain (`dynacal diagnose`).
 
 pub mod engine;
+pub mod report;
 pub mod stats;
