@@ -357,6 +357,7 @@ fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
 }
 
 /// Column layout of the unknowns.
+#[derive(Debug, Clone, Copy)]
 struct Layout {
     gyro: bool,
     accel: bool,
@@ -392,6 +393,129 @@ struct Solution {
     lag: usize,
 }
 
+/// The three rows (x, y, z) of the linearised error model of one epoch for the gyros
+/// (`accel = false`) or the accelerometers: columns as in [`Layout`].
+fn design_rows(
+    layout: &Layout,
+    omega_rad_s: &Vector3<f64>,
+    f_m_s2: &Vector3<f64>,
+    omega_dot_rad_s2: &Vector3<f64>,
+    f_dot_m_s3: &Vector3<f64>,
+    accel: bool,
+) -> [[f64; 16]; 3] {
+    let mut rows = [[0.0; 16]; 3];
+    let s = skew(if accel { f_m_s2 } else { omega_rad_s });
+    let ww = skew(omega_rad_s);
+    let lever_matrix = skew(omega_dot_rad_s2) + ww * ww;
+    for (i, x) in rows.iter_mut().enumerate() {
+        for j in 0..3 {
+            x[j] = s[(i, j)];
+        }
+        if accel {
+            if let Some(ba) = layout.ba() {
+                x[ba + i] = 1.0;
+            }
+            if let Some(l) = layout.lever() {
+                for j in 0..3 {
+                    x[l + j] = lever_matrix[(i, j)];
+                }
+            }
+            if let Some(t) = layout.time() {
+                x[t] = -f_dot_m_s3[i];
+            }
+        } else {
+            if let Some(bg) = layout.bg() {
+                x[bg + i] = 1.0;
+            }
+            if let Some(t) = layout.time() {
+                x[t] = -omega_dot_rad_s2[i];
+            }
+        }
+    }
+    rows
+}
+
+/// The linear model the calibration fitted, at its solution: what it would have absorbed
+/// from any other error. The discrepancy engine uses it to estimate per-channel terms
+/// jointly with the calibration (Frisch-Waugh: a candidate regressor is first stripped of
+/// what the calibration would take from it) and to correct the calibration's estimates for
+/// the terms it finds; and it carries the epoch derivatives the calibration used (9-point
+/// stencils at the reference's native rate), which are better than differences at the
+/// sensor rate.
+#[derive(Debug, Clone)]
+pub struct CalibrationDesign {
+    epochs: usize,
+    /// Rows per channel (gx gy gz ax ay az), `epochs` each; empty for a channel not present.
+    rows: [Vec<[f64; 16]>; 6],
+    weights: [f64; 2],
+    /// (X' W X)^-1.
+    bread: DMatrix<f64>,
+    layout: Layout,
+    /// Angular acceleration at the epochs, rad/s^2, body (reference) frame.
+    pub omega_dot_b_rad_s2: [Vec<f64>; 3],
+    /// Rate of change of specific force at the epochs, m/s^3, body (reference) frame.
+    pub f_dot_b_m_s3: [Vec<f64>; 3],
+}
+
+impl CalibrationDesign {
+    /// Index of the time-offset parameter in a parameter vector, if estimated.
+    pub fn time_index(&self) -> Option<usize> {
+        self.layout.time()
+    }
+    /// Index of the lever arm's x component, if estimated.
+    pub fn lever_index(&self) -> Option<usize> {
+        self.layout.lever()
+    }
+    /// Number of parameters.
+    pub fn parameters(&self) -> usize {
+        self.layout.len()
+    }
+    /// Whether a channel (0..6, gx..az) has rows.
+    pub fn has_channel(&self, channel: usize) -> bool {
+        !self.rows[channel].is_empty()
+    }
+    /// The calibration parameters the weighted least squares would take from an error
+    /// series on `channel` alone (zero on the others).
+    pub fn absorbed(&self, channel: usize, y: &[f64]) -> DVector<f64> {
+        let p = self.layout.len();
+        let w = self.weights[channel / 3];
+        let mut xtwy = DVector::<f64>::zeros(p);
+        for (x, v) in self.rows[channel].iter().zip(y) {
+            for a in 0..p {
+                xtwy[a] += w * x[a] * v;
+            }
+        }
+        &self.bread * xtwy
+    }
+    /// The calibration parameters taken from errors on all channels at once.
+    pub fn absorbed_all(&self, y: &[Option<&[f64]>; 6]) -> DVector<f64> {
+        let mut total = DVector::<f64>::zeros(self.layout.len());
+        for (ch, series) in y.iter().enumerate() {
+            if let Some(series) = series.filter(|_| self.has_channel(ch)) {
+                total += self.absorbed(ch, series);
+            }
+        }
+        total
+    }
+    /// The fitted error on `channel` of a parameter vector.
+    pub fn fitted(&self, channel: usize, theta: &DVector<f64>) -> Vec<f64> {
+        let p = self.layout.len();
+        self.rows[channel]
+            .iter()
+            .map(|x| (0..p).map(|a| x[a] * theta[a]).sum())
+            .collect()
+    }
+    /// `y` on `channel` minus what the calibration would have absorbed from it.
+    pub fn residualize(&self, channel: usize, y: &[f64]) -> Vec<f64> {
+        if !self.has_channel(channel) || y.len() != self.epochs {
+            return y.to_vec();
+        }
+        let theta = self.absorbed(channel, y);
+        let fit = self.fitted(channel, &theta);
+        y.iter().zip(fit).map(|(v, f)| v - f).collect()
+    }
+}
+
 /// One weighted least-squares solve of the linearised error model over all epochs.
 #[allow(clippy::too_many_arguments)]
 fn solve(
@@ -411,40 +535,21 @@ fn solve(
     for k in 0..n {
         let w = &reference.omega_ib_b_rad_s[k];
         let f = &reference.f_b_m_s2[k];
-        if let (Some(omega_s), Some(bg)) = (omega_s, layout.bg()) {
+        if let Some(omega_s) = omega_s.filter(|_| layout.gyro) {
             let e = omega_s[k] - w;
-            let s = skew(w);
-            for i in 0..3 {
-                let mut x = [0.0; 16];
-                for j in 0..3 {
-                    x[j] = s[(i, j)];
-                }
-                x[bg + i] = 1.0;
-                if let Some(t) = layout.time() {
-                    x[t] = -omega_dot[k][i];
-                }
+            for (i, x) in design_rows(layout, w, f, &omega_dot[k], &f_dot[k], false)
+                .into_iter()
+                .enumerate()
+            {
                 rows.push((k, x, e[i], weights[0]));
             }
         }
-        if let (Some(f_s), Some(ba)) = (f_s, layout.ba()) {
+        if let Some(f_s) = f_s.filter(|_| layout.accel) {
             let e = f_s[k] - f;
-            let s = skew(f);
-            let ww = skew(w);
-            let lever_matrix = skew(&omega_dot[k]) + ww * ww;
-            for i in 0..3 {
-                let mut x = [0.0; 16];
-                for j in 0..3 {
-                    x[j] = s[(i, j)];
-                }
-                x[ba + i] = 1.0;
-                if let Some(l) = layout.lever() {
-                    for j in 0..3 {
-                        x[l + j] = lever_matrix[(i, j)];
-                    }
-                }
-                if let Some(t) = layout.time() {
-                    x[t] = -f_dot[k][i];
-                }
+            for (i, x) in design_rows(layout, w, f, &omega_dot[k], &f_dot[k], true)
+                .into_iter()
+                .enumerate()
+            {
                 rows.push((k, x, e[i], weights[1]));
             }
         }
@@ -519,6 +624,15 @@ pub fn build_error_signals(
     reference: &ImuRecording,
     opts: &ErrorOptions,
 ) -> Result<(ErrorSignals, CalibrationSummary), ErrorsError> {
+    build_error_signals_with_design(sensor, reference, opts).map(|(s, c, _)| (s, c))
+}
+
+/// [`build_error_signals`], also returning the calibration's linear model at its solution.
+pub fn build_error_signals_with_design(
+    sensor: &ImuRecording,
+    reference: &ImuRecording,
+    opts: &ErrorOptions,
+) -> Result<(ErrorSignals, CalibrationSummary, CalibrationDesign), ErrorsError> {
     if sensor.gyro_rad_s.is_none() && sensor.accel_m_s2.is_none() {
         return Err(ErrorsError::SensorHasNoChannels);
     }
@@ -783,8 +897,51 @@ pub fn build_error_signals(
     let data = epoch_data(shift_s)?;
     let (reference_epochs, omega_dot, f_dot) = (&data.reference, &data.omega_dot, &data.f_dot);
     let (omega_s, f_s) = (rotate(&data.gyro, &r_sb), rotate(&data.accel, &r_sb));
-    let _ = f_dot;
     let n = mid_t.len();
+    let design = {
+        let mut rows: [Vec<[f64; 16]>; 6] = Default::default();
+        for k in 0..n {
+            let (w, f) = (
+                &reference_epochs.omega_ib_b_rad_s[k],
+                &reference_epochs.f_b_m_s2[k],
+            );
+            for (accel, present) in [(false, omega_s.is_some()), (true, f_s.is_some())] {
+                if present {
+                    let r = design_rows(&layout, w, f, &omega_dot[k], &f_dot[k], accel);
+                    for i in 0..3 {
+                        rows[3 * usize::from(accel) + i].push(r[i]);
+                    }
+                }
+            }
+        }
+        let p = layout.len();
+        let mut xtwx = DMatrix::<f64>::zeros(p, p);
+        for (ch, rs) in rows.iter().enumerate() {
+            let w = weights[ch / 3];
+            for x in rs {
+                for a in 0..p {
+                    for b in 0..p {
+                        xtwx[(a, b)] += w * x[a] * x[b];
+                    }
+                }
+            }
+        }
+        let scale: Vec<f64> = (0..p).map(|a| xtwx[(a, a)].sqrt().max(1e-300)).collect();
+        let scaled = DMatrix::from_fn(p, p, |a, b| xtwx[(a, b)] / (scale[a] * scale[b]));
+        let inv = scaled
+            .cholesky()
+            .map(|c| c.inverse())
+            .unwrap_or_else(|| DMatrix::zeros(p, p));
+        CalibrationDesign {
+            epochs: n,
+            rows,
+            weights,
+            bread: DMatrix::from_fn(p, p, |a, b| inv[(a, b)] / (scale[a] * scale[b])),
+            layout,
+            omega_dot_b_rad_s2: std::array::from_fn(|i| omega_dot.iter().map(|v| v[i]).collect()),
+            f_dot_b_m_s3: std::array::from_fn(|i| f_dot.iter().map(|v| v[i]).collect()),
+        }
+    };
     let mut errors: [Option<Vec<f64>>; 6] = Default::default();
     if let Some(o) = &omega_s {
         for i in 0..3 {
@@ -875,6 +1032,7 @@ pub fn build_error_signals(
             dynamics,
         },
         summary,
+        design,
     ))
 }
 

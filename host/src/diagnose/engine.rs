@@ -34,7 +34,9 @@ use super::stats::{
     spectral_lines, welch_psd,
 };
 use crate::error_signal::ErrorSignals;
-use crate::errors::{build_error_signals, CalibrationSummary, ErrorOptions};
+use crate::errors::{
+    build_error_signals_with_design, CalibrationDesign, CalibrationSummary, ErrorOptions,
+};
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
@@ -471,8 +473,8 @@ pub fn diagnose(
     let mut notes = Vec::new();
     let (signals, calibration) = match reference {
         Some(r) => {
-            let (s, c) = build_error_signals(sensor, r, &ErrorOptions::default())?;
-            (s, Some(c))
+            let (s, c, d) = build_error_signals_with_design(sensor, r, &ErrorOptions::default())?;
+            (s, Some((c, d)))
         }
         None => {
             notes.push(
@@ -519,55 +521,17 @@ pub fn diagnose(
 
     let mut findings = Vec::new();
     let mut discrepancies = Vec::new();
-    // Sensor-wide calibration terms named when significant.
-    if let Some(cal) = &calibration {
-        if let Some(t) = cal.time_offset_s {
-            if t.sigma > 0.0
-                && (t.value / t.sigma).abs() > z_strict
-                && t.value.abs() > 0.2 * dt_s.min(0.01)
-            {
-                for ch in &channels {
-                    findings.push(Finding {
-                        channel: (*ch).into(),
-                        cause: "time_offset".into(),
-                        regressors: vec![format!("d{ch}/dt")],
-                        estimate: json!(t.value),
-                        ci95: json!(ci(t.value, t.sigma)),
-                        variance_explained: f64::NAN,
-                    });
-                }
-            }
-        }
-        if let Some(l) = cal.lever_arm_m {
-            let significant = (0..3).any(|i| {
-                l.sigma[i] > 0.0
-                    && (l.value[i] / l.sigma[i]).abs() > z_strict
-                    && l.value[i].abs() > 0.005
-            });
-            if significant {
-                for ch in channels.iter().filter(|c| c.starts_with('a')) {
-                    findings.push(Finding {
-                        channel: (*ch).into(),
-                        cause: "lever_arm".into(),
-                        regressors: vec!["r_x_m".into(), "r_y_m".into(), "r_z_m".into()],
-                        estimate: json!(l.value),
-                        ci95: json!([
-                            ci(l.value[0], l.sigma[0]),
-                            ci(l.value[1], l.sigma[1]),
-                            ci(l.value[2], l.sigma[2])
-                        ]),
-                        variance_explained: f64::NAN,
-                    });
-                }
-            }
-        }
-    }
-
     let f = signals
         .specific_force_b_m_s2
         .clone()
         .unwrap_or_else(|| std::array::from_fn(|i| signals.dynamics[9 + i].clone()));
-    let f_dot: [Vec<f64>; 3] = std::array::from_fn(|i| derivative(&signals.t_s, &f[i]));
+    // The calibration's derivatives (9-point stencils at the reference's native rate) when
+    // there is one: differences at the sensor rate lose much of a vibration's jerk.
+    let f_dot: [Vec<f64>; 3] = match &calibration {
+        Some((_, d)) => d.f_dot_b_m_s3.clone(),
+        None => std::array::from_fn(|i| derivative(&signals.t_s, &f[i])),
+    };
+    let design: Option<&CalibrationDesign> = calibration.as_ref().map(|(_, d)| d);
     let split = ((1.0 - opts.holdout_fraction) * n as f64) as usize;
 
     struct ChannelResult {
@@ -576,6 +540,7 @@ pub fn diagnose(
         gain: Gain,
         wv_curves: WvCurves,
         model: Value,
+        absorbed: Option<nalgebra::DVector<f64>>,
     }
     let results: Vec<Result<ChannelResult, DiagnoseError>> = channels
         .par_iter()
@@ -592,6 +557,12 @@ pub fn diagnose(
             // Deterministic candidates by physics.
             // A step of the bias, if one is found below, joins the candidates.
             let step_values: Vec<f64>;
+            let ch_index = CHANNELS.iter().position(|c| *c == ch).expect("known channel");
+            // Each candidate stripped of what the calibration would have taken from it
+            // (Frisch-Waugh), so its coefficient is the one of a joint fit with boresight,
+            // lever arm, biases and time offset: a gyro's omega_z -> gx term is otherwise half
+            // absorbed by the boresight, and an accelerometer's jerk term by the time offset.
+            let mut raw_cands: Vec<Candidate> = Vec::new();
             let mut cands: Vec<Candidate> = Vec::new();
             if has_dynamics {
                 for j in 0..3 {
@@ -613,6 +584,11 @@ pub fn diagnose(
                     });
                     cands.push(Candidate { name: format!("f_dot_{}", xyz[j]), values: &f_dot[j], cause: "jerk", field: ("jerk_sensitivity", j) });
                 }
+            }
+            let stripped: Vec<Vec<f64>> = cands.iter().map(|c| design.map_or_else(|| c.values.to_vec(), |d| d.residualize(ch_index, c.values))).collect();
+            std::mem::swap(&mut raw_cands, &mut cands);
+            for (c, v) in raw_cands.iter().zip(&stripped) {
+                cands.push(Candidate { name: c.name.clone(), values: v, cause: c.cause, field: c.field });
             }
             // Baseline simulations: the null distribution of every statistic below.
             let sims: Vec<Vec<f64>> = (0..opts.replicates)
@@ -717,8 +693,33 @@ pub fn diagnose(
             let mut effects = ChannelEffects::default();
             let max_level = ((n as f64).log2().floor() as u32).saturating_sub(2).max(1);
 
+            // Noise growing with the dynamics, looked at before outliers: the largest samples
+            // of a noise that grows in the manoeuvres are not outliers, and the outlier search
+            // then runs on the residual scaled back to the quiet noise level.
+            let mut noise_scale: Option<(f64, f64)> = None;
+            if has_dynamics {
+                let window = ((1.0 / dt_s) as usize).max(16);
+                let nd = noise_vs_dynamics(&resid, &omega_norm, window);
+                let sim_t: Vec<f64> = sims.iter().map(|s| noise_vs_dynamics(s, &omega_norm, window).t).collect();
+                let range = sim_range(&sim_t);
+                if nd.t > z_strict.max(range[1] * 1.5) && nd.sigma_per_unit > 0.0 {
+                    ch_disc.push(Discrepancy { channel: ch.into(), statistic: "noise variance vs |omega|^2 (t)".into(), measured: nd.t, simulated_range: range, detail: String::new() });
+                    ch_findings.push(Finding { channel: ch.into(), cause: "noise_scales_with_dynamics".into(), regressors: vec!["|omega| (rad/s)".into()], estimate: json!(nd.sigma_per_unit), ci95: json!(nd.sigma_per_unit_ci95), variance_explained: nd.sigma_per_unit.powi(2) * omega_norm.iter().map(|w| w * w).sum::<f64>() / n as f64 / variance(e) });
+                    effects.dynamic_noise_sigma_per_rad_s = Some(nd.sigma_per_unit);
+                    noise_scale = Some((nd.intercept.max(0.0), nd.slope));
+                }
+            }
+
             // Outliers.
-            let out = find_outliers(&resid, 11, 6.0);
+            let outlier_input: Vec<f64> = match noise_scale {
+                Some((var0, slope)) if var0 > 0.0 => resid
+                    .iter()
+                    .zip(&omega_norm)
+                    .map(|(r, w)| r * (var0 / (var0 + slope * w * w)).sqrt())
+                    .collect(),
+                _ => resid.clone(),
+            };
+            let out = find_outliers(&outlier_input, 11, 6.0);
             let sim_counts: Vec<f64> = sims.iter().map(|s| find_outliers(s, 11, 6.0).indices.len() as f64).collect();
             let range = sim_range(&sim_counts);
             if out.indices.len() >= 5 && out.indices.len() as f64 > range[1] + 3.0 {
@@ -733,7 +734,7 @@ pub fn diagnose(
                     }).collect()
                 };
                 let devs: Vec<f64> = out.indices.iter().zip(&med).map(|(&i, m)| resid[i] - m).collect();
-                let op = outlier_process(&devs, 6.0 * out.robust_sigma, out.robust_sigma, n);
+                let op = outlier_process(&out.scaled_deviations, 6.0 * out.robust_sigma, out.robust_sigma, n);
                 // The simulation misses the tail either way; only a population that stands out
                 // of the noise is named `outliers` (a heavier-tailed noise is not outliers).
                 let detail = if op.separated {
@@ -805,19 +806,6 @@ pub fn diagnose(
                 ch_disc.push(Discrepancy { channel: ch.into(), statistic: format!("spectral line at {:.2} Hz", line.freq_hz), measured: line.power_ratio, simulated_range: sim_range(&sim_lines), detail: format!("lines found in baseline simulations: {:?}", sim_lines) });
                 ch_findings.push(Finding { channel: ch.into(), cause: "vibration".into(), regressors: vec![format!("sinusoid at {:.3} Hz (as sampled)", line.freq_hz)], estimate: json!(amp), ci95: json!(ci(amp, noise)), variance_explained: amp * amp / 2.0 / variance(e) });
                 effects.vibration.push((line.freq_hz, amp));
-            }
-
-            // Noise growing with the dynamics.
-            if has_dynamics {
-                let window = ((1.0 / dt_s) as usize).max(16);
-                let nd = noise_vs_dynamics(&resid, &omega_norm, window);
-                let sim_t: Vec<f64> = sims.iter().map(|s| noise_vs_dynamics(s, &omega_norm, window).t).collect();
-                let range = sim_range(&sim_t);
-                if nd.t > z_strict.max(range[1] * 1.5) && nd.sigma_per_unit > 0.0 {
-                    ch_disc.push(Discrepancy { channel: ch.into(), statistic: "noise variance vs |omega|^2 (t)".into(), measured: nd.t, simulated_range: range, detail: String::new() });
-                    ch_findings.push(Finding { channel: ch.into(), cause: "noise_scales_with_dynamics".into(), regressors: vec!["|omega| (rad/s)".into()], estimate: json!(nd.sigma_per_unit), ci95: json!(nd.sigma_per_unit_ci95), variance_explained: nd.sigma_per_unit.powi(2) * omega_norm.iter().map(|w| w * w).sum::<f64>() / n as f64 / variance(e) });
-                    effects.dynamic_noise_sigma_per_rad_s = Some(nd.sigma_per_unit);
-                }
             }
 
             // Quantization: the raw sensor values on a lattice the baseline does not have.
@@ -930,7 +918,16 @@ pub fn diagnose(
             if let Some(q) = ch_findings.iter().find(|f| f.cause == "quantization").and_then(|f| f.estimate.as_f64()) {
                 model["quantization_step"] = json!(q);
             }
+            // What the calibration took from the terms found here, to correct its estimates.
+            let absorbed = design.map(|d| {
+                let mut total = nalgebra::DVector::<f64>::zeros(d.parameters());
+                for (k, b, _, _) in coeffs.iter().filter(|(k, ..)| *k < raw_cands.len()) {
+                    total += d.absorbed(ch_index, raw_cands[*k].values) * *b;
+                }
+                total
+            });
             Ok(ChannelResult {
+                absorbed,
                 findings: ch_findings,
                 discrepancies: ch_disc,
                 wv_curves,
@@ -942,21 +939,117 @@ pub fn diagnose(
     let mut gain = BTreeMap::new();
     let mut wv_curves = BTreeMap::new();
     let mut channel_models = serde_json::Map::new();
+    let mut absorbed_total: Option<nalgebra::DVector<f64>> = None;
+    let mut channel_findings = Vec::new();
     for (ch, r) in channels.iter().zip(results) {
         let r = r?;
-        findings.extend(r.findings);
+        if let Some(a) = r.absorbed {
+            absorbed_total = Some(match absorbed_total {
+                Some(t) => t + a,
+                None => a,
+            });
+        }
+        channel_findings.extend(r.findings);
         discrepancies.extend(r.discrepancies);
         gain.insert((*ch).to_string(), r.gain);
         wv_curves.insert((*ch).to_string(), r.wv_curves);
         channel_models.insert((*ch).to_string(), r.model);
     }
+    let (calibration, design) = match calibration {
+        Some((c, d)) => (Some(c), Some(d)),
+        None => (None, None),
+    };
+    // Sensor-wide calibration terms, corrected for what the per-channel terms found had
+    // pushed into them (the joint estimate), with 1-sigma no smaller than the spread the
+    // calibration shows on baseline noise simulated for every channel: the Newey-West sigma
+    // alone under-covers when the noise wanders slowly.
+    let mut joint_time_offset = None;
+    let mut joint_lever = None;
+    if let (Some(cal), Some(design)) = (&calibration, &design) {
+        let p = design.parameters();
+        let shift = absorbed_total.unwrap_or_else(|| nalgebra::DVector::zeros(p));
+        let reps = opts.replicates.max(8);
+        let thetas: Vec<nalgebra::DVector<f64>> = (0..reps)
+            .into_par_iter()
+            .map(|r| {
+                let series: Vec<Option<Vec<f64>>> = CHANNELS
+                    .iter()
+                    .enumerate()
+                    .map(|(i, c)| {
+                        let spec = baseline.channels.get(*c)?;
+                        design.has_channel(i).then(|| {
+                            let mut rng = ChaCha8Rng::seed_from_u64(
+                                opts.seed ^ 0x5eed_ca1b ^ ((r as u64) << 8) ^ i as u64,
+                            );
+                            spec.simulate(n, &mut rng)
+                        })
+                    })
+                    .collect();
+                let refs: [Option<&[f64]>; 6] = std::array::from_fn(|i| series[i].as_deref());
+                design.absorbed_all(&refs)
+            })
+            .collect();
+        let sim_sd: Vec<f64> = (0..p)
+            .map(|a| {
+                let m = thetas.iter().map(|t| t[a]).sum::<f64>() / reps as f64;
+                (thetas.iter().map(|t| (t[a] - m).powi(2)).sum::<f64>() / (reps as f64 - 1.0))
+                    .sqrt()
+            })
+            .collect();
+        if let (Some(t), Some(ti)) = (cal.time_offset_s, design.time_index()) {
+            let value = t.value - shift[ti];
+            let sigma = t.sigma.max(sim_sd[ti]);
+            joint_time_offset = Some(value);
+            if (value - t.value).abs() > 0.5 * sigma {
+                notes.push(format!("time offset corrected for the per-channel terms found: calibration {:.6} s, joint {:.6} s", t.value, value));
+            }
+            if sigma > 0.0 && (value / sigma).abs() > z_strict && value.abs() > 0.2 * dt_s.min(0.01)
+            {
+                for ch in &channels {
+                    findings.push(Finding {
+                        channel: (*ch).into(),
+                        cause: "time_offset".into(),
+                        regressors: vec![format!("d{ch}/dt")],
+                        estimate: json!(value),
+                        ci95: json!(ci(value, sigma)),
+                        variance_explained: f64::NAN,
+                    });
+                }
+            }
+        }
+        if let (Some(l), Some(li)) = (cal.lever_arm_m, design.lever_index()) {
+            let value: [f64; 3] = std::array::from_fn(|i| l.value[i] - shift[li + i]);
+            let sigma: [f64; 3] = std::array::from_fn(|i| l.sigma[i].max(sim_sd[li + i]));
+            joint_lever = Some(value);
+            let significant = (0..3).any(|i| {
+                sigma[i] > 0.0 && (value[i] / sigma[i]).abs() > z_strict && value[i].abs() > 0.005
+            });
+            if significant {
+                for ch in channels.iter().filter(|c| c.starts_with('a')) {
+                    findings.push(Finding {
+                        channel: (*ch).into(),
+                        cause: "lever_arm".into(),
+                        regressors: vec!["r_x_m".into(), "r_y_m".into(), "r_z_m".into()],
+                        estimate: json!(value),
+                        ci95: json!([
+                            ci(value[0], sigma[0]),
+                            ci(value[1], sigma[1]),
+                            ci(value[2], sigma[2])
+                        ]),
+                        variance_explained: f64::NAN,
+                    });
+                }
+            }
+        }
+    }
+    findings.extend(channel_findings);
     let mut imu = json!({ "name": "diagnosed", "rate_hz": 1.0 / dt_s, "channels": channel_models });
     if let Some(cal) = &calibration {
-        if let Some(l) = cal.lever_arm_m {
-            imu["lever_arm_b_m"] = json!(l.value);
+        if let Some(l) = joint_lever {
+            imu["lever_arm_b_m"] = json!(l);
         }
-        if let Some(t) = cal.time_offset_s {
-            imu["time_offset_s"] = json!(t.value);
+        if let Some(t) = joint_time_offset {
+            imu["time_offset_s"] = json!(t);
         }
         let deg = 180.0 / std::f64::consts::PI;
         let b = cal.boresight_rad.value;

@@ -167,15 +167,13 @@ pub struct Outliers {
     pub rate: f64,
     /// Median absolute size of the outliers above the local level, error units.
     pub median_size: f64,
-    /// Robust scale of the residual around its running median (median over blocks of the
-    /// local scale), error units.
+    /// Robust scale of the residual around its running median, error units.
     pub robust_sigma: f64,
     /// Largest |z| seen.
     pub max_abs_z: f64,
+    /// Deviations of the flagged samples from the running median, error units.
+    pub scaled_deviations: Vec<f64>,
 }
-
-/// Samples per block over which [`find_outliers`] measures the robust scale of the noise.
-pub const OUTLIER_SCALE_BLOCK: usize = 64;
 
 /// Flags samples more than `threshold` robust standard deviations from the running median of
 /// the series over `window` samples (odd). Slow wander (Gauss-Markov, random walk) is absorbed
@@ -195,41 +193,18 @@ pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
         let med = *buf.select_nth_unstable_by(mid, f64::total_cmp).1;
         dev.push(x[i] - med);
     }
-    // The robust scale is local (per block of OUTLIER_SCALE_BLOCK samples): noise that grows
-    // with the dynamics is then not mistaken for outliers during the manoeuvres.
-    let mad_sigma = |d: &[f64]| -> f64 {
-        let mut abs: Vec<f64> = d.iter().map(|v| v.abs()).collect();
-        let mid = abs.len() / 2;
-        if abs.is_empty() {
-            0.0
-        } else {
-            1.4826 * *abs.select_nth_unstable_by(mid, f64::total_cmp).1
-        }
+    let mut abs: Vec<f64> = dev.iter().map(|d| d.abs()).collect();
+    let mid = abs.len() / 2;
+    let mad = if abs.is_empty() {
+        0.0
+    } else {
+        *abs.select_nth_unstable_by(mid, f64::total_cmp).1
     };
-    let blocks = (n / OUTLIER_SCALE_BLOCK).max(1);
-    let block_bounds = |b: usize| (b * n / blocks, (b + 1) * n / blocks);
-    // Each block's scale is measured over it and its two neighbours on each side: short
-    // enough to follow a manoeuvre, long enough that a scale underestimated by chance does
-    // not flag ordinary noise.
-    let block_sigma: Vec<f64> = (0..blocks)
-        .map(|b| {
-            let lo = block_bounds(b.saturating_sub(2)).0;
-            let hi = block_bounds((b + 2).min(blocks - 1)).1;
-            mad_sigma(&dev[lo..hi])
-        })
+    let sigma = 1.4826 * mad;
+    let z: Vec<f64> = dev
+        .iter()
+        .map(|d| if sigma > 0.0 { d / sigma } else { 0.0 })
         .collect();
-    let mut z = vec![0.0; n];
-    for (b, &s) in block_sigma.iter().enumerate() {
-        let (lo, hi) = block_bounds(b);
-        for i in lo..hi {
-            z[i] = if s > 0.0 { dev[i] / s } else { 0.0 };
-        }
-    }
-    let sigma = {
-        let mut sorted = block_sigma.clone();
-        let mid = sorted.len() / 2;
-        *sorted.select_nth_unstable_by(mid, f64::total_cmp).1
-    };
     let indices: Vec<usize> = (0..n).filter(|&i| z[i].abs() > threshold).collect();
     let mut sizes: Vec<f64> = indices.iter().map(|&i| dev[i].abs()).collect();
     let median_size = if sizes.is_empty() {
@@ -240,6 +215,7 @@ pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
     };
     Outliers {
         rate: indices.len() as f64 / n.max(1) as f64,
+        scaled_deviations: indices.iter().map(|&i| z[i] * sigma).collect(),
         indices,
         median_size,
         robust_sigma: sigma,
