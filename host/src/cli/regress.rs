@@ -17,6 +17,12 @@ pub struct Args {
     /// Inference: `hac` (Newey-West, valid under autocorrelation) or `classical` (the paper's).
     #[arg(long, default_value = "hac", value_parser = ["hac", "classical"])]
     pub inference: String,
+    /// HAC Bartlett lag in samples (default: Newey & West's 1994 automatic bandwidth).
+    #[arg(long)]
+    pub hac_lag: Option<usize>,
+    /// Do not VAR(1)-prewhiten the scores before the HAC estimate.
+    #[arg(long)]
+    pub no_prewhite: bool,
     /// Significance level for backward elimination.
     #[arg(long, default_value_t = 0.05)]
     pub alpha: f64,
@@ -37,7 +43,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         inference: if args.inference == "classical" {
             Inference::Classical
         } else {
-            Inference::NeweyWest { lag: None }
+            Inference::NeweyWest {
+                lag: args.hac_lag,
+                prewhite: !args.no_prewhite,
+            }
         },
         intercept: true,
     };
