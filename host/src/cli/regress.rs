@@ -92,13 +92,17 @@ pub fn format_table(reports: &[(&str, RegressionReport)]) -> String {
         }
         s.push('\n');
     }
-    let rows: [(&str, fn(&RegressionReport) -> String); 6] = [
+    let rows: [(&str, fn(&RegressionReport) -> String); 7] = [
         ("R^2", |r| format!("{:.2} %", 100.0 * r.r2)),
         ("Adj. R^2", |r| format!("{:.2} %", 100.0 * r.adj_r2)),
         ("sigma_e^2", |r| format!("{:.3e}", r.residual_variance)),
         ("F-stat", |r| format!("{:.3e}", r.f_statistic)),
         ("p-value (F)", |r| format!("{:.2e}", r.f_p_value)),
         ("p-value (inf.)", |r| format!("{:.2e}", r.wald_p_value)),
+        ("HAC lag", |r| match r.hac_bandwidth {
+            Some(bw) => format!("{} ({bw:.1})", r.hac_lag),
+            None => r.hac_lag.to_string(),
+        }),
     ];
     for (label, f) in rows {
         let _ = write!(s, "{label:<14}");
@@ -110,7 +114,7 @@ pub fn format_table(reports: &[(&str, RegressionReport)]) -> String {
     if let Some((_, r)) = reports.first() {
         let _ = writeln!(
             s,
-            "inference: {}; stars: *** <0.001 ** <0.01 * <0.05 . <0.1",
+            "inference: {} (first channel; HAC lag (bandwidth) of each in row `HAC lag`); stars: *** <0.001 ** <0.01 * <0.05 . <0.1",
             r.inference
         );
     }
