@@ -3,11 +3,10 @@
 //! GMWM fit) on a seeded simulation whose MEMS IMU carries the paper's kind of effects
 //! (`examples/models/paper-effects.json`, sources in `docs/paper-tables.md`).
 //!
-//! What is asserted is what this seeded run measures: the recovered hidden terms with the
-//! truth inside their 95% interval, the number of terms kept without a hidden cause (the
-//! known weakness: a car's lateral acceleration and yaw rate are nearly collinear, a_y = v
-//! omega_z, and slow noise makes HAC intervals too narrow on such slow regressors), and the
-//! static/dynamic white-noise change of Table I.
+//! What is asserted: the recovered hidden terms with the truth inside their 95% interval, the
+//! number of terms kept without a hidden cause held to what a valid 5% test allows (the 95%
+//! quantile of Binomial(86, 0.05); the AR(1)-plug-in HAC lag kept 13, the prewhitened NW94
+//! inference keeps 8), and the static/dynamic white-noise change of Table I.
 
 use std::path::Path;
 
@@ -83,20 +82,11 @@ fn tables_two_and_three_recover_the_hidden_gyro_terms_and_count_false_keeps() {
         let c = report(ch)
             .coefficient(name)
             .unwrap_or_else(|| panic!("{ch}: hidden {name} eliminated"));
-        if ch == "ax" {
-            // The accelerometer scale factor is kept but comes out 11% low (4.47e-3, HAC
-            // interval [3.98e-3, 4.96e-3]): the truth is just outside; see the docs.
-            assert!(
-                (c.estimate - truth).abs() < 0.15 * truth,
-                "{ch} {name}: {c:?}"
-            );
-        } else {
-            assert!(
-                c.ci95[0] <= truth && truth <= c.ci95[1],
-                "{ch} {name}: truth {truth} outside {:?}",
-                c.ci95
-            );
-        }
+        assert!(
+            c.ci95[0] <= truth && truth <= c.ci95[1],
+            "{ch} {name}: truth {truth} outside {:?}",
+            c.ci95
+        );
         assert!(c.p_value < 0.001, "{ch} {name}: {c:?}");
     }
     // Terms kept without a hidden cause (the az yaw-acceleration term is hidden but not
@@ -114,17 +104,37 @@ fn tables_two_and_three_recover_the_hidden_gyro_terms_and_count_false_keeps() {
                 .map(move |c| format!("{ch}:{}", c.name))
         })
         .collect();
+    // Each null term is kept with probability 5% under a valid test. Allow the 95% quantile
+    // of Binomial(86, 0.05) (mean 4.3): the count of an honest run exceeds it 1 time in 20
+    // or less (the terms are not independent, so this is a guide, not an exact level).
+    let null_terms = 6 * 15 - HIDDEN.len();
+    let ceiling = binomial_quantile(null_terms, 0.05, 0.95);
+    assert_eq!(ceiling, 8);
     assert!(
-        false_keeps.len() <= 13,
-        "{} false keeps out of {} null terms: {false_keeps:?}",
+        false_keeps.len() <= ceiling,
+        "{} false keeps out of {null_terms} null terms (ceiling {ceiling}): {false_keeps:?}; {}",
         false_keeps.len(),
-        6 * 15 - HIDDEN.len()
+        report("gx").inference
     );
     // The gyro y channel carries no dynamics term: it explains almost nothing, the
     // gyro x channel clearly does (paper: 15% and 37% on x and y, 2% on z).
     assert!(report("gy").r2 < 0.005, "{}", report("gy").r2);
     assert!(report("gx").r2 > 0.04, "{}", report("gx").r2);
     assert!(report("gx").wald_p_value < 1e-10);
+}
+
+/// Smallest k with P(Binomial(n, p) <= k) >= q.
+fn binomial_quantile(n: usize, p: f64, q: f64) -> usize {
+    let mut cdf = 0.0;
+    let mut pmf = (1.0 - p).powi(n as i32);
+    for k in 0..=n {
+        cdf += pmf;
+        if cdf >= q {
+            return k;
+        }
+        pmf *= (n - k) as f64 / (k + 1) as f64 * p / (1.0 - p);
+    }
+    n
 }
 
 #[test]

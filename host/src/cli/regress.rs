@@ -17,6 +17,12 @@ pub struct Args {
     /// Inference: `hac` (Newey-West, valid under autocorrelation) or `classical` (the paper's).
     #[arg(long, default_value = "hac", value_parser = ["hac", "classical"])]
     pub inference: String,
+    /// HAC Bartlett lag in samples (default: Newey & West's 1994 automatic bandwidth).
+    #[arg(long)]
+    pub hac_lag: Option<usize>,
+    /// Do not VAR(1)-prewhiten the scores before the HAC estimate.
+    #[arg(long)]
+    pub no_prewhite: bool,
     /// Significance level for backward elimination.
     #[arg(long, default_value_t = 0.05)]
     pub alpha: f64,
@@ -37,7 +43,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         inference: if args.inference == "classical" {
             Inference::Classical
         } else {
-            Inference::NeweyWest { lag: None }
+            Inference::NeweyWest {
+                lag: args.hac_lag,
+                prewhite: !args.no_prewhite,
+            }
         },
         intercept: true,
     };
@@ -83,13 +92,17 @@ pub fn format_table(reports: &[(&str, RegressionReport)]) -> String {
         }
         s.push('\n');
     }
-    let rows: [(&str, fn(&RegressionReport) -> String); 6] = [
+    let rows: [(&str, fn(&RegressionReport) -> String); 7] = [
         ("R^2", |r| format!("{:.2} %", 100.0 * r.r2)),
         ("Adj. R^2", |r| format!("{:.2} %", 100.0 * r.adj_r2)),
         ("sigma_e^2", |r| format!("{:.3e}", r.residual_variance)),
         ("F-stat", |r| format!("{:.3e}", r.f_statistic)),
         ("p-value (F)", |r| format!("{:.2e}", r.f_p_value)),
         ("p-value (inf.)", |r| format!("{:.2e}", r.wald_p_value)),
+        ("HAC lag", |r| match r.hac_bandwidth {
+            Some(bw) => format!("{} ({bw:.1})", r.hac_lag),
+            None => r.hac_lag.to_string(),
+        }),
     ];
     for (label, f) in rows {
         let _ = write!(s, "{label:<14}");
@@ -101,7 +114,7 @@ pub fn format_table(reports: &[(&str, RegressionReport)]) -> String {
     if let Some((_, r)) = reports.first() {
         let _ = writeln!(
             s,
-            "inference: {}; stars: *** <0.001 ** <0.01 * <0.05 . <0.1",
+            "inference: {} (first channel; HAC lag (bandwidth) of each in row `HAC lag`); stars: *** <0.001 ** <0.01 * <0.05 . <0.1",
             r.inference
         );
     }

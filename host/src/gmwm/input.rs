@@ -1,11 +1,14 @@
 //! What `dynacal fit` and `dynacal compare` read: the wavelet variance of each channel of an
-//! interchange CSV, of any CSV by column name (rate, scale and unit given), or WVs stored as
+//! interchange CSV, of any other CSV with a `t_s` column (e.g. an error-signal file of
+//! `dynacal errors`: its channels are the error columns, chosen by name), of any CSV by
+//! column name (rate, scale and unit given), or WVs stored as
 //! JSON (the output of `dynacal wv`: one WV object, a map of channel -> WV object, or
 //! `{"channels": ...}` of either; and the SMAC-Group reference file with its sensor keys).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use crate::error_signal::ERROR_COLUMNS;
 use crate::interchange::{open_maybe_gz, read_table, ImuRecording, TableError, CHANNELS};
 use crate::wv::{haar_wv, read_smac_golden, WaveletVariance, WvError, WvOptions};
 
@@ -100,6 +103,10 @@ fn load_series(path: &Path, opts: &ReadOptions) -> Result<Vec<ChannelWv>, InputE
             .map(str::to_string)
             .collect()
     };
+    let is_interchange = header.iter().any(|c| CHANNELS.contains(&c.as_str()));
+    if header.iter().any(|c| c == "t_s") && !is_interchange {
+        return load_timed_columns(path, &header, opts);
+    }
     if header.iter().any(|c| c == "t_s") {
         let rec = ImuRecording::read(path)?;
         let dt = rec.median_dt_s();
@@ -159,6 +166,105 @@ fn load_series(path: &Path, opts: &ReadOptions) -> Result<Vec<ChannelWv>, InputE
         });
     }
     Ok(out)
+}
+
+/// Unit of a column named with the project's unit suffix (`gy_err_rad_s` -> rad/s).
+fn unit_from_suffix(name: &str) -> Option<&'static str> {
+    [
+        ("_rad_s3", "rad/s^3"),
+        ("_rad_s2", "rad/s^2"),
+        ("_rad_s", "rad/s"),
+        ("_m_s3", "m/s^3"),
+        ("_m_s2", "m/s^2"),
+        ("_m_s", "m/s"),
+    ]
+    .iter()
+    .find(|(suffix, _)| name.ends_with(suffix))
+    .map(|(_, unit)| *unit)
+}
+
+/// A CSV with a `t_s` column that is not an interchange recording. The sample interval is the
+/// median step of `t_s`. Without `--columns`, an error-signal file contributes its six error
+/// columns (the dynamics columns beside them are regressors, not sensor errors) and any
+/// other file every column but `t_s`.
+fn load_timed_columns(
+    path: &Path,
+    header: &[String],
+    opts: &ReadOptions,
+) -> Result<Vec<ChannelWv>, InputError> {
+    let fmt = |message: String| InputError::Format {
+        path: path.to_path_buf(),
+        message,
+    };
+    let mut wanted: Vec<&str> = if !opts.columns.is_empty() {
+        opts.columns.iter().map(String::as_str).collect()
+    } else if header.iter().any(|h| ERROR_COLUMNS.contains(&h.as_str())) {
+        ERROR_COLUMNS
+            .iter()
+            .copied()
+            .filter(|c| header.iter().any(|h| h == c))
+            .collect()
+    } else {
+        header
+            .iter()
+            .map(String::as_str)
+            .filter(|h| *h != "t_s")
+            .collect()
+    };
+    if let Some(missing) = opts
+        .columns
+        .iter()
+        .find(|c| !header.iter().any(|h| h == *c) || *c == "t_s")
+    {
+        return Err(fmt(format!(
+            "no channel `{missing}` (available: {})",
+            header
+                .iter()
+                .filter(|h| *h != "t_s")
+                .map(String::as_str)
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
+    if wanted.is_empty() {
+        return Err(fmt("no column besides `t_s`".into()));
+    }
+    wanted.push("t_s");
+    let table = read_table(path, Some(&wanted))?;
+    wanted.pop();
+    let t_s = table.column("t_s").expect("t_s is in the header");
+    let mut dt: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+    if dt.is_empty() {
+        return Err(fmt("fewer than two rows: no sample interval".into()));
+    }
+    dt.sort_by(f64::total_cmp);
+    let dt_s = dt[dt.len() / 2];
+    if !(dt_s.is_finite() && dt_s > 0.0) {
+        return Err(fmt(format!(
+            "`t_s` does not increase (median step {dt_s} s)"
+        )));
+    }
+    wanted
+        .iter()
+        .map(|name| {
+            let scale = *lookup(&opts.scale, name).unwrap_or(&1.0);
+            let unit = lookup(&opts.unit, name)
+                .cloned()
+                .or_else(|| unit_from_suffix(name).map(str::to_string))
+                .unwrap_or_else(|| "unit".into());
+            let x: Vec<f64> = table
+                .column(name)
+                .expect("read column")
+                .iter()
+                .map(|v| v * scale)
+                .collect();
+            Ok(ChannelWv {
+                channel: (*name).to_string(),
+                unit,
+                wv: haar_wv(&x, dt_s, &opts.wv)?,
+            })
+        })
+        .collect()
 }
 
 fn load_json(path: &Path) -> Result<Vec<ChannelWv>, InputError> {
