@@ -373,9 +373,7 @@ fn null_runs_name_nothing() {
 fn finds_scale_factor() {
     check("scale_factor", &[1, 2]);
 }
-/// Not yet reliable (see BENCHMARKS.md, "Hidden-effect detection"); run with --ignored.
 #[test]
-#[ignore]
 fn finds_cross_axis() {
     check("cross_axis", &[1, 2]);
 }
@@ -397,9 +395,7 @@ fn finds_jerk() {
 fn finds_time_offset() {
     check("time_offset", &[1, 2]);
 }
-/// Not yet reliable (see BENCHMARKS.md, "Hidden-effect detection"); run with --ignored.
 #[test]
-#[ignore]
 fn finds_lever_arm() {
     check("lever_arm", &[1, 2]);
 }
