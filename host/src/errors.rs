@@ -198,6 +198,31 @@ fn lerp_at(t_s: &[f64], x: &[f64], t: f64) -> f64 {
     x[i] + frac * (x[i + 1] - x[i])
 }
 
+/// Cubic (4-point Lagrange) interpolation of `x` sampled at `t_s` (increasing), linear in
+/// the first and last interval. Linear interpolation of a reference IMU is not good enough
+/// once the epochs fall between its samples: at 200 Hz it loses 8% of a 26 Hz vibration at
+/// mid-interval, which then shows in the error as a false scale factor; the cubic loses
+/// about 1%.
+fn cubic_at(t_s: &[f64], x: &[f64], t: f64) -> f64 {
+    let n = t_s.len();
+    if n < 4 || t <= t_s[1] || t >= t_s[n - 2] {
+        return lerp_at(t_s, x, t);
+    }
+    let i = t_s.partition_point(|&s| s <= t) - 1;
+    let idx = [i - 1, i, i + 1, i + 2];
+    let mut value = 0.0;
+    for (a, &ia) in idx.iter().enumerate() {
+        let mut w = 1.0;
+        for (b, &ib) in idx.iter().enumerate() {
+            if a != b {
+                w *= (t - t_s[ib]) / (t_s[ia] - t_s[ib]);
+            }
+        }
+        value += w * x[ia];
+    }
+    value
+}
+
 /// The reference over the epochs: mean body rate and specific force, attitude at mid-epoch.
 struct EpochData {
     reference: ReferenceEpochs,
@@ -226,7 +251,7 @@ fn reference_at_points(
         .ok_or(ErrorsError::ReferenceIncomplete(
             "roll_rad, pitch_rad, yaw_rad columns to express gravity in the body frame",
         ))?;
-    let at = |t: f64, x: &[Vec<f64>; 3]| Vector3::from_fn(|i, _| lerp_at(&rec.t_s, &x[i], t));
+    let at = |t: f64, x: &[Vec<f64>; 3]| Vector3::from_fn(|i, _| cubic_at(&rec.t_s, &x[i], t));
     Ok(ReferenceEpochs {
         omega_ib_b_rad_s: times_s.iter().map(|&t| at(t, gyro)).collect(),
         f_b_m_s2: times_s.iter().map(|&t| at(t, accel)).collect(),
@@ -763,7 +788,7 @@ pub fn build_error_signals_with_design(
                     epoch_t
                         .iter()
                         .map(|&t| {
-                            Vector3::from_fn(|i, _| lerp_at(&reference.t_s, &x[i], t - shift_s))
+                            Vector3::from_fn(|i, _| cubic_at(&reference.t_s, &x[i], t - shift_s))
                         })
                         .collect()
                 };
@@ -1063,6 +1088,26 @@ mod tests {
             -9.81 + 0.5 * (0.8 * t).sin(),
         );
         (omega, omega_dot, f)
+    }
+
+    #[test]
+    fn cubic_interpolation_keeps_a_vibration_between_samples() {
+        // 26 Hz sampled at 200 Hz, read back at mid-interval.
+        let t_s: Vec<f64> = (0..400).map(|k| k as f64 * 0.005).collect();
+        let w = 2.0 * std::f64::consts::PI * 26.0;
+        let x: Vec<f64> = t_s.iter().map(|t| (w * t).sin()).collect();
+        let worst = |f: &dyn Fn(f64) -> f64| {
+            (10..390)
+                .map(|k| {
+                    let t = (k as f64 + 0.5) * 0.005;
+                    (f(t) - (w * t).sin()).abs()
+                })
+                .fold(0.0f64, f64::max)
+        };
+        let cubic = worst(&|t| cubic_at(&t_s, &x, t));
+        let linear = worst(&|t| lerp_at(&t_s, &x, t));
+        assert!(linear > 0.07, "{linear}");
+        assert!(cubic < 0.015, "{cubic}");
     }
 
     #[test]

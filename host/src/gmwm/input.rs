@@ -9,7 +9,9 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use crate::error_signal::ERROR_COLUMNS;
-use crate::interchange::{open_maybe_gz, read_table, ImuRecording, TableError, CHANNELS};
+use crate::interchange::{
+    open_maybe_gz, read_table, ImuRecording, TableError, CHANNELS, CHANNEL_COLUMNS,
+};
 use crate::wv::{haar_wv, read_smac_golden, WaveletVariance, WvError, WvOptions};
 
 /// Errors reading fit inputs; each names the file.
@@ -103,7 +105,9 @@ fn load_series(path: &Path, opts: &ReadOptions) -> Result<Vec<ChannelWv>, InputE
             .map(str::to_string)
             .collect()
     };
-    let is_interchange = header.iter().any(|c| CHANNELS.contains(&c.as_str()));
+    let is_interchange = header
+        .iter()
+        .any(|c| CHANNEL_COLUMNS.contains(&c.as_str()) || CHANNELS.contains(&c.as_str()));
     if header.iter().any(|c| c == "t_s") && !is_interchange {
         return load_timed_columns(path, &header, opts);
     }
@@ -338,5 +342,33 @@ fn load_json(path: &Path) -> Result<Vec<ChannelWv>, InputError> {
             .map(|(k, v)| single(k, v))
             .collect(),
         _ => Err(fmt("no wavelet variance found".into())),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An interchange recording keeps its channel names (gx..az) and SI units: `dynacal
+    /// diagnose` looks its baseline models up by those names.
+    #[test]
+    fn interchange_recording_channels_are_named_gx_to_az() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("rec.csv");
+        let mut text = String::from("t_s,gx_rad_s,gy_rad_s,gz_rad_s,ax_m_s2,ay_m_s2,az_m_s2\n");
+        for k in 0..512 {
+            let v = ((k * 7919) % 101) as f64 * 1e-3;
+            text.push_str(&format!(
+                "{},{v},{v},{v},{v},{v},{}\n",
+                k as f64 * 0.01,
+                v - 9.8
+            ));
+        }
+        std::fs::write(&path, text).unwrap();
+        let chans = load_channels(&path, &ReadOptions::default()).unwrap();
+        let names: Vec<&str> = chans.iter().map(|c| c.channel.as_str()).collect();
+        assert_eq!(names, CHANNELS.to_vec());
+        assert_eq!(chans[0].unit, "rad/s");
+        assert_eq!(chans[5].unit, "m/s^2");
     }
 }
