@@ -222,11 +222,11 @@ pub fn markdown(r: &DiagnoseReport, figures: &Figures) -> String {
             s,
             "| {} | {} | {:.4e} | [{:.4e}, {:.4e}] | {} |",
             d.channel,
-            d.statistic,
+            table_cell(&d.statistic),
             d.measured,
             d.simulated_range[0],
             d.simulated_range[1],
-            d.detail
+            table_cell(&d.detail)
         );
     }
     if !figures.wv.is_empty() {
@@ -248,7 +248,7 @@ pub fn markdown(r: &DiagnoseReport, figures: &Figures) -> String {
             "| {} | {} | {} | {} | {} | {:.2} % |",
             f.channel,
             f.cause,
-            f.regressors.join(", "),
+            table_cell(&f.regressors.join(", ")),
             f.estimate,
             f.ci95,
             100.0 * f.variance_explained
@@ -852,6 +852,11 @@ pub fn findings_svg(findings: &[Finding]) -> Result<Option<String>, PlotError> {
     Ok(Some(svg))
 }
 
+/// Text for a Markdown table cell: a `|` inside it (as in `|omega|`) would end the cell.
+fn table_cell(text: &str) -> String {
+    text.replace('|', "\\|")
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1236,5 +1241,27 @@ mod tests {
                 .contains(&*blocker.join("report").to_string_lossy()),
             "{e}"
         );
+    }
+
+    #[test]
+    fn a_pipe_in_a_statistic_does_not_split_its_table_row() {
+        let mut r = report();
+        r.discrepancies.push(crate::diagnose::engine::Discrepancy {
+            channel: "gx".into(),
+            statistic: "noise variance vs |omega|^2 (t)".into(),
+            measured: 5.0,
+            simulated_range: [-1.0, 1.0],
+            detail: "largest |z| 7".into(),
+        });
+        let md = markdown(&r, &Figures::default());
+        let row = md
+            .lines()
+            .find(|l| l.contains("noise variance vs"))
+            .expect("row");
+        let unescaped = row
+            .char_indices()
+            .filter(|&(i, c)| c == '|' && (i == 0 || &row[i - 1..i] != "\\"))
+            .count();
+        assert_eq!(unescaped, 6, "{row}");
     }
 }
