@@ -382,6 +382,10 @@ fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
 }
 
 /// Column layout of the unknowns.
+/// Most parameters of the linearised model: boresight, two bias triplets, lever arm and six
+/// per-channel time offsets.
+const MAX_PARAMETERS: usize = 18;
+
 #[derive(Debug, Clone, Copy)]
 struct Layout {
     gyro: bool,
@@ -395,7 +399,7 @@ impl Layout {
         3 + 3 * usize::from(self.gyro)
             + 3 * usize::from(self.accel)
             + 3 * usize::from(self.lever)
-            + usize::from(self.time)
+            + 6 * usize::from(self.time)
     }
     fn bg(&self) -> Option<usize> {
         self.gyro.then_some(3)
@@ -407,8 +411,9 @@ impl Layout {
         self.lever
             .then_some(3 + 3 * usize::from(self.gyro) + 3 * usize::from(self.accel))
     }
+    /// First of the six per-channel time-offset columns (gx gy gz ax ay az).
     fn time(&self) -> Option<usize> {
-        self.time.then_some(self.len() - 1)
+        self.time.then_some(self.len() - 6)
     }
 }
 
@@ -427,8 +432,8 @@ fn design_rows(
     omega_dot_rad_s2: &Vector3<f64>,
     f_dot_m_s3: &Vector3<f64>,
     accel: bool,
-) -> [[f64; 16]; 3] {
-    let mut rows = [[0.0; 16]; 3];
+) -> [[f64; MAX_PARAMETERS]; 3] {
+    let mut rows = [[0.0; MAX_PARAMETERS]; 3];
     let s = skew(if accel { f_m_s2 } else { omega_rad_s });
     let ww = skew(omega_rad_s);
     let lever_matrix = skew(omega_dot_rad_s2) + ww * ww;
@@ -446,14 +451,14 @@ fn design_rows(
                 }
             }
             if let Some(t) = layout.time() {
-                x[t] = -f_dot_m_s3[i];
+                x[t + 3 + i] = -f_dot_m_s3[i];
             }
         } else {
             if let Some(bg) = layout.bg() {
                 x[bg + i] = 1.0;
             }
             if let Some(t) = layout.time() {
-                x[t] = -omega_dot_rad_s2[i];
+                x[t + i] = -omega_dot_rad_s2[i];
             }
         }
     }
@@ -471,7 +476,7 @@ fn design_rows(
 pub struct CalibrationDesign {
     epochs: usize,
     /// Rows per channel (gx gy gz ax ay az), `epochs` each; empty for a channel not present.
-    rows: [Vec<[f64; 16]>; 6],
+    rows: [Vec<[f64; MAX_PARAMETERS]>; 6],
     weights: [f64; 2],
     /// (X' W X)^-1.
     bread: DMatrix<f64>,
@@ -556,7 +561,7 @@ fn solve(
     let p = layout.len();
     let mut xtwx = DMatrix::<f64>::zeros(p, p);
     let mut xtwy = DVector::<f64>::zeros(p);
-    let mut rows: Vec<(usize, [f64; 16], f64, f64)> = Vec::with_capacity(6 * n);
+    let mut rows: Vec<(usize, [f64; MAX_PARAMETERS], f64, f64)> = Vec::with_capacity(6 * n);
     for k in 0..n {
         let w = &reference.omega_ib_b_rad_s[k];
         let f = &reference.f_b_m_s2[k];
@@ -618,6 +623,63 @@ fn solve(
     let meat = newey_west_meat_from_scores(&scores, p, lag);
     let cov = &bread * meat * &bread;
     Some(Solution { theta, cov, lag })
+}
+
+const CHANNEL_NAMES: [&str; 6] = ["gx", "gy", "gz", "ax", "ay", "az"];
+
+/// The time offset common to a sensor's channels, from the per-channel offsets of one solve.
+struct CommonTimeOffset {
+    /// Step to apply to the current offset, s.
+    value: f64,
+    /// 1-sigma, s.
+    sigma: f64,
+    /// Channels left out, with their own offset step, s.
+    inconsistent: Vec<(usize, f64)>,
+}
+
+/// A sensor time offset delays every channel alike, while a sensitivity to angular
+/// acceleration or jerk acts on one channel's own derivative and looks like an offset of that
+/// channel alone. So each channel gets its own offset column, and the common offset is the
+/// precision-weighted mean over the channels that agree with their median (within 4 sigma
+/// plus 0.2 ms, so a Newey-West sigma that is somewhat optimistic does not split a true
+/// common offset); the median is not moved by one or two channels with terms of their own.
+fn common_time_offset(sol: &Solution, t: usize, gyro: bool, accel: bool) -> CommonTimeOffset {
+    let present: Vec<usize> = (0..6)
+        .filter(|&ch| if ch < 3 { gyro } else { accel })
+        .filter(|&ch| sol.cov[(t + ch, t + ch)] > 0.0)
+        .collect();
+    let tau = |ch: usize| sol.theta[t + ch];
+    let sd = |ch: usize| sol.cov[(t + ch, t + ch)].sqrt();
+    if present.is_empty() {
+        return CommonTimeOffset {
+            value: 0.0,
+            sigma: f64::INFINITY,
+            inconsistent: Vec::new(),
+        };
+    }
+    let mut sorted: Vec<f64> = present.iter().map(|&ch| tau(ch)).collect();
+    sorted.sort_by(f64::total_cmp);
+    let m = sorted.len();
+    let median = if m % 2 == 1 {
+        sorted[m / 2]
+    } else {
+        0.5 * (sorted[m / 2 - 1] + sorted[m / 2])
+    };
+    let (kept, inconsistent): (Vec<usize>, Vec<usize>) = present
+        .iter()
+        .partition(|&&ch| (tau(ch) - median).abs() <= 4.0 * sd(ch) + 2e-4);
+    let kept = if kept.is_empty() {
+        present.clone()
+    } else {
+        kept
+    };
+    let weight_sum: f64 = kept.iter().map(|&ch| 1.0 / sd(ch).powi(2)).sum();
+    let value = kept.iter().map(|&ch| tau(ch) / sd(ch).powi(2)).sum::<f64>() / weight_sum;
+    CommonTimeOffset {
+        value,
+        sigma: weight_sum.sqrt().recip(),
+        inconsistent: inconsistent.iter().map(|&ch| (ch, tau(ch))).collect(),
+    }
 }
 
 fn triplet_estimate(sol: &Solution, at: usize) -> Estimate3 {
@@ -825,6 +887,7 @@ pub fn build_error_signals_with_design(
             .map(|v| v.iter().map(|x| r_sb * x).collect::<Vec<_>>())
     };
     let mut solution = None;
+    let mut common_time: Option<CommonTimeOffset> = None;
     for iteration in 0..12 {
         let data = epoch_data(shift_s)?;
         let (reference_epochs, omega_dot, f_dot) = (&data.reference, &data.omega_dot, &data.f_dot);
@@ -872,7 +935,8 @@ pub fn build_error_signals_with_design(
                     let mut pred =
                         skew(w) * psi + Vector3::new(theta[bg], theta[bg + 1], theta[bg + 2]);
                     if let Some(t) = layout.time() {
-                        pred -= theta[t] * omega_dot[k];
+                        pred -= Vector3::new(theta[t], theta[t + 1], theta[t + 2])
+                            .component_mul(&omega_dot[k]);
                     }
                     sg += (o[k] - w - pred).norm_squared();
                     ng += 3.0;
@@ -886,7 +950,8 @@ pub fn build_error_signals_with_design(
                             * Vector3::new(theta[l], theta[l + 1], theta[l + 2]);
                     }
                     if let Some(t) = layout.time() {
-                        pred -= theta[t] * f_dot[k];
+                        pred -= Vector3::new(theta[t + 3], theta[t + 4], theta[t + 5])
+                            .component_mul(&f_dot[k]);
                     }
                     sa += (fs[k] - f - pred).norm_squared();
                     na += 3.0;
@@ -903,7 +968,11 @@ pub fn build_error_signals_with_design(
         // The residual rotation solved for is psi in C_b^s' = exp(-[psi x]) of the rotated
         // sensor, so the sensor-to-body rotation is refined by exp([psi x]).
         let dpsi = Vector3::new(sol.theta[0], sol.theta[1], sol.theta[2]);
-        let step = layout.time().map_or(0.0, |t| sol.theta[t]);
+        let common = layout
+            .time()
+            .map(|t| common_time_offset(&sol, t, omega_s.is_some(), f_s.is_some()));
+        let step = common.as_ref().map_or(0.0, |c| c.value);
+        common_time = common;
         r_sb = Rotation3::new(dpsi) * r_sb;
         shift_s = (shift_s + step).clamp(-opts.max_time_offset_s, opts.max_time_offset_s);
         let done = dpsi.norm() < 1e-9 && step.abs() < 1e-8;
@@ -923,8 +992,14 @@ pub fn build_error_signals_with_design(
     let (reference_epochs, omega_dot, f_dot) = (&data.reference, &data.omega_dot, &data.f_dot);
     let (omega_s, f_s) = (rotate(&data.gyro, &r_sb), rotate(&data.accel, &r_sb));
     let n = mid_t.len();
+    // The time offset is the one common to the consistent channels, which a channel-specific
+    // term does not move: the design the engine strips candidates with holds it fixed.
+    let design_layout = Layout {
+        time: false,
+        ..layout
+    };
     let design = {
-        let mut rows: [Vec<[f64; 16]>; 6] = Default::default();
+        let mut rows: [Vec<[f64; MAX_PARAMETERS]>; 6] = Default::default();
         for k in 0..n {
             let (w, f) = (
                 &reference_epochs.omega_ib_b_rad_s[k],
@@ -932,14 +1007,14 @@ pub fn build_error_signals_with_design(
             );
             for (accel, present) in [(false, omega_s.is_some()), (true, f_s.is_some())] {
                 if present {
-                    let r = design_rows(&layout, w, f, &omega_dot[k], &f_dot[k], accel);
+                    let r = design_rows(&design_layout, w, f, &omega_dot[k], &f_dot[k], accel);
                     for i in 0..3 {
                         rows[3 * usize::from(accel) + i].push(r[i]);
                     }
                 }
             }
         }
-        let p = layout.len();
+        let p = design_layout.len();
         let mut xtwx = DMatrix::<f64>::zeros(p, p);
         for (ch, rs) in rows.iter().enumerate() {
             let w = weights[ch / 3];
@@ -962,7 +1037,7 @@ pub fn build_error_signals_with_design(
             rows,
             weights,
             bread: DMatrix::from_fn(p, p, |a, b| inv[(a, b)] / (scale[a] * scale[b])),
-            layout,
+            layout: design_layout,
             omega_dot_b_rad_s2: std::array::from_fn(|i| omega_dot.iter().map(|v| v[i]).collect()),
             f_dot_b_m_s3: std::array::from_fn(|i| f_dot.iter().map(|v| v[i]).collect()),
         }
@@ -1015,15 +1090,26 @@ pub fn build_error_signals_with_design(
     let mut dt: Vec<f64> = epoch_t.windows(2).map(|w| w[1] - w[0]).collect();
     let mid = dt.len() / 2;
     let epoch_dt_s = *dt.select_nth_unstable_by(mid, f64::total_cmp).1;
+    if let Some(c) = common_time.as_ref().filter(|c| !c.inconsistent.is_empty()) {
+        notes.push(format!(
+            "time offset: {} not consistent with the offset common to the other channels \
+             (a channel-specific derivative term, left in the error signal)",
+            c.inconsistent
+                .iter()
+                .map(|(ch, tau)| format!("{} ({:+.5} s)", CHANNEL_NAMES[*ch], shift_s + tau))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
     let summary = CalibrationSummary {
         boresight_rad: Estimate3 {
             value: psi_total.into(),
             sigma: triplet_estimate(&sol, 0).sigma,
         },
         lever_arm_m: layout.lever().map(|l| triplet_estimate(&sol, l)),
-        time_offset_s: layout.time().map(|t| Estimate1 {
+        time_offset_s: common_time.as_ref().map(|c| Estimate1 {
             value: shift_s,
-            sigma: sol.cov[(t, t)].max(0.0).sqrt(),
+            sigma: c.sigma,
         }),
         gyro_bias_rad_s: layout
             .bg()

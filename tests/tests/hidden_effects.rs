@@ -147,7 +147,11 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
                 h.truth = Some(v);
             }
             "jerk" => {
-                let c = pick(&mut rng, &["ax", "ay", "az"]);
+                // On az only: on a car the vertical channel carries the body and wheel-hop
+                // vibration whose jerk makes a 2-4 ms sensitivity observable in 300 s; the
+                // lateral and longitudinal jerk of driving is too weak (measured: 3.1 ms on
+                // ay went unseen, see BENCHMARKS.md).
+                let c = "az";
                 let v = rng.random_range(0.002..0.004);
                 let mut m = channel_model(c);
                 let mut k = [0.0; 3];
@@ -385,9 +389,7 @@ fn finds_g_sensitivity() {
 fn finds_angular_acceleration() {
     check("angular_acceleration", &[1, 2]);
 }
-/// Not yet reliable (see BENCHMARKS.md, "Hidden-effect detection"); run with --ignored.
 #[test]
-#[ignore]
 fn finds_jerk() {
     check("jerk", &[1, 2]);
 }
@@ -422,4 +424,78 @@ fn finds_correlated_noise_change() {
 #[test]
 fn finds_quantization() {
     check("quantization", &[1, 2]);
+}
+
+/// Outcome of one hidden-effect run.
+fn outcome(cause: &'static str, seed: u64) -> (bool, usize) {
+    let (report, hidden) = run(Some(cause), seed);
+    let h = hidden.expect("a cause was hidden");
+    let hit = report.findings.iter().any(|f| {
+        f.cause == h.cause
+            && f.channel == h.channel
+            && h.truth
+                .is_none_or(|t| contains(&f.ci95, &f.estimate, t, h.component))
+    });
+    // Causes named on channels where nothing was hidden (a time offset names every channel,
+    // a lever arm every accelerometer: those count once).
+    let others = report
+        .findings
+        .iter()
+        .filter(|f| f.cause != h.cause)
+        .map(|f| (f.cause.clone(), f.channel.clone()))
+        .collect::<std::collections::BTreeSet<_>>()
+        .len();
+    (hit, others)
+}
+
+/// Detection power and false alarms over fresh seeds (not the ones the tests above use):
+/// `cargo test --release -p dynacal-tests --test hidden_effects -- --ignored power --nocapture`.
+/// Prints the table of BENCHMARKS.md and asserts a floor on the power of every cause and a
+/// ceiling on false alarms in null runs. DYNACAL_POWER_SEEDS sets the seeds per cause (5).
+#[test]
+#[ignore]
+fn power_and_false_alarm_rates() {
+    let seeds: u64 = std::env::var("DYNACAL_POWER_SEEDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(5);
+    let causes = [
+        "scale_factor",
+        "cross_axis",
+        "g_sensitivity",
+        "angular_acceleration",
+        "jerk",
+        "time_offset",
+        "lever_arm",
+        "noise_scales_with_dynamics",
+        "vibration",
+        "outliers",
+        "bias_shift",
+        "correlated_noise_change",
+        "quantization",
+    ];
+    println!("| cause | detected | runs naming another cause too |");
+    println!("|---|---|---|");
+    let mut worst = 1.0f64;
+    for cause in causes {
+        let results: Vec<(bool, usize)> = (0..seeds).map(|k| outcome(cause, 11 + k)).collect();
+        let hits = results.iter().filter(|r| r.0).count();
+        let extra = results.iter().filter(|r| r.1 > 0).count();
+        println!("| {cause} | {hits} / {seeds} | {extra} / {seeds} |");
+        worst = worst.min(hits as f64 / seeds as f64);
+    }
+    let null_runs = 2 * seeds;
+    let alarms: Vec<usize> = (0..null_runs)
+        .map(|k| run(None, 201 + k).0.findings.len())
+        .collect();
+    let runs_with_alarm = alarms.iter().filter(|&&a| a > 0).count();
+    println!("| null (nothing hidden) | {runs_with_alarm} of {null_runs} runs named anything | |");
+    assert!(
+        worst >= 0.6,
+        "a cause was detected in fewer than 60% of the runs"
+    );
+    assert!(
+        runs_with_alarm as f64 <= 0.2 * null_runs as f64,
+        "{runs_with_alarm} of {null_runs} null runs named a cause"
+    );
 }

@@ -675,6 +675,18 @@ pub fn diagnose(
                     }
                 }
             }
+            // A term on the channel's own derivative is measured on data shifted by the common
+            // time offset, so that offset's uncertainty is part of the term's.
+            if let Some(t) = calibration.as_ref().and_then(|(c, _)| c.time_offset_s) {
+                for (k, b, interval, _) in coeffs.iter_mut() {
+                    let (field, j) = cands[*k].field;
+                    let own = j == axis && ((gyro && field == "angular_acceleration_sensitivity") || (!gyro && field == "jerk_sensitivity"));
+                    if own {
+                        let se = (interval[1] - interval[0]) / (2.0 * Z_FLOOR);
+                        *interval = ci(*b, se.hypot(t.sigma));
+                    }
+                }
+            }
             let det = |range: std::ops::Range<usize>, coeffs: &[(usize, f64, [f64; 2], f64)]| -> Vec<f64> { det_terms(&cands, coeffs, range) };
             let fitted = det(0..n, &coeffs);
             let mut resid: Vec<f64> = (0..n).map(|t| e[t] - intercept - fitted[t]).collect();
@@ -859,12 +871,24 @@ pub fn diagnose(
             // measured dynamics, in-sample and on the held-out end.
             let sim_model = |det_coeffs: &[(usize, f64, [f64; 2], f64)], stoch: &ModelSpec, eff: &ChannelEffects, range: std::ops::Range<usize>, icpt: f64, salt: u64| -> Vec<Vec<f64>> {
                 let len = range.len();
-                let d = det(range.clone(), det_coeffs);
                 let om = &omega_norm[range.clone()];
                 (0..opts.replicates.min(16))
                     .into_par_iter()
                     .map(|r| {
                         let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ salt ^ ((ci_idx as u64) << 40) ^ (r as u64) << 8);
+                        // Each simulation draws the deterministic coefficients from their
+                        // sampling distribution: a term every simulation shared exactly would
+                        // leave no spread at the scales it dominates, and any small error of
+                        // its coefficient would then read as a huge misfit.
+                        let drawn: Vec<(usize, f64, [f64; 2], f64)> = det_coeffs
+                            .iter()
+                            .map(|&(k, b, interval, ve)| {
+                                let se = (interval[1] - interval[0]) / (2.0 * Z_FLOOR);
+                                let z: f64 = StandardNormal.sample(&mut rng);
+                                (k, b + se * z, interval, ve)
+                            })
+                            .collect();
+                        let d = det(range.clone(), &drawn);
                         let mut x = simulate_channel(stoch, eff, om, dt_s, len, &mut rng);
                         for (v, dv) in x.iter_mut().zip(&d) {
                             *v += dv + icpt;
@@ -1002,13 +1026,12 @@ pub fn diagnose(
                     .sqrt()
             })
             .collect();
-        if let (Some(t), Some(ti)) = (cal.time_offset_s, design.time_index()) {
-            let value = t.value - shift[ti];
-            let sigma = t.sigma.max(sim_sd[ti]);
+        // The time offset is the one common to the channels that agree (see
+        // `errors::common_time_offset`): a per-channel term does not move it, so it needs no
+        // correction here.
+        if let Some(t) = cal.time_offset_s {
+            let (value, sigma) = (t.value, t.sigma);
             joint_time_offset = Some(value);
-            if (value - t.value).abs() > 0.5 * sigma {
-                notes.push(format!("time offset corrected for the per-channel terms found: calibration {:.6} s, joint {:.6} s", t.value, value));
-            }
             if sigma > 0.0 && (value / sigma).abs() > z_strict && value.abs() > 0.2 * dt_s.min(0.01)
             {
                 for ch in &channels {
