@@ -513,10 +513,10 @@ fn power_and_false_alarm_rates() {
         .collect();
     let runs_with_alarm = alarms.iter().filter(|&&a| a > 0).count();
     println!("| null (nothing hidden) | {runs_with_alarm} of {null_runs} runs named anything | |");
-    // Guards at the levels measured on 2026-11-22 (BENCHMARKS.md): overall power 55 of 65
-    // runs, 2 of 10 null runs naming something.
+    // Guards at the levels measured on 2026-11-22 (BENCHMARKS.md): overall power 50 of 65
+    // runs, no null run naming anything (2 of 10 before the noise-change effect-size floor).
     let power = detected as f64 / (causes.len() as u64 * seeds) as f64;
-    assert!(power >= 0.75, "overall power {power:.2}");
+    assert!(power >= 0.7, "overall power {power:.2}");
     assert!(
         runs_with_alarm as f64 <= 0.3 * null_runs as f64,
         "{runs_with_alarm} of {null_runs} null runs named a cause"
