@@ -64,6 +64,18 @@ pub const CAUSES: [&str; 14] = [
     "white_noise_change",
 ];
 
+/// Causes the engine estimates as deterministic terms (the rest are stochastic effects).
+pub const DETERMINISTIC_CAUSES: [&str; 8] = [
+    "scale_factor",
+    "cross_axis",
+    "g_sensitivity",
+    "angular_acceleration",
+    "jerk",
+    "time_offset",
+    "lever_arm",
+    "bias_shift",
+];
+
 /// Errors of the engine.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]

@@ -16,7 +16,7 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::engine::{DiagnoseReport, Finding, Gain, WvCurves};
+use super::engine::{DiagnoseReport, Finding, Gain, WvCurves, DETERMINISTIC_CAUSES};
 use crate::output::AtomicFile;
 
 /// Why the report could not be produced.
@@ -71,17 +71,6 @@ pub const GAIN_COLOURS: [RGBColor; 4] = [
 /// Findings bars: deterministic terms and stochastic effects.
 pub const DETERMINISTIC_COLOUR: RGBColor = RGBColor(30, 100, 200);
 pub const STOCHASTIC_COLOUR: RGBColor = RGBColor(220, 120, 20);
-
-/// Causes the engine estimates as deterministic terms (the rest are stochastic effects).
-const DETERMINISTIC_CAUSES: [&str; 7] = [
-    "scale_factor",
-    "cross_axis",
-    "g_sensitivity",
-    "angular_acceleration",
-    "jerk",
-    "time_offset",
-    "lever_arm",
-];
 
 const FONT: &str = "sans-serif";
 
