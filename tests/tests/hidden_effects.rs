@@ -533,3 +533,77 @@ fn one_run() {
         .expect("a cause of the vocabulary");
     check(cause, &[seed]);
 }
+
+/// The extended model is a model file the simulator runs, and what it carries is what was
+/// found: simulated again from it, the hidden bias step is found again at its size.
+#[test]
+fn extended_model_runs_in_the_simulator_and_carries_the_found_effect() {
+    let (report, hidden) = run(Some("bias_shift"), 1);
+    let h = hidden.expect("hidden");
+    let first = report
+        .findings
+        .iter()
+        .find(|f| f.cause == "bias_shift" && f.channel == h.channel)
+        .expect("the step is found")
+        .clone();
+    let model = SimModel::from_json(
+        &report.extended_model.to_string(),
+        std::path::Path::new("extended-model.json"),
+    )
+    .expect("the simulator accepts the extended model");
+    let out = simulate(
+        &model,
+        &SimOptions {
+            scenario: Scenario::Car,
+            seconds: SECONDS,
+            seed: 77,
+            disabled: vec![],
+            keep_ideal: false,
+        },
+        &|_| {},
+    )
+    .expect("the extended model simulates");
+    let again = diagnose(
+        &out.imus[0].recording,
+        Some(&out.reference.recording),
+        Some(Baseline {
+            channels: dynacal::interchange::CHANNELS
+                .iter()
+                .map(|c| {
+                    let spec = if c.starts_with('g') {
+                        gyro_spec()
+                    } else {
+                        accel_spec()
+                    };
+                    (c.to_string(), spec)
+                })
+                .collect(),
+            source: "test baseline".into(),
+        }),
+        &DiagnoseOptions {
+            seed: 77,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let refound = again
+        .findings
+        .iter()
+        .find(|f| f.cause == "bias_shift" && f.channel == h.channel)
+        .unwrap_or_else(|| panic!("not found again: {:?}", again.findings));
+    // Both are estimates with their own noise: their difference must be within its 95%
+    // interval, and the step at the same time.
+    let estimate_and_se = |f: &dynacal::diagnose::engine::Finding| -> (f64, f64) {
+        let ci: Vec<f64> = serde_json::from_value(f.ci95.clone()).unwrap();
+        (f.estimate.as_f64().unwrap(), (ci[1] - ci[0]) / (2.0 * 1.96))
+    };
+    let ((a, sa), (b, sb)) = (estimate_and_se(&first), estimate_and_se(refound));
+    assert!(
+        (a - b).abs() <= 1.96 * sa.hypot(sb),
+        "found {first:?}, found again {refound:?}"
+    );
+    assert_eq!(
+        first.regressors, refound.regressors,
+        "the step at the same time"
+    );
+}

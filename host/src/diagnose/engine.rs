@@ -684,7 +684,7 @@ pub fn diagnose(
                 let range = sim_range(&sim_z);
                 if let Some(step) = local_step_scan(&resid0, &windows, &null_sd) {
                     if step.z > (1.25 * range[1]).max(z_strict) {
-                        let at_s = signals.t_s[step.index] - signals.t_s[0];
+                        let at_s = signals.t_s[step.index] - sensor.t_s[0];
                         ch_disc.push(Discrepancy { channel: ch.into(), statistic: "largest local step of the mean (|z| at its window)".into(), measured: step.z, simulated_range: range, detail: format!("at t = {:.2} s, window {} samples, local size {:.4e}", signals.t_s[step.index], step.window, step.size) });
                         step_values = (0..n).map(|t| if t >= step.index { 1.0 } else { 0.0 }).collect();
                         cands.push(Candidate { name: format!("step_at_{at_s:.2}_s"), values: &step_values, cause: "bias_shift", field: ("bias_steps", 0) });
@@ -1121,7 +1121,7 @@ pub fn diagnose(
         gain,
         discrepancies,
         wv_curves,
-        extended_model: json!({ "comment": "extended model written by dynacal diagnose", "imus": [imu] }),
+        extended_model: json!({ "_comment": "extended model written by dynacal diagnose", "imus": [imu] }),
         notes,
     })
 }
