@@ -488,10 +488,6 @@ pub struct CalibrationDesign {
 }
 
 impl CalibrationDesign {
-    /// Index of the time-offset parameter in a parameter vector, if estimated.
-    pub fn time_index(&self) -> Option<usize> {
-        self.layout.time()
-    }
     /// Index of the lever arm's x component, if estimated.
     pub fn lever_index(&self) -> Option<usize> {
         self.layout.lever()
@@ -546,6 +542,29 @@ impl CalibrationDesign {
     }
 }
 
+/// Inverse of a normal matrix X'WX, or None when it is near singular (rather than return
+/// meaningless estimates). Columns are scaled first so the inverse is well conditioned
+/// (lever-arm columns are ~1e-2 of the boresight ones on a car).
+fn normal_matrix_inverse(xtwx: &DMatrix<f64>) -> Option<DMatrix<f64>> {
+    let p = xtwx.nrows();
+    let scale: Vec<f64> = (0..p).map(|a| xtwx[(a, a)].sqrt().max(1e-300)).collect();
+    let scaled = DMatrix::from_fn(p, p, |a, b| xtwx[(a, b)] / (scale[a] * scale[b]));
+    let eig = scaled.clone().symmetric_eigen();
+    let (min_e, max_e) = eig
+        .eigenvalues
+        .iter()
+        .fold((f64::INFINITY, 0.0f64), |(lo, hi), &e| {
+            (lo.min(e), hi.max(e))
+        });
+    if !(min_e > 1e-10 * max_e) {
+        return None;
+    }
+    let inv_scaled = scaled.cholesky()?.inverse();
+    Some(DMatrix::from_fn(p, p, |a, b| {
+        inv_scaled[(a, b)] / (scale[a] * scale[b])
+    }))
+}
+
 /// One weighted least-squares solve of the linearised error model over all epochs.
 #[allow(clippy::too_many_arguments)]
 fn solve(
@@ -592,23 +611,7 @@ fn solve(
             }
         }
     }
-    // Scale columns so the solve is well conditioned (lever-arm columns are ~1e-2 of the
-    // boresight ones on a car).
-    let scale: Vec<f64> = (0..p).map(|a| xtwx[(a, a)].sqrt().max(1e-300)).collect();
-    let scaled = DMatrix::from_fn(p, p, |a, b| xtwx[(a, b)] / (scale[a] * scale[b]));
-    // Reject near-singular problems rather than return meaningless estimates.
-    let eig = scaled.clone().symmetric_eigen();
-    let (min_e, max_e) = eig
-        .eigenvalues
-        .iter()
-        .fold((f64::INFINITY, 0.0f64), |(lo, hi), &e| {
-            (lo.min(e), hi.max(e))
-        });
-    if !(min_e > 1e-10 * max_e) {
-        return None;
-    }
-    let inv_scaled = scaled.cholesky()?.inverse();
-    let bread = DMatrix::from_fn(p, p, |a, b| inv_scaled[(a, b)] / (scale[a] * scale[b]));
+    let bread = normal_matrix_inverse(&xtwx)?;
     let theta = &bread * &xtwy;
     // Epoch scores for the sandwich: sum over the epoch's rows of w x e.
     let mut scores = vec![0.0; n * p];
@@ -1026,17 +1029,13 @@ pub fn build_error_signals_with_design(
                 }
             }
         }
-        let scale: Vec<f64> = (0..p).map(|a| xtwx[(a, a)].sqrt().max(1e-300)).collect();
-        let scaled = DMatrix::from_fn(p, p, |a, b| xtwx[(a, b)] / (scale[a] * scale[b]));
-        let inv = scaled
-            .cholesky()
-            .map(|c| c.inverse())
-            .unwrap_or_else(|| DMatrix::zeros(p, p));
         CalibrationDesign {
             epochs: n,
             rows,
             weights,
-            bread: DMatrix::from_fn(p, p, |a, b| inv[(a, b)] / (scale[a] * scale[b])),
+            // The same design with the time columns left out was solvable above, so this
+            // inverse exists; zeros (nothing absorbed) only guard the impossible case.
+            bread: normal_matrix_inverse(&xtwx).unwrap_or_else(|| DMatrix::zeros(p, p)),
             layout: design_layout,
             omega_dot_b_rad_s2: std::array::from_fn(|i| omega_dot.iter().map(|v| v[i]).collect()),
             f_dot_b_m_s3: std::array::from_fn(|i| f_dot.iter().map(|v| v[i]).collect()),

@@ -266,6 +266,24 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
     (model, hidden)
 }
 
+/// The baseline a static calibration would give: the stochastic part only.
+fn static_baseline() -> Baseline {
+    Baseline {
+        channels: dynacal::interchange::CHANNELS
+            .iter()
+            .map(|c| {
+                let spec = if c.starts_with('g') {
+                    gyro_spec()
+                } else {
+                    accel_spec()
+                };
+                (c.to_string(), spec)
+            })
+            .collect(),
+        source: "test baseline".into(),
+    }
+}
+
 fn run(cause: Option<&'static str>, seed: u64) -> (DiagnoseReport, Option<Hidden>) {
     let (model, hidden) = hide(cause, seed);
     let out = simulate(
@@ -281,23 +299,7 @@ fn run(cause: Option<&'static str>, seed: u64) -> (DiagnoseReport, Option<Hidden
     )
     .unwrap();
     let sensor = out.imus[0].recording.clone();
-    // The baseline is what a static calibration would give: the stochastic part only.
-    let baseline = Baseline {
-        channels: dynacal::interchange::CHANNELS
-            .iter()
-            .map(|c| {
-                (
-                    c.to_string(),
-                    if c.starts_with('g') {
-                        gyro_spec()
-                    } else {
-                        accel_spec()
-                    },
-                )
-            })
-            .collect(),
-        source: "test baseline".into(),
-    };
+    let baseline = static_baseline();
     let report = diagnose(
         &sensor,
         Some(&out.reference.recording),
@@ -566,20 +568,7 @@ fn extended_model_runs_in_the_simulator_and_carries_the_found_effect() {
     let again = diagnose(
         &out.imus[0].recording,
         Some(&out.reference.recording),
-        Some(Baseline {
-            channels: dynacal::interchange::CHANNELS
-                .iter()
-                .map(|c| {
-                    let spec = if c.starts_with('g') {
-                        gyro_spec()
-                    } else {
-                        accel_spec()
-                    };
-                    (c.to_string(), spec)
-                })
-                .collect(),
-            source: "test baseline".into(),
-        }),
+        Some(static_baseline()),
         &DiagnoseOptions {
             seed: 77,
             ..Default::default()
