@@ -496,13 +496,24 @@ impl CalibrationDesign {
     pub fn parameters(&self) -> usize {
         self.layout.len()
     }
+    /// Number of epochs (rows per channel).
+    pub fn epochs(&self) -> usize {
+        self.epochs
+    }
+    /// Weight of a channel's rows (0..6, gx..az) in the calibration's least squares.
+    pub fn weight(&self, channel: usize) -> f64 {
+        self.weights[channel / 3]
+    }
     /// Whether a channel (0..6, gx..az) has rows.
     pub fn has_channel(&self, channel: usize) -> bool {
         !self.rows[channel].is_empty()
     }
-    /// The calibration parameters the weighted least squares would take from an error
-    /// series on `channel` alone (zero on the others).
-    pub fn absorbed(&self, channel: usize, y: &[f64]) -> DVector<f64> {
+    /// (X'WX)^-1 of the calibration's weighted least squares.
+    pub fn bread(&self) -> &DMatrix<f64> {
+        &self.bread
+    }
+    /// Moments X_c' W_c y of a series on `channel` with the calibration's columns.
+    pub fn moments(&self, channel: usize, y: &[f64]) -> DVector<f64> {
         let p = self.layout.len();
         let w = self.weights[channel / 3];
         let mut xtwy = DVector::<f64>::zeros(p);
@@ -511,7 +522,22 @@ impl CalibrationDesign {
                 xtwy[a] += w * x[a] * v;
             }
         }
-        &self.bread * xtwy
+        xtwy
+    }
+    /// Moments X' W y of series on all channels at once.
+    pub fn moments_all(&self, y: &[Option<&[f64]>; 6]) -> DVector<f64> {
+        let mut total = DVector::<f64>::zeros(self.layout.len());
+        for (ch, series) in y.iter().enumerate() {
+            if let Some(series) = series.filter(|_| self.has_channel(ch)) {
+                total += self.moments(ch, series);
+            }
+        }
+        total
+    }
+    /// The calibration parameters the weighted least squares would take from an error
+    /// series on `channel` alone (zero on the others).
+    pub fn absorbed(&self, channel: usize, y: &[f64]) -> DVector<f64> {
+        &self.bread * self.moments(channel, y)
     }
     /// The calibration parameters taken from errors on all channels at once.
     pub fn absorbed_all(&self, y: &[Option<&[f64]>; 6]) -> DVector<f64> {

@@ -15,7 +15,11 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 const RATE_HZ: f64 = 100.0;
-const SECONDS: f64 = 300.0;
+/// Length of each simulated drive: the 15 minutes of the paper's vehicle test (Section V).
+/// On 300 s drives the gyro terms the car's turning drives were found in only 8 of 20 fresh
+/// runs: a drive can barely turn (omega_z sd 0.004 rad/s), and with few turns f_y ~ speed *
+/// omega_z cannot be told from omega_z (BENCHMARKS.md).
+const SECONDS: f64 = 900.0;
 
 fn spec(unit: &str, wn: f64, gm_beta: f64, gm_sigma: f64) -> ModelSpec {
     ModelSpec {
@@ -48,6 +52,8 @@ struct Hidden {
     truth: Option<f64>,
     /// Index into a vector estimate (lever arm component).
     component: Option<usize>,
+    /// The term as the engine names its regressor (e.g. `f_y`), for failure messages.
+    term: String,
 }
 
 fn base_imu() -> ImuModel {
@@ -94,6 +100,7 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
             channel: "gx",
             truth: None,
             component: None,
+            term: String::new(),
         };
         let set = |c: &'static str, m: ChannelModel, imu: &mut ImuModel| {
             imu.channels.insert(c.into(), m);
@@ -106,6 +113,11 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
                 let mut m = channel_model(c);
                 m.scale_factor = Some(v);
                 set(c, m, &mut imu);
+                h.term = format!(
+                    "{}_{}",
+                    if c.starts_with('g') { "omega" } else { "f" },
+                    &c[1..]
+                );
                 h.channel = c;
                 h.truth = Some(v);
             }
@@ -120,6 +132,7 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
                 k[j] = v;
                 m.cross_axis = Some(k);
                 set(c, m, &mut imu);
+                h.term = format!("omega_{}", ["x", "y", "z"][j]);
                 h.channel = c;
                 h.truth = Some(v);
             }
@@ -132,6 +145,7 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
                 k[j] = v;
                 m.g_sensitivity = Some(k);
                 set(c, m, &mut imu);
+                h.term = format!("f_{}", ["x", "y", "z"][j]);
                 h.channel = c;
                 h.truth = Some(v);
             }
@@ -143,12 +157,13 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
                 let mut m = channel_model(c);
                 m.angular_acceleration_sensitivity = Some([0.0, 0.0, v]);
                 set(c, m, &mut imu);
+                h.term = "omega_dot_z".into();
                 h.channel = c;
                 h.truth = Some(v);
             }
             "jerk" => {
                 // On az only: on a car the vertical channel carries the body and wheel-hop
-                // vibration whose jerk makes a 2-4 ms sensitivity observable in 300 s; the
+                // vibration whose jerk makes a 2-4 ms sensitivity observable in a drive; the
                 // lateral and longitudinal jerk of driving is too weak (measured: 3.1 ms on
                 // ay went unseen, see BENCHMARKS.md).
                 let c = "az";
@@ -229,11 +244,10 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
                     rng.random_range(0.05..0.08)
                 };
                 let mut m = channel_model(c);
-                m.bias_steps = vec![BiasStep {
-                    at_s: rng.random_range(0.3..0.7) * SECONDS,
-                    size,
-                }];
+                let at_s = rng.random_range(0.3..0.7) * SECONDS;
+                m.bias_steps = vec![BiasStep { at_s, size }];
                 set(c, m, &mut imu);
+                h.term = format!("step at {at_s:.2} s");
                 h.channel = c;
                 h.truth = Some(size);
             }
@@ -313,33 +327,37 @@ fn run(cause: Option<&'static str>, seed: u64) -> (DiagnoseReport, Option<Hidden
     (report, hidden)
 }
 
-fn contains(
-    ci: &serde_json::Value,
-    est: &serde_json::Value,
-    truth: f64,
-    component: Option<usize>,
-) -> bool {
-    let pair = |v: &serde_json::Value| -> Option<(f64, f64)> {
-        Some((v.get(0)?.as_f64()?, v.get(1)?.as_f64()?))
+/// Half-width of a 99.9% normal interval over that of a 95% one (3.2905 / 1.9600).
+const WIDEN_95_TO_999: f64 = 3.290_526_731_491_926 / 1.959_963_984_540_054;
+
+/// Whether `truth` lies in the interval `ci` (for a vector estimate: in component
+/// `component`, or in any component when none is given), after widening it about its centre
+/// by `widen` (1 for the reported 95% interval).
+fn contains(ci: &serde_json::Value, truth: f64, component: Option<usize>, widen: f64) -> bool {
+    let inside = |v: &serde_json::Value| -> bool {
+        let (Some(lo), Some(hi)) = (
+            v.get(0).and_then(|x| x.as_f64()),
+            v.get(1).and_then(|x| x.as_f64()),
+        ) else {
+            return false;
+        };
+        let (mid, half) = (0.5 * (lo + hi), 0.5 * (hi - lo) * widen);
+        mid - half <= truth && truth <= mid + half
     };
     if let Some(k) = component {
-        return ci
-            .get(k)
-            .and_then(pair)
-            .is_some_and(|(lo, hi)| lo <= truth && truth <= hi);
+        return ci.get(k).is_some_and(inside);
     }
-    if let Some((lo, hi)) = pair(ci) {
-        return lo <= truth && truth <= hi;
+    if ci.get(0).is_some_and(|x| x.is_number()) {
+        return inside(ci);
     }
-    // A vector estimate: the truth must be inside one of its components' intervals.
-    let _ = est;
-    ci.as_array().is_some_and(|a| {
-        a.iter()
-            .filter_map(pair)
-            .any(|(lo, hi)| lo <= truth && truth <= hi)
-    })
+    ci.as_array().is_some_and(|a| a.iter().any(inside))
 }
 
+/// Every seed: the hidden cause on the hidden channel, with the truth inside the reported
+/// interval taken to 99.9%. The 95% interval itself misses the truth in one run of twenty
+/// when it is calibrated, so over this suite's 26 checks a few would miss by chance (at
+/// 900 s: the step of bias_shift seed 2 by 2.9 sigma of the Gauss-Markov wander); the
+/// power harness below measures how often the 95% interval holds the truth.
 fn check(cause: &'static str, seeds: &[u64]) {
     for &seed in seeds {
         let (report, hidden) = run(Some(cause), seed);
@@ -356,7 +374,7 @@ fn check(cause: &'static str, seeds: &[u64]) {
         let f = hit.unwrap_or_else(|| panic!("seed {seed}: hid {h:?}, named {named:?}"));
         if let Some(t) = h.truth {
             assert!(
-                contains(&f.ci95, &f.estimate, t, h.component),
+                contains(&f.ci95, t, h.component, WIDEN_95_TO_999),
                 "seed {seed}: hid {h:?}, found {f:?}; all named: {named:?}"
             );
         }
@@ -438,12 +456,24 @@ fn causes_under_test() -> Vec<&'static str> {
 }
 
 /// Outcome of one hidden-effect run.
-fn outcome(cause: &'static str, seed: u64) -> (bool, usize) {
+/// What one hidden-effect run found: the hidden cause on its channel (`named`), with the
+/// truth inside the reported interval taken to 99.9% (`hit`, what the tests require) and
+/// inside the 95% interval itself (None when there is no value to check), and the number of
+/// other (cause, channel) pairs named.
+struct Outcome {
+    named: bool,
+    hit: bool,
+    inside_95: Option<bool>,
+    others: usize,
+}
+
+fn outcome(cause: &'static str, seed: u64) -> Outcome {
     let (report, hidden) = run(Some(cause), seed);
     let h = hidden.expect("a cause was hidden");
     eprintln!(
-        "{cause} seed {seed}: hid {} {:?}; named {:?}",
+        "{cause} seed {seed}: hid {} {} {:?}; named {:?}",
         h.channel,
+        h.term,
         h.truth,
         report
             .findings
@@ -451,22 +481,32 @@ fn outcome(cause: &'static str, seed: u64) -> (bool, usize) {
             .map(|f| format!("{}:{}={}", f.channel, f.cause, f.estimate))
             .collect::<Vec<_>>()
     );
-    let hit = report.findings.iter().any(|f| {
-        f.cause == h.cause
-            && f.channel == h.channel
-            && h.truth
-                .is_none_or(|t| contains(&f.ci95, &f.estimate, t, h.component))
-    });
-    // Causes named on channels where nothing was hidden (a time offset names every channel,
-    // a lever arm every accelerometer: those count once).
+    let found = report
+        .findings
+        .iter()
+        .find(|f| f.cause == h.cause && f.channel == h.channel);
+    let inside = |widen: f64| {
+        found.is_some_and(|f| {
+            h.truth
+                .is_none_or(|t| contains(&f.ci95, t, h.component, widen))
+        })
+    };
+    // Other causes, and the hidden one on other channels (except a time offset, which names
+    // every channel, and a lever arm, every accelerometer).
+    let sensor_wide = matches!(h.cause, "time_offset" | "lever_arm");
     let others = report
         .findings
         .iter()
-        .filter(|f| f.cause != h.cause)
+        .filter(|f| f.cause != h.cause || (f.channel != h.channel && !sensor_wide))
         .map(|f| (f.cause.clone(), f.channel.clone()))
         .collect::<std::collections::BTreeSet<_>>()
         .len();
-    (hit, others)
+    Outcome {
+        named: found.is_some(),
+        hit: inside(WIDEN_95_TO_999),
+        inside_95: (found.is_some() && h.truth.is_some()).then(|| inside(1.0)),
+        others,
+    }
 }
 
 /// Detection power and false alarms over fresh seeds (not the ones the tests above use):
@@ -480,18 +520,48 @@ fn power_and_false_alarm_rates() {
         .ok()
         .and_then(|s| s.parse().ok())
         .unwrap_or(5);
-    let causes = causes_under_test();
-    println!("| cause | detected | runs naming another cause too |");
-    println!("|---|---|---|");
+    // DYNACAL_POWER_CAUSES (comma-separated) restricts the causes, to look into a few.
+    let only: Option<Vec<String>> = std::env::var("DYNACAL_POWER_CAUSES")
+        .ok()
+        .map(|s| s.split(',').map(|c| c.trim().to_string()).collect());
+    let causes: Vec<&'static str> = causes_under_test()
+        .into_iter()
+        .filter(|c| only.as_ref().is_none_or(|o| o.iter().any(|x| x == c)))
+        .collect();
+    println!("| cause | named on the right channel | and truth inside the 99.9% interval | truth inside the 95% interval | runs naming another cause too |");
+    println!("|---|---|---|---|---|");
     let mut detected = 0usize;
+    let (mut inside_95, mut checked_95) = (0usize, 0usize);
     for &cause in &causes {
-        let results: Vec<(bool, usize)> = (0..seeds).map(|k| outcome(cause, 11 + k)).collect();
-        let hits = results.iter().filter(|r| r.0).count();
-        let extra = results.iter().filter(|r| r.1 > 0).count();
-        println!("| {cause} | {hits} / {seeds} | {extra} / {seeds} |");
+        let results: Vec<Outcome> = (0..seeds).map(|k| outcome(cause, 11 + k)).collect();
+        let count = |f: &dyn Fn(&Outcome) -> bool| results.iter().filter(|r| f(r)).count();
+        let hits = count(&|r| r.hit);
+        let checked = count(&|r| r.inside_95.is_some());
+        let inside = count(&|r| r.inside_95 == Some(true));
+        let coverage = if checked > 0 {
+            format!("{inside} / {checked}")
+        } else {
+            "(no value)".into()
+        };
+        println!(
+            "| {cause} | {} / {seeds} | {hits} / {seeds} | {coverage} | {} / {seeds} |",
+            count(&|r| r.named),
+            count(&|r| r.others > 0)
+        );
         detected += hits;
+        inside_95 += inside;
+        checked_95 += checked;
     }
-    let null_runs = 2 * seeds;
+    if checked_95 > 0 {
+        println!(
+            "| all | | {detected} / {} | {inside_95} / {checked_95} | |",
+            causes.len() as u64 * seeds
+        );
+    }
+    let null_runs = match &only {
+        Some(o) if !o.iter().any(|x| x == "null") => 0,
+        _ => 2 * seeds,
+    };
     let alarms: Vec<usize> = (0..null_runs)
         .map(|k| {
             let findings = run(None, 201 + k).0.findings;
@@ -507,13 +577,25 @@ fn power_and_false_alarm_rates() {
         })
         .collect();
     let runs_with_alarm = alarms.iter().filter(|&&a| a > 0).count();
-    println!("| null (nothing hidden) | {runs_with_alarm} of {null_runs} runs named anything | |");
-    // Guards at the levels measured on 2026-11-22 (BENCHMARKS.md): overall power 50 of 65
-    // runs, no null run naming anything (2 of 10 before the noise-change effect-size floor).
-    let power = detected as f64 / (causes.len() as u64 * seeds) as f64;
-    assert!(power >= 0.7, "overall power {power:.2}");
+    println!(
+        "| null (nothing hidden) | {runs_with_alarm} of {null_runs} runs named anything | | | |"
+    );
+    // Guards below the levels measured on 2026-11-22 with 900 s drives (BENCHMARKS.md):
+    // 64 of 65 runs detected, the truth inside 55 of 59 95% intervals, no null run naming
+    // anything (on 300 s drives: 50 of 65 detected).
+    if !causes.is_empty() {
+        let power = detected as f64 / (causes.len() as u64 * seeds) as f64;
+        assert!(power >= 0.9, "overall power {power:.2}");
+    }
+    if checked_95 > 0 {
+        let coverage = inside_95 as f64 / checked_95 as f64;
+        assert!(
+            coverage >= 0.85,
+            "95% intervals held the truth in {inside_95} of {checked_95}"
+        );
+    }
     assert!(
-        runs_with_alarm as f64 <= 0.3 * null_runs as f64,
+        runs_with_alarm as f64 <= 0.1 * null_runs as f64,
         "{runs_with_alarm} of {null_runs} null runs named a cause"
     );
 }
@@ -533,6 +615,14 @@ fn one_run() {
         .into_iter()
         .find(|c| *c == cause)
         .expect("a cause of the vocabulary");
+    let (report, hidden) = run(Some(cause), seed);
+    eprintln!("hid {hidden:?}");
+    for d in &report.discrepancies {
+        eprintln!("discrepancy {d:?}");
+    }
+    for f in &report.findings {
+        eprintln!("finding {f:?}");
+    }
     check(cause, &[seed]);
 }
 

@@ -16,8 +16,15 @@
 //!   dynamics, quantization (the raw sensor values lie on a lattice), and a change of the
 //!   correlated or white noise (the wavelet variance of what remains).
 //!
+//! The deterministic terms are found in two stages: per channel, a stepwise selection over
+//! the physics candidates (and a bias step), each fitted jointly with the calibration on
+//! every channel's rows; then across channels, a joint fit of all kept terms, so a term one
+//! channel shows only because another's term moved the calibration drops out.
+//!
 //! False alarms are controlled by strict per-test levels (Bonferroni over the tests of a
-//! run), an effect-size floor for deterministic terms, and simulation-calibrated thresholds.
+//! run), an effect-size floor for deterministic terms, simulation-calibrated thresholds, and
+//! coefficient spreads no smaller than the measured residual's own (so a noise stronger than
+//! the baseline's is not read as terms).
 
 use std::collections::BTreeMap;
 
@@ -30,8 +37,8 @@ use serde_json::{json, Value};
 use statrs::distribution::{ContinuousCDF, Normal};
 
 use super::stats::{
-    find_outliers, local_step_null_sd, local_step_scan, noise_vs_dynamics, outlier_process,
-    spectral_lines, welch_psd,
+    find_outliers, local_step_null_sd, local_step_robust_sd, local_step_scan, noise_vs_dynamics,
+    outlier_process, spectral_lines, welch_psd,
 };
 use crate::error_signal::ErrorSignals;
 use crate::errors::{
@@ -321,37 +328,6 @@ fn ci(est: f64, se: f64) -> [f64; 2] {
     [est - Z_FLOOR * se, est + Z_FLOOR * se]
 }
 
-/// Least squares of `y` on the columns plus an intercept: (slopes, intercept). Columns are
-/// centred, so the normal equations stay well conditioned.
-fn ols(y: &[f64], cols: &[&[f64]]) -> Option<(Vec<f64>, f64)> {
-    let n = y.len();
-    let p = cols.len();
-    let means: Vec<f64> = cols
-        .iter()
-        .map(|c| c.iter().sum::<f64>() / n as f64)
-        .collect();
-    let my = y.iter().sum::<f64>() / n as f64;
-    let mut xtx = nalgebra::DMatrix::<f64>::zeros(p, p);
-    let mut xty = nalgebra::DVector::<f64>::zeros(p);
-    for t in 0..n {
-        for a in 0..p {
-            let xa = cols[a][t] - means[a];
-            xty[a] += xa * (y[t] - my);
-            for b in a..p {
-                xtx[(a, b)] += xa * (cols[b][t] - means[b]);
-            }
-        }
-    }
-    for a in 0..p {
-        for b in 0..a {
-            xtx[(a, b)] = xtx[(b, a)];
-        }
-    }
-    let beta = xtx.cholesky()?.solve(&xty);
-    let icpt = my - (0..p).map(|a| beta[a] * means[a]).sum::<f64>();
-    Some((beta.iter().copied().collect(), icpt))
-}
-
 /// The deterministic part of a channel's error over `range`: the sum of the kept terms.
 fn det_terms(
     cands: &[Candidate],
@@ -366,6 +342,396 @@ fn det_terms(
                 .sum::<f64>()
         })
         .collect()
+}
+
+/// What a least-squares fit of per-channel terms jointly with the calibration needs of the
+/// calibration: with a reference, the calibration design (weighted least squares over every
+/// channel's rows: boresight, lever arm, biases); without one (static data), a mean per
+/// channel.
+#[derive(Clone, Copy)]
+enum Absorber<'a> {
+    Design(&'a CalibrationDesign),
+    Mean,
+}
+
+/// A regressor on one channel seen through the calibration: its moments with the
+/// calibration's columns (X_c' W_c x) and the parameters the calibration would take from
+/// it, `absorbed` = (X'WX)^-1 X_c' W_c x.
+struct Projection {
+    moments: nalgebra::DVector<f64>,
+    absorbed: nalgebra::DVector<f64>,
+}
+
+impl Absorber<'_> {
+    fn weight(&self, channel: usize) -> f64 {
+        match self {
+            Absorber::Design(d) => d.weight(channel),
+            Absorber::Mean => 1.0,
+        }
+    }
+    fn project(&self, channel: usize, x: &[f64]) -> Projection {
+        match self {
+            Absorber::Design(d) => {
+                let moments = d.moments(channel, x);
+                Projection {
+                    absorbed: d.bread() * &moments,
+                    moments,
+                }
+            }
+            Absorber::Mean => {
+                let sum = x.iter().sum::<f64>();
+                Projection {
+                    moments: nalgebra::DVector::from_element(1, sum),
+                    absorbed: nalgebra::DVector::from_element(1, sum / x.len().max(1) as f64),
+                }
+            }
+        }
+    }
+    /// `x` on `channel` minus what the calibration takes from it there.
+    fn own(&self, channel: usize, x: &[f64], p: &Projection) -> Vec<f64> {
+        match self {
+            Absorber::Design(d) => x
+                .iter()
+                .zip(d.fitted(channel, &p.absorbed))
+                .map(|(v, f)| v - f)
+                .collect(),
+            Absorber::Mean => x.iter().map(|v| v - p.absorbed[0]).collect(),
+        }
+    }
+    /// Weighted inner product of two terms after the calibration has taken its part from
+    /// both, over every channel's rows: w_c <x, y> [same channel] - x' W X (X'WX)^-1 X' W y.
+    fn gram(&self, a: &Term, b: &Term) -> f64 {
+        let same = if a.channel == b.channel {
+            self.weight(a.channel) * a.raw.iter().zip(&b.raw).map(|(x, y)| x * y).sum::<f64>()
+        } else {
+            0.0
+        };
+        same - a.projection.moments.dot(&b.projection.absorbed)
+    }
+}
+
+/// A deterministic term on one channel (index into [`CHANNELS`]): its regressor as measured
+/// (`raw`) and stripped of what the calibration absorbs from it on its own channel (`own`),
+/// its moments after the calibration with the error and with each baseline simulation, and
+/// its coefficient with the standard error the simulations give it.
+struct Term {
+    channel: usize,
+    name: String,
+    cause: &'static str,
+    field: (&'static str, usize),
+    raw: Vec<f64>,
+    own: Vec<f64>,
+    projection: Projection,
+    on_error: f64,
+    on_sims: Vec<f64>,
+    coef: f64,
+    se: f64,
+    /// Smallest standard error the term's coefficient may have: the measured-residual
+    /// spread of its own channel's fit, kept for the joint fit across channels.
+    sd_floor: f64,
+}
+
+impl Term {
+    /// `moments_e` and `moments_sims`: the calibration's moments of the error and of each
+    /// replicate's simulations (all channels with a design, this one without).
+    fn new(
+        absorber: &Absorber,
+        channel: usize,
+        c: &Candidate,
+        e: &[f64],
+        moments_e: &nalgebra::DVector<f64>,
+        sims: &[Vec<f64>],
+        moments_sims: &[nalgebra::DVector<f64>],
+    ) -> Self {
+        let projection = absorber.project(channel, c.values);
+        let w = absorber.weight(channel);
+        let after = |y: &[f64], m: &nalgebra::DVector<f64>| {
+            w * c.values.iter().zip(y).map(|(a, b)| a * b).sum::<f64>() - projection.absorbed.dot(m)
+        };
+        Term {
+            channel,
+            name: c.name.clone(),
+            cause: c.cause,
+            field: c.field,
+            raw: c.values.to_vec(),
+            own: absorber.own(channel, c.values, &projection),
+            on_error: after(e, moments_e),
+            on_sims: sims
+                .iter()
+                .zip(moments_sims)
+                .map(|(s, m)| after(s, m))
+                .collect(),
+            projection,
+            coef: 0.0,
+            se: f64::NAN,
+            sd_floor: 0.0,
+        }
+    }
+}
+
+/// The error left after the terms: `e` minus each term's own-channel regressor times its
+/// coefficient, minus the mean of what remains.
+fn residual_of(e: &[f64], terms: &[Term]) -> Vec<f64> {
+    let mut r = e.to_vec();
+    for t in terms {
+        r.iter_mut().zip(&t.own).for_each(|(v, x)| *v -= t.coef * x);
+    }
+    let m = r.iter().sum::<f64>() / r.len().max(1) as f64;
+    r.iter_mut().for_each(|v| *v -= m);
+    r
+}
+
+/// Coefficients, null standard deviations and |z| of a least-squares fit on moments.
+struct MomentFit {
+    beta: Vec<f64>,
+    sd: Vec<f64>,
+    z: Vec<f64>,
+}
+
+/// The error a fit of terms on one channel leaves, for a spread of its coefficients that
+/// does not lean on the baseline model: `e` with `weight`, the calibration's weight of the
+/// channel.
+#[derive(Clone, Copy)]
+struct MeasuredSpread<'a> {
+    e: &'a [f64],
+    weight: f64,
+}
+
+/// Blocks of the batch-means spread: long enough (45 s of a 900 s drive) to hold most of the
+/// correlation of a Gauss-Markov wander of 20 s, many enough for a spread within ~16%.
+const SPREAD_BLOCKS: usize = 20;
+
+/// Standard deviations of the coefficients from the measured residual itself (batch means:
+/// the coefficients' scores summed over SPREAD_BLOCKS consecutive blocks, in a sandwich with
+/// the inverse Gram matrix). Why: the simulated spread assumes the baseline's noise; when the
+/// channel's correlated noise is stronger than the baseline's (a noise change), that spread
+/// is too small and slow wander correlated with slow manoeuvres is named as terms.
+fn measured_spread(
+    spread: MeasuredSpread,
+    terms: &[Term],
+    active: &[usize],
+    beta: &[f64],
+    gram_inv: &nalgebra::DMatrix<f64>,
+) -> Vec<f64> {
+    let n = spread.e.len();
+    let mut u = spread.e.to_vec();
+    for (a, &k) in active.iter().enumerate() {
+        u.iter_mut()
+            .zip(&terms[k].own)
+            .for_each(|(v, x)| *v -= beta[a] * x);
+    }
+    let mean = u.iter().sum::<f64>() / n.max(1) as f64;
+    let block = (n / SPREAD_BLOCKS).max(1);
+    let scores: Vec<nalgebra::DVector<f64>> = (0..n / block)
+        .map(|b| {
+            let range = b * block..(b + 1) * block;
+            nalgebra::DVector::from_iterator(
+                active.len(),
+                active.iter().map(|&k| {
+                    spread.weight
+                        * terms[k].own[range.clone()]
+                            .iter()
+                            .zip(&u[range.clone()])
+                            .map(|(x, v)| x * (v - mean))
+                            .sum::<f64>()
+                }),
+            )
+        })
+        .collect();
+    let blocks = scores.len() as f64;
+    let centre = scores
+        .iter()
+        .fold(nalgebra::DVector::zeros(active.len()), |acc, s| acc + s)
+        / blocks;
+    let meat = scores.iter().fold(
+        nalgebra::DMatrix::zeros(active.len(), active.len()),
+        |acc, s| {
+            let d = s - &centre;
+            acc + &d * d.transpose()
+        },
+    ) * (blocks / (blocks - 1.0).max(1.0));
+    let cov = gram_inv * meat * gram_inv;
+    (0..active.len())
+        .map(|a| cov[(a, a)].max(0.0).sqrt())
+        .collect()
+}
+
+/// Fits the `active` terms on their moments (None when they are exactly collinear). The
+/// spread of each coefficient is that of the same fit on every baseline simulation, or,
+/// when `spread` is given and it is larger, the batch-means spread of the measured
+/// residual.
+fn fit_on_moments(
+    gram: &nalgebra::DMatrix<f64>,
+    terms: &[Term],
+    active: &[usize],
+    spread: Option<MeasuredSpread>,
+) -> Option<MomentFit> {
+    let g = nalgebra::DMatrix::from_fn(active.len(), active.len(), |a, b| {
+        gram[(active[a], active[b])]
+    });
+    let chol = g.cholesky()?;
+    let solve = |rhs: &dyn Fn(usize) -> f64| {
+        chol.solve(&nalgebra::DVector::from_iterator(
+            active.len(),
+            active.iter().map(|&k| rhs(k)),
+        ))
+    };
+    let beta: Vec<f64> = solve(&|k| terms[k].on_error).iter().copied().collect();
+    let replicates = terms[active[0]].on_sims.len();
+    let null: Vec<nalgebra::DVector<f64>> = (0..replicates)
+        .map(|r| solve(&|k| terms[k].on_sims[r]))
+        .collect();
+    let reps = null.len() as f64;
+    let mut sd: Vec<f64> = (0..active.len())
+        .map(|a| {
+            let m = null.iter().map(|x| x[a]).sum::<f64>() / reps;
+            (null.iter().map(|x| (x[a] - m).powi(2)).sum::<f64>() / (reps - 1.0).max(1.0)).sqrt()
+        })
+        .collect();
+    if let Some(spread) = spread {
+        let measured = measured_spread(spread, terms, active, &beta, &chol.inverse());
+        sd.iter_mut().zip(measured).for_each(|(s, m)| *s = s.max(m));
+    }
+    for (s, &k) in sd.iter_mut().zip(active) {
+        *s = s.max(terms[k].sd_floor);
+    }
+    let z = (0..active.len())
+        .map(|a| {
+            if sd[a] > 0.0 {
+                (beta[a] / sd[a]).abs()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    Some(MomentFit { beta, sd, z })
+}
+
+/// Stepwise selection on moments. `gram` holds the terms' inner products after the
+/// calibration; each term carries its moment with the error and with every baseline
+/// simulation. Backward: the least significant term goes while one is below `z_strict` or
+/// `small` (too little variance explained at its coefficient). Forward: of the terms left
+/// out, the most significant when added to the survivors comes back if it passes, and the
+/// backward pass runs again. The forward pass matters when two terms are nearly collinear
+/// (omega_z and f_y ~ speed * omega_z on a car): backward elimination drops whichever is
+/// slightly weaker in the crowded full model, and the proxy left alone may fall short where
+/// the true term alone would not. Each term comes back at most once, so this ends. Returns
+/// (term, coefficient, null sd) of the survivors.
+fn eliminate_on_moments(
+    gram: &nalgebra::DMatrix<f64>,
+    terms: &[Term],
+    z_strict: f64,
+    small: &dyn Fn(usize, f64) -> bool,
+    spread: Option<MeasuredSpread>,
+) -> Vec<(usize, f64, f64)> {
+    let mut active: Vec<usize> = (0..terms.len()).collect();
+    let mut brought_back: Vec<usize> = Vec::new();
+    loop {
+        let fit = loop {
+            if active.is_empty() {
+                break None;
+            }
+            let Some(fit) = fit_on_moments(gram, terms, &active, spread) else {
+                // Exactly collinear: the term with the weakest marginal fit goes.
+                let marginal = |a: usize| {
+                    let k = active[a];
+                    terms[k].on_error.abs() / gram[(k, k)].max(1e-300).sqrt()
+                };
+                let weakest = (0..active.len())
+                    .min_by(|&a, &b| marginal(a).total_cmp(&marginal(b)))
+                    .expect("active is not empty");
+                active.remove(weakest);
+                continue;
+            };
+            let failing =
+                (0..active.len()).filter(|&a| fit.z[a] < z_strict || small(active[a], fit.beta[a]));
+            match failing.min_by(|&a, &b| fit.z[a].total_cmp(&fit.z[b])) {
+                Some(a) => {
+                    active.remove(a);
+                }
+                None => break Some(fit),
+            }
+        };
+        let best = (0..terms.len())
+            .filter(|k| !active.contains(k) && !brought_back.contains(k))
+            .filter_map(|k| {
+                let with: Vec<usize> = active.iter().copied().chain([k]).collect();
+                let f = fit_on_moments(gram, terms, &with, spread)?;
+                let (z, b) = (f.z[with.len() - 1], f.beta[with.len() - 1]);
+                (z >= z_strict && !small(k, b)).then_some((k, z))
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match best {
+            Some((k, _)) => {
+                brought_back.push(k);
+                active.push(k);
+            }
+            None => {
+                return fit.map_or_else(Vec::new, |f| {
+                    active
+                        .iter()
+                        .enumerate()
+                        .map(|(a, &k)| (k, f.beta[a], f.sd[a]))
+                        .collect()
+                });
+            }
+        }
+    }
+}
+
+/// What stage 1 found on one channel.
+struct ChannelTerms {
+    terms: Vec<Term>,
+    step_at_s: Option<f64>,
+    discrepancies: Vec<Discrepancy>,
+}
+
+/// The terms that survive the joint fit, and per channel (gx..az) what the other channels'
+/// terms had pushed into it through the calibration (to be taken out of its error).
+struct JointTerms {
+    terms: Vec<Term>,
+    spill: [Option<Vec<f64>>; 6],
+}
+
+/// Fits the terms of all channels jointly with the calibration and with each other, and
+/// eliminates, one at a time, those no longer significant or too small to matter
+/// (`variance_explained` of a term at a coefficient below `min_variance_explained`).
+///
+/// Why: a term on one channel moves the calibration (a gyro's omega_z -> gx term pulls the
+/// boresight about y), and the moved calibration leaves a copy of the term's pattern on the
+/// other channels (f_x on az). Each channel's own fit sees that copy as a term of its own;
+/// in the joint fit the copy is explained by the term that caused it.
+fn joint_terms(
+    design: &CalibrationDesign,
+    terms: Vec<Term>,
+    z_strict: f64,
+    min_variance_explained: f64,
+    variance_explained: &dyn Fn(&Term, f64) -> f64,
+) -> JointTerms {
+    let absorber = Absorber::Design(design);
+    let k = terms.len();
+    let gram = nalgebra::DMatrix::from_fn(k, k, |a, b| absorber.gram(&terms[a], &terms[b]));
+    let small = |i: usize, b: f64| !(variance_explained(&terms[i], b) >= min_variance_explained);
+    let kept = eliminate_on_moments(&gram, &terms, z_strict, &small, None);
+    let mut spill: [Option<Vec<f64>>; 6] =
+        std::array::from_fn(|ch| design.has_channel(ch).then(|| vec![0.0; design.epochs()]));
+    let mut terms: Vec<Option<Term>> = terms.into_iter().map(Some).collect();
+    let mut out = Vec::new();
+    for (i, coef, se) in kept {
+        let mut t = terms[i].take().expect("each term once");
+        // What the calibration took from this term shows on the other channels as
+        // -coef * X_ch absorbed.
+        for (ch, s) in spill.iter_mut().enumerate() {
+            if let Some(s) = s.as_mut().filter(|_| ch != t.channel) {
+                let fit = design.fitted(ch, &t.projection.absorbed);
+                s.iter_mut().zip(fit).for_each(|(v, x)| *v -= coef * x);
+            }
+        }
+        t.coef = coef;
+        t.se = se;
+        out.push(t);
+    }
+    JointTerms { terms: out, spill }
 }
 
 /// Log wavelet variance per level of a series (levels 1..=max).
@@ -566,39 +932,118 @@ pub fn diagnose(
         model: Value,
         absorbed: Option<nalgebra::DVector<f64>>,
     }
-    let results: Vec<Result<ChannelResult, DiagnoseError>> = channels
+    // Baseline simulations of a channel (index into `channels`): the null distribution of
+    // every statistic. Seeded by channel and replicate, so every stage draws the same ones.
+    let baseline_sims = |ci_idx: usize, spec: &ModelSpec| -> Vec<Vec<f64>> {
+        (0..opts.replicates)
+            .into_par_iter()
+            .map(|r| {
+                let mut rng =
+                    ChaCha8Rng::seed_from_u64(opts.seed ^ ((ci_idx as u64) << 32) ^ r as u64);
+                spec.simulate(n, &mut rng)
+            })
+            .collect()
+    };
+    let spec_of = |ch: &str| -> Result<&ModelSpec, DiagnoseError> {
+        baseline
+            .channels
+            .get(ch)
+            .ok_or_else(|| DiagnoseError::Channel {
+                channel: ch.into(),
+                message: format!(
+                    "the baseline model ({}) has no model for it",
+                    baseline.source
+                ),
+            })
+    };
+    // Stage 1, per channel: the deterministic terms its error carries (backward elimination
+    // over the physics candidates, then a bias step).
+    let errors: [Option<&[f64]>; 6] = std::array::from_fn(|i| signals.error(CHANNELS[i]));
+    let absorber = match design {
+        Some(d) => Absorber::Design(d),
+        None => Absorber::Mean,
+    };
+    // Every channel's baseline simulations of one replicate (the ones stage 1 draws).
+    let sims_of = |r: usize| -> [Option<Vec<f64>>; 6] {
+        std::array::from_fn(|i| {
+            let ci_idx = channels.iter().position(|c| *c == CHANNELS[i])?;
+            let spec = baseline.channels.get(CHANNELS[i])?;
+            let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ ((ci_idx as u64) << 32) ^ r as u64);
+            Some(spec.simulate(n, &mut rng))
+        })
+    };
+    // The calibration's moments of the error and of each replicate's simulations over all
+    // channels: what a term's joint fit with the calibration needs of the other channels.
+    let (moments_e, moments_sims): (nalgebra::DVector<f64>, Vec<nalgebra::DVector<f64>>) =
+        match design {
+            Some(d) => (
+                d.moments_all(&errors),
+                (0..opts.replicates)
+                    .into_par_iter()
+                    .map(|r| {
+                        let sims = sims_of(r);
+                        d.moments_all(&std::array::from_fn(|i| sims[i].as_deref()))
+                    })
+                    .collect(),
+            ),
+            None => (nalgebra::DVector::zeros(0), Vec::new()),
+        };
+    // Stage 1, per channel: the deterministic terms its error carries (backward elimination
+    // over the physics candidates, then a bias step).
+    let stage1: Vec<Result<ChannelTerms, DiagnoseError>> = channels
         .par_iter()
         .enumerate()
         .map(|(ci_idx, &ch)| {
             let e = signals.error(ch).expect("channel present");
-            let spec = baseline.channels.get(ch).ok_or_else(|| DiagnoseError::Channel {
-                channel: ch.into(),
-                message: format!("the baseline model ({}) has no model for it", baseline.source),
-            })?;
-            let axis = CHANNELS.iter().position(|c| *c == ch).expect("known channel") % 3;
+            let spec = spec_of(ch)?;
+            let axis = CHANNELS
+                .iter()
+                .position(|c| *c == ch)
+                .expect("known channel")
+                % 3;
             let gyro = ch.starts_with('g');
             let xyz = ["x", "y", "z"];
-            // Deterministic candidates by physics.
-            // A step of the bias, if one is found below, joins the candidates.
-            let step_values: Vec<f64>;
-            let ch_index = CHANNELS.iter().position(|c| *c == ch).expect("known channel");
-            // Each candidate stripped of what the calibration would have taken from it
-            // (Frisch-Waugh), so its coefficient is the one of a joint fit with boresight,
-            // lever arm, biases and time offset: a gyro's omega_z -> gx term is otherwise half
-            // absorbed by the boresight, and an accelerometer's jerk term by the time offset.
-            let mut raw_cands: Vec<Candidate> = Vec::new();
+            let ch_index = CHANNELS
+                .iter()
+                .position(|c| *c == ch)
+                .expect("known channel");
+            // Deterministic candidates by physics. Each is fitted jointly with the
+            // calibration (boresight, lever arm, biases) on every channel's rows, so its
+            // coefficient is the one of a joint fit: a gyro's omega_z -> gx term is otherwise
+            // half absorbed by the boresight, and an accelerometer's jerk term by the time
+            // offset.
             let mut cands: Vec<Candidate> = Vec::new();
             if has_dynamics {
                 for j in 0..3 {
-                    let (input, input_name) = if gyro { (&signals.dynamics[j], "omega") } else { (&f[j], "f") };
+                    let (input, input_name) = if gyro {
+                        (&signals.dynamics[j], "omega")
+                    } else {
+                        (&f[j], "f")
+                    };
                     cands.push(Candidate {
                         name: format!("{input_name}_{}", xyz[j]),
                         values: input,
-                        cause: if j == axis { "scale_factor" } else { "cross_axis" },
-                        field: (if j == axis { "scale_factor" } else { "cross_axis" }, j),
+                        cause: if j == axis {
+                            "scale_factor"
+                        } else {
+                            "cross_axis"
+                        },
+                        field: (
+                            if j == axis {
+                                "scale_factor"
+                            } else {
+                                "cross_axis"
+                            },
+                            j,
+                        ),
                     });
                     if gyro {
-                        cands.push(Candidate { name: format!("f_{}", xyz[j]), values: &f[j], cause: "g_sensitivity", field: ("g_sensitivity", j) });
+                        cands.push(Candidate {
+                            name: format!("f_{}", xyz[j]),
+                            values: &f[j],
+                            cause: "g_sensitivity",
+                            field: ("g_sensitivity", j),
+                        });
                     }
                     cands.push(Candidate {
                         name: format!("omega_dot_{}", xyz[j]),
@@ -606,65 +1051,72 @@ pub fn diagnose(
                         cause: "angular_acceleration",
                         field: ("angular_acceleration_sensitivity", j),
                     });
-                    cands.push(Candidate { name: format!("f_dot_{}", xyz[j]), values: &f_dot[j], cause: "jerk", field: ("jerk_sensitivity", j) });
+                    cands.push(Candidate {
+                        name: format!("f_dot_{}", xyz[j]),
+                        values: &f_dot[j],
+                        cause: "jerk",
+                        field: ("jerk_sensitivity", j),
+                    });
                 }
             }
-            let stripped: Vec<Vec<f64>> = cands.iter().map(|c| design.map_or_else(|| c.values.to_vec(), |d| d.residualize(ch_index, c.values))).collect();
-            std::mem::swap(&mut raw_cands, &mut cands);
-            for (c, v) in raw_cands.iter().zip(&stripped) {
-                cands.push(Candidate { name: c.name.clone(), values: v, cause: c.cause, field: c.field });
-            }
             // Baseline simulations: the null distribution of every statistic below.
-            let sims: Vec<Vec<f64>> = (0..opts.replicates)
-                .into_par_iter()
-                .map(|r| {
-                    let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ ((ci_idx as u64) << 32) ^ r as u64);
-                    spec.simulate(n, &mut rng)
-                })
-                .collect();
+            let sims = baseline_sims(ci_idx, spec);
+            let (own_moments_e, own_moments_sims);
+            let (m_e, m_sims) = match absorber {
+                Absorber::Design(_) => (&moments_e, &moments_sims),
+                Absorber::Mean => {
+                    own_moments_e = absorber.project(ch_index, e).moments;
+                    own_moments_sims = sims
+                        .iter()
+                        .map(|s| absorber.project(ch_index, s).moments)
+                        .collect::<Vec<_>>();
+                    (&own_moments_e, &own_moments_sims)
+                }
+            };
             // Backward elimination with simulation-calibrated standard errors: the baseline
             // noise (slow Gauss-Markov wander included) is regressed on the same measured
             // dynamics, so spurious correlation of slow noise with slow manoeuvres is in the
             // null distribution. HAC alone under-covers for such persistent noise.
-            type Coeffs = Vec<(usize, f64, [f64; 2], f64)>;
             let var_e = variance(e);
-            let eliminate = |cands: &[Candidate]| -> (Coeffs, f64) {
-                let mut coeffs: Coeffs = Vec::new();
-                let mut intercept = e.iter().sum::<f64>() / n as f64;
-                let mut active: Vec<usize> = (0..cands.len()).collect();
-                while !active.is_empty() {
-                    let cols: Vec<&[f64]> = active.iter().map(|&k| cands[k].values).collect();
-                    let Some((b, icpt)) = ols(e, &cols) else { break };
-                    let null: Vec<Vec<f64>> = sims.par_iter().filter_map(|s| ols(s, &cols).map(|x| x.0)).collect();
-                    let sd: Vec<f64> = (0..active.len())
-                        .map(|i| {
-                            let r = null.len() as f64;
-                            let m = null.iter().map(|x| x[i]).sum::<f64>() / r;
-                            (null.iter().map(|x| (x[i] - m).powi(2)).sum::<f64>() / (r - 1.0).max(1.0)).sqrt()
-                        })
-                        .collect();
-                    let z: Vec<f64> = (0..active.len()).map(|i| if sd[i] > 0.0 { (b[i] / sd[i]).abs() } else { 0.0 }).collect();
-                    let worst = (0..active.len()).min_by(|&a, &c| z[a].total_cmp(&z[c]));
-                    match worst {
-                        Some(i) if z[i] < z_strict => {
-                            active.remove(i);
-                        }
-                        _ => {
-                            intercept = icpt;
-                            for (i, &k) in active.iter().enumerate() {
-                                let ve = b[i].powi(2) * variance(cands[k].values) / var_e;
-                                if ve >= opts.min_variance_explained {
-                                    coeffs.push((k, b[i], ci(b[i], sd[i]), ve));
-                                }
-                            }
-                            break;
-                        }
-                    }
-                }
-                (coeffs, intercept)
+            let eliminate = |cands: &[Candidate]| -> Vec<Term> {
+                let terms: Vec<Term> = cands
+                    .par_iter()
+                    .map(|c| Term::new(&absorber, ch_index, c, e, m_e, &sims, m_sims))
+                    .collect();
+                let gram = nalgebra::DMatrix::from_fn(terms.len(), terms.len(), |a, b| {
+                    absorber.gram(&terms[a], &terms[b])
+                });
+                let small = |k: usize, b: f64| {
+                    !(b.powi(2) * variance(&terms[k].own) / var_e >= opts.min_variance_explained)
+                };
+                let kept = eliminate_on_moments(
+                    &gram,
+                    &terms,
+                    z_strict,
+                    &small,
+                    Some(MeasuredSpread {
+                        e,
+                        weight: absorber.weight(ch_index),
+                    }),
+                );
+                let mut terms: Vec<Option<Term>> = terms.into_iter().map(Some).collect();
+                kept.into_iter()
+                    .map(|(k, b, sd)| {
+                        let mut t = terms[k].take().expect("each term once");
+                        t.coef = b;
+                        t.se = sd;
+                        t.sd_floor = sd;
+                        t
+                    })
+                    .collect()
             };
-            let (mut coeffs, mut intercept) = eliminate(&cands);
-            let sim_range = |vals: &[f64]| [vals.iter().copied().fold(f64::INFINITY, f64::min), vals.iter().copied().fold(f64::NEG_INFINITY, f64::max)];
+            let mut terms = eliminate(&cands);
+            let sim_range = |vals: &[f64]| {
+                [
+                    vals.iter().copied().fold(f64::INFINITY, f64::min),
+                    vals.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+                ]
+            };
             let mut ch_disc = Vec::new();
 
             // A step of the bias. It is looked for at short windows (the difference of the
@@ -675,24 +1127,124 @@ pub fn diagnose(
             // standing in for it (a scale factor, when the input's level changes during the
             // run) drop out and its size and interval come from the joint fit.
             let mut step_at_s = None;
+            let step_values: Vec<f64>;
             {
-                let windows: Vec<usize> = (6..20).map(|j| 1usize << j).take_while(|&w| w <= n / 8).collect();
+                let windows: Vec<usize> = (6..20)
+                    .map(|j| 1usize << j)
+                    .take_while(|&w| w <= n / 8)
+                    .collect();
                 let null_sd = local_step_null_sd(&sims, &windows);
-                let fit = det_terms(&cands, &coeffs, 0..n);
-                let resid0: Vec<f64> = (0..n).map(|t| e[t] - intercept - fit[t]).collect();
-                let sim_z: Vec<f64> = sims.par_iter().filter_map(|s| local_step_scan(s, &windows, &null_sd)).map(|m| m.z).collect();
+                let resid0 = residual_of(e, &terms);
+                let sim_z: Vec<f64> = sims
+                    .par_iter()
+                    .filter_map(|s| local_step_scan(s, &windows, &null_sd))
+                    .map(|m| m.z)
+                    .collect();
                 let range = sim_range(&sim_z);
-                if let Some(step) = local_step_scan(&resid0, &windows, &null_sd) {
+                // The residual is scaled by its own noise where that is larger than the
+                // baseline's (a stronger correlated noise wanders in steps the baseline's
+                // would not); the threshold on the largest z still comes from the simulations.
+                let own_sd = local_step_robust_sd(&resid0, &windows);
+                let scale_sd: Vec<f64> = null_sd
+                    .iter()
+                    .zip(&own_sd)
+                    .map(|(a, b)| a.max(*b))
+                    .collect();
+                if let Some(step) = local_step_scan(&resid0, &windows, &scale_sd) {
                     if step.z > (1.25 * range[1]).max(z_strict) {
                         let at_s = signals.t_s[step.index] - sensor.t_s[0];
-                        ch_disc.push(Discrepancy { channel: ch.into(), statistic: "largest local step of the mean (|z| at its window)".into(), measured: step.z, simulated_range: range, detail: format!("at t = {:.2} s, window {} samples, local size {:.4e}", signals.t_s[step.index], step.window, step.size) });
-                        step_values = (0..n).map(|t| if t >= step.index { 1.0 } else { 0.0 }).collect();
-                        cands.push(Candidate { name: format!("step_at_{at_s:.2}_s"), values: &step_values, cause: "bias_shift", field: ("bias_steps", 0) });
+                        ch_disc.push(Discrepancy {
+                            channel: ch.into(),
+                            statistic: "largest local step of the mean (|z| at its window)".into(),
+                            measured: step.z,
+                            simulated_range: range,
+                            detail: format!(
+                                "at t = {:.2} s, window {} samples, local size {:.4e}",
+                                signals.t_s[step.index], step.window, step.size
+                            ),
+                        });
+                        step_values = (0..n)
+                            .map(|t| if t >= step.index { 1.0 } else { 0.0 })
+                            .collect();
+                        cands.push(Candidate {
+                            name: format!("step_at_{at_s:.2}_s"),
+                            values: &step_values,
+                            cause: "bias_shift",
+                            field: ("bias_steps", 0),
+                        });
                         step_at_s = Some(at_s);
-                        (coeffs, intercept) = eliminate(&cands);
+                        terms = eliminate(&cands);
                     }
                 }
             }
+            Ok(ChannelTerms {
+                terms,
+                step_at_s,
+                discrepancies: ch_disc,
+            })
+        })
+        .collect();
+    let mut stage1_terms: Vec<ChannelTerms> = stage1.into_iter().collect::<Result<_, _>>()?;
+    // Stage 2, across channels: the terms kept per channel are fitted jointly with the
+    // calibration and each other, so a term one channel shows only because another
+    // channel's term pulled the boresight or lever arm drops out.
+    let spill: Vec<Vec<f64>> = match design {
+        Some(d) => {
+            let all: Vec<Term> = stage1_terms
+                .iter_mut()
+                .flat_map(|c| std::mem::take(&mut c.terms))
+                .collect();
+            let joint = joint_terms(
+                d,
+                all,
+                z_strict,
+                opts.min_variance_explained,
+                &|t: &Term, b: f64| {
+                    b.powi(2) * variance(&t.own) / errors[t.channel].map_or(f64::NAN, variance)
+                },
+            );
+            for t in joint.terms {
+                let ci_idx = channels
+                    .iter()
+                    .position(|c| *c == CHANNELS[t.channel])
+                    .expect("a channel of the run");
+                stage1_terms[ci_idx].terms.push(t);
+            }
+            channels
+                .iter()
+                .map(|c| {
+                    let i = CHANNELS.iter().position(|x| x == c).expect("known channel");
+                    joint.spill[i].clone().unwrap_or_else(|| vec![0.0; n])
+                })
+                .collect()
+        }
+        None => vec![vec![0.0; n]; channels.len()],
+    };
+    // Stage 3, per channel: the stochastic effects of what remains, the extended model and
+    // its gain.
+    let results: Vec<Result<ChannelResult, DiagnoseError>> = channels
+        .par_iter()
+        .zip(stage1_terms)
+        .zip(spill)
+        .enumerate()
+        .map(|(ci_idx, ((&ch, found), spill))| {
+            let spec = spec_of(ch)?;
+            let measured = signals.error(ch).expect("channel present");
+            // The error as the joint calibration leaves it.
+            let e_joint: Vec<f64> = measured.iter().zip(&spill).map(|(v, s)| v - s).collect();
+            let e = &e_joint[..];
+            let axis = CHANNELS.iter().position(|c| *c == ch).expect("known channel") % 3;
+            let gyro = ch.starts_with('g');
+            let ch_index = CHANNELS.iter().position(|c| *c == ch).expect("known channel");
+            let sims = baseline_sims(ci_idx, spec);
+            let var_e = variance(e);
+            let cands: Vec<Candidate> = found.terms.iter().map(|t| Candidate { name: t.name.clone(), values: &t.own, cause: t.cause, field: t.field }).collect();
+            let raw_cands: Vec<Candidate> = found.terms.iter().map(|t| Candidate { name: t.name.clone(), values: &t.raw, cause: t.cause, field: t.field }).collect();
+            let mut coeffs: Vec<(usize, f64, [f64; 2], f64)> = found.terms.iter().enumerate().map(|(k, t)| (k, t.coef, ci(t.coef, t.se), t.coef.powi(2) * variance(&t.own) / var_e)).collect();
+            let intercept = e.iter().sum::<f64>() / n as f64 - found.terms.iter().map(|t| t.coef * t.own.iter().sum::<f64>() / n as f64).sum::<f64>();
+            let step_at_s = found.step_at_s;
+            let mut ch_disc = found.discrepancies;
+            let sim_range = |vals: &[f64]| [vals.iter().copied().fold(f64::INFINITY, f64::min), vals.iter().copied().fold(f64::NEG_INFINITY, f64::max)];
             // A term on the channel's own derivative is measured on data shifted by the common
             // time offset, so that offset's uncertainty is part of the term's.
             if let Some(t) = calibration.as_ref().and_then(|(c, _)| c.time_offset_s) {
@@ -853,7 +1405,21 @@ pub fn diagnose(
 
             // Wavelet variance of what remains vs the baseline.
             let measured_wv = log_wv(&resid, dt_s, max_level);
-            let sim_wv: Vec<Vec<f64>> = sims.par_iter().map(|s| log_wv(s, dt_s, max_level)).collect();
+            // Against the baseline with the noise growth found above (still in the residual):
+            // without it, that growth would read as a change of the correlated noise too.
+            let sim_wv: Vec<Vec<f64>> = match effects.dynamic_noise_sigma_per_rad_s {
+                None => sims.par_iter().map(|s| log_wv(s, dt_s, max_level)).collect(),
+                Some(_) => {
+                    let growth = ChannelEffects { dynamic_noise_sigma_per_rad_s: effects.dynamic_noise_sigma_per_rad_s, ..Default::default() };
+                    (0..opts.replicates)
+                        .into_par_iter()
+                        .map(|r| {
+                            let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ 0xd1_0153 ^ ((ci_idx as u64) << 32) ^ r as u64);
+                            log_wv(&simulate_channel(spec, &growth, &omega_norm, dt_s, n, &mut rng), dt_s, max_level)
+                        })
+                        .collect()
+                }
+            };
             let (mean, sd) = level_stats(&sim_wv);
             let z: Vec<f64> = (0..mean.len().min(measured_wv.len())).map(|j| (measured_wv[j] - mean[j]) / sd[j]).collect();
             // Significant and large enough to matter: at the finest levels the wavelet

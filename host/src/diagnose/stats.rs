@@ -305,6 +305,23 @@ pub fn local_step_null_sd(series: &[Vec<f64>], windows: &[usize]) -> Vec<f64> {
         .collect()
 }
 
+/// Robust standard deviation of [`local_steps`] of `x` itself at each window (1.4826 times
+/// the median absolute local step): a step touches only the 2 w positions around it, so
+/// this measures the series' own noise at that window even when it holds a step.
+pub fn local_step_robust_sd(x: &[f64], windows: &[usize]) -> Vec<f64> {
+    windows
+        .iter()
+        .map(|&w| {
+            let mut d: Vec<f64> = local_steps(x, w).into_iter().map(f64::abs).collect();
+            if d.is_empty() {
+                return 0.0;
+            }
+            let m = d.len() / 2;
+            1.482_602_218_505_602 * *d.select_nth_unstable_by(m, f64::total_cmp).1
+        })
+        .collect()
+}
+
 /// How the short-term noise level follows a dynamics magnitude m: the model is a noise
 /// variance sigma0^2 + (k m)^2, i.e. white noise whose standard deviation grows as k m on top
 /// of the baseline.
@@ -358,25 +375,63 @@ pub fn noise_vs_dynamics(x: &[f64], magnitude: &[f64], window: usize) -> NoiseVs
     if n < 3.0 {
         return none(0.0);
     }
-    let mx = mag2.iter().sum::<f64>() / n;
-    let my = var.iter().sum::<f64>() / n;
-    let sxx: f64 = mag2.iter().map(|m| (m - mx).powi(2)).sum();
-    let sxy: f64 = mag2
-        .iter()
-        .zip(&var)
-        .map(|(m, s)| (m - mx) * (s - my))
-        .sum();
-    if sxx <= 0.0 {
-        return none(my);
+    // Weighted least squares: a window's variance estimate has a spread proportional to the
+    // variance itself (chi-square with w - 2 degrees of freedom), so the few windows of hard
+    // manoeuvres, which fix the slope, are also the noisiest. Ordinary least squares with its
+    // constant-variance standard error gave intervals of +-0.5% on k on 900 s simulated
+    // drives, where the estimate missed the truth by 1-5%; weighted, they are +-3% and hold
+    // the truth. Weights come from the fit of the previous pass (ordinary least squares
+    // first).
+    let mut weights = vec![1.0; var.len()];
+    let mut fit = None;
+    for _pass in 0..3 {
+        let sw: f64 = weights.iter().sum();
+        let mx = mag2.iter().zip(&weights).map(|(m, w)| w * m).sum::<f64>() / sw;
+        let my = var.iter().zip(&weights).map(|(s, w)| w * s).sum::<f64>() / sw;
+        let sxx: f64 = mag2
+            .iter()
+            .zip(&weights)
+            .map(|(m, w)| w * (m - mx).powi(2))
+            .sum();
+        let sxy: f64 = mag2
+            .iter()
+            .zip(&var)
+            .zip(&weights)
+            .map(|((m, s), w)| w * (m - mx) * (s - my))
+            .sum();
+        if sxx <= 0.0 {
+            return none(my);
+        }
+        let slope = sxy / sxx;
+        let intercept = my - slope * mx;
+        // Residual scale of the weighted fit (1 when the chi-square spread holds exactly).
+        let rss: f64 = mag2
+            .iter()
+            .zip(&var)
+            .zip(&weights)
+            .map(|((m, s), w)| w * (s - intercept - slope * m).powi(2))
+            .sum();
+        // The larger of the model-based and the sandwich (HC1) standard error: the window
+        // variances are not exactly chi-square (the driver varies within a window), and on 13
+        // simulated drives the model-based interval alone held the truth in 11.
+        let model_se = (rss / (n - 2.0) / sxx).sqrt();
+        let meat: f64 = mag2
+            .iter()
+            .zip(&var)
+            .zip(&weights)
+            .map(|((m, s), w)| (w * (m - mx) * (s - intercept - slope * m)).powi(2))
+            .sum::<f64>()
+            * n
+            / (n - 2.0);
+        let se = model_se.max(meat.sqrt() / sxx);
+        fit = Some((slope, intercept, se));
+        let floor = (intercept.abs() + slope.abs() * mx).max(1e-300) * 1e-3;
+        weights = mag2
+            .iter()
+            .map(|m| (intercept + slope * m).max(floor).powi(-2))
+            .collect();
     }
-    let slope = sxy / sxx;
-    let intercept = my - slope * mx;
-    let rss: f64 = mag2
-        .iter()
-        .zip(&var)
-        .map(|(m, s)| (s - intercept - slope * m).powi(2))
-        .sum();
-    let se = (rss / (n - 2.0) / sxx).sqrt();
+    let (slope, intercept, se) = fit.expect("three passes ran");
     let k = |s: f64| s.max(0.0).sqrt();
     NoiseVsDynamics {
         slope,
