@@ -1796,4 +1796,130 @@ mod tests {
         let msg = Baseline::load(&bad).unwrap_err().to_string();
         assert!(msg.contains("deg.json") && msg.contains("not SI"), "{msg}");
     }
+
+    /// Candidates on one channel without a calibration design: the true regressor, a proxy
+    /// that is the true one modulated (as f_y is speed times omega_z), and an unrelated one.
+    fn moment_terms(
+        e: &[f64],
+        sims: &[Vec<f64>],
+        columns: &[(&str, Vec<f64>)],
+    ) -> (nalgebra::DMatrix<f64>, Vec<Term>) {
+        let absorber = Absorber::Mean;
+        let m_e = absorber.project(0, e).moments;
+        let m_sims: Vec<_> = sims
+            .iter()
+            .map(|s| absorber.project(0, s).moments)
+            .collect();
+        let terms: Vec<Term> = columns
+            .iter()
+            .map(|(name, values)| {
+                let c = Candidate {
+                    name: (*name).into(),
+                    values,
+                    cause: "scale_factor",
+                    field: ("scale_factor", 0),
+                };
+                Term::new(&absorber, 0, &c, e, &m_e, sims, &m_sims)
+            })
+            .collect();
+        let gram = nalgebra::DMatrix::from_fn(terms.len(), terms.len(), |a, b| {
+            absorber.gram(&terms[a], &terms[b])
+        });
+        (gram, terms)
+    }
+
+    fn white_series(rng: &mut ChaCha8Rng, n: usize, sigma: f64) -> Vec<f64> {
+        (0..n)
+            .map(|_| sigma * Distribution::<f64>::sample(&StandardNormal, rng))
+            .collect()
+    }
+
+    #[test]
+    fn stepwise_selection_keeps_the_true_term_over_its_proxy_and_names_nothing_in_noise() {
+        let mut rng = ChaCha8Rng::seed_from_u64(31);
+        let n = 20_000;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.01).collect();
+        let truth: Vec<f64> = t
+            .iter()
+            .map(|t| (0.31 * t).sin() + 0.5 * (1.7 * t).sin())
+            .collect();
+        let proxy: Vec<f64> = truth
+            .iter()
+            .zip(&t)
+            .map(|(x, t)| x * (1.0 + 0.4 * (0.05 * t).sin()))
+            .collect();
+        let unrelated: Vec<f64> = t.iter().map(|t| (0.9 * t).cos()).collect();
+        let sims: Vec<Vec<f64>> = (0..30).map(|_| white_series(&mut rng, n, 0.05)).collect();
+        let noise = white_series(&mut rng, n, 0.05);
+        let columns = [
+            ("truth", truth.clone()),
+            ("proxy", proxy),
+            ("unrelated", unrelated),
+        ];
+        let never_small = |_: usize, _: f64| false;
+
+        let e: Vec<f64> = truth
+            .iter()
+            .zip(&noise)
+            .map(|(x, w)| 0.02 * x + w)
+            .collect();
+        let (gram, terms) = moment_terms(&e, &sims, &columns);
+        let kept = eliminate_on_moments(
+            &gram,
+            &terms,
+            4.0,
+            &never_small,
+            Some(MeasuredSpread { e: &e, weight: 1.0 }),
+        );
+        assert_eq!(kept.len(), 1, "{kept:?}");
+        let (k, b, sd) = kept[0];
+        assert_eq!(terms[k].name, "truth");
+        assert!((b - 0.02).abs() < 3.0 * sd, "{b} +- {sd}");
+
+        let (gram, terms) = moment_terms(&noise, &sims, &columns);
+        let kept = eliminate_on_moments(
+            &gram,
+            &terms,
+            4.0,
+            &never_small,
+            Some(MeasuredSpread {
+                e: &noise,
+                weight: 1.0,
+            }),
+        );
+        assert!(kept.is_empty(), "{kept:?}");
+    }
+
+    #[test]
+    fn the_measured_spread_guards_against_a_noise_stronger_than_the_baseline() {
+        // The baseline simulations are white; the measured error is a slow random walk that
+        // wanders with a slow regressor. Against the simulations alone the slope is
+        // "significant"; with the measured residual's batch-means spread it is not.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let n = 20_000;
+        let slow: Vec<f64> = (0..n).map(|k| (k as f64 * 2e-4).sin()).collect();
+        let sims: Vec<Vec<f64>> = (0..30).map(|_| white_series(&mut rng, n, 0.05)).collect();
+        let mut walk = 0.0;
+        let e: Vec<f64> = (0..n)
+            .map(|_| {
+                walk += 0.01 * Distribution::<f64>::sample(&StandardNormal, &mut rng);
+                walk + 0.05 * Distribution::<f64>::sample(&StandardNormal, &mut rng)
+            })
+            .collect();
+        let columns = [("slow", slow)];
+        let (gram, terms) = moment_terms(&e, &sims, &columns);
+        let never_small = |_: usize, _: f64| false;
+        assert_eq!(
+            eliminate_on_moments(&gram, &terms, 4.0, &never_small, None).len(),
+            1
+        );
+        assert!(eliminate_on_moments(
+            &gram,
+            &terms,
+            4.0,
+            &never_small,
+            Some(MeasuredSpread { e: &e, weight: 1.0 })
+        )
+        .is_empty());
+    }
 }

@@ -679,6 +679,29 @@ mod tests {
     }
 
     #[test]
+    fn the_robust_local_step_spread_follows_the_noise_not_a_step() {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let windows = [64, 256, 1024];
+        let x = white(&mut rng, 200_000, 0.01);
+        let base = local_step_robust_sd(&x, &windows);
+        let mut stepped = x.clone();
+        stepped[100_000..].iter_mut().for_each(|v| *v += 0.05);
+        let tripled: Vec<f64> = x.iter().map(|v| 3.0 * v).collect();
+        for (j, &w) in windows.iter().enumerate() {
+            // White noise: a local step has sd sigma sqrt(2 / w) (overlapping windows: the
+            // median rests on about n / w independent values).
+            let expected = 0.01 * (2.0 / w as f64).sqrt();
+            assert!(
+                (base[j] / expected - 1.0).abs() < 0.12,
+                "window {w}: {} vs {expected}",
+                base[j]
+            );
+            assert!((local_step_robust_sd(&stepped, &windows)[j] / base[j] - 1.0).abs() < 0.05);
+            assert!((local_step_robust_sd(&tripled, &windows)[j] / base[j] - 3.0).abs() < 1e-9);
+        }
+    }
+
+    #[test]
     fn noise_growing_with_rate_gives_a_positive_slope() {
         let mut rng = ChaCha8Rng::seed_from_u64(4);
         let n = 60_000;
