@@ -541,13 +541,7 @@ impl CalibrationDesign {
     }
     /// The calibration parameters taken from errors on all channels at once.
     pub fn absorbed_all(&self, y: &[Option<&[f64]>; 6]) -> DVector<f64> {
-        let mut total = DVector::<f64>::zeros(self.layout.len());
-        for (ch, series) in y.iter().enumerate() {
-            if let Some(series) = series.filter(|_| self.has_channel(ch)) {
-                total += self.absorbed(ch, series);
-            }
-        }
-        total
+        &self.bread * self.moments_all(y)
     }
     /// The fitted error on `channel` of a parameter vector.
     pub fn fitted(&self, channel: usize, theta: &DVector<f64>) -> Vec<f64> {
