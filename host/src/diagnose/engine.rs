@@ -694,8 +694,8 @@ struct JointTerms {
 }
 
 /// Fits the terms of all channels jointly with the calibration and with each other, and
-/// eliminates, one at a time, those no longer significant or too small to matter
-/// (`variance_explained` of a term at a coefficient below `min_variance_explained`).
+/// eliminates, one at a time, those no longer significant or too small to matter (`small`
+/// at their coefficient).
 ///
 /// Why: a term on one channel moves the calibration (a gyro's omega_z -> gx term pulls the
 /// boresight about y), and the moved calibration leaves a copy of the term's pattern on the
@@ -705,14 +705,12 @@ fn joint_terms(
     design: &CalibrationDesign,
     terms: Vec<Term>,
     z_strict: f64,
-    min_variance_explained: f64,
-    variance_explained: &dyn Fn(&Term, f64) -> f64,
+    small: &dyn Fn(&Term, f64) -> bool,
 ) -> JointTerms {
     let absorber = Absorber::Design(design);
     let k = terms.len();
     let gram = nalgebra::DMatrix::from_fn(k, k, |a, b| absorber.gram(&terms[a], &terms[b]));
-    let small = |i: usize, b: f64| !(variance_explained(&terms[i], b) >= min_variance_explained);
-    let kept = eliminate_on_moments(&gram, &terms, z_strict, &small, None);
+    let kept = eliminate_on_moments(&gram, &terms, z_strict, &|i, b| small(&terms[i], b), None);
     let mut spill: [Option<Vec<f64>>; 6] =
         std::array::from_fn(|ch| design.has_channel(ch).then(|| vec![0.0; design.epochs()]));
     let mut terms: Vec<Option<Term>> = terms.into_iter().map(Some).collect();
@@ -932,16 +930,16 @@ pub fn diagnose(
         model: Value,
         absorbed: Option<nalgebra::DVector<f64>>,
     }
-    // Baseline simulations of a channel (index into `channels`): the null distribution of
+    // Baseline simulation `r` of a channel (index into `channels`): the null distribution of
     // every statistic. Seeded by channel and replicate, so every stage draws the same ones.
+    let baseline_sim = |ci_idx: usize, r: usize, spec: &ModelSpec| -> Vec<f64> {
+        let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ ((ci_idx as u64) << 32) ^ r as u64);
+        spec.simulate(n, &mut rng)
+    };
     let baseline_sims = |ci_idx: usize, spec: &ModelSpec| -> Vec<Vec<f64>> {
         (0..opts.replicates)
             .into_par_iter()
-            .map(|r| {
-                let mut rng =
-                    ChaCha8Rng::seed_from_u64(opts.seed ^ ((ci_idx as u64) << 32) ^ r as u64);
-                spec.simulate(n, &mut rng)
-            })
+            .map(|r| baseline_sim(ci_idx, r, spec))
             .collect()
     };
     let spec_of = |ch: &str| -> Result<&ModelSpec, DiagnoseError> {
@@ -967,9 +965,7 @@ pub fn diagnose(
     let sims_of = |r: usize| -> [Option<Vec<f64>>; 6] {
         std::array::from_fn(|i| {
             let ci_idx = channels.iter().position(|c| *c == CHANNELS[i])?;
-            let spec = baseline.channels.get(CHANNELS[i])?;
-            let mut rng = ChaCha8Rng::seed_from_u64(opts.seed ^ ((ci_idx as u64) << 32) ^ r as u64);
-            Some(spec.simulate(n, &mut rng))
+            Some(baseline_sim(ci_idx, r, baseline.channels.get(CHANNELS[i])?))
         })
     };
     // The calibration's moments of the error and of each replicate's simulations over all
@@ -1194,15 +1190,12 @@ pub fn diagnose(
                 .iter_mut()
                 .flat_map(|c| std::mem::take(&mut c.terms))
                 .collect();
-            let joint = joint_terms(
-                d,
-                all,
-                z_strict,
-                opts.min_variance_explained,
-                &|t: &Term, b: f64| {
-                    b.powi(2) * variance(&t.own) / errors[t.channel].map_or(f64::NAN, variance)
-                },
-            );
+            let joint = joint_terms(d, all, z_strict, &|t: &Term, b: f64| {
+                let explained =
+                    b.powi(2) * variance(&t.own) / errors[t.channel].map_or(f64::NAN, variance);
+                !(explained >= opts.min_variance_explained)
+            });
+            let mut joint_spill = joint.spill;
             for t in joint.terms {
                 let ci_idx = channels
                     .iter()
@@ -1214,7 +1207,7 @@ pub fn diagnose(
                 .iter()
                 .map(|c| {
                     let i = CHANNELS.iter().position(|x| x == c).expect("known channel");
-                    joint.spill[i].clone().unwrap_or_else(|| vec![0.0; n])
+                    joint_spill[i].take().unwrap_or_else(|| vec![0.0; n])
                 })
                 .collect()
         }
@@ -1235,11 +1228,9 @@ pub fn diagnose(
             let e = &e_joint[..];
             let axis = CHANNELS.iter().position(|c| *c == ch).expect("known channel") % 3;
             let gyro = ch.starts_with('g');
-            let ch_index = CHANNELS.iter().position(|c| *c == ch).expect("known channel");
             let sims = baseline_sims(ci_idx, spec);
             let var_e = variance(e);
             let cands: Vec<Candidate> = found.terms.iter().map(|t| Candidate { name: t.name.clone(), values: &t.own, cause: t.cause, field: t.field }).collect();
-            let raw_cands: Vec<Candidate> = found.terms.iter().map(|t| Candidate { name: t.name.clone(), values: &t.raw, cause: t.cause, field: t.field }).collect();
             let mut coeffs: Vec<(usize, f64, [f64; 2], f64)> = found.terms.iter().enumerate().map(|(k, t)| (k, t.coef, ci(t.coef, t.se), t.coef.powi(2) * variance(&t.own) / var_e)).collect();
             let intercept = e.iter().sum::<f64>() / n as f64 - found.terms.iter().map(|t| t.coef * t.own.iter().sum::<f64>() / n as f64).sum::<f64>();
             let step_at_s = found.step_at_s;
@@ -1538,8 +1529,8 @@ pub fn diagnose(
             // What the calibration took from the terms found here, to correct its estimates.
             let absorbed = design.map(|d| {
                 let mut total = nalgebra::DVector::<f64>::zeros(d.parameters());
-                for (k, b, _, _) in coeffs.iter().filter(|(k, ..)| *k < raw_cands.len()) {
-                    total += d.absorbed(ch_index, raw_cands[*k].values) * *b;
+                for (k, b, _, _) in &coeffs {
+                    total += &found.terms[*k].projection.absorbed * *b;
                 }
                 total
             });
