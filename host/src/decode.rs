@@ -30,6 +30,7 @@ use dynacal_core::log::{
 use serde::Serialize;
 
 use crate::interchange::ImuRecording;
+use dynacal_core::Channel;
 use crate::wv::WaveletVariance;
 
 /// Why a log cannot be read or used.
@@ -189,10 +190,7 @@ pub struct DecodedLog {
 #[derive(Debug, Clone, PartialEq, Serialize)]
 pub struct ChannelWv {
     pub imu_id: u8,
-    /// Channel index, 0..=5.
-    pub channel: u8,
-    /// Channel name (`gx gy gz ax ay az`).
-    pub name: &'static str,
+    pub channel: Channel,
     /// Time of the last sample in the snapshot, microseconds.
     pub t_us: u64,
     /// Samples accumulated.
@@ -316,7 +314,7 @@ impl DecodedLog {
             Frame::Health(health) => self.health.push(health),
             Frame::WaveletVariance(wv) => {
                 let known = self.header.is_some()
-                    && usize::from(wv.channel) < WvFrame::CHANNELS.len()
+                    && wv.channel().is_some()
                     && self.imus.iter().any(|s| s.config.imu_id == wv.imu_id);
                 if known {
                     self.wavelet_variance.push(wv);
@@ -348,11 +346,11 @@ impl DecodedLog {
         let mut out = Vec::new();
         for imu in &self.imus {
             let config = &imu.config;
-            for channel in 0..WvFrame::CHANNELS.len() as u8 {
-                let Some(frame) = latest.get(&(config.imu_id, channel)) else {
+            for channel in Channel::ALL {
+                let Some(frame) = latest.get(&(config.imu_id, channel.index() as u8)) else {
                     continue;
                 };
-                let lsb = if channel < 3 {
+                let lsb = if channel.is_gyro() {
                     config.gyro_scale_rad_s_per_count
                 } else {
                     config.accel_scale_m_s2_per_count
@@ -366,7 +364,6 @@ impl DecodedLog {
                 out.push(ChannelWv {
                     imu_id: config.imu_id,
                     channel,
-                    name: WvFrame::CHANNELS[usize::from(channel)],
                     t_us: frame.t_us,
                     n_samples: frame.snapshot.n_samples,
                     full_levels: frame.snapshot.full_levels,

@@ -69,6 +69,36 @@ impl ErrorSignals {
         self.errors[i].as_deref()
     }
 
+    /// The error series of `channel`, if the sensor has it.
+    pub fn error_of(&self, channel: crate::model::Channel) -> Option<&[f64]> {
+        self.errors[channel.index()].as_deref()
+    }
+
+    /// Angular rate about body axis `axis` (0 = x, 1 = y, 2 = z), rad/s.
+    pub fn angular_rate_rad_s(&self, axis: usize) -> &[f64] {
+        &self.dynamics[axis]
+    }
+
+    /// Angular acceleration about body axis `axis`, rad/s^2.
+    pub fn angular_acceleration_rad_s2(&self, axis: usize) -> &[f64] {
+        &self.dynamics[3 + axis]
+    }
+
+    /// Angular jerk about body axis `axis`, rad/s^3.
+    pub fn angular_jerk_rad_s3(&self, axis: usize) -> &[f64] {
+        &self.dynamics[6 + axis]
+    }
+
+    /// Linear acceleration (specific force plus gravity) along body axis `axis`, m/s^2.
+    pub fn linear_acceleration_m_s2(&self, axis: usize) -> &[f64] {
+        &self.dynamics[9 + axis]
+    }
+
+    /// Linear jerk along body axis `axis`, m/s^3.
+    pub fn linear_jerk_m_s3(&self, axis: usize) -> &[f64] {
+        &self.dynamics[12 + axis]
+    }
+
     /// The dynamics regressors as (name, values) pairs, ready for regression.
     pub fn regressors(&self) -> Vec<(&'static str, &[f64])> {
         DYNAMICS_REGRESSORS

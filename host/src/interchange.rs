@@ -205,12 +205,30 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
 }
 
 /// Names of the six IMU channels, in the order dynacal reports them.
-pub const CHANNELS: [&str; 6] = ["gx", "gy", "gz", "ax", "ay", "az"];
+pub const CHANNELS: [&str; 6] = {
+    let all = crate::model::Channel::ALL;
+    [
+        all[0].name(),
+        all[1].name(),
+        all[2].name(),
+        all[3].name(),
+        all[4].name(),
+        all[5].name(),
+    ]
+};
 
 /// Interchange column names of the six IMU channels, in [`CHANNELS`] order.
-pub const CHANNEL_COLUMNS: [&str; 6] = [
-    "gx_rad_s", "gy_rad_s", "gz_rad_s", "ax_m_s2", "ay_m_s2", "az_m_s2",
-];
+pub const CHANNEL_COLUMNS: [&str; 6] = {
+    let all = crate::model::Channel::ALL;
+    [
+        all[0].column(),
+        all[1].column(),
+        all[2].column(),
+        all[3].column(),
+        all[4].column(),
+        all[5].column(),
+    ]
+};
 
 const GYRO: [&str; 3] = ["gx_rad_s", "gy_rad_s", "gz_rad_s"];
 const ACCEL: [&str; 3] = ["ax_m_s2", "ay_m_s2", "az_m_s2"];

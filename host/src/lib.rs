@@ -12,6 +12,7 @@ pub mod figures;
 pub mod gmwm;
 pub mod import;
 pub mod interchange;
+pub mod model;
 pub mod nav_smoother;
 pub mod output;
 pub mod regress;

@@ -5,8 +5,11 @@
 //! hardware: pins, buses and clocks live in the firmware's board layer.
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
+pub mod channel;
 pub mod log;
 pub mod nav;
 pub mod recorder;
 pub mod replay;
 pub mod wavelet;
+
+pub use channel::{Channel, SensorKind};

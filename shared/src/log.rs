@@ -15,6 +15,7 @@ use core::fmt;
 
 use serde::{Deserialize, Serialize};
 
+use crate::channel::Channel;
 use crate::wavelet::{WvSnapshot, SNAPSHOT_MAX_ENCODED_LEN};
 
 /// Version of this wire format, written in [`Header::protocol_version`]. Bump it when a
@@ -294,15 +295,18 @@ pub struct WvFrame {
     pub t_us: u64,
     /// The IMU whose counts were accumulated.
     pub imu_id: u8,
-    /// The channel: 0..=5 = gyro x, y, z, accelerometer x, y, z (see [`WvFrame::CHANNELS`]).
+    /// The channel: 0..=5 = gyro x, y, z, accelerometer x, y, z ([`Channel::index`]; a
+    /// number on the wire, so the frame's encoding is independent of the enum).
     pub channel: u8,
     /// The accumulated sums, in counts^2 (scale with the header's scale factor squared).
     pub snapshot: WvSnapshot,
 }
 
 impl WvFrame {
-    /// Channel names by `channel` index.
-    pub const CHANNELS: [&'static str; 6] = ["gx", "gy", "gz", "ax", "ay", "az"];
+    /// The channel, if `channel` names one.
+    pub fn channel(&self) -> Option<Channel> {
+        Channel::from_index(usize::from(self.channel))
+    }
 }
 
 // Postcard's `MaxSize` derive does not cover heapless 0.9 containers, so the largest

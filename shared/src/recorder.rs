@@ -26,7 +26,7 @@ use crate::wavelet::HaarStream;
 /// about 1.2 KiB each, 21 KiB in all, and the cost per sample grows with the full levels.
 pub type RecorderWv = HaarStream<4, 16, 16>;
 
-/// Channels accumulated per IMU, in [`WvFrame::CHANNELS`] order.
+/// Channels accumulated per IMU, in [`crate::Channel::ALL`] order.
 const WV_CHANNELS: usize = 6;
 
 /// One event from the sensors, stamped on the log timescale.

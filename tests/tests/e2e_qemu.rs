@@ -158,8 +158,8 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
     let dt_s = 1.0 / f64::from(stream.config.sample_rate_hz);
     assert_eq!(dt_s, 0.01);
     for channel in &board_wv {
-        let axis = usize::from(channel.channel % 3);
-        let (counts, lsb): (Vec<i32>, f64) = if channel.channel < 3 {
+        let axis = channel.channel.axis();
+        let (counts, lsb): (Vec<i32>, f64) = if channel.channel.is_gyro() {
             (
                 source.iter().map(|s| s.gyro_counts[axis]).collect(),
                 ADIS16405_GYRO_SCALE_RAD_S_PER_COUNT,
@@ -170,9 +170,9 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
                 ADIS16405_ACCEL_SCALE_M_S2_PER_COUNT,
             )
         };
-        assert_eq!(channel.t_us, 59_990_000, "{}", channel.name);
-        assert_eq!(channel.n_samples, 6000, "{}", channel.name);
-        assert_eq!(channel.full_levels, 4, "{}", channel.name);
+        assert_eq!(channel.t_us, 59_990_000, "{}", channel.channel);
+        assert_eq!(channel.n_samples, 6000, "{}", channel.channel);
+        assert_eq!(channel.full_levels, 4, "{}", channel.channel);
         let board = channel.wv.as_ref().unwrap();
         let batch = haar_wv_counts(&counts, lsb, dt_s, &WvOptions::default()).unwrap();
         // The full (overlapping) levels are the batch estimator's sums, so equal it.
@@ -185,11 +185,11 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
             assert!(
                 h > 0.0 && ((b - h) / h).abs() <= 1e-12,
                 "{} level {level}: board {b:e}, batch {h:e}",
-                channel.name
+                channel.channel
             );
         }
         // Decimated levels reach as far as 6000 samples allow (level 12 needs 2 x 2048).
-        assert_eq!(board.levels.last(), Some(&12), "{}", channel.name);
+        assert_eq!(board.levels.last(), Some(&12), "{}", channel.channel);
     }
 
     // The library's own comparison agrees.
