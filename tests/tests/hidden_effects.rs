@@ -8,7 +8,7 @@ use dynacal::diagnose::engine::{
     diagnose, Baseline, DiagnoseOptions, DiagnoseReport, DETERMINISTIC_CAUSES,
 };
 use dynacal::gmwm::model::{ModelSpec, Process};
-use dynacal::sim::model_file::{
+use dynacal::model::{
     BiasStep, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers, VibrationLine,
 };
 use dynacal::sim::SimOptions;

@@ -227,7 +227,7 @@ fn without_a_quantization_step_the_default_lsbs_are_used_and_values_stay_within_
 #[test]
 fn models_the_board_cannot_log_are_refused_with_the_reason() {
     let mut model = example("three-mems-1khz.json");
-    let gy = dynacal::sim::model_file::ChannelModel {
+    let gy = dynacal::model::ChannelModel {
         quantization_step: Some(2e-4),
         ..model.imus[1].gyro.clone()
     };

@@ -7,7 +7,7 @@ use std::path::Path;
 
 use dynacal::gmwm::model::{ModelSpec, Process};
 use dynacal::sim::effects::sensor_kinematics;
-use dynacal::sim::model_file::{ChannelModel, ImuModel};
+use dynacal::model::{ChannelModel, ImuModel};
 use dynacal::sim::sensors::ImuRun;
 use dynacal::sim::{simulate, Scenario, SimModel, SimOptions, SimOutput};
 use dynacal::wv::{haar_wv, WvOptions};

@@ -23,7 +23,7 @@ use dynacal_core::nav::{radii, NavState, Strapdown};
 
 use crate::gmwm::model::{ModelSpec, Process};
 use crate::nav_smoother::{SmootherError, SmoothingEkf};
-use crate::sim::model_file::{unit_to_si, ChannelModel, ClockModel, GnssModel, ImuModel};
+use crate::model::{unit_to_si, ChannelModel, ClockModel, GnssModel, ImuModel};
 use crate::sim::trajectory::TrajectoryConfig;
 use crate::sim::{simulate, Scenario, SimError, SimModel, SimOptions, SimOutput};
 

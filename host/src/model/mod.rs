@@ -4,6 +4,8 @@
 //! [`Cause`]s; nothing downstream matches on strings.
 
 mod cause;
+mod file;
 
 pub use cause::Cause;
+pub use file::*;
 pub use dynacal_core::{Channel, SensorKind};

@@ -103,7 +103,7 @@ pub struct BoardRecording {
 
 /// The LSB of channels `first..first + 3`: their common `quantization_step`, else `default`.
 fn lsb_of(
-    model: &super::model_file::ImuModel,
+    model: &crate::model::ImuModel,
     first: usize,
     default: f64,
 ) -> Result<f64, BoardError> {

@@ -5,7 +5,7 @@
 use rand::Rng;
 use rand_distr::StandardNormal;
 
-use super::model_file::ClockModel;
+use crate::model::ClockModel;
 
 /// The realised clock of one IMU over a run.
 #[derive(Debug, Clone)]

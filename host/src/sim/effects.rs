@@ -8,7 +8,7 @@ use std::collections::BTreeSet;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use serde_json::{json, Value};
 
-use super::model_file::{
+use crate::model::{
     unit_to_si, BiasStep, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers,
     VibrationLine,
 };

@@ -7,7 +7,7 @@ use nalgebra::Vector3;
 use rand::Rng;
 use rand_distr::StandardNormal;
 
-use super::model_file::{GnssModel, PpsModel};
+use crate::model::{GnssModel, PpsModel};
 use super::sensors::{stream, ImuRun};
 use super::trajectory::Trajectory;
 use dynacal_core::nav::{earth_rate_ned_rad_s, radii};

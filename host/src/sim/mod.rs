@@ -4,7 +4,7 @@
 //!
 //! Layers: [`trajectory`] (exact kinematics on Taylor [`jet`]s), [`effects`] (lever arm,
 //! boresight and per-channel error effects), [`clock`], [`sensors`] (one IMU, in parallel
-//! chunks), [`gnss`] (fixes and PPS), [`model_file`] (the JSON model), [`output`] (files), [`board`] (raw counts for the
+//! chunks), [`gnss`] (fixes and PPS), [`crate::model`] (the JSON model), [`output`] (files), [`board`] (raw counts for the
 //! firmware replay input and the board log).
 
 pub mod board;
@@ -12,7 +12,6 @@ pub mod clock;
 pub mod effects;
 pub mod gnss;
 pub mod jet;
-pub mod model_file;
 pub mod output;
 pub mod sensors;
 pub mod trajectory;
@@ -22,7 +21,7 @@ use std::collections::BTreeSet;
 use rayon::prelude::*;
 use serde_json::{json, Value};
 
-pub use model_file::{ModelFileError, SimModel, EFFECTS};
+pub use crate::model::{ModelFileError, SimModel, EFFECTS};
 pub use trajectory::{Scenario, Trajectory, Truth};
 
 use gnss::{GnssFixes, PpsTable};
@@ -97,7 +96,7 @@ pub fn simulate(
         opts.seed,
     );
 
-    let sensors: Vec<(&model_file::ImuModel, u64)> = std::iter::once((&model.reference, 0))
+    let sensors: Vec<(&crate::model::ImuModel, u64)> = std::iter::once((&model.reference, 0))
         .chain(model.imus.iter().zip(1..))
         .collect();
     let mut runs: Vec<ImuRun> = sensors
@@ -151,7 +150,7 @@ fn truth_json(
     reference: &ImuRun,
     imus: &[ImuRun],
 ) -> Value {
-    let sensor = |run: &ImuRun, m: &model_file::ImuModel| {
+    let sensor = |run: &ImuRun, m: &crate::model::ImuModel| {
         let channels: serde_json::Map<String, Value> = run
             .channels
             .iter()

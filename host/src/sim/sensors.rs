@@ -13,7 +13,7 @@ use rayon::prelude::*;
 
 use super::clock::ClockRun;
 use super::effects::{sensor_kinematics, ChannelEffects, Mount};
-use super::model_file::ImuModel;
+use crate::model::ImuModel;
 use super::trajectory::Trajectory;
 use crate::interchange::{ImuRecording, Triplet};
 

@@ -13,7 +13,7 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use super::trajectory::TrajectoryConfig;
+use crate::sim::trajectory::TrajectoryConfig;
 use crate::gmwm::model::{ModelSpec, Process};
 
 /// Errors in a model file; each names the file and the field.
