@@ -703,3 +703,22 @@ fn extended_model_runs_in_the_simulator_and_carries_the_found_effect() {
         "the step at the same time"
     );
 }
+
+/// Writes the whole report of every hidden-effect run on seed 1 (and the null run) as JSON
+/// into `$DYNACAL_DUMP`, so a refactoring of the engine can be checked to change nothing:
+/// `DYNACAL_DUMP=/tmp/reports cargo test -p dynacal-tests --test hidden_effects -- --ignored
+/// dump_reports`, once before and once after, then `diff -r`.
+#[test]
+#[ignore]
+fn dump_reports() {
+    let dir = std::path::PathBuf::from(std::env::var("DYNACAL_DUMP").expect("set DYNACAL_DUMP"));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut runs: Vec<Option<&'static str>> = vec![None];
+    runs.extend(causes_under_test().into_iter().map(Some));
+    for cause in runs {
+        let (report, _) = run(cause, 1);
+        let name = format!("{}.json", cause.unwrap_or("null"));
+        let text = serde_json::to_string_pretty(&report).unwrap();
+        std::fs::write(dir.join(name), text).unwrap();
+    }
+}
