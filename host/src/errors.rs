@@ -28,6 +28,7 @@ use dynacal_core::nav::{earth_rate_ned_rad_s, gravity_ned_m_s2, transport_rate_n
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
+use crate::numeric::{central_difference_3, stencil_derivative};
 use crate::error_signal::ErrorSignals;
 use crate::interchange::ImuRecording;
 use crate::regress::{andrews_bartlett_lag_from_scores, newey_west_meat_from_scores};
@@ -326,55 +327,9 @@ fn reference_from_solution(
     Ok(out)
 }
 
-/// Derivative of a sampled triplet at its own sample times by a nine-point central stencil
-/// (exact for polynomials of degree 8; at 200 Hz it keeps a 26 Hz engine vibration's
-/// derivative within 0.05%, where a five-point stencil loses 1.3% and a three-point
-/// difference on a 100 Hz grid a third, which biases lever arms by as much), falling back
-/// to shorter differences at the ends.
+/// [`stencil_derivative`] of each axis of a triplet.
 fn native_derivative(t_s: &[f64], x: &[Vec<f64>; 3]) -> [Vec<f64>; 3] {
-    let n = t_s.len();
-    std::array::from_fn(|i| {
-        (0..n)
-            .map(|k| {
-                if k >= 4 && k + 4 < n {
-                    let h = (t_s[k + 4] - t_s[k - 4]) / 8.0;
-                    let c = [3.0, -32.0, 168.0, -672.0, 0.0, 672.0, -168.0, 32.0, -3.0];
-                    (0..9).map(|j| c[j] * x[i][k + j - 4]).sum::<f64>() / (840.0 * h)
-                } else if k >= 2 && k + 2 < n {
-                    let h = (t_s[k + 2] - t_s[k - 2]) / 4.0;
-                    (x[i][k - 2] - 8.0 * x[i][k - 1] + 8.0 * x[i][k + 1] - x[i][k + 2]) / (12.0 * h)
-                } else if k >= 1 && k + 1 < n {
-                    (x[i][k + 1] - x[i][k - 1]) / (t_s[k + 1] - t_s[k - 1])
-                } else if k + 1 < n {
-                    (x[i][k + 1] - x[i][k]) / (t_s[k + 1] - t_s[k])
-                } else if k >= 1 {
-                    (x[i][k] - x[i][k - 1]) / (t_s[k] - t_s[k - 1])
-                } else {
-                    0.0
-                }
-            })
-            .collect()
-    })
-}
-
-/// Central-difference derivative of an epoch series at the epoch mid-times.
-fn derivative(t_s: &[f64], x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-    let n = x.len();
-    (0..n)
-        .map(|k| {
-            if n < 2 {
-                return Vector3::zeros();
-            }
-            let (a, b) = if k == 0 {
-                (0, 1)
-            } else if k == n - 1 {
-                (n - 2, n - 1)
-            } else {
-                (k - 1, k + 1)
-            };
-            (x[b] - x[a]) / (t_s[b] - t_s[a])
-        })
-        .collect()
+    std::array::from_fn(|i| stencil_derivative(t_s, &x[i]))
 }
 
 fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
@@ -880,8 +835,8 @@ pub fn build_error_signals_with_design(
                 (at(wd), at(fd))
             }
             None => (
-                derivative(&mid_t, &reference_epochs.omega_ib_b_rad_s),
-                derivative(&mid_t, &reference_epochs.f_b_m_s2),
+                central_difference_3(&mid_t, &reference_epochs.omega_ib_b_rad_s),
+                central_difference_3(&mid_t, &reference_epochs.f_b_m_s2),
             ),
         };
         Ok(EpochData {
@@ -1087,14 +1042,14 @@ pub fn build_error_signals_with_design(
         }
     }
     // Dynamics of Section III at the epochs.
-    let omega_ddot = derivative(&mid_t, &omega_dot);
+    let omega_ddot = central_difference_3(&mid_t, &omega_dot);
     let a_b: Vec<Vector3<f64>> = (0..n)
         .map(|k| {
             reference_epochs.f_b_m_s2[k]
                 + reference_epochs.q_nb_mid[k].inverse() * reference_epochs.g_ned_mid_m_s2[k]
         })
         .collect();
-    let a_dot = derivative(&mid_t, &a_b);
+    let a_dot = central_difference_3(&mid_t, &a_b);
     let series = [
         &reference_epochs.omega_ib_b_rad_s,
         &omega_dot,

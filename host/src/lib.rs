@@ -13,6 +13,7 @@ pub mod gmwm;
 pub mod import;
 pub mod interchange;
 pub mod model;
+pub mod numeric;
 pub mod nav_smoother;
 pub mod output;
 pub mod regress;

@@ -41,6 +41,7 @@ use super::stats::{
     outlier_process, spectral_lines, welch_psd,
 };
 use crate::error_signal::ErrorSignals;
+use crate::numeric::central_difference;
 use crate::errors::{
     build_error_signals_with_design, CalibrationDesign, CalibrationSummary, ErrorOptions,
 };
@@ -296,26 +297,6 @@ struct Candidate<'a> {
     cause: &'static str,
     /// (simulator field, axis index) of the coefficient.
     field: (&'static str, usize),
-}
-
-fn derivative(t: &[f64], x: &[f64]) -> Vec<f64> {
-    let n = x.len();
-    (0..n)
-        .map(|k| {
-            let (a, b) = if k == 0 {
-                (0, 1.min(n - 1))
-            } else if k == n - 1 {
-                (n - 2, n - 1)
-            } else {
-                (k - 1, k + 1)
-            };
-            if b == a {
-                0.0
-            } else {
-                (x[b] - x[a]) / (t[b] - t[a])
-            }
-        })
-        .collect()
 }
 
 fn variance(x: &[f64]) -> f64 {
@@ -917,7 +898,7 @@ pub fn diagnose(
     // there is one: differences at the sensor rate lose much of a vibration's jerk.
     let f_dot: [Vec<f64>; 3] = match &calibration {
         Some((_, d)) => d.f_dot_b_m_s3.clone(),
-        None => std::array::from_fn(|i| derivative(&signals.t_s, &f[i])),
+        None => std::array::from_fn(|i| central_difference(&signals.t_s, &f[i])),
     };
     let design: Option<&CalibrationDesign> = calibration.as_ref().map(|(_, d)| d);
     let split = ((1.0 - opts.holdout_fraction) * n as f64) as usize;

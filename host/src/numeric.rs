@@ -1,0 +1,94 @@
+//! Numerical differentiation of sampled series, the one home of the stencils the
+//! calibration and the diagnosis use: a nine-point central stencil for signals sampled on
+//! their own (nearly even) grid, and a plain central difference for derived epoch series.
+
+use nalgebra::Vector3;
+
+/// Derivative of `x` sampled at `t_s` by a nine-point central stencil (exact for polynomials
+/// of degree 8; at 200 Hz it keeps a 26 Hz engine vibration's derivative within 0.05%, where
+/// a five-point stencil loses 1.3% and a three-point difference on a 100 Hz grid a third,
+/// which biases lever arms by as much), falling back to shorter differences at the ends.
+/// Units: those of `x` per second.
+pub fn stencil_derivative(t_s: &[f64], x: &[f64]) -> Vec<f64> {
+    let n = t_s.len();
+    (0..n)
+        .map(|k| {
+            if k >= 4 && k + 4 < n {
+                let h = (t_s[k + 4] - t_s[k - 4]) / 8.0;
+                let c = [3.0, -32.0, 168.0, -672.0, 0.0, 672.0, -168.0, 32.0, -3.0];
+                (0..9).map(|j| c[j] * x[k + j - 4]).sum::<f64>() / (840.0 * h)
+            } else if k >= 2 && k + 2 < n {
+                let h = (t_s[k + 2] - t_s[k - 2]) / 4.0;
+                (x[k - 2] - 8.0 * x[k - 1] + 8.0 * x[k + 1] - x[k + 2]) / (12.0 * h)
+            } else if k >= 1 && k + 1 < n {
+                (x[k + 1] - x[k - 1]) / (t_s[k + 1] - t_s[k - 1])
+            } else if k + 1 < n {
+                (x[k + 1] - x[k]) / (t_s[k + 1] - t_s[k])
+            } else if k >= 1 {
+                (x[k] - x[k - 1]) / (t_s[k] - t_s[k - 1])
+            } else {
+                0.0
+            }
+        })
+        .collect()
+}
+
+/// The two neighbours a central difference at sample `k` of `n` uses (one-sided at the
+/// ends); `None` when there are fewer than two samples.
+fn central_pair(k: usize, n: usize) -> Option<(usize, usize)> {
+    if n < 2 {
+        return None;
+    }
+    Some(if k == 0 {
+        (0, 1)
+    } else if k == n - 1 {
+        (n - 2, n - 1)
+    } else {
+        (k - 1, k + 1)
+    })
+}
+
+/// Central-difference derivative of `x` sampled at `t_s` (one-sided at the ends, zero for a
+/// single sample). Units: those of `x` per second.
+pub fn central_difference(t_s: &[f64], x: &[f64]) -> Vec<f64> {
+    let n = x.len();
+    (0..n)
+        .map(|k| match central_pair(k, n) {
+            Some((a, b)) => (x[b] - x[a]) / (t_s[b] - t_s[a]),
+            None => 0.0,
+        })
+        .collect()
+}
+
+/// [`central_difference`] of a vector series.
+pub fn central_difference_3(t_s: &[f64], x: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+    let n = x.len();
+    (0..n)
+        .map(|k| match central_pair(k, n) {
+            Some((a, b)) => (x[b] - x[a]) / (t_s[b] - t_s[a]),
+            None => Vector3::zeros(),
+        })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stencil_is_exact_on_an_octic_and_central_on_a_quadratic() {
+        let t: Vec<f64> = (0..40).map(|k| 0.01 * k as f64 + 0.003 * (k % 2) as f64 * 0.0).collect();
+        let x: Vec<f64> = t.iter().map(|t| t.powi(8) - 3.0 * t.powi(3)).collect();
+        let d = stencil_derivative(&t, &x);
+        for k in 4..36 {
+            let exact = 8.0 * t[k].powi(7) - 9.0 * t[k].powi(2);
+            assert!((d[k] - exact).abs() < 1e-9, "k {k}: {} vs {exact}", d[k]);
+        }
+        let q: Vec<f64> = t.iter().map(|t| 2.0 * t * t).collect();
+        let c = central_difference(&t, &q);
+        for k in 1..39 {
+            assert!((c[k] - 4.0 * t[k]).abs() < 1e-12);
+        }
+        assert_eq!(central_difference(&[0.0], &[1.0]), vec![0.0]);
+    }
+}
