@@ -27,11 +27,11 @@ use dynacal_core::log::{
     FilterState, Frame, GnssFix, Header, Health, ImuConfig, LogAccumulator, LogError, PpsEvent,
     StreamStats, WvFrame, PROTOCOL_VERSION,
 };
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 
 use crate::interchange::ImuRecording;
-use dynacal_core::Channel;
 use crate::wv::WaveletVariance;
+use dynacal_core::Channel;
 
 /// Why a log cannot be read or used.
 #[derive(Debug, thiserror::Error)]
@@ -187,8 +187,8 @@ pub struct DecodedLog {
 }
 
 /// The newest wavelet-variance snapshot of one IMU channel, in SI units.
-#[derive(Debug, Clone, PartialEq, Serialize)]
-pub struct ChannelWv {
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BoardChannelWv {
     pub imu_id: u8,
     pub channel: Channel,
     /// Time of the last sample in the snapshot, microseconds.
@@ -341,7 +341,7 @@ impl DecodedLog {
     /// The latest snapshot of each IMU channel in SI units, IMUs in header order and channels
     /// in `gx gy gz ax ay az` order: variance scaled by the header's gyro or accelerometer
     /// scale factor squared, scales from the IMU's configured sample rate.
-    pub fn wavelet_variance_si(&self) -> Vec<ChannelWv> {
+    pub fn wavelet_variance_si(&self) -> Vec<BoardChannelWv> {
         let latest = self.latest_wavelet_variance();
         let mut out = Vec::new();
         for imu in &self.imus {
@@ -361,7 +361,7 @@ impl DecodedLog {
                         Ok(wv) => (Some(wv), None),
                         Err(e) => (None, Some(e.to_string())),
                     };
-                out.push(ChannelWv {
+                out.push(BoardChannelWv {
                     imu_id: config.imu_id,
                     channel,
                     t_us: frame.t_us,

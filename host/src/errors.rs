@@ -28,9 +28,9 @@ use dynacal_core::nav::{earth_rate_ned_rad_s, gravity_ned_m_s2, transport_rate_n
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
-use crate::numeric::{central_difference_3, stencil_derivative};
 use crate::error_signal::ErrorSignals;
 use crate::interchange::ImuRecording;
+use crate::numeric::{central_difference_3, stencil_derivative};
 use crate::regress::{andrews_bartlett_lag_from_scores, newey_west_meat_from_scores};
 
 /// Errors building error signals.

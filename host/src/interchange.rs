@@ -204,6 +204,17 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
     })
 }
 
+/// The median step of a time column, s: dynacal's one estimate of a sample interval where
+/// none is stated (robust to a gap or a late sample). `None` for fewer than two samples.
+pub fn median_step_s(t_s: &[f64]) -> Option<f64> {
+    if t_s.len() < 2 {
+        return None;
+    }
+    let mut steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+    let mid = steps.len() / 2;
+    Some(*steps.select_nth_unstable_by(mid, f64::total_cmp).1)
+}
+
 /// Names of the six IMU channels, in the order dynacal reports them.
 pub const CHANNELS: [&str; 6] = {
     let all = crate::model::Channel::ALL;
@@ -280,12 +291,7 @@ impl ImuRecording {
     }
     /// Median sampling interval, seconds (0 for fewer than two samples).
     pub fn median_dt_s(&self) -> f64 {
-        if self.t_s.len() < 2 {
-            return 0.0;
-        }
-        let mut dt: Vec<f64> = self.t_s.windows(2).map(|w| w[1] - w[0]).collect();
-        let mid = dt.len() / 2;
-        *dt.select_nth_unstable_by(mid, f64::total_cmp).1
+        median_step_s(&self.t_s).unwrap_or(0.0)
     }
     /// A channel by its short name (`gx` ... `az`), if the recording has it.
     pub fn channel(&self, name: &str) -> Option<&[f64]> {

@@ -77,7 +77,9 @@ mod tests {
 
     #[test]
     fn stencil_is_exact_on_an_octic_and_central_on_a_quadratic() {
-        let t: Vec<f64> = (0..40).map(|k| 0.01 * k as f64 + 0.003 * (k % 2) as f64 * 0.0).collect();
+        let t: Vec<f64> = (0..40)
+            .map(|k| 0.01 * k as f64 + 0.003 * (k % 2) as f64 * 0.0)
+            .collect();
         let x: Vec<f64> = t.iter().map(|t| t.powi(8) - 3.0 * t.powi(3)).collect();
         let d = stencil_derivative(&t, &x);
         for k in 4..36 {

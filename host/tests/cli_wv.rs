@@ -146,7 +146,7 @@ fn no_time_column_needs_rate_and_errors_name_place() {
         "--json",
         out.to_str().unwrap(),
     ]);
-    assert!(String::from_utf8_lossy(&o.stderr).contains("no column `gz`"));
+    assert!(String::from_utf8_lossy(&o.stderr).contains("no channel `gz`"));
 }
 
 #[test]

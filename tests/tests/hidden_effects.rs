@@ -105,7 +105,7 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
             term: String::new(),
         };
         let set = |c: &'static str, m: ChannelModel, imu: &mut ImuModel| {
-            imu.channels.insert(c.into(), m);
+            imu.channels.insert(c.parse().expect("a channel name"), m);
         };
         match cause {
             "scale_factor" => {

@@ -231,7 +231,9 @@ fn models_the_board_cannot_log_are_refused_with_the_reason() {
         quantization_step: Some(2e-4),
         ..model.imus[1].gyro.clone()
     };
-    model.imus[1].channels.insert("gy".into(), gy);
+    model.imus[1]
+        .channels
+        .insert(dynacal::model::Channel::Gy, gy);
     let out = run(&model, 1.0);
     let e = board_recording(&out, &model).unwrap_err();
     assert!(

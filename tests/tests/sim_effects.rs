@@ -6,8 +6,9 @@
 use std::path::Path;
 
 use dynacal::gmwm::model::{ModelSpec, Process};
-use dynacal::sim::effects::sensor_kinematics;
+use dynacal::model::Channel;
 use dynacal::model::{ChannelModel, ImuModel};
+use dynacal::sim::effects::sensor_kinematics;
 use dynacal::sim::sensors::ImuRun;
 use dynacal::sim::{simulate, Scenario, SimModel, SimOptions, SimOutput};
 use dynacal::wv::{haar_wv, WvOptions};
@@ -189,7 +190,7 @@ fn assert_wv_matches(x: &[f64], dt_s: f64, spec: &ModelSpec, what: &str) {
 fn stochastic_imu(name: &str, spec: ModelSpec) -> ImuModel {
     let mut imu = error_free(name, spec.sample_rate_hz);
     imu.channels.insert(
-        "gz".into(),
+        Channel::Gz,
         ChannelModel {
             stochastic: Some(spec),
             ..Default::default()
@@ -317,8 +318,8 @@ fn sf_imu() -> ImuModel {
         scale_factor: Some(s),
         ..Default::default()
     };
-    imu.channels.insert("gz".into(), sf(3e-3));
-    imu.channels.insert("ax".into(), sf(-5e-3));
+    imu.channels.insert(Channel::Gz, sf(3e-3));
+    imu.channels.insert(Channel::Ax, sf(-5e-3));
     imu
 }
 
@@ -326,14 +327,14 @@ fn sf_imu() -> ImuModel {
 fn scale_factor_error_is_proportional_to_the_rate() {
     let mut imu = error_free("sf", 100.0);
     imu.channels.insert(
-        "gz".into(),
+        Channel::Gz,
         ChannelModel {
             scale_factor: Some(3e-3),
             ..Default::default()
         },
     );
     imu.channels.insert(
-        "ax".into(),
+        Channel::Ax,
         ChannelModel {
             scale_factor: Some(-5e-3),
             ..Default::default()
@@ -500,7 +501,7 @@ fn a_lever_armed_boresighted_imu_integrates_to_the_path_of_its_own_mounting_poin
 fn a_vibration_line_above_nyquist_aliases_to_its_folded_frequency() {
     let mut imu = error_free("vib", 100.0);
     imu.channels.insert(
-        "gx".into(),
+        Channel::Gx,
         serde_json::from_value(serde_json::json!({"vibration_lines": [{"frequency_hz": 130.0, "amplitude": 0.01, "phase_rad": 0.4}]})).unwrap(),
     );
     let out = run(&model_with(100.0, vec![imu]), Scenario::Static, 20.0, 1);
@@ -516,18 +517,18 @@ fn a_vibration_line_above_nyquist_aliases_to_its_folded_frequency() {
 fn g_sensitivity_dynamic_noise_and_outliers_behave_as_specified() {
     let mut imu = error_free("dyn", 100.0);
     imu.channels.insert(
-        "gx".into(),
+        Channel::Gx,
         ChannelModel {
             g_sensitivity: Some([1e-3, 0.0, 2e-3]),
             ..Default::default()
         },
     );
     imu.channels.insert(
-        "gz".into(),
+        Channel::Gz,
         serde_json::from_value(serde_json::json!({"dynamic_noise": {"driver": "angular_rate_norm", "sigma_per_unit": 0.05}})).unwrap(),
     );
     imu.channels.insert(
-        "ay".into(),
+        Channel::Ay,
         serde_json::from_value(
             serde_json::json!({"outliers": {"probability": 0.01, "sigma": 1.0}}),
         )

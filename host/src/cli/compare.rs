@@ -8,7 +8,9 @@ use anyhow::Context;
 
 use dynacal::gmwm::compare::{compare, format_table};
 
-use super::fit::{fit_file, model_choice, read_options};
+use dynacal::input::InputArgs;
+
+use super::fit::{fit_file, model_choice};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -19,14 +21,9 @@ pub struct Args {
     /// The model both are fitted with, e.g. "WN+GM+GM".
     #[arg(long)]
     pub model: String,
-    #[arg(long, value_delimiter = ',')]
-    pub columns: Vec<String>,
-    #[arg(long)]
-    pub rate_hz: Option<f64>,
-    #[arg(long)]
-    pub scale: Option<String>,
-    #[arg(long)]
-    pub unit: Option<String>,
+    #[command(flatten)]
+    pub input: InputArgs,
+    /// Output JSON (written whole or not at all).
     #[arg(long)]
     pub json: PathBuf,
 }
@@ -38,14 +35,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "--model auto: a comparison needs one model for both fits; give it, e.g. \"WN+GM+GM\""
         );
     }
-    let opts = read_options(
-        &args.columns,
-        args.rate_hz,
-        args.scale.as_deref(),
-        args.unit.as_deref(),
-    )?;
-    let a = fit_file(&args.static_file, &opts, &choice, None)?;
-    let b = fit_file(&args.dynamic_file, &opts, &choice, None)?;
+    let a = fit_file(&args.static_file, &args.input, &choice, None)?;
+    let b = fit_file(&args.dynamic_file, &args.input, &choice, None)?;
     let mut channels = Vec::new();
     for fa in &a {
         let Some(fb) = b.iter().find(|f| f.channel == fa.channel) else {

@@ -1,7 +1,6 @@
 //! `dynacal fit FILE --model M|auto --json OUT`: GMWM fit of every channel of a recording or
 //! of stored wavelet variances, with intervals, J-test and (for auto) ranked candidates.
 
-use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::Context;
@@ -9,81 +8,33 @@ use rayon::prelude::*;
 
 use dynacal::gmwm::fit::{FitInput, FitOptions};
 use dynacal::gmwm::inference::{analyze, BootstrapOptions, ChannelFit, ModelChoice};
-use dynacal::gmwm::input::{load_channels, ReadOptions};
-use dynacal::gmwm::model::Structure;
+use dynacal::gmwm::model::{ModelSpec, Structure};
+use dynacal::input::{load_wavelet_variances, InputArgs};
+use dynacal::model::SimModel;
+use dynacal::wv::WvOptions;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Interchange CSV(.gz), any CSV(.gz) by column name (with --rate-hz), or a WV JSON
-    /// (output of `dynacal wv`, or the SMAC-Group reference file).
+    /// Interchange CSV(.gz), a known dataset file, any CSV(.gz) by column name, or stored
+    /// wavelet variances (the JSON of `dynacal wv`, the `wv.json` of `dynacal decode`, or the
+    /// SMAC-Group reference file).
     pub file: PathBuf,
+    #[command(flatten)]
+    pub input: InputArgs,
     /// Model, e.g. "WN+GM+GM", "WN+RW+QN+DR+GM", or "auto" (chosen by WIC).
     #[arg(long, default_value = "auto")]
     pub model: String,
-    /// Channels (interchange: gx..az; CSV: column names; reference file: sensor/channel).
-    #[arg(long, value_delimiter = ',')]
-    pub columns: Vec<String>,
-    /// Sample rate of a CSV without a `t_s` column, Hz.
-    #[arg(long)]
-    pub rate_hz: Option<f64>,
-    /// Multiplier of plain-CSV columns: "0.05" or "gx=0.05,ax=0.00333".
-    #[arg(long)]
-    pub scale: Option<String>,
-    /// Unit of plain-CSV columns after scaling: "deg/s" or "gx=deg/s,ax=g".
-    #[arg(long)]
-    pub unit: Option<String>,
     /// Parametric bootstrap replicates for the intervals (0: delta method).
     #[arg(long, default_value_t = 0)]
     pub bootstrap: usize,
     /// Seed of the bootstrap.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Output JSON (written whole or not at all).
+    /// Output: the model file (`docs/formats.md`: loads in `dynacal simulate --model` and
+    /// `dynacal diagnose --baseline`) with the fit statistics beside it; written whole or
+    /// not at all.
     #[arg(long)]
     pub json: PathBuf,
-}
-
-/// "v" or "k=v,k=v" into a map ("" = every column).
-pub fn parse_map<T: std::str::FromStr>(
-    text: &str,
-    what: &str,
-) -> anyhow::Result<BTreeMap<String, T>>
-where
-    T::Err: std::fmt::Display,
-{
-    let mut out = BTreeMap::new();
-    for item in text.split(',') {
-        let (k, v) = match item.split_once('=') {
-            Some((k, v)) => (k.trim().to_string(), v.trim()),
-            None => (String::new(), item.trim()),
-        };
-        let parsed = v
-            .parse::<T>()
-            .map_err(|e| anyhow::anyhow!("--{what}: `{item}`: {e}"))?;
-        out.insert(k, parsed);
-    }
-    Ok(out)
-}
-
-pub fn read_options(
-    columns: &[String],
-    rate_hz: Option<f64>,
-    scale: Option<&str>,
-    unit: Option<&str>,
-) -> anyhow::Result<ReadOptions> {
-    Ok(ReadOptions {
-        columns: columns.to_vec(),
-        rate_hz,
-        scale: scale
-            .map(|s| parse_map(s, "scale"))
-            .transpose()?
-            .unwrap_or_default(),
-        unit: unit
-            .map(|s| parse_map(s, "unit"))
-            .transpose()?
-            .unwrap_or_default(),
-        ..ReadOptions::default()
-    })
 }
 
 pub fn model_choice(model: &str) -> anyhow::Result<ModelChoice> {
@@ -97,11 +48,11 @@ pub fn model_choice(model: &str) -> anyhow::Result<ModelChoice> {
 /// Fits every channel of `file` (channels in parallel).
 pub fn fit_file(
     file: &std::path::Path,
-    opts: &ReadOptions,
+    input: &InputArgs,
     choice: &ModelChoice,
     bootstrap: Option<BootstrapOptions>,
 ) -> anyhow::Result<Vec<ChannelFit>> {
-    let channels = load_channels(file, opts)?;
+    let channels = load_wavelet_variances(file, input, &WvOptions::default())?;
     channels
         .par_iter()
         .map(|c| {
@@ -122,17 +73,11 @@ pub fn fit_file(
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     let choice = model_choice(&args.model)?;
-    let opts = read_options(
-        &args.columns,
-        args.rate_hz,
-        args.scale.as_deref(),
-        args.unit.as_deref(),
-    )?;
     let bootstrap = (args.bootstrap > 0).then_some(BootstrapOptions {
         replicates: args.bootstrap,
         seed: args.seed,
     });
-    let fits = fit_file(&args.file, &opts, &choice, bootstrap)?;
+    let fits = fit_file(&args.file, &args.input, &choice, bootstrap)?;
     for f in &fits {
         println!(
             "{}: {} objective {:.4e}, {} in {} iterations ({:?}), J-test p = {}",
@@ -165,12 +110,60 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             println!("  warning: {w}");
         }
     }
-    let out = serde_json::json!({
-        "file": args.file.display().to_string(),
-        "requested_model": args.model,
-        "channels": fits,
-    });
-    dynacal::output::write_json_atomic(&args.json, &out)
+    let model = fitted_model(&args.file, &args.model, &fits)?;
+    dynacal::output::write_json_atomic(&args.json, &model)
         .with_context(|| format!("writing {}", args.json.display()))?;
     Ok(())
+}
+
+/// What `dynacal fit` writes beside the model: the statistics of every channel's fit.
+#[derive(serde::Serialize)]
+struct FitRecord<'a> {
+    file: String,
+    requested_model: &'a str,
+    channels: &'a [ChannelFit],
+}
+
+/// The model file of `fits`: each channel's fitted model on the IMU channel its name
+/// denotes (the IMU named after the file), with the fit statistics beside it. Channels that
+/// name no IMU channel stay in the statistics only, and the user is told.
+fn fitted_model(
+    file: &std::path::Path,
+    requested_model: &str,
+    fits: &[ChannelFit],
+) -> anyhow::Result<SimModel> {
+    let specs: Vec<(String, ModelSpec)> = fits
+        .iter()
+        .map(|f| (f.channel.clone(), f.model_object.clone()))
+        .collect();
+    let (mut model, unmapped) = SimModel::from_channel_models(&recording_stem(file), &specs);
+    if !unmapped.is_empty() {
+        println!(
+            "note: {} name no IMU channel (gx..az): kept in `fit` only, not in the model",
+            unmapped.join(", ")
+        );
+    }
+    model.comment = Some(format!(
+        "fitted by dynacal fit on {} (model {requested_model})",
+        file.display()
+    ));
+    model.fit = Some(serde_json::to_value(FitRecord {
+        file: file.display().to_string(),
+        requested_model,
+        channels: fits,
+    })?);
+    if let Err(e) = model.validate(file) {
+        println!("note: the fitted model will not load in `dynacal simulate`: {e}");
+    }
+    Ok(model)
+}
+
+/// A file's name without its directory and its extensions (`in/psins-mems.csv.gz` ->
+/// `psins-mems`): the name of the IMU a fit describes.
+fn recording_stem(file: &std::path::Path) -> String {
+    let name = file
+        .file_name()
+        .map(|n| n.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    name.split('.').next().unwrap_or_default().to_string()
 }

@@ -41,7 +41,6 @@ use super::stats::{
     outlier_process, spectral_lines, welch_psd,
 };
 use crate::error_signal::ErrorSignals;
-use crate::numeric::central_difference;
 use crate::errors::{
     build_error_signals_with_design, CalibrationDesign, CalibrationSummary, ErrorOptions,
 };
@@ -51,6 +50,7 @@ use crate::gmwm::model::ModelSpec;
 #[cfg(test)]
 use crate::gmwm::model::Process;
 use crate::interchange::{ImuRecording, CHANNELS};
+use crate::numeric::central_difference;
 use crate::regress::{backward_elimination, RegressionOptions};
 use crate::wv::{haar_wv, WvOptions};
 

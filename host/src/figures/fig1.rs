@@ -22,8 +22,8 @@ use dynacal_core::nav::ekf::{
 use dynacal_core::nav::{radii, NavState, Strapdown};
 
 use crate::gmwm::model::{ModelSpec, Process};
-use crate::nav_smoother::{SmootherError, SmoothingEkf};
 use crate::model::{unit_to_si, ChannelModel, ClockModel, GnssModel, ImuModel};
+use crate::nav_smoother::{SmootherError, SmoothingEkf};
 use crate::sim::trajectory::TrajectoryConfig;
 use crate::sim::{simulate, Scenario, SimError, SimModel, SimOptions, SimOutput};
 
@@ -153,6 +153,7 @@ pub fn fig1_model() -> SimModel {
             ..Default::default()
         }),
         pps: None,
+        ..SimModel::default()
     }
 }
 

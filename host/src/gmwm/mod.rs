@@ -7,5 +7,4 @@ pub mod compare;
 pub mod covariance;
 pub mod fit;
 pub mod inference;
-pub mod input;
 pub mod model;

@@ -102,11 +102,7 @@ pub struct BoardRecording {
 }
 
 /// The LSB of channels `first..first + 3`: their common `quantization_step`, else `default`.
-fn lsb_of(
-    model: &crate::model::ImuModel,
-    first: usize,
-    default: f64,
-) -> Result<f64, BoardError> {
+fn lsb_of(model: &crate::model::ImuModel, first: usize, default: f64) -> Result<f64, BoardError> {
     let steps: Vec<Option<f64>> = (first..first + 3)
         .map(|i| model.channel(i).quantization_step)
         .collect();

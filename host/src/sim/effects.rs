@@ -8,12 +8,12 @@ use std::collections::BTreeSet;
 use nalgebra::{Matrix3, Rotation3, Vector3};
 use serde_json::{json, Value};
 
+use super::trajectory::Truth;
+use crate::gmwm::model::{ModelSpec, Process, Structure};
 use crate::model::{
     unit_to_si, BiasStep, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers,
     VibrationLine,
 };
-use super::trajectory::Truth;
-use crate::gmwm::model::{ModelSpec, Process, Structure};
 
 /// Where a sensor sits on the platform.
 #[derive(Debug, Clone, Copy, PartialEq)]

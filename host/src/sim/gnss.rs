@@ -7,9 +7,9 @@ use nalgebra::Vector3;
 use rand::Rng;
 use rand_distr::StandardNormal;
 
-use crate::model::{GnssModel, PpsModel};
 use super::sensors::{stream, ImuRun};
 use super::trajectory::Trajectory;
+use crate::model::{GnssModel, PpsModel};
 use dynacal_core::nav::{earth_rate_ned_rad_s, radii};
 
 /// GNSS fixes, column by column.

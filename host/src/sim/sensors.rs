@@ -13,9 +13,9 @@ use rayon::prelude::*;
 
 use super::clock::ClockRun;
 use super::effects::{sensor_kinematics, ChannelEffects, Mount};
-use crate::model::ImuModel;
 use super::trajectory::Trajectory;
 use crate::interchange::{ImuRecording, Triplet};
+use crate::model::ImuModel;
 
 const CHUNK: usize = 8192;
 

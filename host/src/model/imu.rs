@@ -1,0 +1,269 @@
+//! One IMU's error model: its mounting against the reference body frame, its sample clock,
+//! and the error model of each of its six channels (the GMWM stochastic processes plus every
+//! deterministic effect the simulator runs and the diagnosis names). Each effect is defined
+//! here once; the simulator (`crate::sim::effects`) implements it and the diagnosis fills it.
+
+use std::collections::BTreeMap;
+
+use serde::{Deserialize, Serialize};
+
+use super::Channel;
+use crate::gmwm::model::{ModelSpec, Process};
+
+/// Names of all switchable effects.
+pub const EFFECTS: &[&str] = &[
+    // stochastic processes of the GMWM model, by kind
+    "white_noise",
+    "quantization_noise",
+    "random_walk",
+    "drift",
+    "gauss_markov",
+    // deterministic and other per-channel effects
+    "bias",
+    "scale_factor",
+    "cross_axis",
+    "g_sensitivity",
+    "angular_acceleration_sensitivity",
+    "jerk_sensitivity",
+    "dynamic_noise",
+    "vibration",
+    "outliers",
+    "bias_step",
+    "saturation",
+    "quantization",
+    // per-sensor effects
+    "lever_arm",
+    "boresight",
+    "time_offset",
+    "clock_drift",
+    "clock_jitter",
+    // GNSS effects
+    "gnss_position_noise",
+    "gnss_position_bias",
+    "gnss_velocity_noise",
+    "gnss_outages",
+    "pps_jitter",
+];
+
+/// What makes a channel's noise level depend on the dynamics.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DynamicDriver {
+    /// |omega_ib^s|, rad/s.
+    AngularRateNorm,
+    /// |d omega/dt|, rad/s^2.
+    AngularAccelerationNorm,
+    /// Ground speed, m/s.
+    Speed,
+    /// |d f^s/dt|, m/s^3.
+    JerkNorm,
+}
+
+/// White noise whose standard deviation is `sigma_per_unit * driver`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct DynamicNoise {
+    pub driver: DynamicDriver,
+    /// Channel unit (rad/s or m/s^2) per driver unit.
+    pub sigma_per_unit: f64,
+}
+
+/// A sinusoidal disturbance on the channel, evaluated at the true sampling instants (so a
+/// line above the Nyquist frequency aliases as it would in the sensor).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VibrationLine {
+    pub frequency_hz: f64,
+    /// Amplitude, channel unit.
+    pub amplitude: f64,
+    #[serde(default)]
+    pub phase_rad: f64,
+}
+
+/// Rare large errors: with `probability` per sample, an added N(0, sigma^2).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Outliers {
+    pub probability: f64,
+    /// Channel unit.
+    pub sigma: f64,
+}
+
+/// The error model of one channel (gx ... az); units are SI (rad/s or m/s^2) except inside
+/// `stochastic`, which carries its own unit and sample rate.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ChannelModel {
+    /// Effects switched off for this channel.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub disabled: Vec<String>,
+    /// Stochastic error processes (white noise, quantization noise, random walk, drift, any
+    /// number of Gauss-Markov): a GMWM model object as `dynacal fit` writes it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stochastic: Option<ModelSpec>,
+    /// Constant bias, channel unit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub bias: Option<f64>,
+    /// Scale-factor error (dimensionless: 1e-3 is 1000 ppm).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale_factor: Option<f64>,
+    /// Cross-axis sensitivity to the true sensor-frame x, y, z inputs (misalignment); the
+    /// channel's own entry must be 0.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub cross_axis: Option<[f64; 3]>,
+    /// Sensitivity to the sensor-frame specific force (gyro g-sensitivity), unit per m/s^2.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub g_sensitivity: Option<[f64; 3]>,
+    /// Sensitivity to sensor-frame angular acceleration, unit per rad/s^2.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub angular_acceleration_sensitivity: Option<[f64; 3]>,
+    /// Sensitivity to the rate of change of sensor-frame specific force, unit per m/s^3.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub jerk_sensitivity: Option<[f64; 3]>,
+    /// Noise whose level follows the dynamics.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dynamic_noise: Option<DynamicNoise>,
+    /// Vibration lines.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub vibration_lines: Vec<VibrationLine>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outliers: Option<Outliers>,
+    /// Steps of the bias during the run (e.g. after a shock or a thermal event).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub bias_steps: Vec<BiasStep>,
+    /// Output clipped to +-saturation, channel unit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub saturation: Option<f64>,
+    /// Output rounded to multiples of this step (LSB), channel unit.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub quantization_step: Option<f64>,
+}
+
+/// A step of the bias: from true time `at_s` on, the channel's bias is larger by `size`.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct BiasStep {
+    /// True time of the step, s from the start of the run.
+    pub at_s: f64,
+    /// Size of the step, channel unit (rad/s or m/s^2).
+    pub size: f64,
+}
+
+/// The sample clock of an IMU: samples are evenly spaced in the IMU's own time, which runs
+/// at (1 + frequency error) times true time; each instant also jitters.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ClockModel {
+    /// Constant frequency error, ppm (positive: the clock runs fast).
+    pub frequency_offset_ppm: f64,
+    /// Random walk of the frequency error, ppm per sqrt(s).
+    pub frequency_random_walk_ppm_per_sqrt_s: f64,
+    /// White jitter of each sampling instant (standard deviation), s.
+    pub jitter_s: f64,
+}
+
+/// One IMU: its mounting relative to the reference (b-frame), its clock, and the error model
+/// of each of its six channels.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ImuModel {
+    /// Name; also the output file stem.
+    pub name: String,
+    /// Nominal sampling rate, Hz.
+    pub rate_hz: f64,
+    /// Lever arm from the reference IMU to this IMU, reference body frame, m.
+    #[serde(default)]
+    pub lever_arm_b_m: [f64; 3],
+    /// Boresight: roll, pitch, yaw (Z-Y-X) of this IMU's frame w.r.t. the reference body
+    /// frame, deg (C_s^b = Rz Ry Rx).
+    #[serde(default)]
+    pub boresight_rpy_deg: [f64; 3],
+    /// The sample stamped t was taken at true time t - time_offset_s.
+    #[serde(default)]
+    pub time_offset_s: f64,
+    #[serde(default)]
+    pub clock: ClockModel,
+    /// Effects switched off for the whole sensor (any name of [`EFFECTS`]).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub disabled: Vec<String>,
+    /// Default error model of gx, gy, gz.
+    #[serde(default)]
+    pub gyro: ChannelModel,
+    /// Default error model of ax, ay, az.
+    #[serde(default)]
+    pub accel: ChannelModel,
+    /// Per-channel models replacing the defaults.
+    #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
+    pub channels: BTreeMap<Channel, ChannelModel>,
+}
+
+impl ImuModel {
+    /// The model of channel `i` (0..6 in gx gy gz ax ay az order).
+    pub fn channel(&self, i: usize) -> &ChannelModel {
+        let channel = Channel::ALL[i];
+        self.model_of(channel)
+    }
+
+    /// The model of `channel`: its own entry, else the sensor's default.
+    pub fn model_of(&self, channel: Channel) -> &ChannelModel {
+        self.channels.get(&channel).unwrap_or(if channel.is_gyro() {
+            &self.gyro
+        } else {
+            &self.accel
+        })
+    }
+
+    /// A MEMS IMU named `name` sampled at `rate_hz`, mounted at the reference with no error
+    /// effect: the start of a fitted or diagnosed model.
+    pub fn bare(name: &str, rate_hz: f64) -> Self {
+        ImuModel {
+            name: name.into(),
+            rate_hz,
+            lever_arm_b_m: [0.0; 3],
+            boresight_rpy_deg: [0.0; 3],
+            time_offset_s: 0.0,
+            clock: ClockModel::default(),
+            disabled: Vec::new(),
+            gyro: ChannelModel::default(),
+            accel: ChannelModel::default(),
+            channels: BTreeMap::new(),
+        }
+    }
+
+    /// A navigation-grade reference IMU (figures of the seed paper's Ixsea Airins: gyro
+    /// noise 0.0015 deg/sqrt(h), gyro bias 0.01 deg/h, accelerometer noise 20 ug/sqrt(Hz),
+    /// bias 100 ug), sampled at 200 Hz.
+    pub fn navigation_grade_reference() -> Self {
+        let rate = 200.0;
+        let gyro_density = 0.0015f64.to_radians() / 60.0; // rad/s/sqrt(Hz)
+        let accel_density = 20e-6 * 9.80665; // m/s^2/sqrt(Hz)
+        let wn = |density: f64, unit: &str| ModelSpec {
+            model: "WN".into(),
+            unit: unit.into(),
+            sample_rate_hz: rate,
+            processes: vec![Process::WhiteNoise {
+                sigma2: density * density * rate,
+            }],
+        };
+        ImuModel {
+            name: "reference".into(),
+            rate_hz: rate,
+            lever_arm_b_m: [0.0; 3],
+            boresight_rpy_deg: [0.0; 3],
+            time_offset_s: 0.0,
+            clock: ClockModel::default(),
+            disabled: Vec::new(),
+            gyro: ChannelModel {
+                stochastic: Some(wn(gyro_density, "rad/s")),
+                bias: Some(0.01f64.to_radians() / 3600.0),
+                ..Default::default()
+            },
+            accel: ChannelModel {
+                stochastic: Some(wn(accel_density, "m/s2")),
+                bias: Some(100e-6 * 9.80665),
+                ..Default::default()
+            },
+            channels: BTreeMap::new(),
+        }
+    }
+}
