@@ -92,7 +92,8 @@ pub fn format_table(reports: &[(&str, RegressionReport)]) -> String {
         }
         s.push('\n');
     }
-    let rows: [(&str, fn(&RegressionReport) -> String); 7] = [
+    type Row = (&'static str, fn(&RegressionReport) -> String);
+    let rows: [Row; 7] = [
         ("R^2", |r| format!("{:.2} %", 100.0 * r.r2)),
         ("Adj. R^2", |r| format!("{:.2} %", 100.0 * r.adj_r2)),
         ("sigma_e^2", |r| format!("{:.3e}", r.residual_variance)),

@@ -120,7 +120,7 @@ pub fn optimism(fit: &Fit, input: &FitInput, v_full: &DMatrix<f64>) -> Option<f6
     let h = &d * &b;
     let mut tr = 0.0;
     for j in 0..input.levels.len() {
-        tr += input.omega[j] * (&h.row(j) * v_full.column(j))[(0, 0)];
+        tr += input.omega[j] * (h.row(j) * v_full.column(j))[(0, 0)];
     }
     Some(2.0 * tr)
 }
@@ -144,25 +144,19 @@ pub struct Parameter {
     pub theta_se: Option<f64>,
 }
 
-/// Physical value of each reported parameter as a function of its transformed parameter.
-fn parameter_map(
-    s: &Structure,
-    unit: &str,
-    dt: f64,
-) -> Vec<(
+/// A reported parameter: (process label, parameter name, unit, index of its transformed
+/// parameter, physical value as a function of that transformed parameter).
+type ParameterMap = (
     String,
     String,
     String,
     usize,
     Box<dyn Fn(f64) -> f64 + Send + Sync>,
-)> {
-    let mut out: Vec<(
-        String,
-        String,
-        String,
-        usize,
-        Box<dyn Fn(f64) -> f64 + Send + Sync>,
-    )> = Vec::new();
+);
+
+/// Physical value of each reported parameter as a function of its transformed parameter.
+fn parameter_map(s: &Structure, unit: &str, dt: f64) -> Vec<ParameterMap> {
+    let mut out: Vec<ParameterMap> = Vec::new();
     let u2 = format!("({unit})^2");
     let mut k = 0;
     let mut gm = 0;

@@ -172,29 +172,39 @@ pub struct ImuModel {
     /// Nominal sampling rate, Hz.
     pub rate_hz: f64,
     /// Lever arm from the reference IMU to this IMU, reference body frame, m.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_zero3")]
     pub lever_arm_b_m: [f64; 3],
     /// Boresight: roll, pitch, yaw (Z-Y-X) of this IMU's frame w.r.t. the reference body
     /// frame, deg (C_s^b = Rz Ry Rx).
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_zero3")]
     pub boresight_rpy_deg: [f64; 3],
     /// The sample stamped t was taken at true time t - time_offset_s.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub time_offset_s: f64,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_default")]
     pub clock: ClockModel,
     /// Effects switched off for the whole sensor (any name of [`EFFECTS`]).
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub disabled: Vec<String>,
     /// Default error model of gx, gy, gz.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_default")]
     pub gyro: ChannelModel,
     /// Default error model of ax, ay, az.
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_default")]
     pub accel: ChannelModel,
     /// Per-channel models replacing the defaults.
     #[serde(default, skip_serializing_if = "BTreeMap::is_empty")]
     pub channels: BTreeMap<Channel, ChannelModel>,
+}
+
+fn is_zero(v: &f64) -> bool {
+    *v == 0.0
+}
+fn is_zero3(v: &[f64; 3]) -> bool {
+    *v == [0.0; 3]
+}
+fn is_default<T: Default + PartialEq>(v: &T) -> bool {
+    *v == T::default()
 }
 
 impl ImuModel {
