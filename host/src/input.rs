@@ -11,8 +11,7 @@
 //!   from `--rate-hz`;
 //! - wavelet variances stored as JSON (only where a command takes them, see
 //!   [`load_wavelet_variances`]): the output of `dynacal wv`, the `wv.json` of `dynacal
-//!   decode` (channels `gx` .. `az`, named `imuN/gx` when the log holds several IMUs), and
-//!   the SMAC-Group reference file.
+//!   decode` (channels `imuN/gx` .. `imuN/az`), and the SMAC-Group reference file.
 //!
 //! The sample interval: the rate given with `--rate-hz` if any, else the median step of the
 //! time column ([`crate::interchange::median_step_s`]); a given rate must agree with the time
@@ -509,19 +508,15 @@ fn read_wv_json(path: &Path) -> Result<Vec<ChannelWv>, InputError> {
 }
 
 /// The `wv.json` of `dynacal decode`: the board's streaming wavelet variances, per IMU and
-/// channel, in SI units. Channels are `gx` .. `az`, or `imuN/gx` when several IMUs logged.
+/// channel, in SI units. Channels are named `imuN/gx`, N the IMU id, as decode names the
+/// IMUs' files (`imuN.csv`).
 fn board_wvs(path: &Path, text: &str) -> Result<Vec<ChannelWv>, InputError> {
     let list: Vec<BoardChannelWv> = serde_json::from_str(text)
         .map_err(|e| format_error(path, format!("not a `dynacal decode` wv.json: {e}")))?;
-    let several = list.iter().any(|c| c.imu_id != list[0].imu_id);
     list.into_iter()
         .enumerate()
         .map(|(i, c)| {
-            let name = if several {
-                format!("imu{}/{}", c.imu_id, c.channel)
-            } else {
-                c.channel.to_string()
-            };
+            let name = format!("imu{}/{}", c.imu_id, c.channel);
             let wv = c.wv.ok_or_else(|| {
                 format_error(
                     path,
