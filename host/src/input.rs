@@ -230,6 +230,34 @@ fn stated_interval_s(path: &Path, rate_hz: f64) -> Result<f64, InputError> {
     }
 }
 
+/// One sensor's whole recording: an interchange file, or a dataset file `dynacal import`
+/// knows that holds one sensor (imported to SI units). With `evenly_sampled`, a gap in its
+/// time column is an error naming the line, as for the series the wavelet variance reads.
+pub fn load_recording(path: &Path, evenly_sampled: bool) -> Result<ImuRecording, InputError> {
+    let recording = match crate::import::detect(path)? {
+        Some(dataset) => {
+            let mut sensors = crate::import::import_file(path, dataset)?;
+            if sensors.len() != 1 {
+                let names: Vec<String> = sensors.into_iter().map(|s| s.name).collect();
+                return Err(format_error(
+                    path,
+                    format!(
+                        "holds {} sensors ({}): import it with `dynacal import` and choose one",
+                        names.len(),
+                        names.join(", ")
+                    ),
+                ));
+            }
+            sensors.remove(0).recording
+        }
+        None => ImuRecording::read(path)?,
+    };
+    if evenly_sampled {
+        sample_interval_s(path, &recording.t_s, None)?;
+    }
+    Ok(recording)
+}
+
 /// Every wanted channel of a series file (not a WV JSON), in file order or the order of
 /// `--columns`.
 pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputError> {

@@ -6,18 +6,21 @@ use std::path::PathBuf;
 use anyhow::Context;
 use dynacal::diagnose::engine::{diagnose, Baseline, DiagnoseOptions};
 use dynacal::diagnose::report;
-use dynacal::interchange::ImuRecording;
+use dynacal::input::load_recording;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// The sensor under test (interchange CSV or CSV.gz).
+    /// The sensor under test (interchange CSV or CSV.gz, or a one-sensor dataset file that
+    /// `dynacal import` knows), evenly sampled.
     #[arg(long)]
     pub sensor: PathBuf,
     /// The reference IMU or navigation solution; without it the data are taken as static.
     #[arg(long)]
     pub reference: Option<PathBuf>,
-    /// Baseline error model: the JSON written by `dynacal fit` (SI units). Without it, one is
-    /// fitted on the quietest stretch of the data, and the output says so.
+    /// Baseline error model: a model file (`docs/formats.md` section 3) with one MEMS IMU,
+    /// e.g. the output of `dynacal fit` on a static recording or the extended model of an
+    /// earlier `diagnose`. Without it, one is fitted on the quietest stretch of the data,
+    /// and the output says so.
     #[arg(long)]
     pub baseline: Option<PathBuf>,
     /// Output JSON (findings, gain, discrepancies, extended model).
@@ -41,11 +44,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "--replicates must be at least 5, got {}",
         args.replicates
     );
-    let sensor = ImuRecording::read(&args.sensor)?;
+    let sensor = load_recording(&args.sensor, true)?;
     let reference = args
         .reference
         .as_deref()
-        .map(ImuRecording::read)
+        .map(|r| load_recording(r, false))
         .transpose()?;
     let baseline = args.baseline.as_deref().map(Baseline::load).transpose()?;
     let opts = DiagnoseOptions {
