@@ -4,10 +4,10 @@
 //! The `dynacal` binary is a thin command-line layer over this library; errors here are
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
+pub mod calibration;
 pub mod decode;
 pub mod diagnose;
 pub mod error_signal;
-pub mod errors;
 pub mod figures;
 pub mod gmwm;
 pub mod import;

@@ -10,7 +10,7 @@
 
 use std::path::Path;
 
-use dynacal::errors::{build_error_signals, ErrorOptions};
+use dynacal::calibration::{build_error_signals, ErrorOptions};
 use dynacal::gmwm::fit::{FitInput, FitOptions};
 use dynacal::gmwm::inference::{analyze, ModelChoice};
 use dynacal::gmwm::model::Structure;

@@ -3,7 +3,7 @@
 //! with uncertainties, and the calibration must explain most of the raw sensor-minus-reference
 //! difference. Skips with a message when the dataset is absent.
 
-use dynacal::errors::{build_error_signals, ErrorOptions};
+use dynacal::calibration::{build_error_signals, ErrorOptions};
 use dynacal::import::psins_fog_mems::{read_fog, read_mems};
 use dynacal::regress::{backward_elimination, RegressionOptions};
 

@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use dynacal::errors::{build_error_signals, ErrorOptions};
+use dynacal::calibration::{build_error_signals, ErrorOptions};
 use dynacal::interchange::{ImuRecording, CHANNELS};
 
 #[derive(Debug, clap::Args)]

@@ -10,7 +10,7 @@
 //! - a time offset is one coefficient common to every channel of the sensor, on each
 //!   channel's own derivative, and a lever arm is omega_dot x r + omega x (omega x r) on the
 //!   accelerometers: both are estimated jointly by the calibration of
-//!   [`crate::errors::build_error_signals`] and named when significant;
+//!   [`crate::calibration::build_error_signals`] and named when significant;
 //! - stochastic causes are tested against the same statistic on series simulated from the
 //!   baseline: outliers, vibration lines, a shift of the mean, noise growing with the
 //!   dynamics, quantization (the raw sensor values lie on a lattice), and a change of the
@@ -40,10 +40,10 @@ use super::stats::{
     find_outliers, local_step_null_sd, local_step_robust_sd, local_step_scan, noise_vs_dynamics,
     outlier_process, spectral_lines, welch_psd,
 };
-use crate::error_signal::ErrorSignals;
-use crate::errors::{
+use crate::calibration::{
     build_error_signals_with_design, CalibrationDesign, CalibrationSummary, ErrorOptions,
 };
+use crate::error_signal::ErrorSignals;
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
@@ -89,7 +89,7 @@ pub const DETERMINISTIC_CAUSES: [&str; 8] = [
 #[non_exhaustive]
 pub enum DiagnoseError {
     #[error(transparent)]
-    Errors(#[from] crate::errors::ErrorsError),
+    Errors(#[from] crate::calibration::ErrorsError),
     #[error("baseline model {path}: {message}")]
     Baseline { path: String, message: String },
     #[error("channel {channel}: {message}")]

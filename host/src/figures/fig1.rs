@@ -22,8 +22,10 @@ use dynacal_core::nav::ekf::{
 use dynacal_core::nav::{radii, NavState, Strapdown};
 
 use crate::gmwm::model::{ModelSpec, Process};
+use crate::interchange::Triplet;
 use crate::model::{unit_to_si, ChannelModel, ClockModel, GnssModel, ImuModel};
 use crate::nav_smoother::{SmootherError, SmoothingEkf};
+use crate::sim::gnss::GnssFixes;
 use crate::sim::trajectory::TrajectoryConfig;
 use crate::sim::{simulate, Scenario, SimError, SimModel, SimOptions, SimOutput};
 
@@ -441,164 +443,211 @@ where
 /// specific force and both extra IMUs' rate and specific force at the same sample.
 type Payload<T> = (Vector3<T>, [Vector3<T>; 2], [Vector3<T>; 2]);
 
-/// Drives the reference-IMU strapdown and `filter` through a simulation of [`fig1_model`]:
-/// a prediction per reference sample, the joint inter-IMU update of both extra IMUs at every
-/// sample (three samples late, as the angular acceleration is a central difference), GNSS
-/// position and velocity at every fix, and a reset after each epoch.
-pub fn run_calibration<T, F>(
-    sim: &SimOutput,
-    noise: &[InterImuNoise],
-    filter: &mut F,
-) -> Result<CalibrationTrace, Fig1Error>
-where
-    T: RealField + Copy,
-    f64: From<T>,
-    F: CalibrationFilter<T>,
-{
-    let reference = &sim.reference.recording;
-    let missing = |sensor: &str, what| Fig1Error::Missing {
-        sensor: sensor.to_string(),
-        what,
-    };
-    let name = sim.reference.name.as_str();
-    let gyro = reference
-        .gyro_rad_s
-        .as_ref()
-        .ok_or_else(|| missing(name, "gyroscopes"))?;
-    let accel = reference
-        .accel_m_s2
-        .as_ref()
-        .ok_or_else(|| missing(name, "accelerometers"))?;
-    let attitude = reference
-        .attitude_rad
-        .as_ref()
-        .ok_or_else(|| missing(name, "attitude"))?;
-    let position = reference
-        .position
-        .as_ref()
-        .ok_or_else(|| missing(name, "position"))?;
-    let velocity = reference
-        .velocity_ned_m_s
-        .as_ref()
-        .ok_or_else(|| missing(name, "velocity"))?;
-    if sim.imus.len() != 2 || noise.len() != 2 {
-        return Err(missing("fig1 model", "two extra IMUs"));
-    }
-    let mut extra = Vec::with_capacity(2);
-    for run in &sim.imus {
-        let r = &run.recording;
-        let g = r
-            .gyro_rad_s
-            .as_ref()
-            .ok_or_else(|| missing(&run.name, "gyroscopes"))?;
-        let a = r
-            .accel_m_s2
-            .as_ref()
-            .ok_or_else(|| missing(&run.name, "accelerometers"))?;
-        extra.push((run, g, a));
-    }
-    let n = extra
-        .iter()
-        .map(|(run, _, _)| run.recording.len())
-        .fold(reference.len(), usize::min);
-    for (run, _, _) in &extra {
-        for k in 0..n {
-            let (t, t_ref) = (run.recording.t_s[k], reference.t_s[k]);
-            if (t - t_ref).abs() > 1e-9 {
-                return Err(Fig1Error::NotSynchronous {
-                    sensor: run.name.clone(),
-                    index: k,
-                    t_s: t,
-                    reference_t_s: t_ref,
-                });
+/// What the differentiator releases: the reference rate and angular acceleration at the
+/// middle sample, with its payload.
+type InterImuInput<T> = (Vector3<T>, Vector3<T>, Payload<T>);
+
+/// `x` in the filter's precision.
+fn c<T: RealField + Copy>(x: f64) -> T {
+    nalgebra::convert::<f64, T>(x)
+}
+
+/// The reference and extra-IMU columns a run reads, checked present and on one clock.
+struct RunInputs<'a> {
+    /// Reference sample times, s.
+    t_s: &'a [f64],
+    gyro: &'a Triplet,
+    accel: &'a Triplet,
+    attitude: &'a Triplet,
+    position: &'a Triplet,
+    velocity: &'a Triplet,
+    /// Each extra IMU's gyros and accelerometers.
+    extra: Vec<(&'a Triplet, &'a Triplet)>,
+    /// Samples common to the three IMUs.
+    n: usize,
+}
+
+impl<'a> RunInputs<'a> {
+    fn of(sim: &'a SimOutput, noise: &[InterImuNoise]) -> Result<Self, Fig1Error> {
+        let reference = &sim.reference.recording;
+        let missing = |sensor: &str, what| Fig1Error::Missing {
+            sensor: sensor.to_string(),
+            what,
+        };
+        let name = sim.reference.name.as_str();
+        let need =
+            |column: &'a Option<Triplet>, what| column.as_ref().ok_or_else(|| missing(name, what));
+        let gyro = need(&reference.gyro_rad_s, "gyroscopes")?;
+        let accel = need(&reference.accel_m_s2, "accelerometers")?;
+        let attitude = need(&reference.attitude_rad, "attitude")?;
+        let position = need(&reference.position, "position")?;
+        let velocity = need(&reference.velocity_ned_m_s, "velocity")?;
+        if sim.imus.len() != 2 || noise.len() != 2 {
+            return Err(missing("fig1 model", "two extra IMUs"));
+        }
+        let mut extra = Vec::with_capacity(2);
+        for run in &sim.imus {
+            let r = &run.recording;
+            let g = r
+                .gyro_rad_s
+                .as_ref()
+                .ok_or_else(|| missing(&run.name, "gyroscopes"))?;
+            let a = r
+                .accel_m_s2
+                .as_ref()
+                .ok_or_else(|| missing(&run.name, "accelerometers"))?;
+            extra.push((g, a));
+        }
+        let n = sim
+            .imus
+            .iter()
+            .map(|run| run.recording.len())
+            .fold(reference.len(), usize::min);
+        for run in &sim.imus {
+            for k in 0..n {
+                let (t, t_ref) = (run.recording.t_s[k], reference.t_s[k]);
+                if (t - t_ref).abs() > 1e-9 {
+                    return Err(Fig1Error::NotSynchronous {
+                        sensor: run.name.clone(),
+                        index: k,
+                        t_s: t,
+                        reference_t_s: t_ref,
+                    });
+                }
             }
         }
+        Ok(Self {
+            t_s: &reference.t_s,
+            gyro,
+            accel,
+            attitude,
+            position,
+            velocity,
+            extra,
+            n,
+        })
     }
-    let c = |x: f64| nalgebra::convert::<f64, T>(x);
-    let rate_sigma: [Vector3<T>; 2] = [0, 1].map(|i| Vector3::repeat(c(noise[i].rate_rad_s)));
-    let force_sigma: [Vector3<T>; 2] = [0, 1].map(|i| Vector3::repeat(c(noise[i].force_m_s2)));
 
-    let mut state = NavState::<T>::from_euler(
-        c(attitude[0][0]),
-        c(attitude[1][0]),
-        c(attitude[2][0]),
-        v3(velocity, 0),
-        c(position[0][0]),
-        c(position[1][0]),
-        c(position[2][0]),
-    );
-    let mut strapdown = Strapdown::new(state);
-    let mut trace = CalibrationTrace::default();
-    let record = |trace: &mut CalibrationTrace, t_s: f64, ekf: &ErrorStateEkf<T, 2, 27>| {
-        trace.t_s.push(t_s);
+    /// The navigation state of the first reference sample.
+    fn initial_state<T: RealField + Copy>(&self) -> NavState<T> {
+        let (attitude, position) = (self.attitude, self.position);
+        NavState::<T>::from_euler(
+            c(attitude[0][0]),
+            c(attitude[1][0]),
+            c(attitude[2][0]),
+            v3(self.velocity, 0),
+            c(position[0][0]),
+            c(position[1][0]),
+            c(position[2][0]),
+        )
+    }
+
+    /// Both extra IMUs' rate and specific force at sample `k`.
+    fn extra_at<T: RealField + Copy>(&self, k: usize) -> ([Vector3<T>; 2], [Vector3<T>; 2]) {
+        (
+            [0, 1].map(|i| v3::<T>(self.extra[i].0, k)),
+            [0, 1].map(|i| v3::<T>(self.extra[i].1, k)),
+        )
+    }
+}
+
+impl CalibrationTrace {
+    /// Appends the filter's nominal calibrations and sigmas at `t_s`.
+    fn record<T: RealField + Copy>(&mut self, t_s: f64, ekf: &ErrorStateEkf<T, 2, 27>)
+    where
+        f64: From<T>,
+    {
+        self.t_s.push(t_s);
         for imu in 0..2 {
             let Some(cal) = ekf.calibration(imu) else {
                 continue;
             };
             let sigma =
                 |start: usize| [0, 1, 2].map(|a| ekf.sigma(start + a).map_or(f64::NAN, f64::from));
-            trace.points[imu].push(CalibrationPoint {
+            self.points[imu].push(CalibrationPoint {
                 boresight_rad: to_f64(cal.boresight_rad()),
                 boresight_sigma_rad: sigma(boresight_index(imu)),
                 lever_arm_b_m: to_f64(cal.lever_arm_b_m),
                 lever_arm_sigma_m: sigma(lever_arm_index(imu)),
             });
         }
-    };
-    filter.epoch(reference.t_s[0], |_| {});
-    record(&mut trace, reference.t_s[0], filter.ekf());
+    }
+}
 
-    let gnss = sim.gnss.as_ref();
-    let gnss_sigma = gnss.map(|g| {
-        (
-            Vector3::new(
-                c(g.sigma_ned_m[0]),
-                c(g.sigma_ned_m[1]),
-                c(g.sigma_ned_m[2]),
-            ),
-            Vector3::new(
-                c(g.sigma_v_ned_m_s[0]),
-                c(g.sigma_v_ned_m_s[1]),
-                c(g.sigma_v_ned_m_s[2]),
-            ),
-        )
-    });
-    let mut next_fix = 0usize;
-    let mut differentiator = AngularAccelerationStencil::<T, Payload<T>>::default();
-    for k in 1..n {
-        let t_s = reference.t_s[k];
-        let dt_s = t_s - reference.t_s[k - 1];
-        let gyro_bias = filter.ekf().gyro_bias_b_rad_s();
-        let accel_bias = filter.ekf().accel_bias_b_m_s2();
-        let omega0 = v3::<T>(gyro, k - 1) - gyro_bias;
-        let omega1 = v3::<T>(gyro, k) - gyro_bias;
-        let f0 = v3::<T>(accel, k - 1) - accel_bias;
-        let f1 = v3::<T>(accel, k) - accel_bias;
-        strapdown
-            .step_rates(omega0, omega1, f0, f1, c(dt_s))
-            .map_err(|fault| Fig1Error::Mechanization {
-                t_s,
-                fault: format!("{fault:?}"),
-            })?;
-        let half: T = c(0.5);
-        let lin = NavLinearization::from_state(strapdown.state(), (f0 + f1) * half);
-        if !filter.predict(&lin, c(dt_s)) {
-            return Err(Fig1Error::Prediction { t_s });
-        }
-        let payload: Payload<T> = (
-            f1,
-            [0, 1].map(|i| v3::<T>(extra[i].1, k)),
-            [0, 1].map(|i| v3::<T>(extra[i].2, k)),
-        );
-        let inter_imu = differentiator.push(c(dt_s), omega1, payload);
+/// Scalar updates of one epoch: inter-IMU accepted and gated, GNSS accepted and gated.
+#[derive(Debug, Clone, Copy, Default)]
+struct UpdateCounts {
+    inter_imu_accepted: u32,
+    inter_imu_rejected: u32,
+    gnss_accepted: u32,
+    gnss_rejected: u32,
+}
 
-        while gnss.is_some_and(|g| next_fix < g.t_s.len() && g.t_s[next_fix] < t_s - 0.5 * dt_s) {
-            next_fix += 1;
+impl CalibrationTrace {
+    fn add(&mut self, counts: UpdateCounts) {
+        self.inter_imu_accepted += counts.inter_imu_accepted;
+        self.inter_imu_rejected += counts.inter_imu_rejected;
+        self.gnss_accepted += counts.gnss_accepted;
+        self.gnss_rejected += counts.gnss_rejected;
+    }
+}
+
+/// The measurement noise of the updates, in the filter's precision.
+struct UpdateSigmas<T: RealField + Copy> {
+    /// Per extra IMU: inter-IMU rate and specific-force one-sigma.
+    rate: [Vector3<T>; 2],
+    force: [Vector3<T>; 2],
+    /// GNSS position (m) and velocity (m/s) one-sigma per NED axis, when there are fixes.
+    gnss: Option<(Vector3<T>, Vector3<T>)>,
+}
+
+impl<T: RealField + Copy> UpdateSigmas<T> {
+    fn new(noise: &[InterImuNoise], gnss: Option<&GnssFixes>) -> Self {
+        Self {
+            rate: [0, 1].map(|i| Vector3::repeat(c(noise[i].rate_rad_s))),
+            force: [0, 1].map(|i| Vector3::repeat(c(noise[i].force_m_s2))),
+            gnss: gnss.map(|g| {
+                (
+                    Vector3::new(
+                        c(g.sigma_ned_m[0]),
+                        c(g.sigma_ned_m[1]),
+                        c(g.sigma_ned_m[2]),
+                    ),
+                    Vector3::new(
+                        c(g.sigma_v_ned_m_s[0]),
+                        c(g.sigma_v_ned_m_s[1]),
+                        c(g.sigma_v_ned_m_s[2]),
+                    ),
+                )
+            }),
         }
-        let fix = gnss.and_then(|g| {
-            let j = next_fix;
+    }
+}
+
+/// The GNSS fixes, read in time order.
+struct GnssReader<'a> {
+    fixes: Option<&'a GnssFixes>,
+    next_fix: usize,
+}
+
+impl GnssReader<'_> {
+    /// Position and velocity innovations against `nominal` of the fix within half a sample
+    /// of `t_s`, if there is one.
+    fn innovations<T: RealField + Copy>(
+        &mut self,
+        t_s: f64,
+        dt_s: f64,
+        nominal: &NavState<T>,
+    ) -> Option<(Vector3<T>, Vector3<T>)> {
+        let gnss = self.fixes;
+        while gnss
+            .is_some_and(|g| self.next_fix < g.t_s.len() && g.t_s[self.next_fix] < t_s - 0.5 * dt_s)
+        {
+            self.next_fix += 1;
+        }
+        gnss.and_then(|g| {
+            let j = self.next_fix;
             (j < g.t_s.len() && (g.t_s[j] - t_s).abs() <= 0.5 * dt_s).then(|| {
-                let nominal = strapdown.state();
                 let r = radii(nominal.lat_rad);
                 let position_innovation = geodetic_difference_ned_m(
                     [
@@ -613,45 +662,125 @@ where
                 let velocity_innovation = v3::<T>(&g.velocity_ned_m_s, j) - nominal.v_ned_m_s;
                 (position_innovation, velocity_innovation)
             })
-        });
+        })
+    }
+}
 
-        let mut counts = [0u32; 4];
+/// The updates of one epoch: the joint inter-IMU update of both extra IMUs when the
+/// differentiator released a sample, GNSS position and velocity when there is a fix.
+fn fuse_updates<T: RealField + Copy>(
+    ekf: &mut ErrorStateEkf<T, 2, 27>,
+    inter_imu: Option<InterImuInput<T>>,
+    fix: Option<(Vector3<T>, Vector3<T>)>,
+    sigmas: &UpdateSigmas<T>,
+) -> UpdateCounts {
+    let mut counts = UpdateCounts::default();
+    if let Some((omega_mid, omega_dot_mid, (f_mid, omega_s, f_s))) = inter_imu {
+        for imu in 0..2 {
+            let sample = InterImuSample {
+                omega_ib_b_rad_s: omega_mid,
+                omega_dot_ib_b_rad_s2: omega_dot_mid,
+                f_b_m_s2: f_mid,
+                omega_is_s_rad_s: omega_s[imu],
+                f_s_m_s2: f_s[imu],
+            };
+            if let Some(batch) =
+                ekf.fuse_inter_imu(imu, &sample, &sigmas.rate[imu], &sigmas.force[imu])
+            {
+                counts.inter_imu_accepted += u32::from(batch.accepted);
+                counts.inter_imu_rejected += u32::from(batch.rejected + batch.faults);
+            }
+        }
+    }
+    if let (Some((dp, dv)), Some((sigma_p, sigma_v))) = (fix, sigmas.gnss) {
+        for batch in [
+            ekf.fuse_gnss_position(&dp, &sigma_p),
+            ekf.fuse_gnss_velocity(&dv, &sigma_v),
+        ] {
+            counts.gnss_accepted += u32::from(batch.accepted);
+            counts.gnss_rejected += u32::from(batch.rejected + batch.faults);
+        }
+    }
+    counts
+}
+
+/// One reference sample `k` through the strapdown (bias-corrected rates and specific forces
+/// of samples `k - 1` and `k`) and the filter's prediction; returns the corrected rate and
+/// specific force at `k`.
+fn propagate<T, F>(
+    inputs: &RunInputs<'_>,
+    k: usize,
+    strapdown: &mut Strapdown<T>,
+    filter: &mut F,
+) -> Result<(Vector3<T>, Vector3<T>), Fig1Error>
+where
+    T: RealField + Copy,
+    F: CalibrationFilter<T>,
+{
+    let t_s = inputs.t_s[k];
+    let dt_s = t_s - inputs.t_s[k - 1];
+    let gyro_bias = filter.ekf().gyro_bias_b_rad_s();
+    let accel_bias = filter.ekf().accel_bias_b_m_s2();
+    let omega0 = v3::<T>(inputs.gyro, k - 1) - gyro_bias;
+    let omega1 = v3::<T>(inputs.gyro, k) - gyro_bias;
+    let f0 = v3::<T>(inputs.accel, k - 1) - accel_bias;
+    let f1 = v3::<T>(inputs.accel, k) - accel_bias;
+    strapdown
+        .step_rates(omega0, omega1, f0, f1, c(dt_s))
+        .map_err(|fault| Fig1Error::Mechanization {
+            t_s,
+            fault: format!("{fault:?}"),
+        })?;
+    let half: T = c(0.5);
+    let lin = NavLinearization::from_state(strapdown.state(), (f0 + f1) * half);
+    if !filter.predict(&lin, c(dt_s)) {
+        return Err(Fig1Error::Prediction { t_s });
+    }
+    Ok((omega1, f1))
+}
+
+/// Drives the reference-IMU strapdown and `filter` through a simulation of [`fig1_model`]:
+/// a prediction per reference sample, the joint inter-IMU update of both extra IMUs at every
+/// sample (three samples late, as the angular acceleration is a central difference), GNSS
+/// position and velocity at every fix, and a reset after each epoch.
+pub fn run_calibration<T, F>(
+    sim: &SimOutput,
+    noise: &[InterImuNoise],
+    filter: &mut F,
+) -> Result<CalibrationTrace, Fig1Error>
+where
+    T: RealField + Copy,
+    f64: From<T>,
+    F: CalibrationFilter<T>,
+{
+    let inputs = RunInputs::of(sim, noise)?;
+    let sigmas = UpdateSigmas::<T>::new(noise, sim.gnss.as_ref());
+    let mut strapdown = Strapdown::new(inputs.initial_state::<T>());
+    let mut trace = CalibrationTrace::default();
+    filter.epoch(inputs.t_s[0], |_| {});
+    trace.record(inputs.t_s[0], filter.ekf());
+
+    let mut gnss = GnssReader {
+        fixes: sim.gnss.as_ref(),
+        next_fix: 0,
+    };
+    let mut differentiator = AngularAccelerationStencil::<T, Payload<T>>::default();
+    for k in 1..inputs.n {
+        let t_s = inputs.t_s[k];
+        let dt_s = t_s - inputs.t_s[k - 1];
+        let (omega1, f1) = propagate(&inputs, k, &mut strapdown, filter)?;
+        let (omega_s, f_s) = inputs.extra_at::<T>(k);
+        let inter_imu = differentiator.push(c(dt_s), omega1, (f1, omega_s, f_s));
+        let fix = gnss.innovations(t_s, dt_s, strapdown.state());
+        let mut counts = UpdateCounts::default();
         let correction = filter.epoch(t_s, |ekf| {
-            if let Some((omega_mid, omega_dot_mid, (f_mid, omega_s, f_s))) = inter_imu {
-                for imu in 0..2 {
-                    let sample = InterImuSample {
-                        omega_ib_b_rad_s: omega_mid,
-                        omega_dot_ib_b_rad_s2: omega_dot_mid,
-                        f_b_m_s2: f_mid,
-                        omega_is_s_rad_s: omega_s[imu],
-                        f_s_m_s2: f_s[imu],
-                    };
-                    if let Some(batch) =
-                        ekf.fuse_inter_imu(imu, &sample, &rate_sigma[imu], &force_sigma[imu])
-                    {
-                        counts[0] += u32::from(batch.accepted);
-                        counts[1] += u32::from(batch.rejected + batch.faults);
-                    }
-                }
-            }
-            if let (Some((dp, dv)), Some((sigma_p, sigma_v))) = (fix, gnss_sigma) {
-                for batch in [
-                    ekf.fuse_gnss_position(&dp, &sigma_p),
-                    ekf.fuse_gnss_velocity(&dv, &sigma_v),
-                ] {
-                    counts[2] += u32::from(batch.accepted);
-                    counts[3] += u32::from(batch.rejected + batch.faults);
-                }
-            }
+            counts = fuse_updates(ekf, inter_imu, fix, &sigmas);
         });
-        trace.inter_imu_accepted += counts[0];
-        trace.inter_imu_rejected += counts[1];
-        trace.gnss_accepted += counts[2];
-        trace.gnss_rejected += counts[3];
-        state = *strapdown.state();
+        trace.add(counts);
+        let mut state = *strapdown.state();
         apply_correction(&mut state, &correction);
         strapdown.set_state(state);
-        record(&mut trace, t_s, filter.ekf());
+        trace.record(t_s, filter.ekf());
     }
     Ok(trace)
 }

@@ -6,10 +6,15 @@
 //! folder and moved into place only when all are written, `truth.json` last, so a failed
 //! run leaves no partial set.
 
+use std::borrow::Cow;
+use std::fmt::Write as _;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
+
 use super::board::{BoardError, BoardRecording};
+use super::gnss::{GnssFixes, PpsTable};
 use super::SimOutput;
 use crate::interchange::{ImuRecording, TableError};
 use crate::output::{write_json_atomic, AtomicFile};
@@ -49,6 +54,144 @@ pub fn write_outputs(
     write_outputs_with_board(out, dir, gzip, write_ideal, None)
 }
 
+/// Maps an I/O error on `path` to a [`SimWriteError`].
+fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> SimWriteError {
+    let path = path.to_path_buf();
+    move |source| SimWriteError::Io { path, source }
+}
+
+/// The hidden folder inside the output folder the files are written to, and the names
+/// written so far (in the order they are moved into place).
+struct Stage<'a> {
+    dir: &'a Path,
+    temp: tempfile::TempDir,
+    names: Vec<String>,
+}
+
+impl<'a> Stage<'a> {
+    /// Creates `dir` if absent and a staging folder inside it.
+    fn new(dir: &'a Path) -> Result<Self, SimWriteError> {
+        std::fs::create_dir_all(dir).map_err(io_error(dir))?;
+        let temp = tempfile::Builder::new()
+            .prefix(".dynacal-partial-")
+            .tempdir_in(dir)
+            .map_err(io_error(dir))?;
+        Ok(Self {
+            dir,
+            temp,
+            names: Vec::new(),
+        })
+    }
+
+    fn path(&self, name: &str) -> PathBuf {
+        self.temp.path().join(name)
+    }
+
+    /// Writes the staged file `name` with `write` (compressed when the name ends in `.gz`).
+    fn write_file(
+        &mut self,
+        name: String,
+        write: impl FnOnce(&mut dyn Write, &Path) -> Result<(), SimWriteError>,
+    ) -> Result<(), SimWriteError> {
+        let path = self.path(&name);
+        let mut f = AtomicFile::create(&path).map_err(io_error(&path))?;
+        {
+            let mut w = f.writer();
+            write(&mut *w, &path)?;
+            w.flush().map_err(io_error(&path))?;
+        }
+        f.commit().map_err(io_error(&path))?;
+        self.names.push(name);
+        Ok(())
+    }
+
+    /// Moves every staged file into the output folder; returns their paths.
+    fn commit(self) -> Result<Vec<PathBuf>, SimWriteError> {
+        let mut written = Vec::new();
+        for name in &self.names {
+            let from = self.path(name);
+            let to = self.dir.join(name);
+            std::fs::rename(&from, &to).map_err(io_error(&to))?;
+            written.push(to);
+        }
+        Ok(written)
+    }
+}
+
+/// Each IMU's recording to write, named `<imu>.<ext>`, then with `write_ideal` each IMU's
+/// error-free outputs at the true sampling instants, `<imu>-ideal.<ext>`.
+fn imu_files<'a>(
+    out: &'a SimOutput,
+    ext: &str,
+    write_ideal: bool,
+) -> Vec<(String, Cow<'a, ImuRecording>)> {
+    let runs = || std::iter::once(&out.reference).chain(&out.imus);
+    let mut files: Vec<(String, Cow<'a, ImuRecording>)> = runs()
+        .map(|run| (format!("{}.{ext}", run.name), Cow::Borrowed(&run.recording)))
+        .collect();
+    if write_ideal {
+        files.extend(runs().filter_map(|run| {
+            run.ideal.as_ref().map(|ideal| {
+                let recording = ImuRecording {
+                    t_s: run.true_t_s.clone(),
+                    gyro_rad_s: Some([ideal[0].clone(), ideal[1].clone(), ideal[2].clone()]),
+                    accel_m_s2: Some([ideal[3].clone(), ideal[4].clone(), ideal[5].clone()]),
+                    ..Default::default()
+                };
+                (format!("{}-ideal.{ext}", run.name), Cow::Owned(recording))
+            })
+        }));
+    }
+    files
+}
+
+/// The text of `gnss.csv`: one row per fix with its position and velocity sigmas.
+fn gnss_text(g: &GnssFixes) -> String {
+    let mut text = String::from("t_s,lat_rad,lon_rad,h_m,vn_m_s,ve_m_s,vd_m_s,sigma_n_m,sigma_e_m,sigma_d_m,sigma_vn_m_s,sigma_ve_m_s,sigma_vd_m_s\n");
+    for k in 0..g.t_s.len() {
+        let _ = writeln!(
+            text,
+            "{},{},{},{},{},{},{},{},{},{},{},{},{}",
+            g.t_s[k],
+            g.position[0][k],
+            g.position[1][k],
+            g.position[2][k],
+            g.velocity_ned_m_s[0][k],
+            g.velocity_ned_m_s[1][k],
+            g.velocity_ned_m_s[2][k],
+            g.sigma_ned_m[0],
+            g.sigma_ned_m[1],
+            g.sigma_ned_m[2],
+            g.sigma_v_ned_m_s[0],
+            g.sigma_v_ned_m_s[1],
+            g.sigma_v_ned_m_s[2]
+        );
+    }
+    text
+}
+
+/// The text of `pps.csv`: GPS time of each edge and every IMU's clock reading there.
+fn pps_text(p: &PpsTable) -> String {
+    let mut text = String::from("gps_t_s");
+    for (imu, _) in &p.local_t_s {
+        text.push_str(&format!(",{imu}_local_t_s"));
+    }
+    text.push('\n');
+    for k in 0..p.gps_t_s.len() {
+        let _ = write!(text, "{}", p.gps_t_s[k]);
+        for (_, col) in &p.local_t_s {
+            let _ = write!(text, ",{}", col[k]);
+        }
+        text.push('\n');
+    }
+    text
+}
+
+/// A writer of `text`, for [`Stage::write_file`].
+fn text_writer(text: String) -> impl FnOnce(&mut dyn Write, &Path) -> Result<(), SimWriteError> {
+    move |w, path| w.write_all(text.as_bytes()).map_err(io_error(path))
+}
+
 /// [`write_outputs`], plus [`REPLAY_FILE`] and [`LOG_FILE`] from `board` when given (never
 /// compressed: the firmware and the decoder read them as they are).
 pub fn write_outputs_with_board(
@@ -58,115 +201,18 @@ pub fn write_outputs_with_board(
     write_ideal: bool,
     board: Option<&BoardRecording>,
 ) -> Result<Vec<PathBuf>, SimWriteError> {
-    let io = |path: &Path| {
-        let path = path.to_path_buf();
-        move |source| SimWriteError::Io { path, source }
-    };
-    std::fs::create_dir_all(dir).map_err(io(dir))?;
-    let stage = tempfile::Builder::new()
-        .prefix(".dynacal-partial-")
-        .tempdir_in(dir)
-        .map_err(io(dir))?;
+    let mut stage = Stage::new(dir)?;
     let ext = if gzip { "csv.gz" } else { "csv" };
-    let mut names: Vec<String> = Vec::new();
-    let mut jobs: Vec<(String, &ImuRecording)> = Vec::new();
-    for run in std::iter::once(&out.reference).chain(&out.imus) {
-        jobs.push((format!("{}.{ext}", run.name), &run.recording));
-    }
-    let ideal_recordings: Vec<(String, ImuRecording)> = if write_ideal {
-        std::iter::once(&out.reference)
-            .chain(&out.imus)
-            .filter_map(|run| {
-                run.ideal.as_ref().map(|ideal| {
-                    (
-                        format!("{}-ideal.{ext}", run.name),
-                        ImuRecording {
-                            t_s: run.true_t_s.clone(),
-                            gyro_rad_s: Some([
-                                ideal[0].clone(),
-                                ideal[1].clone(),
-                                ideal[2].clone(),
-                            ]),
-                            accel_m_s2: Some([
-                                ideal[3].clone(),
-                                ideal[4].clone(),
-                                ideal[5].clone(),
-                            ]),
-                            ..Default::default()
-                        },
-                    )
-                })
-            })
-            .collect()
-    } else {
-        Vec::new()
-    };
-    for (name, rec) in &ideal_recordings {
-        jobs.push((name.clone(), rec));
-    }
-    use rayon::prelude::*;
-    jobs.par_iter()
-        .map(|(name, rec)| rec.write(&stage.path().join(name)))
+    let imus = imu_files(out, ext, write_ideal);
+    imus.par_iter()
+        .map(|(name, rec)| rec.write(&stage.path(name)))
         .collect::<Result<Vec<()>, _>>()?;
-    names.extend(jobs.iter().map(|(n, _)| n.clone()));
-
+    stage.names.extend(imus.iter().map(|(n, _)| n.clone()));
     if let Some(g) = &out.gnss {
-        let name = format!("gnss.{ext}");
-        let path = stage.path().join(&name);
-        let mut f = AtomicFile::create(&path).map_err(io(&path))?;
-        {
-            let mut w = f.writer();
-            let mut text = String::from("t_s,lat_rad,lon_rad,h_m,vn_m_s,ve_m_s,vd_m_s,sigma_n_m,sigma_e_m,sigma_d_m,sigma_vn_m_s,sigma_ve_m_s,sigma_vd_m_s\n");
-            use std::fmt::Write as _;
-            for k in 0..g.t_s.len() {
-                let _ = writeln!(
-                    text,
-                    "{},{},{},{},{},{},{},{},{},{},{},{},{}",
-                    g.t_s[k],
-                    g.position[0][k],
-                    g.position[1][k],
-                    g.position[2][k],
-                    g.velocity_ned_m_s[0][k],
-                    g.velocity_ned_m_s[1][k],
-                    g.velocity_ned_m_s[2][k],
-                    g.sigma_ned_m[0],
-                    g.sigma_ned_m[1],
-                    g.sigma_ned_m[2],
-                    g.sigma_v_ned_m_s[0],
-                    g.sigma_v_ned_m_s[1],
-                    g.sigma_v_ned_m_s[2]
-                );
-            }
-            w.write_all(text.as_bytes()).map_err(io(&path))?;
-            w.flush().map_err(io(&path))?;
-        }
-        f.commit().map_err(io(&path))?;
-        names.push(name);
+        stage.write_file(format!("gnss.{ext}"), text_writer(gnss_text(g)))?;
     }
     if let Some(p) = &out.pps {
-        let name = format!("pps.{ext}");
-        let path = stage.path().join(&name);
-        let mut f = AtomicFile::create(&path).map_err(io(&path))?;
-        {
-            let mut w = f.writer();
-            let mut text = String::from("gps_t_s");
-            for (imu, _) in &p.local_t_s {
-                text.push_str(&format!(",{imu}_local_t_s"));
-            }
-            text.push('\n');
-            use std::fmt::Write as _;
-            for k in 0..p.gps_t_s.len() {
-                let _ = write!(text, "{}", p.gps_t_s[k]);
-                for (_, col) in &p.local_t_s {
-                    let _ = write!(text, ",{}", col[k]);
-                }
-                text.push('\n');
-            }
-            w.write_all(text.as_bytes()).map_err(io(&path))?;
-            w.flush().map_err(io(&path))?;
-        }
-        f.commit().map_err(io(&path))?;
-        names.push(name);
+        stage.write_file(format!("pps.{ext}"), text_writer(pps_text(p)))?;
     }
     if let Some(board) = board {
         type Writer = fn(&BoardRecording, &mut dyn Write) -> Result<(), BoardError>;
@@ -175,30 +221,16 @@ pub fn write_outputs_with_board(
             (LOG_FILE, BoardRecording::write_log),
         ];
         for (name, write) in files {
-            let path = stage.path().join(name);
-            let mut f = AtomicFile::create(&path).map_err(io(&path))?;
-            {
-                let mut w = f.writer();
-                write(board, &mut *w).map_err(|source| SimWriteError::Board {
-                    path: path.clone(),
+            stage.write_file(name.to_string(), |w, path| {
+                write(board, w).map_err(|source| SimWriteError::Board {
+                    path: path.to_path_buf(),
                     source,
-                })?;
-                w.flush().map_err(io(&path))?;
-            }
-            f.commit().map_err(io(&path))?;
-            names.push(name.to_string());
+                })
+            })?;
         }
     }
-    let truth_path = stage.path().join("truth.json");
-    write_json_atomic(&truth_path, &out.truth).map_err(io(&truth_path))?;
-    names.push("truth.json".into());
-
-    let mut written = Vec::new();
-    for name in &names {
-        let from = stage.path().join(name);
-        let to = dir.join(name);
-        std::fs::rename(&from, &to).map_err(io(&to))?;
-        written.push(to);
-    }
-    Ok(written)
+    let truth_path = stage.path("truth.json");
+    write_json_atomic(&truth_path, &out.truth).map_err(io_error(&truth_path))?;
+    stage.names.push("truth.json".into());
+    stage.commit()
 }

@@ -62,132 +62,203 @@ pub struct ImuJob<'a> {
     pub keep_ideal: bool,
 }
 
+/// What a run of one IMU is set up with before any sample is drawn.
+struct ImuSetup {
+    /// Number of samples.
+    n: usize,
+    clock: ClockRun,
+    /// True instant of each sample including the time offset, s.
+    true_t_s: Vec<f64>,
+    mount: Mount,
+    channels: Vec<ChannelEffects>,
+    /// Effects switched off for this sensor (sensor list plus global list).
+    disabled: BTreeSet<String>,
+}
+
+impl ImuSetup {
+    /// Realises the clock (random stream 1) and resolves the mount and the channels' effects.
+    fn new(job: &ImuJob) -> Self {
+        let model = job.model;
+        let n = (job.duration_s * model.rate_hz).floor().max(1.0) as usize;
+        let mut disabled: BTreeSet<String> = job.disabled.clone();
+        disabled.extend(model.disabled.iter().cloned());
+        let mut clock_rng = stream(job.seed, job.sensor, 1, 0);
+        let clock = ClockRun::realise(
+            &model.clock,
+            model.rate_hz,
+            n,
+            !disabled.contains("clock_drift"),
+            !disabled.contains("clock_jitter"),
+            &mut clock_rng,
+        );
+        let offset = if disabled.contains("time_offset") {
+            0.0
+        } else {
+            model.time_offset_s
+        };
+        let true_t_s: Vec<f64> = clock.sample_t_s.iter().map(|t| t - offset).collect();
+        let mount = Mount::of(model, &disabled);
+        let channels: Vec<ChannelEffects> = (0..6)
+            .map(|i| {
+                let ch = model.channel(i);
+                let mut off = disabled.clone();
+                off.extend(ch.disabled.iter().cloned());
+                ChannelEffects::resolve(ch, i, model.rate_hz, &off)
+            })
+            .collect();
+        Self {
+            n,
+            clock,
+            true_t_s,
+            mount,
+            channels,
+            disabled,
+        }
+    }
+}
+
+/// The columns a run fills, sample by sample.
+struct ImuColumns {
+    /// gx .. az: first the stochastic processes, then the whole sensor output.
+    out: Vec<Vec<f64>>,
+    /// Error-free gx .. az, when kept (else empty).
+    ideal: Vec<Vec<f64>>,
+    /// Roll, pitch, yaw, latitude, longitude, height, NED velocity, for the reference (else
+    /// empty).
+    nav: Vec<Vec<f64>>,
+}
+
+/// Number of navigation columns of the reference IMU.
+const NAV_COLUMNS: usize = 9;
+
+impl ImuColumns {
+    /// The stochastic processes of each channel (sequential within a channel, random stream
+    /// 2, channels in parallel) and zeroed ideal and navigation columns as `job` asks.
+    fn new(setup: &ImuSetup, job: &ImuJob) -> Self {
+        let n = setup.n;
+        let out: Vec<Vec<f64>> = setup
+            .channels
+            .par_iter()
+            .map(|fx| match &fx.stochastic {
+                Some(spec) => {
+                    spec.simulate(n, &mut stream(job.seed, job.sensor, 2, fx.index as u64))
+                }
+                None => vec![0.0; n],
+            })
+            .collect();
+        let ideal: Vec<Vec<f64>> = if job.keep_ideal {
+            vec![vec![0.0; n]; 6]
+        } else {
+            Vec::new()
+        };
+        let nav_cols = if job.with_navigation { NAV_COLUMNS } else { 0 };
+        Self {
+            out,
+            ideal,
+            nav: vec![vec![0.0; n]; nav_cols],
+        }
+    }
+
+    /// The columns cut into chunks of [`CHUNK`] samples: per chunk, its slice of every
+    /// column (output, then ideal, then navigation).
+    fn chunks(&mut self, n: usize) -> Vec<Vec<&mut [f64]>> {
+        let mut views: Vec<std::slice::ChunksMut<f64>> = self
+            .out
+            .iter_mut()
+            .chain(self.ideal.iter_mut())
+            .chain(self.nav.iter_mut())
+            .map(|c| c.chunks_mut(CHUNK))
+            .collect();
+        (0..n.div_ceil(CHUNK))
+            .map(|_| {
+                views
+                    .iter_mut()
+                    .map(|v| v.next().unwrap_or_default())
+                    .collect()
+            })
+            .collect()
+    }
+}
+
+/// Adds the deterministic and per-sample random effects (random streams 3.., keyed by
+/// channel and chunk) to the stochastic processes in `cols`, one chunk of samples starting at
+/// sample `start`, and fills the chunk's ideal and navigation columns.
+fn simulate_chunk(
+    traj: &Trajectory,
+    job: &ImuJob,
+    setup: &ImuSetup,
+    chunk: usize,
+    cols: &mut [&mut [f64]],
+) {
+    let start = chunk * CHUNK;
+    let len = cols[0].len();
+    let mut rngs: Vec<ChaCha8Rng> = (0..6)
+        .map(|i| stream(job.seed, job.sensor, 3 + i as u64, chunk as u64))
+        .collect();
+    for (j, &t) in setup.true_t_s[start..start + len].iter().enumerate() {
+        let truth = traj.truth(t);
+        let kin = sensor_kinematics(&truth, &setup.mount);
+        for (i, fx) in setup.channels.iter().enumerate() {
+            let ideal_value = kin.channel(i);
+            let mut y = ideal_value + cols[i][j] + fx.deterministic(&kin, t);
+            let sigma = fx.dynamic_sigma(&kin);
+            if sigma > 0.0 {
+                let z: f64 = rngs[i].sample(StandardNormal);
+                y += sigma * z;
+            }
+            if let Some(o) = fx.outliers {
+                if o.probability > 0.0 && rngs[i].random_bool(o.probability) {
+                    let z: f64 = rngs[i].sample(StandardNormal);
+                    y += o.sigma * z;
+                }
+            }
+            cols[i][j] = fx.finish(y);
+            if job.keep_ideal {
+                cols[6 + i][j] = ideal_value;
+            }
+        }
+        if job.with_navigation {
+            let b = if job.keep_ideal { 12 } else { 6 };
+            let v = [
+                truth.roll_rad,
+                truth.pitch_rad,
+                truth.yaw_rad,
+                truth.lat_rad,
+                truth.lon_rad,
+                truth.h_m,
+                truth.v_ned_m_s.x,
+                truth.v_ned_m_s.y,
+                truth.v_ned_m_s.z,
+            ];
+            for (k, x) in v.into_iter().enumerate() {
+                cols[b + k][j] = x;
+            }
+        }
+    }
+}
+
 /// Simulates one IMU over `[0, duration_s)` of its own time; `progress` is called with the
 /// number of samples finished, chunk by chunk.
 pub fn simulate_imu(traj: &Trajectory, job: &ImuJob, progress: &(dyn Fn(u64) + Sync)) -> ImuRun {
-    let model = job.model;
-    let n = (job.duration_s * model.rate_hz).floor().max(1.0) as usize;
-    let mut disabled: BTreeSet<String> = job.disabled.clone();
-    disabled.extend(model.disabled.iter().cloned());
-    let mut clock_rng = stream(job.seed, job.sensor, 1, 0);
-    let clock = ClockRun::realise(
-        &model.clock,
-        model.rate_hz,
-        n,
-        !disabled.contains("clock_drift"),
-        !disabled.contains("clock_jitter"),
-        &mut clock_rng,
-    );
-    let offset = if disabled.contains("time_offset") {
-        0.0
-    } else {
-        model.time_offset_s
-    };
-    let true_t_s: Vec<f64> = clock.sample_t_s.iter().map(|t| t - offset).collect();
-    let mount = Mount::of(model, &disabled);
-    let channels: Vec<ChannelEffects> = (0..6)
-        .map(|i| {
-            let ch = model.channel(i);
-            let mut off = disabled.clone();
-            off.extend(ch.disabled.iter().cloned());
-            ChannelEffects::resolve(ch, i, model.rate_hz, &off)
-        })
-        .collect();
-
-    // Stochastic processes: sequential within a channel, channels in parallel.
-    let mut out: Vec<Vec<f64>> = channels
-        .par_iter()
-        .map(|fx| match &fx.stochastic {
-            Some(spec) => spec.simulate(n, &mut stream(job.seed, job.sensor, 2, fx.index as u64)),
-            None => vec![0.0; n],
-        })
-        .collect();
-    let mut ideal: Vec<Vec<f64>> = if job.keep_ideal {
-        vec![vec![0.0; n]; 6]
-    } else {
-        Vec::new()
-    };
-    let nav_cols = if job.with_navigation { 9 } else { 0 };
-    let mut nav: Vec<Vec<f64>> = vec![vec![0.0; n]; nav_cols];
-
+    let setup = ImuSetup::new(job);
+    let mut columns = ImuColumns::new(&setup, job);
     // Deterministic and per-sample random effects, chunk by chunk in parallel.
-    {
-        let mut out_chunks: Vec<Vec<&mut [f64]>> = Vec::new();
-        let mut views: Vec<std::slice::ChunksMut<f64>> =
-            out.iter_mut().map(|c| c.chunks_mut(CHUNK)).collect();
-        let mut ideal_views: Vec<std::slice::ChunksMut<f64>> =
-            ideal.iter_mut().map(|c| c.chunks_mut(CHUNK)).collect();
-        let mut nav_views: Vec<std::slice::ChunksMut<f64>> =
-            nav.iter_mut().map(|c| c.chunks_mut(CHUNK)).collect();
-        let n_chunks = n.div_ceil(CHUNK);
-        for _ in 0..n_chunks {
-            let mut row: Vec<&mut [f64]> = Vec::with_capacity(6 + 6 + 9);
-            for v in views
-                .iter_mut()
-                .chain(ideal_views.iter_mut())
-                .chain(nav_views.iter_mut())
-            {
-                row.push(v.next().unwrap_or_default());
-            }
-            out_chunks.push(row);
-        }
-        out_chunks
-            .into_par_iter()
-            .enumerate()
-            .for_each(|(c, mut cols)| {
-                let start = c * CHUNK;
-                let len = cols[0].len();
-                let mut rngs: Vec<ChaCha8Rng> = (0..6)
-                    .map(|i| stream(job.seed, job.sensor, 3 + i as u64, c as u64))
-                    .collect();
-                for j in 0..len {
-                    let t = true_t_s[start + j];
-                    let truth = traj.truth(t);
-                    let kin = sensor_kinematics(&truth, &mount);
-                    for (i, fx) in channels.iter().enumerate() {
-                        let ideal_value = kin.channel(i);
-                        let mut y = ideal_value + cols[i][j] + fx.deterministic(&kin, t);
-                        let sigma = fx.dynamic_sigma(&kin);
-                        if sigma > 0.0 {
-                            let z: f64 = rngs[i].sample(StandardNormal);
-                            y += sigma * z;
-                        }
-                        if let Some(o) = fx.outliers {
-                            if o.probability > 0.0 && rngs[i].random_bool(o.probability) {
-                                let z: f64 = rngs[i].sample(StandardNormal);
-                                y += o.sigma * z;
-                            }
-                        }
-                        cols[i][j] = fx.finish(y);
-                        if job.keep_ideal {
-                            cols[6 + i][j] = ideal_value;
-                        }
-                    }
-                    if job.with_navigation {
-                        let b = if job.keep_ideal { 12 } else { 6 };
-                        let v = [
-                            truth.roll_rad,
-                            truth.pitch_rad,
-                            truth.yaw_rad,
-                            truth.lat_rad,
-                            truth.lon_rad,
-                            truth.h_m,
-                            truth.v_ned_m_s.x,
-                            truth.v_ned_m_s.y,
-                            truth.v_ned_m_s.z,
-                        ];
-                        for (k, x) in v.into_iter().enumerate() {
-                            cols[b + k][j] = x;
-                        }
-                    }
-                }
-                progress(len as u64);
-            });
-    }
+    columns
+        .chunks(setup.n)
+        .into_par_iter()
+        .enumerate()
+        .for_each(|(c, mut cols)| {
+            simulate_chunk(traj, job, &setup, c, &mut cols);
+            progress(cols[0].len() as u64);
+        });
+    assemble(job, setup, columns)
+}
 
+/// The run's recording (sensor time on the nominal sample grid) from its filled columns.
+fn assemble(job: &ImuJob, setup: ImuSetup, columns: ImuColumns) -> ImuRun {
+    let model = job.model;
     let dt = 1.0 / model.rate_hz;
-    let t_s: Vec<f64> = (0..n).map(|k| k as f64 * dt).collect();
-    let mut it = out.into_iter();
+    let t_s: Vec<f64> = (0..setup.n).map(|k| k as f64 * dt).collect();
     let take3 = |it: &mut std::vec::IntoIter<Vec<f64>>| -> Triplet {
         [
             it.next().unwrap_or_default(),
@@ -195,9 +266,10 @@ pub fn simulate_imu(traj: &Trajectory, job: &ImuJob, progress: &(dyn Fn(u64) + S
             it.next().unwrap_or_default(),
         ]
     };
+    let mut it = columns.out.into_iter();
     let gyro = take3(&mut it);
     let accel = take3(&mut it);
-    let mut nav_it = nav.into_iter();
+    let mut nav_it = columns.nav.into_iter();
     let (attitude, position, velocity) = if job.with_navigation {
         (
             Some(take3(&mut nav_it)),
@@ -208,7 +280,7 @@ pub fn simulate_imu(traj: &Trajectory, job: &ImuJob, progress: &(dyn Fn(u64) + S
         (None, None, None)
     };
     let ideal = if job.keep_ideal {
-        let mut it = ideal.into_iter();
+        let mut it = columns.ideal.into_iter();
         Some(std::array::from_fn(|_| it.next().unwrap_or_default()))
     } else {
         None
@@ -224,11 +296,11 @@ pub fn simulate_imu(traj: &Trajectory, job: &ImuJob, progress: &(dyn Fn(u64) + S
             velocity_ned_m_s: velocity,
             single_axis: Vec::new(),
         },
-        clock,
-        true_t_s,
+        clock: setup.clock,
+        true_t_s: setup.true_t_s,
         ideal,
-        channels,
-        mount,
-        disabled,
+        channels: setup.channels,
+        mount: setup.mount,
+        disabled: setup.disabled,
     }
 }

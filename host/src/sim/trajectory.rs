@@ -618,212 +618,236 @@ impl Jet {
     }
 }
 
-/// The manoeuvre script of a car run.
-fn script(cfg: &TrajectoryConfig, duration_s: f64, rng: &mut ChaCha8Rng) -> Vec<Segment> {
-    let mut segments: Vec<Segment> = Vec::new();
-    let mut t = 0.0;
-    let mut state = (0.0f64, 0.0f64, cfg.start_yaw_deg.to_radians());
-    let push = |segments: &mut Vec<Segment>,
-                t: &mut f64,
-                state: &mut (f64, f64, f64),
-                manoeuvre,
-                duration_s: f64,
-                accel_peak_m_s2: f64,
-                yaw: YawPulse| {
+/// The car between two segments: speed, along-track distance and heading.
+#[derive(Debug, Clone, Copy)]
+struct CarState {
+    speed_m_s: f64,
+    distance_m: f64,
+    yaw_rad: f64,
+}
+
+/// The driver's limits, from the configuration (accelerations at least 0.5 m/s^2).
+struct DrivingLimits {
+    /// Cruise speeds drawn from, m/s.
+    cruise_lo_m_s: f64,
+    cruise_hi_m_s: f64,
+    /// Largest forward acceleration, braking and lateral acceleration, m/s^2.
+    accel_m_s2: f64,
+    brake_m_s2: f64,
+    lateral_m_s2: f64,
+}
+
+impl DrivingLimits {
+    fn of(cfg: &TrajectoryConfig) -> Self {
+        let [cruise_lo_m_s, cruise_hi_m_s] = cfg.cruise_speed_m_s;
+        Self {
+            cruise_lo_m_s,
+            cruise_hi_m_s,
+            accel_m_s2: cfg.max_accel_m_s2.max(0.5),
+            brake_m_s2: cfg.max_brake_m_s2.max(0.5),
+            lateral_m_s2: cfg.max_lateral_m_s2.max(0.5),
+        }
+    }
+
+    fn cruise_speed_m_s(&self, rng: &mut ChaCha8Rng) -> f64 {
+        rng.random_range(self.cruise_lo_m_s..=self.cruise_hi_m_s)
+    }
+}
+
+/// A script being written: the segments so far, the time they reach and the car's state
+/// there.
+struct ScriptWriter {
+    segments: Vec<Segment>,
+    t_s: f64,
+    state: CarState,
+}
+
+impl ScriptWriter {
+    fn new(yaw_rad: f64) -> Self {
+        Self {
+            segments: Vec::new(),
+            t_s: 0.0,
+            state: CarState {
+                speed_m_s: 0.0,
+                distance_m: 0.0,
+                yaw_rad,
+            },
+        }
+    }
+
+    fn speed_m_s(&self) -> f64 {
+        self.state.speed_m_s
+    }
+
+    /// Appends a segment starting where the script ends; a brake ends at rest exactly.
+    fn push(&mut self, manoeuvre: Manoeuvre, duration_s: f64, accel_peak_m_s2: f64, yaw: YawPulse) {
         let seg = Segment {
             manoeuvre,
-            t0_s: *t,
+            t0_s: self.t_s,
             duration_s,
-            speed0_m_s: state.0,
-            distance0_m: state.1,
-            yaw0_rad: state.2,
+            speed0_m_s: self.state.speed_m_s,
+            distance0_m: self.state.distance_m,
+            yaw0_rad: self.state.yaw_rad,
             accel_peak_m_s2,
             yaw,
         };
-        let mut end = seg.end_state();
-        if manoeuvre == Manoeuvre::Brake || manoeuvre == Manoeuvre::Stop {
-            end.0 = if manoeuvre == Manoeuvre::Brake {
+        let (speed_m_s, distance_m, yaw_rad) = seg.end_state();
+        self.state = CarState {
+            speed_m_s: if manoeuvre == Manoeuvre::Brake {
                 0.0
             } else {
-                end.0
-            };
-        }
-        *state = end;
-        *t += duration_s;
-        segments.push(seg);
-    };
-    let [v_lo, v_hi] = cfg.cruise_speed_m_s;
-    let a_max = cfg.max_accel_m_s2.max(0.5);
-    let b_max = cfg.max_brake_m_s2.max(0.5);
-    let lat_max = cfg.max_lateral_m_s2.max(0.5);
-    push(
-        &mut segments,
-        &mut t,
-        &mut state,
+                speed_m_s
+            },
+            distance_m,
+            yaw_rad,
+        };
+        self.t_s += duration_s;
+        self.segments.push(seg);
+    }
+}
+
+/// The manoeuvre script of a car run: an initial stop, then from rest a drive-off and while
+/// moving a random pick of cruise or curve, speed change, stop, intersection turn or lane
+/// change, until `duration_s`; the last segment holds speed and heading for ever.
+fn script(cfg: &TrajectoryConfig, duration_s: f64, rng: &mut ChaCha8Rng) -> Vec<Segment> {
+    let limits = DrivingLimits::of(cfg);
+    let mut w = ScriptWriter::new(cfg.start_yaw_deg.to_radians());
+    w.push(
         Manoeuvre::Stop,
         cfg.initial_stop_s.max(0.0),
         0.0,
         YawPulse::None,
     );
-    while t < duration_s {
-        let v = state.0;
-        if v <= 0.0 {
-            let target = rng.random_range(v_lo..=v_hi);
-            let a = rng.random_range(0.5 * a_max..=a_max);
-            push(
-                &mut segments,
-                &mut t,
-                &mut state,
-                Manoeuvre::Accelerate,
-                2.0 * target / a,
-                a,
-                YawPulse::None,
-            );
+    while w.t_s < duration_s {
+        if w.speed_m_s() <= 0.0 {
+            drive_off(&mut w, &limits, rng);
             continue;
         }
         let pick: f64 = rng.random();
         if pick < 0.30 {
-            let duration = rng.random_range(5.0..25.0);
-            if rng.random_bool(0.5) {
-                // A curve: heading change limited so the peak lateral acceleration v r stays
-                // within half the limit.
-                let max_rate = 0.5 * lat_max / v;
-                let change: f64 = rng.random_range(-0.6..0.6);
-                let rate = (2.0 * change / duration).clamp(-max_rate, max_rate);
-                push(
-                    &mut segments,
-                    &mut t,
-                    &mut state,
-                    Manoeuvre::Curve,
-                    duration,
-                    0.0,
-                    YawPulse::Turn {
-                        peak_rate_rad_s: rate,
-                    },
-                );
-            } else {
-                push(
-                    &mut segments,
-                    &mut t,
-                    &mut state,
-                    Manoeuvre::Cruise,
-                    duration,
-                    0.0,
-                    YawPulse::None,
-                );
-            }
+            cruise_or_curve(&mut w, &limits, rng);
         } else if pick < 0.45 {
-            let target = rng.random_range(v_lo..=v_hi);
-            let dv = target - v;
-            if dv.abs() < 1.0 {
-                continue;
-            }
-            let a = if dv > 0.0 {
-                rng.random_range(0.3 * a_max..=0.7 * a_max)
-            } else {
-                -rng.random_range(0.3 * b_max..=0.6 * b_max)
-            };
-            push(
-                &mut segments,
-                &mut t,
-                &mut state,
-                Manoeuvre::SpeedChange,
-                2.0 * dv / a,
-                a,
-                YawPulse::None,
-            );
+            change_speed(&mut w, &limits, rng);
         } else if pick < 0.65 {
-            let a = rng.random_range(0.4 * b_max..=b_max);
-            push(
-                &mut segments,
-                &mut t,
-                &mut state,
-                Manoeuvre::Brake,
-                2.0 * v / a,
-                -a,
-                YawPulse::None,
-            );
-            let wait = rng.random_range(5.0..45.0);
-            push(
-                &mut segments,
-                &mut t,
-                &mut state,
-                Manoeuvre::Stop,
-                wait,
-                0.0,
-                YawPulse::None,
-            );
+            stop(&mut w, &limits, rng);
         } else if pick < 0.85 {
-            // Slow down for the intersection, then turn 90 deg left or right.
-            let turn_speed = rng.random_range(5.0..8.0f64).min(v);
-            if v - turn_speed > 0.5 {
-                let a = rng.random_range(0.3 * b_max..=0.6 * b_max);
-                push(
-                    &mut segments,
-                    &mut t,
-                    &mut state,
-                    Manoeuvre::SpeedChange,
-                    2.0 * (v - turn_speed) / a,
-                    -a,
-                    YawPulse::None,
-                );
-            }
-            let v = state.0;
-            let change = if rng.random_bool(0.5) {
-                PI / 2.0
-            } else {
-                -PI / 2.0
-            };
-            let min_duration = 2.0 * change.abs() * v / lat_max;
-            let duration = rng.random_range(4.0..8.0f64).max(min_duration);
-            push(
-                &mut segments,
-                &mut t,
-                &mut state,
-                Manoeuvre::Turn,
-                duration,
-                0.0,
-                YawPulse::Turn {
-                    peak_rate_rad_s: 2.0 * change / duration,
-                },
-            );
+            turn_at_intersection(&mut w, &limits, rng);
         } else {
-            // Lane change by 3.5 m: lateral offset ~ 3 v r T^2 / (16 pi); the yaw-rate shape
-            // peaks at 0.65 r.
-            let duration = rng.random_range(3.0..6.0f64);
-            let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-            let rate = (16.0 * PI * 3.5 / (3.0 * v * duration * duration))
-                .min(lat_max / (0.65 * v))
-                * side;
-            push(
-                &mut segments,
-                &mut t,
-                &mut state,
-                Manoeuvre::LaneChange,
-                duration,
-                0.0,
-                YawPulse::LaneChange {
-                    peak_rate_rad_s: rate,
-                },
-            );
+            change_lane(&mut w, &limits, rng);
         }
     }
     // Hold the final speed and heading indefinitely, so the truth exists past the end.
-    let last = if state.0 > 0.0 {
+    let last = if w.speed_m_s() > 0.0 {
         Manoeuvre::Cruise
     } else {
         Manoeuvre::Stop
     };
-    push(
-        &mut segments,
-        &mut t,
-        &mut state,
-        last,
-        f64::INFINITY,
+    w.push(last, f64::INFINITY, 0.0, YawPulse::None);
+    w.segments
+}
+
+/// From rest, accelerate to a cruise speed.
+fn drive_off(w: &mut ScriptWriter, limits: &DrivingLimits, rng: &mut ChaCha8Rng) {
+    let target = limits.cruise_speed_m_s(rng);
+    let a = rng.random_range(0.5 * limits.accel_m_s2..=limits.accel_m_s2);
+    w.push(Manoeuvre::Accelerate, 2.0 * target / a, a, YawPulse::None);
+}
+
+/// Keep the speed for 5 to 25 s, on a straight or through a curve.
+fn cruise_or_curve(w: &mut ScriptWriter, limits: &DrivingLimits, rng: &mut ChaCha8Rng) {
+    let v = w.speed_m_s();
+    let duration = rng.random_range(5.0..25.0);
+    if rng.random_bool(0.5) {
+        // A curve: heading change limited so the peak lateral acceleration v r stays within
+        // half the limit.
+        let max_rate = 0.5 * limits.lateral_m_s2 / v;
+        let change: f64 = rng.random_range(-0.6..0.6);
+        let rate = (2.0 * change / duration).clamp(-max_rate, max_rate);
+        w.push(
+            Manoeuvre::Curve,
+            duration,
+            0.0,
+            YawPulse::Turn {
+                peak_rate_rad_s: rate,
+            },
+        );
+    } else {
+        w.push(Manoeuvre::Cruise, duration, 0.0, YawPulse::None);
+    }
+}
+
+/// Speed up or slow down to a new cruise speed (nothing when it is within 1 m/s).
+fn change_speed(w: &mut ScriptWriter, limits: &DrivingLimits, rng: &mut ChaCha8Rng) {
+    let target = limits.cruise_speed_m_s(rng);
+    let dv = target - w.speed_m_s();
+    if dv.abs() < 1.0 {
+        return;
+    }
+    let a = if dv > 0.0 {
+        rng.random_range(0.3 * limits.accel_m_s2..=0.7 * limits.accel_m_s2)
+    } else {
+        -rng.random_range(0.3 * limits.brake_m_s2..=0.6 * limits.brake_m_s2)
+    };
+    w.push(Manoeuvre::SpeedChange, 2.0 * dv / a, a, YawPulse::None);
+}
+
+/// Brake to rest and wait 5 to 45 s (a red light).
+fn stop(w: &mut ScriptWriter, limits: &DrivingLimits, rng: &mut ChaCha8Rng) {
+    let v = w.speed_m_s();
+    let a = rng.random_range(0.4 * limits.brake_m_s2..=limits.brake_m_s2);
+    w.push(Manoeuvre::Brake, 2.0 * v / a, -a, YawPulse::None);
+    let wait = rng.random_range(5.0..45.0);
+    w.push(Manoeuvre::Stop, wait, 0.0, YawPulse::None);
+}
+
+/// Slow down for the intersection, then turn 90 deg left or right.
+fn turn_at_intersection(w: &mut ScriptWriter, limits: &DrivingLimits, rng: &mut ChaCha8Rng) {
+    let v = w.speed_m_s();
+    let turn_speed = rng.random_range(5.0..8.0f64).min(v);
+    if v - turn_speed > 0.5 {
+        let a = rng.random_range(0.3 * limits.brake_m_s2..=0.6 * limits.brake_m_s2);
+        w.push(
+            Manoeuvre::SpeedChange,
+            2.0 * (v - turn_speed) / a,
+            -a,
+            YawPulse::None,
+        );
+    }
+    let v = w.speed_m_s();
+    let change = if rng.random_bool(0.5) {
+        PI / 2.0
+    } else {
+        -PI / 2.0
+    };
+    let min_duration = 2.0 * change.abs() * v / limits.lateral_m_s2;
+    let duration = rng.random_range(4.0..8.0f64).max(min_duration);
+    w.push(
+        Manoeuvre::Turn,
+        duration,
         0.0,
-        YawPulse::None,
+        YawPulse::Turn {
+            peak_rate_rad_s: 2.0 * change / duration,
+        },
     );
-    segments
+}
+
+/// Change lane by 3.5 m: lateral offset ~ 3 v r T^2 / (16 pi); the yaw-rate shape peaks at
+/// 0.65 r.
+fn change_lane(w: &mut ScriptWriter, limits: &DrivingLimits, rng: &mut ChaCha8Rng) {
+    let v = w.speed_m_s();
+    let duration = rng.random_range(3.0..6.0f64);
+    let side = if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+    let rate = (16.0 * PI * 3.5 / (3.0 * v * duration * duration))
+        .min(limits.lateral_m_s2 / (0.65 * v))
+        * side;
+    w.push(
+        Manoeuvre::LaneChange,
+        duration,
+        0.0,
+        YawPulse::LaneChange {
+            peak_rate_rad_s: rate,
+        },
+    );
 }
 
 #[cfg(test)]

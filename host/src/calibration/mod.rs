@@ -1,0 +1,291 @@
+//! The calibration of a sensor against a reference (paper Section II) and the error signals
+//! it yields: put the two recordings on one time base, estimate the inter-IMU boresight,
+//! lever arm, biases and residual time offset, bring the sensor into the reference body frame
+//! (eq. 9) and subtract.
+//!
+//! Layout: [`epochs`] puts sensor and reference on the epoch grid (running integrals,
+//! interpolation, a navigation solution turned into rates and specific force);
+//! [`least_squares`] is the linearised weighted least squares and its iteration;
+//! [`design`] keeps the fitted linear model for the diagnosis ([`CalibrationDesign`]);
+//! [`signals`] turns the fit into the error signals, their dynamics and the summary.
+//!
+//! Time base. Each recording is turned into running integrals of its angular rate and
+//! specific force (trapezoidal for rate samples), so interval means over any common epoch
+//! grid are exact integrals of what each sensor measured, whatever their sample rates. The
+//! epochs are the sample intervals of the slower recording. A time offset is applied by
+//! evaluating the sensor's integrals at shifted boundaries.
+//!
+//! Reference kinds. A reference IMU (rate and specific-force columns, plus attitude for the
+//! gravity term of the linear acceleration), or only a navigation solution (attitude, NED
+//! velocity and position, such as the 10 Hz PSINS FOG INS output): then the reference body
+//! rate over an epoch is the rotation between consecutive attitudes plus the Earth and
+//! transport rates, and the specific force is the velocity change corrected for Coriolis and
+//! gravity, compared at the reference's rate over matching intervals.
+//!
+//! Estimation. A batch weighted least-squares fit over all epochs of the linearised eqs.
+//! 10-11 plus biases and the time-offset term (-dt times the derivative), iterated on the time
+//! offset; 1-sigma values come from a Newey-West sandwich over epoch scores, because the
+//! residuals are autocorrelated sensor noise. The boresight psi is the small rotation
+//! C_b^s = exp(-[psi x]) from the reference body frame b to the sensor frame s; the lever arm
+//! r is the sensor's position relative to the reference, in b, metres; the time offset is
+//! positive when the sensor lags the reference. The error signals keep the sensor biases:
+//! they are part of the error the stochastic model has to describe.
+
+use serde::{Deserialize, Serialize};
+
+mod design;
+mod epochs;
+mod least_squares;
+mod signals;
+
+pub use design::CalibrationDesign;
+
+use crate::error_signal::ErrorSignals;
+use crate::interchange::ImuRecording;
+use epochs::EpochSource;
+
+/// Errors building error signals.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ErrorsError {
+    /// The sensor recording has neither gyro nor accelerometer columns.
+    #[error("sensor recording has no gyro (gx_rad_s ...) or accelerometer (ax_m_s2 ...) columns")]
+    SensorHasNoChannels,
+    /// The reference lacks what is needed.
+    #[error("reference recording needs {0}")]
+    ReferenceIncomplete(&'static str),
+    /// The recordings do not overlap in time long enough.
+    #[error("the recordings overlap for {overlap_s:.3} s, too short (need at least {needed_s} s)")]
+    NoOverlap { overlap_s: f64, needed_s: f64 },
+    /// The calibration is not observable from these data.
+    #[error("calibration not observable from these data: {0}")]
+    Unobservable(String),
+}
+
+/// A vector estimate with its 1-sigma uncertainty per component.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Estimate3 {
+    pub value: [f64; 3],
+    pub sigma: [f64; 3],
+}
+
+/// A scalar estimate with its 1-sigma uncertainty.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Estimate1 {
+    pub value: f64,
+    pub sigma: f64,
+}
+
+/// What was estimated while building the error signals (the `--json` summary).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CalibrationSummary {
+    /// Boresight psi_b->s (small rotation from reference body to sensor frame), rad.
+    pub boresight_rad: Estimate3,
+    /// Lever arm r_b->s of the sensor w.r.t. the reference, reference body frame, m.
+    /// `None` when the sensor has no accelerometers or the lever arm was not estimated.
+    pub lever_arm_m: Option<Estimate3>,
+    /// Time offset of the sensor w.r.t. the reference, s (positive: the sensor lags).
+    pub time_offset_s: Option<Estimate1>,
+    /// Gyro bias in the sensor frame, rad/s.
+    pub gyro_bias_rad_s: Option<Estimate3>,
+    /// Accelerometer bias in the sensor frame, m/s^2.
+    pub accel_bias_m_s2: Option<Estimate3>,
+    /// `imu` or `navigation_solution`.
+    pub reference_kind: String,
+    /// Number of epochs and their median length, s.
+    pub epochs: usize,
+    pub epoch_dt_s: f64,
+    /// Standard deviation of each error channel after calibration (gx .. az; absent = null).
+    pub error_std: [Option<f64>; 6],
+    /// Newey-West lag (epochs) used for the uncertainties.
+    pub hac_lag: usize,
+    /// How the estimates were obtained.
+    pub method: String,
+    /// Anything the user should know (e.g. terms left out as unobservable).
+    pub notes: Vec<String>,
+}
+
+/// Options for [`build_error_signals`].
+#[derive(Debug, Clone, Copy)]
+pub struct ErrorOptions {
+    /// Estimate the lever arm (needs rotational dynamics; otherwise it is fixed to zero).
+    pub estimate_lever_arm: bool,
+    /// Estimate the time offset.
+    pub estimate_time_offset: bool,
+    /// Largest time offset searched, s: also the margin trimmed off the overlap.
+    pub max_time_offset_s: f64,
+}
+
+impl Default for ErrorOptions {
+    fn default() -> Self {
+        Self {
+            estimate_lever_arm: true,
+            estimate_time_offset: true,
+            max_time_offset_s: 0.2,
+        }
+    }
+}
+
+/// Builds the error signals of `sensor` against `reference` and reports the calibration.
+pub fn build_error_signals(
+    sensor: &ImuRecording,
+    reference: &ImuRecording,
+    opts: &ErrorOptions,
+) -> Result<(ErrorSignals, CalibrationSummary), ErrorsError> {
+    build_error_signals_with_design(sensor, reference, opts).map(|(s, c, _)| (s, c))
+}
+
+/// [`build_error_signals`], also returning the calibration's linear model at its solution.
+pub fn build_error_signals_with_design(
+    sensor: &ImuRecording,
+    reference: &ImuRecording,
+    opts: &ErrorOptions,
+) -> Result<(ErrorSignals, CalibrationSummary, CalibrationDesign), ErrorsError> {
+    if sensor.gyro_rad_s.is_none() && sensor.accel_m_s2.is_none() {
+        return Err(ErrorsError::SensorHasNoChannels);
+    }
+    let source = EpochSource::new(sensor, reference, opts)?;
+    let fit = least_squares::fit(&source, opts)?;
+    // Final errors at the estimated boresight and time offset.
+    let data = source.at(fit.shift_s)?.rotated(&fit.r_sb);
+    let design = CalibrationDesign::new(&fit.layout, fit.weights, &data);
+    let errors = signals::error_columns(&data, fit.lever_arm_b_m());
+    let dynamics = signals::dynamics_columns(&source.t_s, &data);
+    let summary = signals::summary(fit, &source, &errors);
+    let signals = ErrorSignals {
+        specific_force_b_m_s2: Some(std::array::from_fn(|i| {
+            data.reference.f_b_m_s2.iter().map(|v| v[i]).collect()
+        })),
+        t_s: source.t_s,
+        errors,
+        dynamics,
+    };
+    Ok((signals, summary, design))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::least_squares::skew;
+    use super::signals::std_dev;
+    use super::*;
+    use nalgebra::{Rotation3, Vector3};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::StandardNormal;
+
+    /// Smooth, rich body motion: angular rate (rad/s) and its derivative, and specific force
+    /// (m/s^2), as sums of sinusoids.
+    fn motion(t: f64) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
+        let tone = |a: f64, f: f64, p: f64| {
+            let w = 2.0 * std::f64::consts::PI * f;
+            (a * (w * t + p).sin(), a * w * (w * t + p).cos())
+        };
+        let comps = [
+            [tone(0.3, 0.11, 0.0), tone(0.1, 0.7, 1.0)],
+            [tone(0.25, 0.13, 2.0), tone(0.08, 0.9, 0.5)],
+            [tone(0.5, 0.05, 1.0), tone(0.2, 0.6, 3.0)],
+        ];
+        let omega = Vector3::from_fn(|i, _| comps[i][0].0 + comps[i][1].0);
+        let omega_dot = Vector3::from_fn(|i, _| comps[i][0].1 + comps[i][1].1);
+        let f = Vector3::new(
+            2.0 * (0.2 * t).sin(),
+            1.5 * (0.17 * t + 1.0).sin(),
+            -9.81 + 0.5 * (0.8 * t).sin(),
+        );
+        (omega, omega_dot, f)
+    }
+
+    #[test]
+    fn recovers_boresight_lever_arm_biases_and_time_offset() {
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let psi_true = Vector3::new(0.02, -0.01, 0.03);
+        let r_true = Vector3::new(0.4, -0.25, 0.15);
+        let bg = Vector3::new(1e-3, -2e-3, 5e-4);
+        let ba = Vector3::new(0.05, -0.03, 0.08);
+        let dt_true = 0.012;
+        let c_bs = Rotation3::new(-psi_true);
+        let dt = 0.01;
+        let n = 30_000;
+        let t_s: Vec<f64> = (0..n).map(|i| i as f64 * dt).collect();
+        let mut reference = ImuRecording {
+            t_s: t_s.clone(),
+            ..Default::default()
+        };
+        let mut sensor = ImuRecording {
+            t_s: t_s.clone(),
+            ..Default::default()
+        };
+        let (mut rg, mut ra, mut sg, mut sa): (
+            [Vec<f64>; 3],
+            [Vec<f64>; 3],
+            [Vec<f64>; 3],
+            [Vec<f64>; 3],
+        ) = Default::default();
+        for &t in &t_s {
+            let (w, _, f) = motion(t);
+            // The sensor lags: its sample at t shows the truth at t - dt_true.
+            let (ws, wds, fs0) = motion(t - dt_true);
+            let ws_b = ws;
+            let fs_b = fs0 + skew(&wds) * r_true + skew(&ws_b) * skew(&ws_b) * r_true;
+            let gyro = c_bs * ws_b
+                + bg
+                + Vector3::from_fn(|_, _| 2e-3 * rng.sample::<f64, _>(StandardNormal));
+            let acc = c_bs * fs_b
+                + ba
+                + Vector3::from_fn(|_, _| 2e-2 * rng.sample::<f64, _>(StandardNormal));
+            for i in 0..3 {
+                rg[i].push(w[i]);
+                ra[i].push(f[i]);
+                sg[i].push(gyro[i]);
+                sa[i].push(acc[i]);
+            }
+        }
+        reference.gyro_rad_s = Some(rg);
+        reference.accel_m_s2 = Some(ra);
+        reference.attitude_rad = Some([vec![0.0; n], vec![0.0; n], vec![0.0; n]]);
+        sensor.gyro_rad_s = Some(sg);
+        sensor.accel_m_s2 = Some(sa);
+        let (sig, s) = build_error_signals(&sensor, &reference, &ErrorOptions::default()).unwrap();
+        let within = |est: f64, sigma: f64, truth: f64, what: &str| {
+            assert!(
+                sigma > 0.0 && (est - truth).abs() < 4.0 * sigma,
+                "{what}: {est} +- {sigma} vs {truth}"
+            );
+        };
+        for i in 0..3 {
+            within(
+                s.boresight_rad.value[i],
+                s.boresight_rad.sigma[i],
+                psi_true[i],
+                "psi",
+            );
+            let l = s.lever_arm_m.unwrap();
+            within(l.value[i], l.sigma[i], r_true[i], "lever");
+            assert!(
+                (l.value[i] - r_true[i]).abs() < 0.02,
+                "lever arm within 2 cm"
+            );
+            within(
+                s.gyro_bias_rad_s.unwrap().value[i],
+                s.gyro_bias_rad_s.unwrap().sigma[i],
+                bg[i],
+                "bg",
+            );
+            within(
+                s.accel_bias_m_s2.unwrap().value[i],
+                s.accel_bias_m_s2.unwrap().sigma[i],
+                ba[i],
+                "ba",
+            );
+        }
+        let to = s.time_offset_s.unwrap();
+        within(to.value, to.sigma, dt_true, "time offset");
+        assert!((to.value - dt_true).abs() < 1e-3);
+        // After calibration the gyro error is bias plus white noise: its mean is the bias in
+        // the reference frame and its spread the noise averaged over the epoch.
+        let gx = sig.error("gx").unwrap();
+        let mean = gx.iter().sum::<f64>() / gx.len() as f64;
+        assert!((mean - bg[0]).abs() < 2e-4, "{mean}");
+        assert!(std_dev(gx) < 3e-3, "{}", std_dev(gx));
+    }
+}

@@ -1,0 +1,155 @@
+//! What the calibration yields: the error signals (sensor minus reference, in the reference
+//! body frame, lever-arm term removed), the dynamics of paper Section III beside them, and
+//! the summary of the estimates.
+
+use nalgebra::{Rotation3, Vector3};
+
+use super::epochs::{EpochData, EpochSource};
+use super::least_squares::{skew, triplet_estimate, Fit};
+use super::{CalibrationSummary, Estimate1, Estimate3};
+use crate::model::Channel;
+
+/// The error of each channel over the epochs (gx .. az; `None` for a sensor type the sensor
+/// lacks): the rotated sensor minus the reference, the accelerometers also minus the lever-arm
+/// term of `lever_arm_b_m`.
+pub(super) fn error_columns(
+    data: &EpochData,
+    lever_arm_b_m: Option<Vector3<f64>>,
+) -> [Option<Vec<f64>>; 6] {
+    let reference = &data.reference;
+    let n = data.len();
+    let mut errors: [Option<Vec<f64>>; 6] = Default::default();
+    if let Some(o) = &data.gyro_rad_s {
+        for ch in Channel::GYROS {
+            errors[ch.index()] = Some(
+                (0..n)
+                    .map(|k| (o[k] - reference.omega_ib_b_rad_s[k])[ch.axis()])
+                    .collect(),
+            );
+        }
+    }
+    if let Some(fs) = &data.accel_m_s2 {
+        for ch in Channel::ACCELEROMETERS {
+            errors[ch.index()] = Some(
+                (0..n)
+                    .map(|k| {
+                        let w = &reference.omega_ib_b_rad_s[k];
+                        let ww = skew(w);
+                        let lever_term = lever_arm_b_m.map_or(Vector3::zeros(), |r| {
+                            (skew(&data.omega_dot_b_rad_s2[k]) + ww * ww) * r
+                        });
+                        (fs[k] - (reference.f_b_m_s2[k] + lever_term))[ch.axis()]
+                    })
+                    .collect(),
+            );
+        }
+    }
+    errors
+}
+
+/// The dynamics of Section III at the epochs `t_s`, in
+/// [`crate::regress::DYNAMICS_REGRESSORS`] order: angular rate, acceleration and jerk, linear
+/// acceleration (specific force plus gravity) and jerk, body frame.
+pub(super) fn dynamics_columns(t_s: &[f64], data: &EpochData) -> [Vec<f64>; 15] {
+    let reference = &data.reference;
+    let omega_dot = &data.omega_dot_b_rad_s2;
+    let omega_ddot = crate::numeric::central_difference_3(t_s, omega_dot);
+    let a_b: Vec<Vector3<f64>> = (0..data.len())
+        .map(|k| {
+            reference.f_b_m_s2[k] + reference.q_nb_mid[k].inverse() * reference.g_ned_mid_m_s2[k]
+        })
+        .collect();
+    let a_dot = crate::numeric::central_difference_3(t_s, &a_b);
+    let series = [
+        &reference.omega_ib_b_rad_s,
+        omega_dot,
+        &omega_ddot,
+        &a_b,
+        &a_dot,
+    ];
+    std::array::from_fn(|q| series[q / 3].iter().map(|v| v[q % 3]).collect())
+}
+
+/// A bias estimated in the (rotated) body frame, expressed back in the sensor frame. The
+/// rotation is small, so the per-axis sigmas carry over.
+fn to_sensor_frame(e: Estimate3, r_sb: &Rotation3<f64>) -> Estimate3 {
+    let v = r_sb.inverse() * Vector3::from(e.value);
+    Estimate3 {
+        value: v.into(),
+        sigma: e.sigma,
+    }
+}
+
+/// Sample standard deviation.
+pub(super) fn std_dev(x: &[f64]) -> f64 {
+    let n = x.len() as f64;
+    let m = x.iter().sum::<f64>() / n;
+    (x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+}
+
+/// Median spacing of the epochs, s.
+fn median_step_s(t_s: &[f64]) -> f64 {
+    let mut dt: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+    let mid = dt.len() / 2;
+    *dt.select_nth_unstable_by(mid, f64::total_cmp).1
+}
+
+/// The summary of `fit` over the epochs of `source`, with the spread of the `errors`.
+pub(super) fn summary(
+    fit: Fit,
+    source: &EpochSource<'_>,
+    errors: &[Option<Vec<f64>>; 6],
+) -> CalibrationSummary {
+    let Fit {
+        layout,
+        r_sb,
+        shift_s,
+        solution: sol,
+        common_time,
+        mut notes,
+        ..
+    } = fit;
+    if let Some(c) = common_time.as_ref().filter(|c| !c.inconsistent.is_empty()) {
+        notes.push(format!(
+            "time offset: {} not consistent with the offset common to the other channels \
+             (a channel-specific derivative term, left in the error signal)",
+            c.inconsistent
+                .iter()
+                .map(|(ch, tau)| format!("{} ({:+.5} s)", ch.name(), shift_s + tau))
+                .collect::<Vec<_>>()
+                .join(", ")
+        ));
+    }
+    CalibrationSummary {
+        boresight_rad: Estimate3 {
+            value: r_sb.scaled_axis().into(),
+            sigma: triplet_estimate(&sol, 0).sigma,
+        },
+        lever_arm_m: layout.lever().map(|l| triplet_estimate(&sol, l)),
+        time_offset_s: common_time.as_ref().map(|c| Estimate1 {
+            value: shift_s,
+            sigma: c.sigma,
+        }),
+        gyro_bias_rad_s: layout
+            .bg()
+            .map(|b| to_sensor_frame(triplet_estimate(&sol, b), &r_sb)),
+        accel_bias_m_s2: layout
+            .ba()
+            .map(|b| to_sensor_frame(triplet_estimate(&sol, b), &r_sb)),
+        reference_kind: if source.reference_is_imu() {
+            "imu"
+        } else {
+            "navigation_solution"
+        }
+        .into(),
+        epochs: source.t_s.len(),
+        epoch_dt_s: median_step_s(&source.t_s),
+        error_std: std::array::from_fn(|i| errors[i].as_ref().map(|e| std_dev(e))),
+        hac_lag: sol.lag,
+        method: "batch weighted least squares of the linearised eqs. 10-11 with biases and a \
+                 time-offset term, iterated on the time offset; 1-sigma from a Newey-West \
+                 sandwich over epoch scores"
+            .into(),
+        notes,
+    }
+}
