@@ -345,7 +345,7 @@ pub fn wv_unit(channel: &str) -> &'static str {
 
 /// Log-log plot of a channel's measured wavelet variance and the simulated bands. `None` when
 /// the curves hold no positive value to draw. The log axes carry explicit decade ticks
-/// ([`Decades`]).
+/// (`Decades` in `crate::figures::plot`).
 pub fn wv_svg(
     channel: &str,
     curves: &WvCurves,

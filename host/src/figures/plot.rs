@@ -1,8 +1,8 @@
 //! SVG plots with `plotters` (SVG backend only). The scaffolding every plot of the crate
-//! shares lives here once: the document ([`render_svg`]), a chart's frame ([`chart`]), its
-//! grid ([`grey_grid`]), log axes over whole decades ([`Decades`]), category axes
-//! ([`CategoryAxis`]) and the legend panel beside a chart ([`titled_with_legend`],
-//! [`draw_legend`]). The diagnosis report's plots use it, and so does Fig. 1 ([`fig1_svg`]):
+//! shares lives here once: the document (`render_svg`), a chart's frame (`chart`), its
+//! grid (`grey_grid`), log axes over whole decades (`Decades`), category axes
+//! (`CategoryAxis`) and the legend panel beside a chart (`titled_with_legend`,
+//! `draw_legend`). The diagnosis report's plots use it, and so does Fig. 1 ([`fig1_svg`]):
 //! one row per extra IMU, lever arm on the left and boresight on the right as in the paper,
 //! each axis's estimate with its ±3σ envelope against time and the truth as a dashed line.
 
