@@ -3,17 +3,17 @@
 //! lever arm, biases and residual time offset, bring the sensor into the reference body frame
 //! (eq. 9) and subtract.
 //!
-//! Layout: [`epochs`] puts sensor and reference on the epoch grid (running integrals,
+//! Layout: `epochs` puts sensor and reference on the epoch grid (running integrals,
 //! interpolation, a navigation solution turned into rates and specific force);
-//! [`least_squares`] is the linearised weighted least squares and its iteration;
-//! [`design`] keeps the fitted linear model for the diagnosis ([`CalibrationDesign`]);
-//! [`signals`] turns the fit into the error signals, their dynamics and the summary.
+//! `least_squares` is the linearised weighted least squares and its iteration;
+//! `design` keeps the fitted linear model for the diagnosis ([`CalibrationDesign`]);
+//! `signals` turns the fit into the error signals, their dynamics and the summary.
 //!
-//! Time base. Each recording is turned into running integrals of its angular rate and
-//! specific force (trapezoidal for rate samples), so interval means over any common epoch
-//! grid are exact integrals of what each sensor measured, whatever their sample rates. The
-//! epochs are the sample intervals of the slower recording. A time offset is applied by
-//! evaluating the sensor's integrals at shifted boundaries.
+//! Time base (`epochs`). Against a reference IMU the epochs are the sensor's own samples,
+//! with the reference interpolated to them (cubic); against a navigation solution they are
+//! the solution's sample intervals, over which the sensor's running integrals (trapezoidal)
+//! give exact means whatever the sample rates. A time offset is applied by reading the
+//! reference, or the sensor's integrals, at shifted times.
 //!
 //! Reference kinds. A reference IMU (rate and specific-force columns, plus attitude for the
 //! gravity term of the linear acceleration), or only a navigation solution (attitude, NED

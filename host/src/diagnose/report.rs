@@ -17,6 +17,10 @@ use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use super::engine::{DiagnoseReport, Finding, Gain, WvCurves, DETERMINISTIC_CAUSES};
+use crate::figures::plot::{
+    chart, decade_label, draw_err, draw_legend, grey_grid, render_svg, titled_with_legend, usable,
+    CategoryAxis, Decades, DrawError, Frame, Glyph, FONT, LEGEND_WIDTH_PX,
+};
 use crate::output::AtomicFile;
 
 /// Why the report could not be produced.
@@ -71,8 +75,6 @@ pub const GAIN_COLOURS: [RGBColor; 4] = [
 /// Findings bars: deterministic terms and stochastic effects.
 pub const DETERMINISTIC_COLOUR: RGBColor = RGBColor(30, 100, 200);
 pub const STOCHASTIC_COLOUR: RGBColor = RGBColor(220, 120, 20);
-
-const FONT: &str = "sans-serif";
 
 /// Renders every file of the report: the plots, `extended-model.json` and, last, `report.md`
 /// (written last so that a report whose index exists is complete).
@@ -301,8 +303,10 @@ impl std::fmt::Display for PlotError {
     }
 }
 
-fn plot_err<E: std::fmt::Display>(e: E) -> PlotError {
-    PlotError(e.to_string())
+impl From<DrawError> for PlotError {
+    fn from(e: DrawError) -> Self {
+        PlotError(e.message().to_string())
+    }
 }
 
 /// The distinct causes named on `channel`, in the order of the findings.
@@ -339,52 +343,9 @@ pub fn wv_unit(channel: &str) -> &'static str {
     }
 }
 
-fn usable(v: f64) -> bool {
-    v.is_finite() && v > 0.0
-}
-
-/// Whole decades `[10^lo, 10^hi]` around the positive values `v`, at least one decade wide,
-/// and the exponents of the decades.
-fn decade_range(values: impl IntoIterator<Item = f64>) -> Option<(f64, f64, Vec<i32>)> {
-    let (mut min, mut max) = (f64::INFINITY, f64::NEG_INFINITY);
-    for v in values.into_iter().filter(|v| usable(*v)) {
-        min = min.min(v);
-        max = max.max(v);
-    }
-    if !min.is_finite() {
-        return None;
-    }
-    // A little room so a value on a decade is not drawn on the frame.
-    let lo = (min.log10() - 0.05).floor() as i32;
-    let hi = ((max.log10() + 0.05).ceil() as i32).max(lo + 1);
-    Some((10f64.powi(lo), 10f64.powi(hi), (lo..=hi).collect()))
-}
-
-/// Log-scale tick values: bold ones on the decades, light ones at 2..9 times each decade.
-fn log_ticks(exponents: &[i32]) -> (Vec<f64>, Vec<f64>) {
-    let bold: Vec<f64> = exponents.iter().map(|&e| 10f64.powi(e)).collect();
-    let light = exponents
-        .iter()
-        .take(exponents.len().saturating_sub(1))
-        .flat_map(|&e| (2..10).map(move |m| f64::from(m) * 10f64.powi(e)))
-        .collect();
-    (bold, light)
-}
-
-/// A decade's tick label: plain between 0.01 and 1000, `1e<k>` beyond.
-fn decade_label(v: f64) -> String {
-    let e = v.log10().round() as i32;
-    if (-2..=3).contains(&e) {
-        format!("{}", 10f64.powi(e))
-    } else {
-        format!("1e{e}")
-    }
-}
-
 /// Log-log plot of a channel's measured wavelet variance and the simulated bands. `None` when
-/// the curves hold no positive value to draw. The log axes carry explicit decade ticks:
-/// plotters' own log key points drop every value below f64::EPSILON, which would leave the
-/// wavelet variance of a good gyro ((rad/s)^2, often under 1e-16) without tick labels.
+/// the curves hold no positive value to draw. The log axes carry explicit decade ticks
+/// (`Decades` in `crate::figures::plot`).
 pub fn wv_svg(
     channel: &str,
     curves: &WvCurves,
@@ -421,13 +382,10 @@ pub fn wv_svg(
         .map(|p| p.1)
         .chain(baseline.iter().flat_map(|b| [b.1, b.2]))
         .chain(extended.iter().flat_map(|b| [b.1, b.2]));
-    let (Some((x_lo, x_hi, x_dec)), Some((y_lo, y_hi, y_dec))) =
-        (decade_range(x_values), decade_range(y_values))
+    let (Some(x_decades), Some(y_decades)) = (Decades::around(x_values), Decades::around(y_values))
     else {
         return Ok(None);
     };
-    let (x_bold, x_light) = log_ticks(&x_dec);
-    let (y_bold, y_light) = log_ticks(&y_dec);
     let unit = wv_unit(channel);
     let title = if causes.is_empty() {
         format!("{channel}: wavelet variance of the error \u{2014} no named cause")
@@ -438,39 +396,23 @@ pub fn wv_svg(
         )
     };
     let label = |v: &f64| decade_label(*v);
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (1000, 600)).into_drawing_area();
-        root.fill(&WHITE).map_err(plot_err)?;
-        let body = root.titled(&title, (FONT, 20)).map_err(plot_err)?;
-        let (plot_area, legend_area) = body.split_horizontally(1000 - LEGEND_WIDTH_PX);
+    const WIDTH: u32 = 1000;
+    render_svg((WIDTH, 600), |root| {
+        let (plot_area, legend_area) = titled_with_legend(root, &title, WIDTH)?;
         let mut legend = Vec::new();
-        let mut chart = ChartBuilder::on(&plot_area)
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(70)
-            .build_cartesian_2d(
-                (x_lo..x_hi)
-                    .log_scale()
-                    .with_key_points(x_bold)
-                    .with_light_points(x_light),
-                (y_lo..y_hi)
-                    .log_scale()
-                    .with_key_points(y_bold)
-                    .with_light_points(y_light),
-            )
-            .map_err(plot_err)?;
-        chart
-            .configure_mesh()
+        let frame = Frame {
+            margin: 12,
+            x_labels: 45,
+            y_labels: 70,
+        };
+        let mut chart = chart(&plot_area, None, frame, x_decades.axis(), y_decades.axis())?;
+        grey_grid(&mut chart.configure_mesh(), 235, 200)
             .x_desc("scale \u{03c4} [s]")
             .y_desc(format!("wavelet variance [{unit}]"))
             .x_label_formatter(&label)
             .y_label_formatter(&label)
-            .light_line_style(RGBColor(235, 235, 235))
-            .bold_line_style(RGBColor(200, 200, 200))
-            .axis_desc_style((FONT, 16))
             .draw()
-            .map_err(plot_err)?;
+            .map_err(draw_err)?;
         for (points, colour, name) in [
             (&baseline, BASELINE_COLOUR, "baseline model"),
             (&extended, EXTENDED_COLOUR, "extended model"),
@@ -485,7 +427,7 @@ pub fn wv_svg(
                 .collect();
             chart
                 .draw_series(std::iter::once(Polygon::new(outline, colour.mix(0.22))))
-                .map_err(plot_err)?;
+                .map_err(draw_err)?;
             legend.push((Glyph::Band(colour), format!("{name}, 95% band")));
             for bound in [
                 points.iter().map(|b| (b.0, b.1)).collect::<Vec<_>>(),
@@ -493,7 +435,7 @@ pub fn wv_svg(
             ] {
                 chart
                     .draw_series(LineSeries::new(bound, colour.mix(0.8).stroke_width(1)))
-                    .map_err(plot_err)?;
+                    .map_err(draw_err)?;
             }
         }
         if !measured.is_empty() {
@@ -502,7 +444,7 @@ pub fn wv_svg(
                     measured.iter().copied(),
                     MEASURED_COLOUR.stroke_width(2),
                 ))
-                .map_err(plot_err)?;
+                .map_err(draw_err)?;
             legend.push((
                 Glyph::LineWithMarker(MEASURED_COLOUR),
                 "measured error".into(),
@@ -513,89 +455,12 @@ pub fn wv_svg(
                         .iter()
                         .map(|&p| Circle::new(p, 3, MEASURED_COLOUR.filled())),
                 )
-                .map_err(plot_err)?;
+                .map_err(draw_err)?;
         }
         draw_legend(&legend_area, &legend)?;
-        root.present().map_err(plot_err)?;
-    }
-    Ok(Some(svg))
-}
-
-/// Width of the legend panel to the right of every plot, pixels (a legend inside the plot
-/// would hide data wherever it is put).
-const LEGEND_WIDTH_PX: u32 = 250;
-
-/// How a legend entry is drawn.
-#[derive(Debug, Clone, Copy)]
-enum Glyph {
-    /// A shaded band with its bounds.
-    Band(RGBColor),
-    /// A filled bar.
-    Bar(RGBColor),
-    /// A line with point markers.
-    LineWithMarker(RGBColor),
-    /// A dashed line.
-    Dashed(RGBColor),
-}
-
-/// Draws the legend entries top-down into their own panel.
-fn draw_legend<DB: DrawingBackend>(
-    area: &DrawingArea<DB, plotters::coord::Shift>,
-    entries: &[(Glyph, String)],
-) -> Result<(), PlotError> {
-    const TOP: i32 = 50;
-    const ROW: i32 = 26;
-    const X: i32 = 10;
-    for (k, (glyph, text)) in entries.iter().enumerate() {
-        let y = TOP + ROW * k as i32;
-        match *glyph {
-            Glyph::Band(c) => {
-                area.draw(&Rectangle::new(
-                    [(X, y - 7), (X + 26, y + 7)],
-                    c.mix(0.3).filled(),
-                ))
-                .map_err(plot_err)?;
-                for edge in [y - 7, y + 7] {
-                    area.draw(&PathElement::new(
-                        vec![(X, edge), (X + 26, edge)],
-                        c.mix(0.8),
-                    ))
-                    .map_err(plot_err)?;
-                }
-            }
-            Glyph::Bar(c) => area
-                .draw(&Rectangle::new([(X, y - 7), (X + 26, y + 7)], c.filled()))
-                .map_err(plot_err)?,
-            Glyph::LineWithMarker(c) => {
-                area.draw(&PathElement::new(
-                    vec![(X, y), (X + 26, y)],
-                    c.stroke_width(2),
-                ))
-                .map_err(plot_err)?;
-                area.draw(&Circle::new((X + 13, y), 3, c.filled()))
-                    .map_err(plot_err)?;
-            }
-            Glyph::Dashed(c) => {
-                for x0 in [X, X + 10, X + 20] {
-                    area.draw(&PathElement::new(
-                        vec![(x0, y), (x0 + 6, y)],
-                        c.stroke_width(1),
-                    ))
-                    .map_err(plot_err)?;
-                }
-            }
-        }
-        area.draw(&Text::new(
-            text.clone(),
-            (X + 36, y),
-            (FONT, 15)
-                .into_font()
-                .color(&BLACK)
-                .pos(Pos::new(HPos::Left, VPos::Center)),
-        ))
-        .map_err(plot_err)?;
-    }
-    Ok(())
+        Ok(())
+    })
+    .map(Some)
 }
 
 /// One of a channel's four misfits.
@@ -616,7 +481,7 @@ pub fn gain_svg(gain: &BTreeMap<String, Gain>) -> Result<Option<String>, PlotErr
         .values()
         .flat_map(|g| series.iter().map(move |(_, f)| f(g)))
         .chain(std::iter::once(1.0));
-    let Some((y_lo, y_hi, y_dec)) = decade_range(values) else {
+    let Some(y_decades) = Decades::around(values) else {
         return Ok(None);
     };
     if !gain
@@ -625,7 +490,6 @@ pub fn gain_svg(gain: &BTreeMap<String, Gain>) -> Result<Option<String>, PlotErr
     {
         return Ok(None);
     }
-    let (y_bold, y_light) = log_ticks(&y_dec);
     let n = channels.len();
     let x_label = |v: &f64| {
         let k = v.round();
@@ -637,43 +501,31 @@ pub fn gain_svg(gain: &BTreeMap<String, Gain>) -> Result<Option<String>, PlotErr
     };
     let y_label = |v: &f64| decade_label(*v);
     let width = (260 + 110 * n as u32).max(700) + LEGEND_WIDTH_PX;
-    let mut svg = String::new();
-    {
-        let root = SVGBackend::with_string(&mut svg, (width, 560)).into_drawing_area();
-        root.fill(&WHITE).map_err(plot_err)?;
-        let body = root
-            .titled(
-                "WV misfit of the baseline and the extended model (about 1: the model fits)",
-                (FONT, 20),
-            )
-            .map_err(plot_err)?;
-        let (plot_area, legend_area) = body.split_horizontally(width - LEGEND_WIDTH_PX);
+    let title = "WV misfit of the baseline and the extended model (about 1: the model fits)";
+    render_svg((width, 560), |root| {
+        let (plot_area, legend_area) = titled_with_legend(root, title, width)?;
         let mut legend = Vec::new();
-        let mut chart = ChartBuilder::on(&plot_area)
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(70)
-            .build_cartesian_2d(
-                CategoryAxis::new(n),
-                (y_lo..y_hi)
-                    .log_scale()
-                    .with_key_points(y_bold)
-                    .with_light_points(y_light),
-            )
-            .map_err(plot_err)?;
-        chart
-            .configure_mesh()
+        let frame = Frame {
+            margin: 12,
+            x_labels: 40,
+            y_labels: 70,
+        };
+        let mut chart = chart(
+            &plot_area,
+            None,
+            frame,
+            CategoryAxis::new(n),
+            y_decades.axis(),
+        )?;
+        grey_grid(&mut chart.configure_mesh(), 235, 200)
             .disable_x_mesh()
             .x_desc("channel")
             .label_style((FONT, 14))
             .y_desc("WV misfit (mean squared z)")
             .x_label_formatter(&x_label)
             .y_label_formatter(&y_label)
-            .light_line_style(RGBColor(235, 235, 235))
-            .bold_line_style(RGBColor(200, 200, 200))
-            .axis_desc_style((FONT, 16))
             .draw()
-            .map_err(plot_err)?;
+            .map_err(draw_err)?;
         const BAR_WIDTH: f64 = 0.19;
         for (s, ((name, value), colour)) in series.iter().zip(GAIN_COLOURS).enumerate() {
             let offset = (s as f64 - 1.5) * (BAR_WIDTH + 0.01);
@@ -684,12 +536,15 @@ pub fn gain_svg(gain: &BTreeMap<String, Gain>) -> Result<Option<String>, PlotErr
                 .map(|(k, g)| {
                     let x = k as f64 + offset;
                     Rectangle::new(
-                        [(x - BAR_WIDTH / 2.0, y_lo), (x + BAR_WIDTH / 2.0, value(g))],
+                        [
+                            (x - BAR_WIDTH / 2.0, y_decades.lo),
+                            (x + BAR_WIDTH / 2.0, value(g)),
+                        ],
                         colour.filled(),
                     )
                 })
                 .collect();
-            chart.draw_series(bars).map_err(plot_err)?;
+            chart.draw_series(bars).map_err(draw_err)?;
             legend.push((Glyph::Bar(colour), (*name).to_string()));
         }
         chart
@@ -699,47 +554,12 @@ pub fn gain_svg(gain: &BTreeMap<String, Gain>) -> Result<Option<String>, PlotErr
                 5,
                 BLACK.stroke_width(1),
             ))
-            .map_err(plot_err)?;
+            .map_err(draw_err)?;
         legend.push((Glyph::Dashed(BLACK), "misfit 1: the model fits".into()));
         draw_legend(&legend_area, &legend)?;
-        root.present().map_err(plot_err)?;
-    }
-    Ok(Some(svg))
-}
-
-/// A categorical axis: categories 0..n at integer positions on -0.5..n-0.5, one tick each.
-/// (plotters' `with_key_points` on an f64 axis loses the label formatting the mesh needs,
-/// and its segmented axes cannot place several bars side by side within a category.)
-struct CategoryAxis {
-    n: usize,
-}
-
-impl CategoryAxis {
-    fn new(n: usize) -> Self {
-        Self { n }
-    }
-}
-
-impl Ranged for CategoryAxis {
-    type FormatOption = plotters::coord::ranged1d::DefaultFormatting;
-    type ValueType = f64;
-
-    fn map(&self, value: &f64, limit: (i32, i32)) -> i32 {
-        let fraction = (value + 0.5) / self.n.max(1) as f64;
-        limit.0 + (fraction * f64::from(limit.1 - limit.0)).round() as i32
-    }
-
-    fn key_points<Hint: plotters::coord::ranged1d::KeyPointHint>(&self, hint: Hint) -> Vec<f64> {
-        if hint.weight().allow_light_points() {
-            Vec::new()
-        } else {
-            (0..self.n).map(|k| k as f64).collect()
-        }
-    }
-
-    fn range(&self) -> std::ops::Range<f64> {
-        -0.5..self.n as f64 - 0.5
-    }
+        Ok(())
+    })
+    .map(Some)
 }
 
 fn has_variance_share(f: &Finding) -> bool {
@@ -772,37 +592,31 @@ pub fn findings_svg(findings: &[Finding]) -> Result<Option<String>, PlotError> {
     };
     let x_label = |v: &f64| format!("{v}");
     let height = 130 + 30 * n as u32;
-    let mut svg = String::new();
-    {
-        let width = 900 + LEGEND_WIDTH_PX;
-        let root = SVGBackend::with_string(&mut svg, (width, height)).into_drawing_area();
-        root.fill(&WHITE).map_err(plot_err)?;
-        let body = root
-            .titled(
-                "Share of each channel's error variance explained by the named causes",
-                (FONT, 20),
-            )
-            .map_err(plot_err)?;
-        let (plot_area, legend_area) = body.split_horizontally(width - LEGEND_WIDTH_PX);
+    let width = 900 + LEGEND_WIDTH_PX;
+    let title = "Share of each channel's error variance explained by the named causes";
+    render_svg((width, height), |root| {
+        let (plot_area, legend_area) = titled_with_legend(root, title, width)?;
         let mut legend = Vec::new();
-        let mut chart = ChartBuilder::on(&plot_area)
-            .margin(12)
-            .x_label_area_size(40)
-            .y_label_area_size(230)
-            .build_cartesian_2d(0.0..max_percent * 1.18, CategoryAxis::new(n))
-            .map_err(plot_err)?;
-        chart
-            .configure_mesh()
+        let frame = Frame {
+            margin: 12,
+            x_labels: 40,
+            y_labels: 230,
+        };
+        let mut chart = chart(
+            &plot_area,
+            None,
+            frame,
+            0.0..max_percent * 1.18,
+            CategoryAxis::new(n),
+        )?;
+        grey_grid(&mut chart.configure_mesh(), 240, 210)
             .disable_y_mesh()
             .x_desc("variance explained [%]")
             .x_label_formatter(&x_label)
             .y_label_formatter(&y_label)
-            .light_line_style(RGBColor(240, 240, 240))
-            .bold_line_style(RGBColor(210, 210, 210))
-            .axis_desc_style((FONT, 16))
             .label_style((FONT, 14))
             .draw()
-            .map_err(plot_err)?;
+            .map_err(draw_err)?;
         for (deterministic, colour, name) in [
             (true, DETERMINISTIC_COLOUR, "deterministic term"),
             (false, STOCHASTIC_COLOUR, "stochastic effect"),
@@ -820,7 +634,7 @@ pub fn findings_svg(findings: &[Finding]) -> Result<Option<String>, PlotError> {
                 .draw_series(bars.iter().map(|&(y, x)| {
                     Rectangle::new([(0.0, y - 0.35), (x, y + 0.35)], colour.filled())
                 }))
-                .map_err(plot_err)?;
+                .map_err(draw_err)?;
             legend.push((Glyph::Bar(colour), name.to_string()));
             chart
                 .draw_series(bars.iter().map(|&(y, x)| {
@@ -833,12 +647,12 @@ pub fn findings_svg(findings: &[Finding]) -> Result<Option<String>, PlotError> {
                             .pos(Pos::new(HPos::Left, VPos::Center)),
                     )
                 }))
-                .map_err(plot_err)?;
+                .map_err(draw_err)?;
         }
         draw_legend(&legend_area, &legend)?;
-        root.present().map_err(plot_err)?;
-    }
-    Ok(Some(svg))
+        Ok(())
+    })
+    .map(Some)
 }
 
 /// Text for a Markdown table cell: a `|` inside it (as in `|omega|`) would end the cell.
