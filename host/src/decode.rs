@@ -116,6 +116,7 @@ impl ImuStream {
                 &self.accel_counts,
                 self.config.accel_scale_m_s2_per_count,
             )),
+            sample_rate_hz: Some(f64::from(self.config.sample_rate_hz)),
             ..Default::default()
         }
     }

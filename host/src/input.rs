@@ -13,8 +13,9 @@
 //!   [`load_wavelet_variances`]): the output of `dynacal wv`, the `wv.json` of `dynacal
 //!   decode` (channels `imuN/gx` .. `imuN/az`), and the SMAC-Group reference file.
 //!
-//! The sample interval: the rate given with `--rate-hz` if any, else the median step of the
-//! time column ([`crate::interchange::median_step_s`]); a given rate must agree with the time
+//! The sample interval: the rate given with `--rate-hz` if any, else the rate an interchange
+//! file states, else the median step of the time column
+//! ([`crate::interchange::median_step_s`]); a given or stated rate must agree with the time
 //! column to 1%. The wavelet variance assumes evenly spaced samples, so a step that differs
 //! from the median by more than half of it is a gap, and an error naming its line.
 
@@ -253,7 +254,7 @@ pub fn load_recording(path: &Path, evenly_sampled: bool) -> Result<ImuRecording,
         None => ImuRecording::read(path)?,
     };
     if evenly_sampled {
-        sample_interval_s(path, &recording.t_s, None)?;
+        sample_interval_s(path, &recording.t_s, recording.sample_rate_hz)?;
     }
     Ok(recording)
 }
@@ -333,7 +334,7 @@ fn from_recordings(
 ) -> Result<Vec<Series>, InputError> {
     let mut available = Vec::new();
     for (prefix, rec) in &recordings {
-        let dt_s = sample_interval_s(path, &rec.t_s, args.rate_hz)?;
+        let dt_s = sample_interval_s(path, &rec.t_s, args.rate_hz.or(rec.sample_rate_hz))?;
         for c in Channel::ALL {
             if let Some(values) = rec.channel(c.name()) {
                 available.push(Series {

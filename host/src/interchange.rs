@@ -67,6 +67,15 @@ pub enum TableError {
     /// The file has a header but no data rows.
     #[error("{path}: no data rows")]
     Empty { path: PathBuf },
+    /// The sample rate stated in the file's first lines disagrees with its time column.
+    #[error("{path}: line {line}: the stated sample rate {stated_hz} Hz disagrees with the time column `t_s` (median step {median_step_s} s, {measured_hz:.6} Hz)")]
+    RateMismatch {
+        path: PathBuf,
+        line: u64,
+        stated_hz: f64,
+        median_step_s: f64,
+        measured_hz: f64,
+    },
     /// Columns of an in-memory recording have different lengths.
     #[error("{path}: column `{column}` has {len} values, expected {expected}")]
     LengthMismatch {
@@ -130,7 +139,7 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
     let mut csv = csv::ReaderBuilder::new()
         .has_headers(true)
         .trim(csv::Trim::All)
-        .comment(None)
+        .comment(Some(b'#'))
         .from_reader(reader);
     let csv_err = |e: csv::Error| {
         let line = e.position().map_or(0, |p| p.line());
@@ -215,6 +224,79 @@ pub fn median_step_s(t_s: &[f64]) -> Option<f64> {
     Some(*steps.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
+/// How an interchange file states its sample rate: a first line `# sample_rate_hz: 100`.
+const RATE_LINE_PREFIX: &str = "# sample_rate_hz: ";
+
+/// The sample rate stated in the `#` lines before the header, with its 1-based line.
+fn read_stated_rate(path: &Path) -> Result<Option<(u64, f64)>, TableError> {
+    use std::io::BufRead;
+    let reader = std::io::BufReader::new(open_maybe_gz(path)?.take(1 << 16));
+    for (i, line) in reader.lines().enumerate() {
+        let line = line.map_err(|source| TableError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let Some(comment) = line.strip_prefix('#') else {
+            break;
+        };
+        let Some(value) = comment.trim().strip_prefix("sample_rate_hz:") else {
+            continue;
+        };
+        let rate = value
+            .trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|r| r.is_finite() && *r > 0.0);
+        return match rate {
+            Some(rate) => Ok(Some((i as u64 + 1, rate))),
+            None => Err(TableError::Csv {
+                path: path.to_path_buf(),
+                line: i as u64 + 1,
+                message: format!(
+                    "`sample_rate_hz`: `{}` is not a positive number of Hz",
+                    value.trim()
+                ),
+            }),
+        };
+    }
+    Ok(None)
+}
+
+/// A stated rate must agree with the time column's median step to 1% (a clock off by
+/// 10000 ppm, or a file whose rate line belongs to another file).
+fn check_stated_rate(
+    path: &Path,
+    line: u64,
+    stated_hz: f64,
+    t_s: &[f64],
+) -> Result<(), TableError> {
+    let Some(step) = median_step_s(t_s) else {
+        return Ok(());
+    };
+    if (step * stated_hz - 1.0).abs() > 0.01 {
+        return Err(TableError::RateMismatch {
+            path: path.to_path_buf(),
+            line,
+            stated_hz,
+            median_step_s: step,
+            measured_hz: 1.0 / step,
+        });
+    }
+    Ok(())
+}
+
+/// `rate_hz` with the fewest significant digits that keep it within 1e-9 of itself: an
+/// estimated rate of 100.00000000000213 Hz is stated as 100.
+pub fn shortest_rate_hz(rate_hz: f64) -> f64 {
+    (1..=17)
+        .map(|digits| {
+            let text = format!("{rate_hz:.*e}", digits - 1);
+            text.parse::<f64>().unwrap_or(rate_hz)
+        })
+        .find(|r| ((r - rate_hz) / rate_hz).abs() <= 1e-9)
+        .unwrap_or(rate_hz)
+}
+
 /// Names of the six IMU channels, in the order dynacal reports them.
 pub const CHANNELS: [&str; 6] = {
     let all = crate::model::Channel::ALL;
@@ -278,6 +360,10 @@ pub struct ImuRecording {
     pub velocity_ned_m_s: Option<Triplet>,
     /// Lone channels of single-axis sensors (empty for ordinary three-axis recordings).
     pub single_axis: Vec<SingleAxis>,
+    /// The nominal sample rate, Hz, where the source states it (the file's
+    /// `# sample_rate_hz:` line, a board log's header, a simulated IMU's model); `None` where
+    /// it does not, and [`ImuRecording::rate_hz`] estimates it from the time column.
+    pub sample_rate_hz: Option<f64>,
 }
 
 impl ImuRecording {
@@ -292,6 +378,16 @@ impl ImuRecording {
     /// Median sampling interval, seconds (0 for fewer than two samples).
     pub fn median_dt_s(&self) -> f64 {
         median_step_s(&self.t_s).unwrap_or(0.0)
+    }
+
+    /// The sample rate, Hz: the stated one, else the reciprocal of the median step (0 for
+    /// fewer than two samples).
+    pub fn rate_hz(&self) -> f64 {
+        match (self.sample_rate_hz, median_step_s(&self.t_s)) {
+            (Some(rate), _) => rate,
+            (None, Some(step)) if step > 0.0 => 1.0 / step,
+            _ => 0.0,
+        }
     }
     /// A channel by its short name (`gx` ... `az`), if the recording has it.
     pub fn channel(&self, name: &str) -> Option<&[f64]> {
@@ -441,9 +537,17 @@ impl ImuRecording {
             position,
             velocity_ned_m_s,
             single_axis,
+            sample_rate_hz: None,
         };
         recording.validate(path)?;
-        Ok(recording)
+        let stated = read_stated_rate(path)?;
+        if let Some((line, stated_hz)) = stated {
+            check_stated_rate(path, line, stated_hz, &recording.t_s)?;
+        }
+        Ok(ImuRecording {
+            sample_rate_hz: stated.map(|(_, rate)| rate),
+            ..recording
+        })
     }
 
     /// Writes the recording as interchange CSV, gzip-compressed when `path` ends in `.gz`.
@@ -472,6 +576,14 @@ impl ImuRecording {
         }
         {
             let mut w = out.writer();
+            let rate = self.sample_rate_hz.or_else(|| {
+                median_step_s(&self.t_s)
+                    .filter(|step| *step > 0.0)
+                    .map(|step| shortest_rate_hz(1.0 / step))
+            });
+            if let Some(rate) = rate {
+                writeln!(w, "{RATE_LINE_PREFIX}{rate}").map_err(io)?;
+            }
             let header: Vec<&str> = columns.iter().map(|c| c.0).collect();
             writeln!(w, "{}", header.join(",")).map_err(io)?;
             let mut line: Vec<u8> = Vec::with_capacity(1 << 16);
@@ -691,8 +803,45 @@ mod tests {
         for name in ["a.csv", "a.csv.gz"] {
             let path = dir.path().join(name);
             sample().write(&path).unwrap();
-            assert_eq!(ImuRecording::read(&path).unwrap(), sample());
+            // The rate the sample does not state is estimated once, written and read back.
+            let stated = ImuRecording {
+                sample_rate_hz: Some(100.0),
+                ..sample()
+            };
+            assert_eq!(ImuRecording::read(&path).unwrap(), stated);
+            stated.write(&path).unwrap();
+            assert_eq!(ImuRecording::read(&path).unwrap(), stated);
         }
+    }
+
+    #[test]
+    fn a_stated_rate_is_checked_against_the_time_column_and_lines_still_count() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.csv");
+        std::fs::write(
+            &path,
+            "# sample_rate_hz: 200\nt_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.01,1,2,3\n",
+        )
+        .unwrap();
+        let e = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("r.csv") && e.contains("line 1") && e.contains("200 Hz"),
+            "{e}"
+        );
+        std::fs::write(
+            &path,
+            "# sample_rate_hz: 100\nt_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.01,1,x,3\n",
+        )
+        .unwrap();
+        let e = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(e.contains("line 4") && e.contains("gy_rad_s"), "{e}");
+        std::fs::write(&path, "# sample_rate_hz: fast\nt_s,gx_rad_s\n0,1\n").unwrap();
+        let e = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(e.contains("line 1") && e.contains("`fast`"), "{e}");
+        assert_eq!(shortest_rate_hz(100.00000000000213), 100.0);
+        let odd = 1.0 / 0.0049999;
+        assert_eq!(shortest_rate_hz(odd), 200.004);
+        assert!((shortest_rate_hz(odd) / odd - 1.0).abs() <= 1e-9);
     }
 
     #[test]
@@ -758,7 +907,7 @@ mod tests {
         rec.write(&out).unwrap();
         assert_eq!(
             std::fs::read_to_string(&out).unwrap(),
-            "t_s,gx_rad_s\n0,0.5\n0.01,-0.25\n"
+            "# sample_rate_hz: 100\nt_s,gx_rad_s\n0,0.5\n0.01,-0.25\n"
         );
 
         // A lone accelerometer axis next to a full gyro triplet is fine too.

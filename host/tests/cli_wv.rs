@@ -169,6 +169,7 @@ fn interchange_file_channels_in_si_units() {
         position: None,
         velocity_ned_m_s: None,
         single_axis: Vec::new(),
+        sample_rate_hz: None,
     };
     rec.write(&path).unwrap();
     let out = dir.path().join("wv.json");

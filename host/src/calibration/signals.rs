@@ -87,13 +87,6 @@ pub(super) fn std_dev(x: &[f64]) -> f64 {
     (x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
 }
 
-/// Median spacing of the epochs, s.
-fn median_step_s(t_s: &[f64]) -> f64 {
-    let mut dt: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
-    let mid = dt.len() / 2;
-    *dt.select_nth_unstable_by(mid, f64::total_cmp).1
-}
-
 /// The summary of `fit` over the epochs of `source`, with the spread of the `errors`.
 pub(super) fn summary(
     fit: Fit,
@@ -143,7 +136,7 @@ pub(super) fn summary(
         }
         .into(),
         epochs: source.t_s.len(),
-        epoch_dt_s: median_step_s(&source.t_s),
+        epoch_dt_s: crate::interchange::median_step_s(&source.t_s).unwrap_or(0.0),
         error_std: std::array::from_fn(|i| errors[i].as_ref().map(|e| std_dev(e))),
         hac_lag: sol.lag,
         method: "batch weighted least squares of the linearised eqs. 10-11 with biases and a \

@@ -13,8 +13,12 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let rec = ImuRecording::read(&args.file)?;
     let dt = rec.median_dt_s();
+    let stated = match rec.sample_rate_hz {
+        Some(rate) => format!("stated rate {rate} Hz, "),
+        None => String::new(),
+    };
     println!(
-        "{}: {} samples, {:.3} s, median rate {:.3} Hz, channels [{}]",
+        "{}: {} samples, {:.3} s, {stated}median rate {:.3} Hz, channels [{}]",
         args.file.display(),
         rec.len(),
         rec.t_s[rec.len() - 1] - rec.t_s[0],

@@ -295,6 +295,7 @@ fn assemble(job: &ImuJob, setup: ImuSetup, columns: ImuColumns) -> ImuRun {
             position,
             velocity_ned_m_s: velocity,
             single_axis: Vec::new(),
+            sample_rate_hz: Some(model.rate_hz),
         },
         clock: setup.clock,
         true_t_s: setup.true_t_s,
