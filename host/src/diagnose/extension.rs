@@ -22,7 +22,7 @@ pub(super) fn channel_model(terms: &FittedTerms, stochastic: &StochasticFindings
     let mut model = ChannelModel {
         stochastic: Some(stochastic.stochastic.clone()),
         bias: Some(terms.intercept),
-        ..Default::default()
+        ..stochastic.effects.clone()
     };
     for (c, t) in terms.coefficients.iter().zip(&terms.terms) {
         let row = match t.cause {
@@ -49,11 +49,6 @@ pub(super) fn channel_model(terms: &FittedTerms, stochastic: &StochasticFindings
         };
         row.get_or_insert([0.0; 3])[t.axis] = c.value;
     }
-    let effects = &stochastic.effects;
-    model.dynamic_noise = effects.dynamic_noise;
-    model.vibration_lines = effects.vibration_lines.clone();
-    model.outliers = effects.outliers;
-    model.quantization_step = effects.quantization_step;
     model
 }
 

@@ -4,16 +4,20 @@
 //! only), with the share of the error variance the deterministic terms explain, and the
 //! wavelet-variance curves the report plots.
 
+use std::collections::BTreeSet;
+
+use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
 use super::engine::{variance, Gain, Run, WvCurves, Z_FLOOR};
-use super::stochastic::StochasticEffects;
 use super::terms::{Coefficient, FittedTerms};
 use crate::gmwm::model::ModelSpec;
+use crate::model::{Channel, ChannelModel, VibrationLine};
 use crate::regress::{backward_elimination, RegressionOptions};
+use crate::sim::effects::{ChannelEffects, SensorKinematics};
 use crate::wv::{haar_wv, WvOptions};
 
 /// Log wavelet variance per level of a series (levels 1..=max).
@@ -82,30 +86,75 @@ impl WvCurves {
     }
 }
 
-/// One simulation of a channel's stochastic error: the `spec` processes plus the `effects`
-/// found beyond them, along the measured |omega| (`omega_norm`, rad/s). The draws, in order:
-/// the processes, one normal per sample for the dynamic noise, a uniform phase per vibration
-/// line (its phase is not estimated), and per sample an outlier draw.
+/// The kinematics the engine knows at epoch `k` for the simulator's effects: the measured
+/// angular rate (`omega_rad_s`, per body axis, rad/s); the rest is not measured here and zero.
+fn kinematics_at(omega_rad_s: [&[f64]; 3], k: usize) -> SensorKinematics {
+    SensorKinematics {
+        omega_rad_s: Vector3::new(omega_rad_s[0][k], omega_rad_s[1][k], omega_rad_s[2][k]),
+        omega_dot_rad_s2: Vector3::zeros(),
+        f_m_s2: Vector3::zeros(),
+        f_dot_m_s3: Vector3::zeros(),
+        speed_m_s: 0.0,
+    }
+}
+
+/// One simulation of `channel`'s stochastic error over `n` epochs: the `spec` processes plus
+/// the stochastic effects of `effects` (dynamic noise, vibration lines, outliers), along the
+/// measured angular rate. Each effect's level and waveform are the simulator's
+/// ([`ChannelEffects::dynamic_sigma`], [`ChannelEffects::deterministic`]); the draws are the
+/// engine's, in this order: the processes, one normal per epoch for the dynamic noise, a
+/// uniform phase per vibration line (the phase of a found line is not estimated), and per
+/// epoch an outlier draw. (The simulator draws its per-sample effects inline, sample by
+/// sample, in `sim::sensors`; the engine keeps its series-by-series order, which its seeded
+/// results depend on.)
 pub(super) fn simulate_channel(
     spec: &ModelSpec,
-    effects: &StochasticEffects,
-    omega_norm: &[f64],
+    effects: &ChannelModel,
+    channel: Channel,
+    omega_rad_s: [&[f64]; 3],
     dt_s: f64,
     n: usize,
     rng: &mut ChaCha8Rng,
 ) -> Vec<f64> {
+    let no_switches = BTreeSet::new();
+    let rate_hz = 1.0 / dt_s;
     let mut x = spec.simulate(n, rng);
-    if let Some(d) = effects.dynamic_noise {
-        for (v, w) in x.iter_mut().zip(omega_norm) {
+    if effects.dynamic_noise.is_some() {
+        let growth = ChannelModel {
+            dynamic_noise: effects.dynamic_noise,
+            ..Default::default()
+        };
+        let fx = ChannelEffects::resolve(&growth, channel.index(), rate_hz, &no_switches);
+        for (k, v) in x.iter_mut().enumerate() {
             let z: f64 = StandardNormal.sample(rng);
-            *v += d.sigma_per_unit * w * z;
+            *v += fx.dynamic_sigma(&kinematics_at(omega_rad_s, k)) * z;
         }
     }
-    for line in &effects.vibration_lines {
-        let (f, a) = (line.frequency_hz, line.amplitude);
-        let phase: f64 = rand::Rng::random_range(rng, 0.0..std::f64::consts::TAU);
+    if !effects.vibration_lines.is_empty() {
+        let lines: Vec<VibrationLine> = effects
+            .vibration_lines
+            .iter()
+            .map(|line| VibrationLine {
+                phase_rad: rand::Rng::random_range(rng, 0.0..std::f64::consts::TAU),
+                ..*line
+            })
+            .collect();
+        let vibration = ChannelModel {
+            vibration_lines: lines,
+            ..Default::default()
+        };
+        let fx = ChannelEffects::resolve(&vibration, channel.index(), rate_hz, &no_switches);
+        // The lines are the only deterministic effect resolved here: the kinematics do not
+        // enter them.
+        let at_rest = SensorKinematics {
+            omega_rad_s: Vector3::zeros(),
+            omega_dot_rad_s2: Vector3::zeros(),
+            f_m_s2: Vector3::zeros(),
+            f_dot_m_s3: Vector3::zeros(),
+            speed_m_s: 0.0,
+        };
         for (i, v) in x.iter_mut().enumerate() {
-            *v += a * (std::f64::consts::TAU * f * i as f64 * dt_s + phase).sin();
+            *v += fx.deterministic(&at_rest, i as f64 * dt_s);
         }
     }
     if let Some(o) = effects.outliers {
@@ -124,7 +173,7 @@ pub(super) fn simulate_channel(
 struct ChannelModelSims<'a> {
     coefficients: &'a [Coefficient],
     stochastic: &'a ModelSpec,
-    effects: &'a StochasticEffects,
+    effects: &'a ChannelModel,
     intercept: f64,
 }
 
@@ -139,7 +188,9 @@ fn simulate_model(
     salt: u64,
 ) -> Vec<Vec<f64>> {
     let len = range.len();
-    let omega_norm = &run.omega_norm[range.clone()];
+    let channel = run.channels[slot];
+    let omega_rad_s: [&[f64]; 3] =
+        std::array::from_fn(|axis| &run.signals.angular_rate_rad_s(axis)[range.clone()]);
     let max_level = run
         .max_wv_level()
         .min(((len as f64).log2() as u32).saturating_sub(2));
@@ -169,7 +220,8 @@ fn simulate_model(
             let mut x = simulate_channel(
                 model.stochastic,
                 model.effects,
-                omega_norm,
+                channel,
+                omega_rad_s,
                 run.dt_s,
                 len,
                 &mut rng,
@@ -221,11 +273,11 @@ pub(super) fn measure_gain(
     e: &[f64],
     terms: &FittedTerms,
     stochastic: &ModelSpec,
-    effects: &StochasticEffects,
+    effects: &ChannelModel,
 ) -> (Gain, WvCurves) {
     let (n, split, dt_s) = (run.n, run.split, run.dt_s);
     let max_level = run.max_wv_level();
-    let no_effects = StochasticEffects::default();
+    let no_effects = ChannelModel::default();
     let baseline = ChannelModelSims {
         coefficients: &[],
         stochastic: spec,

@@ -20,26 +20,19 @@ use super::stats::{
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
-use crate::model::{Cause, Channel, DynamicDriver, DynamicNoise, Outliers, VibrationLine};
+use crate::model::{
+    Cause, Channel, ChannelModel, DynamicDriver, DynamicNoise, Outliers, VibrationLine,
+};
 use crate::wv::{haar_wv, WvOptions};
-
-/// The stochastic effects found on a channel beyond its stochastic model, in the simulator
-/// model's terms (what the extended model carries and its simulations add).
-#[derive(Debug, Clone, Default)]
-pub(super) struct StochasticEffects {
-    pub dynamic_noise: Option<DynamicNoise>,
-    /// Lines at the frequency found; the phase is not estimated (0).
-    pub vibration_lines: Vec<VibrationLine>,
-    pub outliers: Option<Outliers>,
-    /// LSB of the raw output, channel unit.
-    pub quantization_step: Option<f64>,
-}
 
 /// What the stochastic stage found on one channel.
 pub(super) struct StochasticFindings {
     pub findings: Vec<Finding>,
     pub discrepancies: Vec<Discrepancy>,
-    pub effects: StochasticEffects,
+    /// The effects found beyond the stochastic model, as the simulator's channel model
+    /// carries them (dynamic noise, vibration lines with phase 0 as the phase is not
+    /// estimated, outliers, quantization step); its other fields are unset.
+    pub effects: ChannelModel,
     /// The stochastic model of the extended model: the baseline's, or its structure refitted
     /// on what remains when that departs from the baseline's wavelet variance.
     pub stochastic: ModelSpec,
@@ -59,7 +52,7 @@ pub(super) fn find_stochastic_effects(
     let mut found = StochasticFindings {
         findings: Vec::new(),
         discrepancies: Vec::new(),
-        effects: StochasticEffects::default(),
+        effects: ChannelModel::default(),
         stochastic: spec.clone(),
     };
     // Noise growing with the dynamics, looked at before outliers: the largest samples of a
@@ -410,17 +403,27 @@ fn noise_change(
             .map(|s| log_wv(s, dt_s, max_level))
             .collect(),
         Some(_) => {
-            let growth = StochasticEffects {
+            let growth = ChannelModel {
                 dynamic_noise: found.effects.dynamic_noise,
                 ..Default::default()
             };
+            let omega_rad_s: [&[f64]; 3] =
+                std::array::from_fn(|axis| run.signals.angular_rate_rad_s(axis));
             (0..run.opts.replicates)
                 .into_par_iter()
                 .map(|r| {
                     let mut rng = ChaCha8Rng::seed_from_u64(
                         run.opts.seed ^ 0xd1_0153 ^ ((slot as u64) << 32) ^ r as u64,
                     );
-                    let x = simulate_channel(spec, &growth, &run.omega_norm, dt_s, run.n, &mut rng);
+                    let x = simulate_channel(
+                        spec,
+                        &growth,
+                        channel,
+                        omega_rad_s,
+                        dt_s,
+                        run.n,
+                        &mut rng,
+                    );
                     log_wv(&x, dt_s, max_level)
                 })
                 .collect()
