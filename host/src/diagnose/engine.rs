@@ -16,14 +16,18 @@
 //!   dynamics, quantization (the raw sensor values lie on a lattice), and a change of the
 //!   correlated or white noise (the wavelet variance of what remains).
 //!
-//! The stages, each in its own module, run in this order: [`super::calibration`] (error
-//! signals from the calibration against the reference), [`super::baseline`] (the model to
-//! compare with), [`super::terms`] (deterministic terms: per channel a stepwise selection over
-//! the physics candidates and a bias step, each fitted jointly with the calibration on every
-//! channel's rows through [`super::moments`]; then across channels, a joint fit of all kept
-//! terms, so a term one channel shows only because another's term moved the calibration drops
-//! out), [`super::stochastic`] (the stochastic effects of what remains), [`super::gain`] (the
-//! gain of the extended model) and [`super::extension`] (the extended model itself).
+//! The stages, each in its own module of `diagnose`, run in this order:
+//! - `calibration`: error signals from the calibration against the reference (or static
+//!   data), and at the end the sensor-wide terms (time offset, lever arm) as findings;
+//! - [`super::baseline`]: the model to compare with, given or fitted on the quietest stretch;
+//! - `terms`: the deterministic terms, per channel a stepwise selection over the physics
+//!   candidates and a bias step, each fitted jointly with the calibration on every channel's
+//!   rows (the least squares on moments of `moments`); then across channels, a joint fit of
+//!   all kept terms, so a term one channel shows only because another's term moved the
+//!   calibration drops out;
+//! - `stochastic`: the stochastic effects of what the terms leave;
+//! - `gain`: the gain of the extended model over the baseline, in-sample and held out;
+//! - `extension`: the extended model, a simulator model file.
 //!
 //! False alarms are controlled by strict per-test levels (Bonferroni over the tests of a
 //! run), an effect-size floor for deterministic terms, simulation-calibrated thresholds, and
@@ -285,7 +289,8 @@ impl Run<'_> {
         }
     }
 
-    /// Finest to coarsest wavelet level compared on the whole run.
+    /// Coarsest wavelet level compared on the whole run (levels 1..=this): the largest
+    /// that still averages over four or more blocks.
     pub fn max_wv_level(&self) -> u32 {
         ((self.n as f64).log2().floor() as u32)
             .saturating_sub(2)
@@ -293,9 +298,18 @@ impl Run<'_> {
     }
 }
 
-/// The time grid of error signals: epochs, median sample interval (s), |omega| per epoch
-/// (rad/s), and the channels present.
-fn grid_of(signals: &ErrorSignals) -> (usize, f64, Vec<f64>, Vec<Channel>) {
+/// The epochs of error signals and what every stage reads of them.
+struct Grid {
+    n: usize,
+    /// Median sample interval, s.
+    dt_s: f64,
+    /// |omega| per epoch, rad/s.
+    omega_norm: Vec<f64>,
+    /// The channels present, in [`Channel::ALL`] order.
+    channels: Vec<Channel>,
+}
+
+fn grid_of(signals: &ErrorSignals) -> Grid {
     let n = signals.t_s.len();
     let dt_s = {
         let mut d: Vec<f64> = signals.t_s.windows(2).map(|w| w[1] - w[0]).collect();
@@ -314,7 +328,12 @@ fn grid_of(signals: &ErrorSignals) -> (usize, f64, Vec<f64>, Vec<Channel>) {
         .into_iter()
         .filter(|c| signals.error_of(*c).is_some())
         .collect();
-    (n, dt_s, omega_norm, channels)
+    Grid {
+        n,
+        dt_s,
+        omega_norm,
+        channels,
+    }
 }
 
 /// What one channel contributes to the report.
@@ -334,7 +353,7 @@ fn diagnose_channel(
     run: &Run,
     slot: usize,
     channel: Channel,
-    found: ChannelTerms,
+    mut found: ChannelTerms,
 ) -> Result<ChannelResult, DiagnoseError> {
     let spec = run.spec(channel)?;
     // The error as the joint calibration leaves it.
@@ -345,7 +364,6 @@ fn diagnose_channel(
         .map(|(v, s)| v - s)
         .collect();
     let sims = run.baseline_sims(slot, spec);
-    let mut found = found;
     let mut discrepancies = std::mem::take(&mut found.discrepancies);
     let terms = FittedTerms::new(run, channel, found, &e);
     let mut findings = terms.findings(channel);
@@ -387,7 +405,12 @@ pub fn diagnose(
     let mut notes = Vec::new();
     let calibrated = calibrate(sensor, reference, &mut notes)?;
     let signals = &calibrated.signals;
-    let (n, dt_s, omega_norm, channels) = grid_of(signals);
+    let Grid {
+        n,
+        dt_s,
+        omega_norm,
+        channels,
+    } = grid_of(signals);
     let baseline = match baseline {
         Some(b) => b,
         None => {
