@@ -4,12 +4,11 @@
 //! was hidden. The engine must name the right cause on the right channel with the true value
 //! inside its 95% interval; on runs with nothing beyond the baseline it must name nothing.
 
-use dynacal::diagnose::engine::{
-    diagnose, Baseline, DiagnoseOptions, DiagnoseReport, DETERMINISTIC_CAUSES,
-};
+use dynacal::diagnose::engine::{diagnose, Baseline, DiagnoseOptions, DiagnoseReport};
 use dynacal::gmwm::model::{ModelSpec, Process};
 use dynacal::model::{
-    BiasStep, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers, VibrationLine,
+    BiasStep, Cause, Channel, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers,
+    VibrationLine,
 };
 use dynacal::sim::SimOptions;
 use dynacal::sim::{simulate, Scenario, SimModel};
@@ -285,15 +284,15 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
 /// The baseline a static calibration would give: the stochastic part only.
 fn static_baseline() -> Baseline {
     Baseline {
-        channels: dynacal::interchange::CHANNELS
-            .iter()
+        channels: Channel::ALL
+            .into_iter()
             .map(|c| {
-                let spec = if c.starts_with('g') {
+                let spec = if c.is_gyro() {
                     gyro_spec()
                 } else {
                     accel_spec()
                 };
-                (c.to_string(), spec)
+                (c, spec)
             })
             .collect(),
         source: "test baseline".into(),
@@ -372,7 +371,7 @@ fn check(cause: &'static str, seeds: &[u64]) {
         let hit = report
             .findings
             .iter()
-            .find(|f| f.cause == h.cause && f.channel == h.channel);
+            .find(|f| f.cause.name() == h.cause && f.channel.name() == h.channel);
         let f = hit.unwrap_or_else(|| panic!("seed {seed}: hid {h:?}, named {named:?}"));
         if let Some(t) = h.truth {
             assert!(
@@ -384,11 +383,13 @@ fn check(cause: &'static str, seeds: &[u64]) {
         // boresight and lever arm between channels, and a term one channel shows through
         // them is the joint fit's to take back.
         let sensor_wide = matches!(h.cause, "time_offset" | "lever_arm");
-        let elsewhere: Vec<&String> = report
+        let elsewhere: Vec<&Cause> = report
             .findings
             .iter()
-            .filter(|f| DETERMINISTIC_CAUSES.contains(&f.cause.as_str()))
-            .filter(|f| !(f.cause == h.cause && (f.channel == h.channel || sensor_wide)))
+            .filter(|f| f.cause.is_deterministic())
+            .filter(|f| {
+                !(f.cause.name() == h.cause && (f.channel.name() == h.channel || sensor_wide))
+            })
             .map(|f| &f.cause)
             .collect();
         assert!(
@@ -466,9 +467,10 @@ fn finds_quantization() {
 /// Every cause of the vocabulary a generator above can hide (a white-noise change is only
 /// ever a by-product).
 fn causes_under_test() -> Vec<&'static str> {
-    dynacal::diagnose::engine::CAUSES
+    Cause::ALL
         .into_iter()
-        .filter(|c| *c != "white_noise_change")
+        .filter(|c| *c != Cause::WhiteNoiseChange)
+        .map(Cause::name)
         .collect()
 }
 
@@ -501,7 +503,7 @@ fn outcome(cause: &'static str, seed: u64) -> Outcome {
     let found = report
         .findings
         .iter()
-        .find(|f| f.cause == h.cause && f.channel == h.channel);
+        .find(|f| f.cause.name() == h.cause && f.channel.name() == h.channel);
     let inside = |widen: f64| {
         found.is_some_and(|f| {
             h.truth
@@ -514,8 +516,8 @@ fn outcome(cause: &'static str, seed: u64) -> Outcome {
     let others = report
         .findings
         .iter()
-        .filter(|f| f.cause != h.cause || (f.channel != h.channel && !sensor_wide))
-        .map(|f| (f.cause.clone(), f.channel.clone()))
+        .filter(|f| f.cause.name() != h.cause || (f.channel.name() != h.channel && !sensor_wide))
+        .map(|f| (f.cause, f.channel))
         .collect::<std::collections::BTreeSet<_>>()
         .len();
     Outcome {
@@ -652,11 +654,11 @@ fn extended_model_runs_in_the_simulator_and_carries_the_found_effect() {
     let first = report
         .findings
         .iter()
-        .find(|f| f.cause == "bias_shift" && f.channel == h.channel)
+        .find(|f| f.cause == Cause::BiasShift && f.channel.name() == h.channel)
         .expect("the step is found")
         .clone();
     let model = SimModel::from_json(
-        &report.extended_model.to_string(),
+        &serde_json::to_string(&report.extended_model).unwrap(),
         std::path::Path::new("extended-model.json"),
     )
     .expect("the simulator accepts the extended model");
@@ -685,7 +687,7 @@ fn extended_model_runs_in_the_simulator_and_carries_the_found_effect() {
     let refound = again
         .findings
         .iter()
-        .find(|f| f.cause == "bias_shift" && f.channel == h.channel)
+        .find(|f| f.cause == Cause::BiasShift && f.channel.name() == h.channel)
         .unwrap_or_else(|| panic!("not found again: {:?}", again.findings));
     // Both are estimates with their own noise: their difference must be within its 95%
     // interval, and the step at the same time.

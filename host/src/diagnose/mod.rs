@@ -1,6 +1,14 @@
 //! The discrepancy engine: what the simulation gets wrong, the named cause, the extended
-//! model and the measured gain (`dynacal diagnose`).
+//! model and the measured gain (`dynacal diagnose`). [`engine::diagnose`] runs the stages
+//! of the sibling modules in order.
 
+pub mod baseline;
+mod calibration;
 pub mod engine;
+mod extension;
+mod gain;
+mod moments;
 pub mod report;
 pub mod stats;
+mod stochastic;
+mod terms;

@@ -16,11 +16,12 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::engine::{DiagnoseReport, Finding, Gain, WvCurves, DETERMINISTIC_CAUSES};
+use super::engine::{DiagnoseReport, Finding, Gain, WvCurves};
 use crate::figures::plot::{
     chart, decade_label, draw_err, draw_legend, grey_grid, render_svg, titled_with_legend, usable,
     CategoryAxis, Decades, DrawError, Frame, Glyph, FONT, LEGEND_WIDTH_PX,
 };
+use crate::model::Channel;
 use crate::output::AtomicFile;
 
 /// Why the report could not be produced.
@@ -54,7 +55,7 @@ pub struct ReportFile {
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Figures {
     /// Channel -> file name of its wavelet-variance plot.
-    pub wv: BTreeMap<String, String>,
+    pub wv: BTreeMap<Channel, String>,
     pub gain: Option<String>,
     pub findings: Option<String>,
 }
@@ -82,10 +83,10 @@ pub fn report_files(r: &DiagnoseReport) -> Result<Vec<ReportFile>, ReportError> 
     let mut files = Vec::new();
     let mut figures = Figures::default();
     for (channel, curves) in &r.wv_curves {
-        let causes = causes_on(&r.findings, channel);
-        let name = format!("wv-{}.svg", file_stem(channel));
-        if let Some(svg) = wv_svg(channel, curves, &causes).map_err(|e| e.on(&name))? {
-            figures.wv.insert(channel.clone(), name.clone());
+        let causes = causes_on(&r.findings, *channel);
+        let name = format!("wv-{channel}.svg");
+        if let Some(svg) = wv_svg(channel.name(), curves, &causes).map_err(|e| e.on(&name))? {
+            figures.wv.insert(*channel, name.clone());
             files.push(ReportFile {
                 name,
                 bytes: svg.into_bytes(),
@@ -310,28 +311,14 @@ impl From<DrawError> for PlotError {
 }
 
 /// The distinct causes named on `channel`, in the order of the findings.
-fn causes_on<'a>(findings: &'a [Finding], channel: &str) -> Vec<&'a str> {
+fn causes_on(findings: &[Finding], channel: Channel) -> Vec<&'static str> {
     let mut causes: Vec<&str> = Vec::new();
     for f in findings.iter().filter(|f| f.channel == channel) {
-        if !causes.contains(&f.cause.as_str()) {
-            causes.push(&f.cause);
+        if !causes.contains(&f.cause.name()) {
+            causes.push(f.cause.name());
         }
     }
     causes
-}
-
-/// A channel name made safe as part of a file name.
-fn file_stem(channel: &str) -> String {
-    channel
-        .chars()
-        .map(|c| {
-            if c.is_ascii_alphanumeric() || c == '-' || c == '_' {
-                c
-            } else {
-                '_'
-            }
-        })
-        .collect()
 }
 
 /// The squared SI unit of a channel's wavelet variance (gyros `g*`, accelerometers `a*`).
@@ -469,14 +456,14 @@ type GainValue = fn(&Gain) -> f64;
 /// Bar chart of the WV misfit per channel, baseline against extended, in-sample and held-out,
 /// on a log scale with the line a fitting model sits on (misfit 1). `None` without any
 /// positive misfit to draw.
-pub fn gain_svg(gain: &BTreeMap<String, Gain>) -> Result<Option<String>, PlotError> {
+pub fn gain_svg(gain: &BTreeMap<Channel, Gain>) -> Result<Option<String>, PlotError> {
     let series: [(&str, GainValue); 4] = [
         ("baseline, in-sample", |g| g.baseline),
         ("extended, in-sample", |g| g.extended),
         ("baseline, held-out", |g| g.held_out_baseline),
         ("extended, held-out", |g| g.held_out_extended),
     ];
-    let channels: Vec<&String> = gain.keys().collect();
+    let channels: Vec<Channel> = gain.keys().copied().collect();
     let values = gain
         .values()
         .flat_map(|g| series.iter().map(move |(_, f)| f(g)))
@@ -494,7 +481,7 @@ pub fn gain_svg(gain: &BTreeMap<String, Gain>) -> Result<Option<String>, PlotErr
     let x_label = |v: &f64| {
         let k = v.round();
         if (v - k).abs() < 1e-6 && k >= 0.0 && (k as usize) < n {
-            channels[k as usize].clone()
+            channels[k as usize].name().to_string()
         } else {
             String::new()
         }
@@ -624,7 +611,7 @@ pub fn findings_svg(findings: &[Finding]) -> Result<Option<String>, PlotError> {
             let bars: Vec<(f64, f64)> = rows
                 .iter()
                 .enumerate()
-                .filter(|(_, f)| DETERMINISTIC_CAUSES.contains(&f.cause.as_str()) == deterministic)
+                .filter(|(_, f)| f.cause.is_deterministic() == deterministic)
                 .map(|(k, f)| ((n - 1 - k) as f64, 100.0 * f.variance_explained))
                 .collect();
             if bars.is_empty() {
@@ -716,8 +703,8 @@ mod tests {
 
     fn finding(channel: &str, cause: &str, variance_explained: f64) -> Finding {
         Finding {
-            channel: channel.into(),
-            cause: cause.into(),
+            channel: channel.parse().unwrap(),
+            cause: cause.parse().unwrap(),
             regressors: vec!["omega_x".into()],
             estimate: json!(0.003),
             ci95: json!([0.002, 0.004]),
@@ -747,16 +734,16 @@ mod tests {
                 finding("ax", "vibration", 0.12),
             ],
             gain: [
-                ("ax".to_string(), gain(40.0, 1.2, 3.0, 1.1)),
-                ("gx".to_string(), gain(12.0, 0.9, 2.0, 1.3)),
+                (Channel::Ax, gain(40.0, 1.2, 3.0, 1.1)),
+                (Channel::Gx, gain(12.0, 0.9, 2.0, 1.3)),
             ]
             .into_iter()
             .collect(),
             discrepancies: vec![],
-            wv_curves: [("ax".to_string(), curves()), ("gx".to_string(), curves())]
+            wv_curves: [(Channel::Ax, curves()), (Channel::Gx, curves())]
                 .into_iter()
                 .collect(),
-            extended_model: json!({"imus": []}),
+            extended_model: serde_json::from_value(json!({"imus": []})).unwrap(),
             notes: vec![],
         }
     }
@@ -869,10 +856,10 @@ mod tests {
 
     #[test]
     fn gain_plot_draws_a_log_scaled_bar_per_channel_and_series() {
-        let g: BTreeMap<String, Gain> = [
-            ("ax".to_string(), gain(100.0, 10.0, 1.0, f64::NAN)),
-            ("gx".to_string(), gain(1000.0, 0.0, 5.0, 2.0)),
-            ("gz".to_string(), gain(3.0, 2.0, 4.0, 1.5)),
+        let g: BTreeMap<Channel, Gain> = [
+            (Channel::Ax, gain(100.0, 10.0, 1.0, f64::NAN)),
+            (Channel::Gx, gain(1000.0, 0.0, 5.0, 2.0)),
+            (Channel::Gz, gain(3.0, 2.0, 4.0, 1.5)),
         ]
         .into_iter()
         .collect();
@@ -897,11 +884,12 @@ mod tests {
         assert_eq!(bars(GAIN_COLOURS[1]).len(), 2);
         assert_eq!(bars(GAIN_COLOURS[3]).len(), 2);
         // Log scale: 1000, 100 and 3 sit at heights whose differences are decades.
-        let held_out_ax = bars(GAIN_COLOURS[2])[0].1; // misfit 1
-        let decade = baseline[0].1 - bars(GAIN_COLOURS[1])[0].1; // 100 vs 10
+        // Channels in their order (gyros first): gx, gz, ax.
+        let held_out_ax = bars(GAIN_COLOURS[2])[2].1; // misfit 1
+        let decade = baseline[2].1 - bars(GAIN_COLOURS[1])[1].1; // 100 vs 10
         assert!(decade > 20);
-        assert!((baseline[0].1 - held_out_ax - 2 * decade).abs() <= 2);
-        assert!((baseline[1].1 - held_out_ax - 3 * decade).abs() <= 2);
+        assert!((baseline[2].1 - held_out_ax - 2 * decade).abs() <= 2);
+        assert!((baseline[0].1 - held_out_ax - 3 * decade).abs() <= 2);
         // Channels left to right in order, labelled.
         assert!(baseline[0].0 < baseline[1].0 && baseline[1].0 < baseline[2].0);
         let texts = texts(&doc);
@@ -952,8 +940,8 @@ mod tests {
         assert_eq!(
             names,
             [
-                "wv-ax.svg",
                 "wv-gx.svg",
+                "wv-ax.svg",
                 "gain.svg",
                 "findings.svg",
                 "extended-model.json",
@@ -977,8 +965,11 @@ mod tests {
         assert!(md.contains("1 of 3 findings carry no variance share"));
         // Without figures (the text printed on stdout) nothing is linked.
         assert!(!markdown(&report(), &Figures::default()).contains("]("));
-        let model: serde_json::Value = serde_json::from_slice(&files[4].bytes).unwrap();
-        assert_eq!(model, json!({"imus": []}));
+        // The model file is the report's extended model, as the simulator reads it.
+        let text = std::str::from_utf8(&files[4].bytes).unwrap();
+        let path = std::path::Path::new("extended-model.json");
+        let model = crate::model::SimModel::from_json(text, path).unwrap();
+        assert_eq!(model, report().extended_model);
     }
 
     fn file(name: &str, text: &str) -> ReportFile {
@@ -1050,7 +1041,7 @@ mod tests {
     fn a_pipe_in_a_statistic_does_not_split_its_table_row() {
         let mut r = report();
         r.discrepancies.push(crate::diagnose::engine::Discrepancy {
-            channel: "gx".into(),
+            channel: Channel::Gx,
             statistic: "noise variance vs |omega|^2 (t)".into(),
             measured: 5.0,
             simulated_range: [-1.0, 1.0],

@@ -1,0 +1,141 @@
+//! The baseline: the stochastic error model per channel that the measured error is compared
+//! with. It is read from a model file (the output of `dynacal fit`, or an earlier extended
+//! model), or, without one, fitted on the quietest stretch of the run (where the
+//! dynamics-driven terms are smallest).
+
+use std::collections::BTreeMap;
+
+use super::engine::DiagnoseError;
+use crate::error_signal::ErrorSignals;
+use crate::gmwm::fit::{FitInput, FitOptions};
+use crate::gmwm::inference::{analyze, ModelChoice};
+use crate::gmwm::model::ModelSpec;
+use crate::model::{Channel, ModelFileError, SimModel};
+use crate::wv::{haar_wv, WvOptions};
+
+/// The baseline stochastic model per channel, in SI units (rad/s, m/s^2).
+#[derive(Debug, Clone)]
+pub struct Baseline {
+    pub channels: BTreeMap<Channel, ModelSpec>,
+    /// Where it came from, in words.
+    pub source: String,
+}
+
+impl Baseline {
+    /// Reads a model file (`docs/formats.md` section 3) with one MEMS IMU: the output of
+    /// `dynacal fit`, the extended model of an earlier diagnosis, or a simulator model. The
+    /// stochastic model of each of its channels, restated in SI units, is the baseline.
+    pub fn load(path: &std::path::Path) -> Result<Self, DiagnoseError> {
+        let err = |e: ModelFileError| DiagnoseError::Baseline {
+            path: path.display().to_string(),
+            message: e.to_string(),
+        };
+        let model = SimModel::load(path).map_err(err)?;
+        let channels = model.stochastic_si(path).map_err(err)?;
+        Ok(Self {
+            channels,
+            source: format!("file {}", path.display()),
+        })
+    }
+}
+
+/// Fits a baseline on the quietest stretch (lowest mean |omega|, a quarter of the run).
+pub(super) fn fit_quietest(
+    signals: &ErrorSignals,
+    channels: &[Channel],
+    omega_norm: &[f64],
+    dt_s: f64,
+) -> Result<Baseline, DiagnoseError> {
+    let n = signals.t_s.len();
+    let w = (n / 4).max(256).min(n);
+    let mut best = (0usize, f64::INFINITY);
+    let step = (w / 8).max(1);
+    let mut start = 0;
+    while start + w <= n {
+        let m = omega_norm[start..start + w].iter().sum::<f64>() / w as f64;
+        if m < best.1 {
+            best = (start, m);
+        }
+        start += step;
+    }
+    let mut out = BTreeMap::new();
+    for &channel in channels {
+        let e = &signals.error_of(channel).expect("channel")[best.0..best.0 + w];
+        let err = |message: String| DiagnoseError::Channel { channel, message };
+        let wv = haar_wv(e, dt_s, &WvOptions::default()).map_err(|x| err(x.to_string()))?;
+        let input = FitInput::from_wv(&wv).map_err(|x| err(x.to_string()))?;
+        let fit = analyze(
+            channel.name(),
+            channel.si_unit(),
+            &input,
+            &ModelChoice::Auto,
+            None,
+            &FitOptions::default(),
+        )
+        .map_err(|x| err(x.to_string()))?;
+        out.insert(channel, fit.model_object);
+    }
+    Ok(Baseline {
+        channels: out,
+        source: format!(
+            "fitted (model auto) on the quietest stretch t = {:.1}..{:.1} s (mean |omega| {:.4} rad/s)",
+            signals.t_s[best.0],
+            signals.t_s[best.0 + w - 1],
+            best.1
+        ),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::gmwm::model::Process;
+    use serde_json::json;
+
+    #[test]
+    fn baseline_reads_model_files_old_fit_outputs_and_restates_units_in_si() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = |unit: &str| {
+            json!({"model": "WN", "unit": unit, "sample_rate_hz": 100.0,
+                   "processes": [{"kind": "white_noise", "sigma2": 1e-6}]})
+        };
+        // A `dynacal fit` output of before the model file had a version.
+        let old = dir.path().join("fit.json");
+        let list = json!({"channels": [{"channel": "gx", "model_object": model("rad/s")},
+                                       {"channel": "ax", "model_object": model("m/s^2")}]});
+        std::fs::write(&old, list.to_string()).unwrap();
+        let b = Baseline::load(&old).unwrap();
+        assert_eq!(
+            b.channels.keys().copied().collect::<Vec<_>>(),
+            vec![Channel::Gx, Channel::Ax]
+        );
+        assert_eq!(
+            b.channels[&Channel::Gx].processes,
+            vec![Process::WhiteNoise { sigma2: 1e-6 }]
+        );
+
+        // A model file in deg/s: the baseline is in rad/s.
+        let deg = dir.path().join("deg.json");
+        let file = json!({"version": 1, "imus": [{"name": "a", "rate_hz": 100,
+                          "channels": {"gz": {"stochastic": model("deg/s")}}}]});
+        std::fs::write(&deg, file.to_string()).unwrap();
+        let b = Baseline::load(&deg).unwrap();
+        let gz = &b.channels[&Channel::Gz];
+        assert_eq!(gz.unit, "rad/s");
+        let Process::WhiteNoise { sigma2 } = gz.processes[0] else {
+            panic!("{gz:?}")
+        };
+        assert!((sigma2 / (1e-6 * (std::f64::consts::PI / 180.0).powi(2)) - 1.0).abs() < 1e-12);
+
+        // Two IMUs: which one is the baseline is not said, so it is an error naming the field.
+        let two = dir.path().join("two.json");
+        let file = json!({"imus": [{"name": "a", "rate_hz": 100, "gyro": {"stochastic": model("rad/s")}},
+                                   {"name": "b", "rate_hz": 100, "gyro": {"stochastic": model("rad/s")}}]});
+        std::fs::write(&two, file.to_string()).unwrap();
+        let msg = Baseline::load(&two).unwrap_err().to_string();
+        assert!(
+            msg.contains("two.json") && msg.contains("`imus`") && msg.contains("a, b"),
+            "{msg}"
+        );
+    }
+}

@@ -1,0 +1,178 @@
+//! The calibration against the reference (boresight, lever arm, time offset, biases; see
+//! [`crate::calibration::build_error_signals_with_design`]) that turns the sensor into error
+//! signals, or, without a reference, the error of static data; and after the per-channel
+//! stages, the sensor-wide terms of that calibration named as findings (time offset, lever
+//! arm), corrected for what the per-channel terms had pushed into them.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde_json::json;
+
+use super::engine::{ci, DiagnoseError, Finding, Run, LEVER_ARM_MODEL_SIGMA_M};
+use crate::calibration::{
+    build_error_signals_with_design, CalibrationDesign, CalibrationSummary, ErrorOptions,
+};
+use crate::error_signal::ErrorSignals;
+use crate::interchange::ImuRecording;
+use crate::model::{Cause, Channel};
+
+/// The error signals of a run and, with a reference, the calibration that made them.
+pub(super) struct Calibrated {
+    pub signals: ErrorSignals,
+    pub calibration: Option<(CalibrationSummary, CalibrationDesign)>,
+}
+
+/// Calibrates `sensor` against `reference`; without one, the data are taken as static (a
+/// note says so) and the error is each channel minus its mean.
+pub(super) fn calibrate(
+    sensor: &ImuRecording,
+    reference: Option<&ImuRecording>,
+    notes: &mut Vec<String>,
+) -> Result<Calibrated, DiagnoseError> {
+    Ok(match reference {
+        Some(r) => {
+            let (signals, summary, design) =
+                build_error_signals_with_design(sensor, r, &ErrorOptions::default())?;
+            Calibrated {
+                signals,
+                calibration: Some((summary, design)),
+            }
+        }
+        None => {
+            notes.push(
+                "no reference: static data assumed, the error is each channel minus its mean"
+                    .into(),
+            );
+            Calibrated {
+                signals: static_signals(sensor),
+                calibration: None,
+            }
+        }
+    })
+}
+
+/// Error signals of static data without a reference: each channel minus its mean, with the
+/// dynamics all zero.
+fn static_signals(sensor: &ImuRecording) -> ErrorSignals {
+    let n = sensor.len();
+    let errors = std::array::from_fn(|i| {
+        sensor.channel(Channel::ALL[i].name()).map(|x| {
+            let m = x.iter().sum::<f64>() / n as f64;
+            x.iter().map(|v| v - m).collect()
+        })
+    });
+    ErrorSignals {
+        t_s: sensor.t_s.clone(),
+        errors,
+        dynamics: std::array::from_fn(|_| vec![0.0; n]),
+        specific_force_b_m_s2: None,
+    }
+}
+
+/// The sensor-wide calibration terms: the time offset and lever arm as the extended model
+/// carries them, and the findings naming them when significant.
+#[derive(Default)]
+pub(super) struct SensorWideTerms {
+    pub findings: Vec<Finding>,
+    pub time_offset_s: Option<f64>,
+    pub lever_arm_b_m: Option<[f64; 3]>,
+}
+
+/// Standard deviation of each calibration parameter over baseline noise simulated for every
+/// channel: the Newey-West sigma alone under-covers when the noise wanders slowly.
+fn simulated_calibration_sd(run: &Run, design: &CalibrationDesign) -> Vec<f64> {
+    let reps = run.opts.replicates.max(8);
+    let thetas: Vec<nalgebra::DVector<f64>> = (0..reps)
+        .into_par_iter()
+        .map(|r| {
+            let series: Vec<Option<Vec<f64>>> = Channel::ALL
+                .iter()
+                .map(|c| {
+                    let spec = run.baseline.channels.get(c)?;
+                    let i = c.index();
+                    design.has_channel(i).then(|| {
+                        let mut rng = ChaCha8Rng::seed_from_u64(
+                            run.opts.seed ^ 0x5eed_ca1b ^ ((r as u64) << 8) ^ i as u64,
+                        );
+                        spec.simulate(run.n, &mut rng)
+                    })
+                })
+                .collect();
+            let refs: [Option<&[f64]>; 6] = std::array::from_fn(|i| series[i].as_deref());
+            design.absorbed_all(&refs)
+        })
+        .collect();
+    (0..design.parameters())
+        .map(|a| {
+            let m = thetas.iter().map(|t| t[a]).sum::<f64>() / reps as f64;
+            (thetas.iter().map(|t| (t[a] - m).powi(2)).sum::<f64>() / (reps as f64 - 1.0)).sqrt()
+        })
+        .collect()
+}
+
+/// Sensor-wide calibration terms, corrected for what the per-channel terms found had pushed
+/// into them (`absorbed`, the sum over channels of [`super::terms::FittedTerms::absorbed_by`]),
+/// with 1-sigma no smaller than the spread the calibration shows on baseline noise.
+pub(super) fn sensor_wide_terms(
+    run: &Run,
+    absorbed: Option<nalgebra::DVector<f64>>,
+) -> SensorWideTerms {
+    let mut out = SensorWideTerms::default();
+    let (Some(cal), Some(design)) = (run.calibration, run.design) else {
+        return out;
+    };
+    let shift = absorbed.unwrap_or_else(|| nalgebra::DVector::zeros(design.parameters()));
+    let sim_sd = simulated_calibration_sd(run, design);
+    // The time offset is the one common to the channels that agree (see
+    // `errors::common_time_offset`): a per-channel term does not move it, so it needs no
+    // correction here.
+    if let Some(t) = cal.time_offset_s {
+        let (value, sigma) = (t.value, t.sigma);
+        out.time_offset_s = Some(value);
+        if sigma > 0.0
+            && (value / sigma).abs() > run.z_strict
+            && value.abs() > 0.2 * run.dt_s.min(0.01)
+        {
+            for &channel in &run.channels {
+                out.findings.push(Finding {
+                    channel,
+                    cause: Cause::TimeOffset,
+                    regressors: vec![format!("d{channel}/dt")],
+                    estimate: json!(value),
+                    ci95: json!(ci(value, sigma)),
+                    variance_explained: f64::NAN,
+                });
+            }
+        }
+    }
+    if let (Some(l), Some(li)) = (cal.lever_arm_m, design.lever_index()) {
+        let value: [f64; 3] = std::array::from_fn(|i| l.value[i] - shift[li + i]);
+        let sigma: [f64; 3] = std::array::from_fn(|i| {
+            l.sigma[i]
+                .max(sim_sd[li + i])
+                .hypot(LEVER_ARM_MODEL_SIGMA_M)
+        });
+        out.lever_arm_b_m = Some(value);
+        let significant = (0..3).any(|i| {
+            sigma[i] > 0.0 && (value[i] / sigma[i]).abs() > run.z_strict && value[i].abs() > 0.005
+        });
+        if significant {
+            for &channel in run.channels.iter().filter(|c| !c.is_gyro()) {
+                out.findings.push(Finding {
+                    channel,
+                    cause: Cause::LeverArm,
+                    regressors: vec!["r_x_m".into(), "r_y_m".into(), "r_z_m".into()],
+                    estimate: json!(value),
+                    ci95: json!([
+                        ci(value[0], sigma[0]),
+                        ci(value[1], sigma[1]),
+                        ci(value[2], sigma[2])
+                    ]),
+                    variance_explained: f64::NAN,
+                });
+            }
+        }
+    }
+    out
+}

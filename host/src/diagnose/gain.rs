@@ -1,0 +1,338 @@
+//! The gain of the extended model over the baseline: the wavelet-variance misfit of the
+//! measured error against simulations of each model along the measured dynamics, in-sample
+//! and on the held-out end of the run (deterministic coefficients refitted on the first part
+//! only), with the share of the error variance the deterministic terms explain, and the
+//! wavelet-variance curves the report plots.
+
+use std::collections::BTreeSet;
+
+use nalgebra::Vector3;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, StandardNormal};
+use rayon::prelude::*;
+
+use super::engine::{variance, Gain, Run, WvCurves, Z_FLOOR};
+use super::terms::{Coefficient, FittedTerms};
+use crate::gmwm::model::ModelSpec;
+use crate::model::{Channel, ChannelModel, VibrationLine};
+use crate::regress::{backward_elimination, RegressionOptions};
+use crate::sim::effects::{ChannelEffects, SensorKinematics};
+use crate::wv::{haar_wv, WvOptions};
+
+/// Log wavelet variance per level of a series (levels 1..=max).
+pub(super) fn log_wv(x: &[f64], dt_s: f64, max_level: u32) -> Vec<f64> {
+    match haar_wv(
+        x,
+        dt_s,
+        &WvOptions {
+            max_level: Some(max_level),
+            ..Default::default()
+        },
+    ) {
+        Ok(w) => w.variance.iter().map(|v| v.max(1e-300).ln()).collect(),
+        Err(_) => Vec::new(),
+    }
+}
+
+/// Mean and standard deviation per level of simulated log-WVs.
+pub(super) fn level_stats(sims: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
+    let levels = sims.iter().map(Vec::len).min().unwrap_or(0);
+    let r = sims.len() as f64;
+    let mean: Vec<f64> = (0..levels)
+        .map(|j| sims.iter().map(|s| s[j]).sum::<f64>() / r)
+        .collect();
+    let sd: Vec<f64> = (0..levels)
+        .map(|j| {
+            (sims.iter().map(|s| (s[j] - mean[j]).powi(2)).sum::<f64>() / (r - 1.0).max(1.0))
+                .sqrt()
+                .max(1e-3)
+        })
+        .collect();
+    (mean, sd)
+}
+
+/// Mean squared z-score of the measured log-WV against simulated ones: the WV misfit.
+fn wv_misfit(measured: &[f64], sims: &[Vec<f64>]) -> f64 {
+    let (mean, sd) = level_stats(sims);
+    let j = mean.len().min(measured.len());
+    if j == 0 {
+        return f64::NAN;
+    }
+    (0..j)
+        .map(|k| ((measured[k] - mean[k]) / sd[k]).powi(2))
+        .sum::<f64>()
+        / j as f64
+}
+
+impl WvCurves {
+    fn new(dt_s: f64, measured_log: &[f64], base: &[Vec<f64>], ext: &[Vec<f64>]) -> Self {
+        let (bm, bs) = level_stats(base);
+        let (em, es) = level_stats(ext);
+        let j = measured_log.len().min(bm.len()).min(em.len());
+        let band = |m: &[f64], s: &[f64], sign: f64| -> Vec<f64> {
+            (0..j)
+                .map(|k| (m[k] + sign * Z_FLOOR * s[k]).exp())
+                .collect()
+        };
+        Self {
+            scale_s: (0..j).map(|k| dt_s * 2f64.powi(k as i32 + 1)).collect(),
+            measured: measured_log[..j].iter().map(|v| v.exp()).collect(),
+            baseline_lo: band(&bm, &bs, -1.0),
+            baseline_hi: band(&bm, &bs, 1.0),
+            extended_lo: band(&em, &es, -1.0),
+            extended_hi: band(&em, &es, 1.0),
+        }
+    }
+}
+
+/// The kinematics the engine knows at epoch `k` for the simulator's effects: the measured
+/// angular rate (`omega_rad_s`, per body axis, rad/s); the rest is not measured here and zero.
+fn kinematics_at(omega_rad_s: [&[f64]; 3], k: usize) -> SensorKinematics {
+    SensorKinematics {
+        omega_rad_s: Vector3::new(omega_rad_s[0][k], omega_rad_s[1][k], omega_rad_s[2][k]),
+        omega_dot_rad_s2: Vector3::zeros(),
+        f_m_s2: Vector3::zeros(),
+        f_dot_m_s3: Vector3::zeros(),
+        speed_m_s: 0.0,
+    }
+}
+
+/// One simulation of `channel`'s stochastic error over `n` epochs: the `spec` processes plus
+/// the stochastic effects of `effects` (dynamic noise, vibration lines, outliers), along the
+/// measured angular rate. Each effect's level and waveform are the simulator's
+/// ([`ChannelEffects::dynamic_sigma`], [`ChannelEffects::deterministic`]); the draws are the
+/// engine's, in this order: the processes, one normal per epoch for the dynamic noise, a
+/// uniform phase per vibration line (the phase of a found line is not estimated), and per
+/// epoch an outlier draw. (The simulator draws its per-sample effects inline, sample by
+/// sample, in `sim::sensors`; the engine keeps its series-by-series order, which its seeded
+/// results depend on.)
+pub(super) fn simulate_channel(
+    spec: &ModelSpec,
+    effects: &ChannelModel,
+    channel: Channel,
+    omega_rad_s: [&[f64]; 3],
+    dt_s: f64,
+    n: usize,
+    rng: &mut ChaCha8Rng,
+) -> Vec<f64> {
+    let no_switches = BTreeSet::new();
+    let rate_hz = 1.0 / dt_s;
+    let mut x = spec.simulate(n, rng);
+    if effects.dynamic_noise.is_some() {
+        let growth = ChannelModel {
+            dynamic_noise: effects.dynamic_noise,
+            ..Default::default()
+        };
+        let fx = ChannelEffects::resolve(&growth, channel.index(), rate_hz, &no_switches);
+        for (k, v) in x.iter_mut().enumerate() {
+            let z: f64 = StandardNormal.sample(rng);
+            *v += fx.dynamic_sigma(&kinematics_at(omega_rad_s, k)) * z;
+        }
+    }
+    if !effects.vibration_lines.is_empty() {
+        let lines: Vec<VibrationLine> = effects
+            .vibration_lines
+            .iter()
+            .map(|line| VibrationLine {
+                phase_rad: rand::Rng::random_range(rng, 0.0..std::f64::consts::TAU),
+                ..*line
+            })
+            .collect();
+        let vibration = ChannelModel {
+            vibration_lines: lines,
+            ..Default::default()
+        };
+        let fx = ChannelEffects::resolve(&vibration, channel.index(), rate_hz, &no_switches);
+        // The lines are the only deterministic effect resolved here: the kinematics do not
+        // enter them.
+        let at_rest = SensorKinematics {
+            omega_rad_s: Vector3::zeros(),
+            omega_dot_rad_s2: Vector3::zeros(),
+            f_m_s2: Vector3::zeros(),
+            f_dot_m_s3: Vector3::zeros(),
+            speed_m_s: 0.0,
+        };
+        for (i, v) in x.iter_mut().enumerate() {
+            *v += fx.deterministic(&at_rest, i as f64 * dt_s);
+        }
+    }
+    if let Some(o) = effects.outliers {
+        for v in x.iter_mut() {
+            if rand::Rng::random_bool(rng, o.probability.clamp(0.0, 1.0)) {
+                let z: f64 = StandardNormal.sample(rng);
+                *v += o.sigma * z;
+            }
+        }
+    }
+    x
+}
+
+/// A model of one channel to simulate: deterministic coefficients (none for the baseline),
+/// the stochastic processes, the effects beyond them, and the bias.
+struct ChannelModelSims<'a> {
+    coefficients: &'a [Coefficient],
+    stochastic: &'a ModelSpec,
+    effects: &'a ChannelModel,
+    intercept: f64,
+}
+
+/// Log-WVs of simulations of `model` over the epochs `range`, seeded by `salt`, the channel's
+/// `slot` and the replicate.
+fn simulate_model(
+    run: &Run,
+    slot: usize,
+    terms: &FittedTerms,
+    model: &ChannelModelSims,
+    range: std::ops::Range<usize>,
+    salt: u64,
+) -> Vec<Vec<f64>> {
+    let len = range.len();
+    let channel = run.channels[slot];
+    let omega_rad_s: [&[f64]; 3] =
+        std::array::from_fn(|axis| &run.signals.angular_rate_rad_s(axis)[range.clone()]);
+    let max_level = run
+        .max_wv_level()
+        .min(((len as f64).log2() as u32).saturating_sub(2));
+    (0..run.opts.replicates.min(16))
+        .into_par_iter()
+        .map(|r| {
+            let mut rng = ChaCha8Rng::seed_from_u64(
+                run.opts.seed ^ salt ^ ((slot as u64) << 40) ^ (r as u64) << 8,
+            );
+            // Each simulation draws the deterministic coefficients from their sampling
+            // distribution: a term every simulation shared exactly would leave no spread at
+            // the scales it dominates, and any small error of its coefficient would then
+            // read as a huge misfit.
+            let drawn: Vec<Coefficient> = model
+                .coefficients
+                .iter()
+                .map(|c| {
+                    let se = (c.ci95[1] - c.ci95[0]) / (2.0 * Z_FLOOR);
+                    let z: f64 = StandardNormal.sample(&mut rng);
+                    Coefficient {
+                        value: c.value + se * z,
+                        ..*c
+                    }
+                })
+                .collect();
+            let d = terms.deterministic(&drawn, range.clone());
+            let mut x = simulate_channel(
+                model.stochastic,
+                model.effects,
+                channel,
+                omega_rad_s,
+                run.dt_s,
+                len,
+                &mut rng,
+            );
+            for (v, dv) in x.iter_mut().zip(&d) {
+                *v += dv + model.intercept;
+            }
+            log_wv(&x, run.dt_s, max_level)
+        })
+        .collect()
+}
+
+/// The coefficients refitted on the first part of the error only (`e_first`), for the
+/// held-out gain; intervals and shares stay those of the whole run.
+fn held_out_coefficients(terms: &FittedTerms, e_first: &[f64]) -> Vec<Coefficient> {
+    if terms.coefficients.is_empty() {
+        return Vec::new();
+    }
+    let split = e_first.len();
+    let regressors: Vec<(&str, &[f64])> = terms
+        .terms
+        .iter()
+        .map(|t| (t.name.as_str(), &t.own[..split]))
+        .collect();
+    let opts = RegressionOptions {
+        alpha: 1.0,
+        ..Default::default()
+    };
+    match backward_elimination(e_first, &regressors, &opts) {
+        Ok(rep) => terms
+            .coefficients
+            .iter()
+            .zip(&terms.terms)
+            .map(|(c, t)| Coefficient {
+                value: rep.coefficient(&t.name).map_or(0.0, |x| x.estimate),
+                ..*c
+            })
+            .collect(),
+        Err(_) => terms.coefficients.clone(),
+    }
+}
+
+/// The gain of the extended model (`terms`, `stochastic` and `effects`) over the baseline
+/// `spec` on one channel whose error is `e`, and the curves behind it.
+pub(super) fn measure_gain(
+    run: &Run,
+    slot: usize,
+    spec: &ModelSpec,
+    e: &[f64],
+    terms: &FittedTerms,
+    stochastic: &ModelSpec,
+    effects: &ChannelModel,
+) -> (Gain, WvCurves) {
+    let (n, split, dt_s) = (run.n, run.split, run.dt_s);
+    let max_level = run.max_wv_level();
+    let no_effects = ChannelModel::default();
+    let baseline = ChannelModelSims {
+        coefficients: &[],
+        stochastic: spec,
+        effects: &no_effects,
+        intercept: 0.0,
+    };
+    let extended = ChannelModelSims {
+        coefficients: &terms.coefficients,
+        stochastic,
+        effects,
+        intercept: terms.intercept,
+    };
+    let e_wv = log_wv(e, dt_s, max_level);
+    let base_sims = simulate_model(run, slot, terms, &baseline, 0..n, 11);
+    let ext_sims = simulate_model(run, slot, terms, &extended, 0..n, 13);
+    let wv_curves = WvCurves::new(dt_s, &e_wv, &base_sims, &ext_sims);
+
+    // Held out: deterministic coefficients refitted on the first part only.
+    let first = held_out_coefficients(terms, &e[..split]);
+    let extended_first = ChannelModelSims {
+        coefficients: &first,
+        ..extended
+    };
+    let max_level_h = max_level
+        .min(((n - split) as f64).log2() as u32)
+        .saturating_sub(2);
+    let e_tail = &e[split..];
+    let tail_wv = log_wv(e_tail, dt_s, max_level_h);
+    let held_base = wv_misfit(
+        &tail_wv,
+        &simulate_model(run, slot, terms, &baseline, split..n, 17),
+    );
+    let held_ext = wv_misfit(
+        &tail_wv,
+        &simulate_model(run, slot, terms, &extended_first, split..n, 19),
+    );
+    let fitted = terms.deterministic(&terms.coefficients, 0..n);
+    let ve_in = 1.0 - variance(&(0..n).map(|t| e[t] - fitted[t]).collect::<Vec<_>>()) / variance(e);
+    let d_tail = terms.deterministic(&first, split..n);
+    let ve_out = 1.0
+        - variance(
+            &e_tail
+                .iter()
+                .zip(&d_tail)
+                .map(|(a, b)| a - b)
+                .collect::<Vec<_>>(),
+        ) / variance(e_tail);
+    let gain = Gain {
+        metric: "wv_misfit (mean squared z of log wavelet variance vs model simulations)".into(),
+        baseline: wv_misfit(&e_wv, &base_sims),
+        extended: wv_misfit(&e_wv, &ext_sims),
+        held_out_baseline: held_base,
+        held_out_extended: held_ext,
+        variance_explained: ve_in,
+        held_out_variance_explained: ve_out,
+    };
+    (gain, wv_curves)
+}

@@ -1,0 +1,482 @@
+//! Least squares on moments, jointly with the calibration: a deterministic term's regressor
+//! is seen through what the calibration (boresight, lever arm, biases, or a mean per channel
+//! on static data) would absorb of it, and a fit of several terms is solved on their inner
+//! products with each other, with the error and with every baseline simulation. The spread
+//! of a coefficient comes from the same fit on the simulations (so slow noise correlated
+//! with slow manoeuvres is in the null distribution) and from batch means of the measured
+//! residual; [`eliminate_on_moments`] is the stepwise selection over such terms.
+
+use super::terms::Candidate;
+use crate::calibration::CalibrationDesign;
+use crate::model::{Cause, Channel};
+
+/// What a least-squares fit of per-channel terms jointly with the calibration needs of the
+/// calibration: with a reference, the calibration design (weighted least squares over every
+/// channel's rows: boresight, lever arm, biases); without one (static data), a mean per
+/// channel.
+#[derive(Clone, Copy)]
+pub(super) enum Absorber<'a> {
+    Design(&'a CalibrationDesign),
+    Mean,
+}
+
+/// A regressor on one channel seen through the calibration: its moments with the
+/// calibration's columns (X_c' W_c x) and the parameters the calibration would take from
+/// it, `absorbed` = (X'WX)^-1 X_c' W_c x.
+pub(super) struct Projection {
+    pub moments: nalgebra::DVector<f64>,
+    pub absorbed: nalgebra::DVector<f64>,
+}
+
+impl Absorber<'_> {
+    pub fn weight(&self, channel: Channel) -> f64 {
+        match self {
+            Absorber::Design(d) => d.weight(channel.index()),
+            Absorber::Mean => 1.0,
+        }
+    }
+    pub fn project(&self, channel: Channel, x: &[f64]) -> Projection {
+        match self {
+            Absorber::Design(d) => {
+                let moments = d.moments(channel.index(), x);
+                Projection {
+                    absorbed: d.bread() * &moments,
+                    moments,
+                }
+            }
+            Absorber::Mean => {
+                let sum = x.iter().sum::<f64>();
+                Projection {
+                    moments: nalgebra::DVector::from_element(1, sum),
+                    absorbed: nalgebra::DVector::from_element(1, sum / x.len().max(1) as f64),
+                }
+            }
+        }
+    }
+    /// `x` on `channel` minus what the calibration takes from it there.
+    fn own(&self, channel: Channel, x: &[f64], p: &Projection) -> Vec<f64> {
+        match self {
+            Absorber::Design(d) => x
+                .iter()
+                .zip(d.fitted(channel.index(), &p.absorbed))
+                .map(|(v, f)| v - f)
+                .collect(),
+            Absorber::Mean => x.iter().map(|v| v - p.absorbed[0]).collect(),
+        }
+    }
+    /// Weighted inner product of two terms after the calibration has taken its part from
+    /// both, over every channel's rows: w_c <x, y> [same channel] - x' W X (X'WX)^-1 X' W y.
+    pub fn gram(&self, a: &Term, b: &Term) -> f64 {
+        let same = if a.channel == b.channel {
+            self.weight(a.channel) * a.raw.iter().zip(&b.raw).map(|(x, y)| x * y).sum::<f64>()
+        } else {
+            0.0
+        };
+        same - a.projection.moments.dot(&b.projection.absorbed)
+    }
+}
+
+/// A deterministic term on one channel: its regressor as measured
+/// (`raw`) and stripped of what the calibration absorbs from it on its own channel (`own`),
+/// its moments after the calibration with the error and with each baseline simulation, and
+/// its coefficient with the standard error the simulations give it.
+pub(super) struct Term {
+    pub channel: Channel,
+    pub name: String,
+    pub cause: Cause,
+    /// The body axis of the regressor (x, y, z = 0, 1, 2).
+    pub axis: usize,
+    raw: Vec<f64>,
+    /// The regressor less what the calibration absorbs of it on its own channel.
+    pub own: Vec<f64>,
+    pub projection: Projection,
+    on_error: f64,
+    on_sims: Vec<f64>,
+    pub coef: f64,
+    pub se: f64,
+    /// Smallest standard error the term's coefficient may have: the measured-residual
+    /// spread of its own channel's fit, kept for the joint fit across channels.
+    pub sd_floor: f64,
+}
+
+impl Term {
+    /// `moments_e` and `moments_sims`: the calibration's moments of the error and of each
+    /// replicate's simulations (all channels with a design, this one without).
+    pub fn new(
+        absorber: &Absorber,
+        channel: Channel,
+        c: &Candidate,
+        e: &[f64],
+        moments_e: &nalgebra::DVector<f64>,
+        sims: &[Vec<f64>],
+        moments_sims: &[nalgebra::DVector<f64>],
+    ) -> Self {
+        let projection = absorber.project(channel, c.values);
+        let w = absorber.weight(channel);
+        let after = |y: &[f64], m: &nalgebra::DVector<f64>| {
+            w * c.values.iter().zip(y).map(|(a, b)| a * b).sum::<f64>() - projection.absorbed.dot(m)
+        };
+        Term {
+            channel,
+            name: c.name.clone(),
+            cause: c.cause,
+            axis: c.axis,
+            raw: c.values.to_vec(),
+            own: absorber.own(channel, c.values, &projection),
+            on_error: after(e, moments_e),
+            on_sims: sims
+                .iter()
+                .zip(moments_sims)
+                .map(|(s, m)| after(s, m))
+                .collect(),
+            projection,
+            coef: 0.0,
+            se: f64::NAN,
+            sd_floor: 0.0,
+        }
+    }
+}
+
+/// The error left after the terms: `e` minus each term's own-channel regressor times its
+/// coefficient, minus the mean of what remains.
+pub(super) fn residual_of(e: &[f64], terms: &[Term]) -> Vec<f64> {
+    let mut r = e.to_vec();
+    for t in terms {
+        r.iter_mut().zip(&t.own).for_each(|(v, x)| *v -= t.coef * x);
+    }
+    let m = r.iter().sum::<f64>() / r.len().max(1) as f64;
+    r.iter_mut().for_each(|v| *v -= m);
+    r
+}
+
+/// Coefficients, null standard deviations and |z| of a least-squares fit on moments.
+struct MomentFit {
+    beta: Vec<f64>,
+    sd: Vec<f64>,
+    z: Vec<f64>,
+}
+
+/// The error a fit of terms on one channel leaves, for a spread of its coefficients that
+/// does not lean on the baseline model: `e` with `weight`, the calibration's weight of the
+/// channel.
+#[derive(Clone, Copy)]
+pub(super) struct MeasuredSpread<'a> {
+    pub e: &'a [f64],
+    pub weight: f64,
+}
+
+/// Blocks of the batch-means spread: long enough (45 s of a 900 s drive) to hold most of the
+/// correlation of a Gauss-Markov wander of 20 s, many enough for a spread within ~16%.
+const SPREAD_BLOCKS: usize = 20;
+
+/// Standard deviations of the coefficients from the measured residual itself (batch means:
+/// the coefficients' scores summed over SPREAD_BLOCKS consecutive blocks, in a sandwich with
+/// the inverse Gram matrix). Why: the simulated spread assumes the baseline's noise; when the
+/// channel's correlated noise is stronger than the baseline's (a noise change), that spread
+/// is too small and slow wander correlated with slow manoeuvres is named as terms.
+fn measured_spread(
+    spread: MeasuredSpread,
+    terms: &[Term],
+    active: &[usize],
+    beta: &[f64],
+    gram_inv: &nalgebra::DMatrix<f64>,
+) -> Vec<f64> {
+    let n = spread.e.len();
+    let mut u = spread.e.to_vec();
+    for (a, &k) in active.iter().enumerate() {
+        u.iter_mut()
+            .zip(&terms[k].own)
+            .for_each(|(v, x)| *v -= beta[a] * x);
+    }
+    let mean = u.iter().sum::<f64>() / n.max(1) as f64;
+    let block = (n / SPREAD_BLOCKS).max(1);
+    let scores: Vec<nalgebra::DVector<f64>> = (0..n / block)
+        .map(|b| {
+            let range = b * block..(b + 1) * block;
+            nalgebra::DVector::from_iterator(
+                active.len(),
+                active.iter().map(|&k| {
+                    spread.weight
+                        * terms[k].own[range.clone()]
+                            .iter()
+                            .zip(&u[range.clone()])
+                            .map(|(x, v)| x * (v - mean))
+                            .sum::<f64>()
+                }),
+            )
+        })
+        .collect();
+    let blocks = scores.len() as f64;
+    let centre = scores
+        .iter()
+        .fold(nalgebra::DVector::zeros(active.len()), |acc, s| acc + s)
+        / blocks;
+    let meat = scores.iter().fold(
+        nalgebra::DMatrix::zeros(active.len(), active.len()),
+        |acc, s| {
+            let d = s - &centre;
+            acc + &d * d.transpose()
+        },
+    ) * (blocks / (blocks - 1.0).max(1.0));
+    let cov = gram_inv * meat * gram_inv;
+    (0..active.len())
+        .map(|a| cov[(a, a)].max(0.0).sqrt())
+        .collect()
+}
+
+/// Fits the `active` terms on their moments (None when they are exactly collinear). The
+/// spread of each coefficient is that of the same fit on every baseline simulation, or,
+/// when `spread` is given and it is larger, the batch-means spread of the measured
+/// residual.
+fn fit_on_moments(
+    gram: &nalgebra::DMatrix<f64>,
+    terms: &[Term],
+    active: &[usize],
+    spread: Option<MeasuredSpread>,
+) -> Option<MomentFit> {
+    let g = nalgebra::DMatrix::from_fn(active.len(), active.len(), |a, b| {
+        gram[(active[a], active[b])]
+    });
+    let chol = g.cholesky()?;
+    let solve = |rhs: &dyn Fn(usize) -> f64| {
+        chol.solve(&nalgebra::DVector::from_iterator(
+            active.len(),
+            active.iter().map(|&k| rhs(k)),
+        ))
+    };
+    let beta: Vec<f64> = solve(&|k| terms[k].on_error).iter().copied().collect();
+    let replicates = terms[active[0]].on_sims.len();
+    let null: Vec<nalgebra::DVector<f64>> = (0..replicates)
+        .map(|r| solve(&|k| terms[k].on_sims[r]))
+        .collect();
+    let reps = null.len() as f64;
+    let mut sd: Vec<f64> = (0..active.len())
+        .map(|a| {
+            let m = null.iter().map(|x| x[a]).sum::<f64>() / reps;
+            (null.iter().map(|x| (x[a] - m).powi(2)).sum::<f64>() / (reps - 1.0).max(1.0)).sqrt()
+        })
+        .collect();
+    if let Some(spread) = spread {
+        let measured = measured_spread(spread, terms, active, &beta, &chol.inverse());
+        sd.iter_mut().zip(measured).for_each(|(s, m)| *s = s.max(m));
+    }
+    for (s, &k) in sd.iter_mut().zip(active) {
+        *s = s.max(terms[k].sd_floor);
+    }
+    let z = (0..active.len())
+        .map(|a| {
+            if sd[a] > 0.0 {
+                (beta[a] / sd[a]).abs()
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    Some(MomentFit { beta, sd, z })
+}
+
+/// Stepwise selection on moments. `gram` holds the terms' inner products after the
+/// calibration; each term carries its moment with the error and with every baseline
+/// simulation. Backward: the least significant term goes while one is below `z_strict` or
+/// `small` (too little variance explained at its coefficient). Forward: of the terms left
+/// out, the most significant when added to the survivors comes back if it passes, and the
+/// backward pass runs again. The forward pass matters when two terms are nearly collinear
+/// (omega_z and f_y ~ speed * omega_z on a car): backward elimination drops whichever is
+/// slightly weaker in the crowded full model, and the proxy left alone may fall short where
+/// the true term alone would not. Each term comes back at most once, so this ends. Returns
+/// (term, coefficient, null sd) of the survivors.
+pub(super) fn eliminate_on_moments(
+    gram: &nalgebra::DMatrix<f64>,
+    terms: &[Term],
+    z_strict: f64,
+    small: &dyn Fn(usize, f64) -> bool,
+    spread: Option<MeasuredSpread>,
+) -> Vec<(usize, f64, f64)> {
+    let mut active: Vec<usize> = (0..terms.len()).collect();
+    let mut brought_back: Vec<usize> = Vec::new();
+    loop {
+        let fit = loop {
+            if active.is_empty() {
+                break None;
+            }
+            let Some(fit) = fit_on_moments(gram, terms, &active, spread) else {
+                // Exactly collinear: the term with the weakest marginal fit goes.
+                let marginal = |a: usize| {
+                    let k = active[a];
+                    terms[k].on_error.abs() / gram[(k, k)].max(1e-300).sqrt()
+                };
+                let weakest = (0..active.len())
+                    .min_by(|&a, &b| marginal(a).total_cmp(&marginal(b)))
+                    .expect("active is not empty");
+                active.remove(weakest);
+                continue;
+            };
+            let failing =
+                (0..active.len()).filter(|&a| fit.z[a] < z_strict || small(active[a], fit.beta[a]));
+            match failing.min_by(|&a, &b| fit.z[a].total_cmp(&fit.z[b])) {
+                Some(a) => {
+                    active.remove(a);
+                }
+                None => break Some(fit),
+            }
+        };
+        let best = (0..terms.len())
+            .filter(|k| !active.contains(k) && !brought_back.contains(k))
+            .filter_map(|k| {
+                let with: Vec<usize> = active.iter().copied().chain([k]).collect();
+                let f = fit_on_moments(gram, terms, &with, spread)?;
+                let (z, b) = (f.z[with.len() - 1], f.beta[with.len() - 1]);
+                (z >= z_strict && !small(k, b)).then_some((k, z))
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1));
+        match best {
+            Some((k, _)) => {
+                brought_back.push(k);
+                active.push(k);
+            }
+            None => {
+                return fit.map_or_else(Vec::new, |f| {
+                    active
+                        .iter()
+                        .enumerate()
+                        .map(|(a, &k)| (k, f.beta[a], f.sd[a]))
+                        .collect()
+                });
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    /// Candidates on one channel without a calibration design: the true regressor, a proxy
+    /// that is the true one modulated (as f_y is speed times omega_z), and an unrelated one.
+    fn moment_terms(
+        e: &[f64],
+        sims: &[Vec<f64>],
+        columns: &[(&str, Vec<f64>)],
+    ) -> (nalgebra::DMatrix<f64>, Vec<Term>) {
+        let absorber = Absorber::Mean;
+        let m_e = absorber.project(Channel::Gx, e).moments;
+        let m_sims: Vec<_> = sims
+            .iter()
+            .map(|s| absorber.project(Channel::Gx, s).moments)
+            .collect();
+        let terms: Vec<Term> = columns
+            .iter()
+            .map(|(name, values)| {
+                let c = Candidate {
+                    name: (*name).into(),
+                    values,
+                    cause: Cause::ScaleFactor,
+                    axis: 0,
+                };
+                Term::new(&absorber, Channel::Gx, &c, e, &m_e, sims, &m_sims)
+            })
+            .collect();
+        let gram = nalgebra::DMatrix::from_fn(terms.len(), terms.len(), |a, b| {
+            absorber.gram(&terms[a], &terms[b])
+        });
+        (gram, terms)
+    }
+
+    fn white_series(rng: &mut ChaCha8Rng, n: usize, sigma: f64) -> Vec<f64> {
+        (0..n)
+            .map(|_| sigma * Distribution::<f64>::sample(&StandardNormal, rng))
+            .collect()
+    }
+
+    #[test]
+    fn stepwise_selection_keeps_the_true_term_over_its_proxy_and_names_nothing_in_noise() {
+        let mut rng = ChaCha8Rng::seed_from_u64(31);
+        let n = 20_000;
+        let t: Vec<f64> = (0..n).map(|k| k as f64 * 0.01).collect();
+        let truth: Vec<f64> = t
+            .iter()
+            .map(|t| (0.31 * t).sin() + 0.5 * (1.7 * t).sin())
+            .collect();
+        let proxy: Vec<f64> = truth
+            .iter()
+            .zip(&t)
+            .map(|(x, t)| x * (1.0 + 0.4 * (0.05 * t).sin()))
+            .collect();
+        let unrelated: Vec<f64> = t.iter().map(|t| (0.9 * t).cos()).collect();
+        let sims: Vec<Vec<f64>> = (0..30).map(|_| white_series(&mut rng, n, 0.05)).collect();
+        let noise = white_series(&mut rng, n, 0.05);
+        let columns = [
+            ("truth", truth.clone()),
+            ("proxy", proxy),
+            ("unrelated", unrelated),
+        ];
+        let never_small = |_: usize, _: f64| false;
+
+        let e: Vec<f64> = truth
+            .iter()
+            .zip(&noise)
+            .map(|(x, w)| 0.02 * x + w)
+            .collect();
+        let (gram, terms) = moment_terms(&e, &sims, &columns);
+        let kept = eliminate_on_moments(
+            &gram,
+            &terms,
+            4.0,
+            &never_small,
+            Some(MeasuredSpread { e: &e, weight: 1.0 }),
+        );
+        assert_eq!(kept.len(), 1, "{kept:?}");
+        let (k, b, sd) = kept[0];
+        assert_eq!(terms[k].name, "truth");
+        assert!((b - 0.02).abs() < 3.0 * sd, "{b} +- {sd}");
+
+        let (gram, terms) = moment_terms(&noise, &sims, &columns);
+        let kept = eliminate_on_moments(
+            &gram,
+            &terms,
+            4.0,
+            &never_small,
+            Some(MeasuredSpread {
+                e: &noise,
+                weight: 1.0,
+            }),
+        );
+        assert!(kept.is_empty(), "{kept:?}");
+    }
+
+    #[test]
+    fn the_measured_spread_guards_against_a_noise_stronger_than_the_baseline() {
+        // The baseline simulations are white; the measured error is a slow random walk that
+        // wanders with a slow regressor. Against the simulations alone the slope is
+        // "significant"; with the measured residual's batch-means spread it is not.
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let n = 20_000;
+        let slow: Vec<f64> = (0..n).map(|k| (k as f64 * 2e-4).sin()).collect();
+        let sims: Vec<Vec<f64>> = (0..30).map(|_| white_series(&mut rng, n, 0.05)).collect();
+        let mut walk = 0.0;
+        let e: Vec<f64> = (0..n)
+            .map(|_| {
+                walk += 0.01 * Distribution::<f64>::sample(&StandardNormal, &mut rng);
+                walk + 0.05 * Distribution::<f64>::sample(&StandardNormal, &mut rng)
+            })
+            .collect();
+        let columns = [("slow", slow)];
+        let (gram, terms) = moment_terms(&e, &sims, &columns);
+        let never_small = |_: usize, _: f64| false;
+        assert_eq!(
+            eliminate_on_moments(&gram, &terms, 4.0, &never_small, None).len(),
+            1
+        );
+        assert!(eliminate_on_moments(
+            &gram,
+            &terms,
+            4.0,
+            &never_small,
+            Some(MeasuredSpread { e: &e, weight: 1.0 })
+        )
+        .is_empty());
+    }
+}

@@ -1,0 +1,526 @@
+//! The stochastic effects in what a channel's deterministic terms leave, each tested against
+//! the same statistic on baseline simulations: noise growing with the dynamics, outliers,
+//! vibration lines, quantization of the raw output, and a change of the white or correlated
+//! noise (the wavelet variance of what remains). Found effects are taken out of the residual
+//! as they are found (outliers replaced by the local median, lines subtracted), so the later
+//! tests see what the earlier ones could not explain.
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde_json::json;
+
+use super::engine::{
+    ci, simulated_range, variance, Discrepancy, Finding, Run, WV_MIN_LOG_DEVIATION,
+};
+use super::gain::{level_stats, log_wv, simulate_channel};
+use super::stats::{
+    find_outliers, noise_vs_dynamics, outlier_process, spectral_lines, welch_psd, SpectralLine,
+};
+use crate::gmwm::fit::{FitInput, FitOptions};
+use crate::gmwm::inference::{analyze, ModelChoice};
+use crate::gmwm::model::ModelSpec;
+use crate::model::{
+    Cause, Channel, ChannelModel, DynamicDriver, DynamicNoise, Outliers, VibrationLine,
+};
+use crate::wv::{haar_wv, WvOptions};
+
+/// What the stochastic stage found on one channel.
+pub(super) struct StochasticFindings {
+    pub findings: Vec<Finding>,
+    pub discrepancies: Vec<Discrepancy>,
+    /// The effects found beyond the stochastic model, as the simulator's channel model
+    /// carries them (dynamic noise, vibration lines with phase 0 as the phase is not
+    /// estimated, outliers, quantization step); its other fields are unset.
+    pub effects: ChannelModel,
+    /// The stochastic model of the extended model: the baseline's, or its structure refitted
+    /// on what remains when that departs from the baseline's wavelet variance.
+    pub stochastic: ModelSpec,
+}
+
+/// Runs the tests in order on `resid` (the channel's error `e` less its deterministic
+/// terms and bias), `sims` being the channel's baseline simulations.
+pub(super) fn find_stochastic_effects(
+    run: &Run,
+    slot: usize,
+    channel: Channel,
+    spec: &ModelSpec,
+    e: &[f64],
+    mut resid: Vec<f64>,
+    sims: &[Vec<f64>],
+) -> StochasticFindings {
+    let mut found = StochasticFindings {
+        findings: Vec::new(),
+        discrepancies: Vec::new(),
+        effects: ChannelModel::default(),
+        stochastic: spec.clone(),
+    };
+    // Noise growing with the dynamics, looked at before outliers: the largest samples of a
+    // noise that grows in the manoeuvres are not outliers, and the outlier search then runs
+    // on the residual scaled back to the quiet noise level.
+    let noise_scale = if run.has_dynamics {
+        noise_growth(run, channel, e, &resid, sims, &mut found)
+    } else {
+        None
+    };
+    outliers(run, channel, e, &mut resid, noise_scale, sims, &mut found);
+    vibration_lines(run, channel, e, &mut resid, sims, &mut found);
+    quantization(run, channel, e, &mut found);
+    noise_change(run, slot, channel, spec, &resid, sims, &mut found);
+    found
+}
+
+/// Noise whose variance grows with |omega|^2. Returns the quiet variance and the slope of
+/// the variance on |omega|^2 when found.
+fn noise_growth(
+    run: &Run,
+    channel: Channel,
+    e: &[f64],
+    resid: &[f64],
+    sims: &[Vec<f64>],
+    found: &mut StochasticFindings,
+) -> Option<(f64, f64)> {
+    let window = ((1.0 / run.dt_s) as usize).max(16);
+    let nd = noise_vs_dynamics(resid, &run.omega_norm, window);
+    let sim_t: Vec<f64> = sims
+        .iter()
+        .map(|s| noise_vs_dynamics(s, &run.omega_norm, window).t)
+        .collect();
+    let range = simulated_range(&sim_t);
+    if !(nd.t > run.z_strict.max(range[1] * 1.5) && nd.sigma_per_unit > 0.0) {
+        return None;
+    }
+    found.discrepancies.push(Discrepancy {
+        channel,
+        statistic: "noise variance vs |omega|^2 (t)".into(),
+        measured: nd.t,
+        simulated_range: range,
+        detail: String::new(),
+    });
+    let mean_omega2 = run.omega_norm.iter().map(|w| w * w).sum::<f64>() / run.n as f64;
+    found.findings.push(Finding {
+        channel,
+        cause: Cause::NoiseScalesWithDynamics,
+        regressors: vec!["|omega| (rad/s)".into()],
+        estimate: json!(nd.sigma_per_unit),
+        ci95: json!(nd.sigma_per_unit_ci95),
+        variance_explained: nd.sigma_per_unit.powi(2) * mean_omega2 / variance(e),
+    });
+    found.effects.dynamic_noise = Some(DynamicNoise {
+        driver: DynamicDriver::AngularRateNorm,
+        sigma_per_unit: nd.sigma_per_unit,
+    });
+    Some((nd.intercept.max(0.0), nd.slope))
+}
+
+/// Outliers beyond 6 robust sigma, more than the baseline simulations show. Named only when
+/// they stand out of the noise as a population of their own; then each is replaced in
+/// `resid` by the local median.
+fn outliers(
+    run: &Run,
+    channel: Channel,
+    e: &[f64],
+    resid: &mut [f64],
+    noise_scale: Option<(f64, f64)>,
+    sims: &[Vec<f64>],
+    found: &mut StochasticFindings,
+) {
+    let n = run.n;
+    let input: Vec<f64> = match noise_scale {
+        Some((var0, slope)) if var0 > 0.0 => resid
+            .iter()
+            .zip(&run.omega_norm)
+            .map(|(r, w)| r * (var0 / (var0 + slope * w * w)).sqrt())
+            .collect(),
+        _ => resid.to_vec(),
+    };
+    let out = find_outliers(&input, 11, 6.0);
+    let sim_counts: Vec<f64> = sims
+        .iter()
+        .map(|s| find_outliers(s, 11, 6.0).indices.len() as f64)
+        .collect();
+    let range = simulated_range(&sim_counts);
+    if !(out.indices.len() >= 5 && out.indices.len() as f64 > range[1] + 3.0) {
+        return;
+    }
+    let half_window = 5usize;
+    let local_median: Vec<f64> = out
+        .indices
+        .iter()
+        .map(|&i| {
+            let lo = i.saturating_sub(half_window);
+            let hi = (i + half_window + 1).min(n);
+            let mut b: Vec<f64> = resid[lo..hi].to_vec();
+            let m = b.len() / 2;
+            *b.select_nth_unstable_by(m, f64::total_cmp).1
+        })
+        .collect();
+    let devs: Vec<f64> = out
+        .indices
+        .iter()
+        .zip(&local_median)
+        .map(|(&i, m)| resid[i] - m)
+        .collect();
+    let op = outlier_process(
+        &out.scaled_deviations,
+        6.0 * out.robust_sigma,
+        out.robust_sigma,
+        n,
+    );
+    // The simulation misses the tail either way; only a population that stands out of the
+    // noise is named `outliers` (a heavier-tailed noise is not outliers).
+    let detail = if op.separated {
+        format!("largest |z| {:.1}", out.max_abs_z)
+    } else {
+        format!(
+            "largest |z| {:.1}; a heavier-tailed noise, not a separate outlier population: the exceedances fit a scale of {:.2} robust sigma, of which only {:.1e} would show beyond 6 sigma",
+            out.max_abs_z,
+            op.population_sigma / out.robust_sigma,
+            op.detection_probability
+        )
+    };
+    found.discrepancies.push(Discrepancy {
+        channel,
+        statistic: "outliers beyond 6 robust sigma".into(),
+        measured: out.indices.len() as f64,
+        simulated_range: range,
+        detail,
+    });
+    if !op.separated {
+        return;
+    }
+    let ve = devs.iter().map(|d| d * d).sum::<f64>() / n as f64 / variance(e);
+    found.findings.push(Finding {
+        channel,
+        cause: Cause::Outliers,
+        regressors: vec![
+            "probability_per_sample".into(),
+            format!("sigma (estimate {:.3e})", op.sigma),
+        ],
+        estimate: json!(op.probability_per_sample),
+        ci95: json!(op.probability_ci95),
+        variance_explained: ve,
+    });
+    found.effects.outliers = Some(Outliers {
+        probability: op.probability_per_sample,
+        sigma: op.sigma,
+    });
+    for (&i, m) in out.indices.iter().zip(&local_median) {
+        resid[i] = *m;
+    }
+}
+
+/// Least-squares sinusoid a sin(w t) + b cos(w t) at `f_hz` in `y` sampled every `dt_s`.
+fn fit_sinusoid(f_hz: f64, y: &[f64], dt_s: f64) -> (f64, f64) {
+    let w = std::f64::consts::TAU * f_hz;
+    let (mut ss, mut cc, mut sc, mut ys, mut yc) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for (i, v) in y.iter().enumerate() {
+        let (s, c) = (w * i as f64 * dt_s).sin_cos();
+        ss += s * s;
+        cc += c * c;
+        sc += s * c;
+        ys += v * s;
+        yc += v * c;
+    }
+    let d = ss * cc - sc * sc;
+    if d <= 0.0 {
+        return (0.0, 0.0);
+    }
+    ((ys * cc - yc * sc) / d, (yc * ss - ys * sc) / d)
+}
+
+/// The frequency of a line found in a PSD bin of width `bin_hz`, refined within the bin by
+/// the power of the fitted sinusoid: over minutes a half-bin error would turn the fit into
+/// nothing.
+fn refine_line_frequency(freq_hz: f64, bin_hz: f64, y: &[f64], dt_s: f64) -> f64 {
+    let power = |f_hz: f64| {
+        let (a, b) = fit_sinusoid(f_hz, y, dt_s);
+        a * a + b * b
+    };
+    let mut best = (freq_hz, 0.0);
+    for k in -40..=40 {
+        let f_hz = freq_hz + k as f64 * bin_hz / 40.0;
+        let p = power(f_hz);
+        if p > best.1 {
+            best = (f_hz, p);
+        }
+    }
+    let span = bin_hz / 40.0;
+    let mut fine = best;
+    for k in -20..=20 {
+        let f_hz = best.0 + k as f64 * span / 20.0;
+        let p = power(f_hz);
+        if p > fine.1 {
+            fine = (f_hz, p);
+        }
+    }
+    fine.0
+}
+
+/// Spectral lines of the residual (from 1 Hz, and at least 16 PSD bins, up): each is fitted
+/// as a sinusoid, named, and subtracted from `resid`.
+fn vibration_lines(
+    run: &Run,
+    channel: Channel,
+    e: &[f64],
+    resid: &mut [f64],
+    sims: &[Vec<f64>],
+    found: &mut StochasticFindings,
+) {
+    let (n, dt_s) = (run.n, run.dt_s);
+    let seg = 1usize << ((n as f64 / 16.0).log2().floor() as u32).clamp(6, 12);
+    let min_line_hz = (1.0f64).max(16.0 / (seg as f64 * dt_s));
+    let lines = spectral_lines(&welch_psd(resid, dt_s, seg), run.alpha_test);
+    let sim_lines: Vec<f64> = sims
+        .iter()
+        .take(8)
+        .map(|s| {
+            spectral_lines(&welch_psd(s, dt_s, seg), run.alpha_test)
+                .iter()
+                .filter(|l| l.freq_hz >= min_line_hz)
+                .count() as f64
+        })
+        .collect();
+    for line in lines.iter().filter(|l| l.freq_hz >= min_line_hz) {
+        let bin_hz = 1.0 / (seg as f64 * dt_s);
+        let freq_hz = refine_line_frequency(line.freq_hz, bin_hz, resid, dt_s);
+        let w = std::f64::consts::TAU * freq_hz;
+        let (a, b) = fit_sinusoid(freq_hz, resid, dt_s);
+        let amp = (a * a + b * b).sqrt();
+        for (i, y) in resid.iter_mut().enumerate() {
+            let (s, c) = (w * i as f64 * dt_s).sin_cos();
+            *y -= a * s + b * c;
+        }
+        // Statistical error of a least-squares sinusoid, plus a 3% allowance for what the
+        // sampling does to a line near or above Nyquist (clock jitter, the boresight
+        // rotation mixing axes), which the statistical part ignores.
+        let noise = ((variance(resid) * 2.0 / n as f64) + (0.015 * amp).powi(2)).sqrt();
+        let line = SpectralLine {
+            freq_hz,
+            ..line.clone()
+        };
+        found.discrepancies.push(Discrepancy {
+            channel,
+            statistic: format!("spectral line at {:.2} Hz", line.freq_hz),
+            measured: line.power_ratio,
+            simulated_range: simulated_range(&sim_lines),
+            detail: format!("lines found in baseline simulations: {:?}", sim_lines),
+        });
+        found.findings.push(Finding {
+            channel,
+            cause: Cause::Vibration,
+            regressors: vec![format!("sinusoid at {:.3} Hz (as sampled)", line.freq_hz)],
+            estimate: json!(amp),
+            ci95: json!(ci(amp, noise)),
+            variance_explained: amp * amp / 2.0 / variance(e),
+        });
+        found.effects.vibration_lines.push(VibrationLine {
+            frequency_hz: line.freq_hz,
+            amplitude: amp,
+            phase_rad: 0.0,
+        });
+    }
+}
+
+/// Quantization: the raw sensor values on a lattice the baseline does not have.
+fn quantization(run: &Run, channel: Channel, e: &[f64], found: &mut StochasticFindings) {
+    let raw = run.sensor.channel(channel.name()).unwrap_or(&[]);
+    let Some((q, q_se)) = lattice_step(raw) else {
+        return;
+    };
+    found.discrepancies.push(Discrepancy {
+        channel,
+        statistic: "raw values on a lattice (LSB)".into(),
+        measured: q,
+        simulated_range: [0.0, 0.0],
+        detail: "baseline simulations are continuous".into(),
+    });
+    found.findings.push(Finding {
+        channel,
+        cause: Cause::Quantization,
+        regressors: vec!["lsb".into()],
+        estimate: json!(q),
+        ci95: json!(ci(q, q_se)),
+        variance_explained: q * q / 12.0 / variance(e),
+    });
+    found.effects.quantization_step = Some(q);
+}
+
+/// Lattice spacing of a raw sensor channel and its standard error, if its values lie on one
+/// (quantised output).
+fn lattice_step(x: &[f64]) -> Option<(f64, f64)> {
+    let diffs: Vec<f64> = x
+        .windows(2)
+        .map(|w| (w[1] - w[0]).abs())
+        .filter(|d| *d > 0.0)
+        .collect();
+    if diffs.len() < 100 {
+        return None;
+    }
+    let scale = diffs.iter().fold(0.0f64, |a, b| a.max(*b));
+    let q0 = diffs.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+    // Steps below 1e-9 of the largest are rounding, not a lattice (NaN: no lattice).
+    let resolved = q0 > 1e-9 * scale;
+    if !resolved {
+        return None;
+    }
+    let on_lattice = diffs
+        .iter()
+        .filter(|d| ((*d / q0) - (*d / q0).round()).abs() < 1e-3)
+        .count();
+    if (on_lattice as f64) < 0.999 * diffs.len() as f64 {
+        return None;
+    }
+    // Refine from the many unit steps.
+    let unit: Vec<f64> = diffs
+        .iter()
+        .copied()
+        .filter(|d| (d / q0).round() == 1.0)
+        .collect();
+    let q = unit.iter().sum::<f64>() / unit.len() as f64;
+    let sd = variance(&unit).sqrt() / (unit.len() as f64).sqrt();
+    Some((q, sd.max(q * 1e-12)))
+}
+
+/// A change of the white or correlated noise: levels of the residual's log wavelet variance
+/// outside the baseline's (with the noise growth found above, still in the residual: without
+/// it, that growth would read as a change of the correlated noise too). When found, the
+/// baseline's structure is refitted on the residual and becomes the extended model's.
+fn noise_change(
+    run: &Run,
+    slot: usize,
+    channel: Channel,
+    spec: &ModelSpec,
+    resid: &[f64],
+    sims: &[Vec<f64>],
+    found: &mut StochasticFindings,
+) {
+    let (dt_s, max_level) = (run.dt_s, run.max_wv_level());
+    let measured_wv = log_wv(resid, dt_s, max_level);
+    let sim_wv: Vec<Vec<f64>> = match found.effects.dynamic_noise {
+        None => sims
+            .par_iter()
+            .map(|s| log_wv(s, dt_s, max_level))
+            .collect(),
+        Some(_) => {
+            let growth = ChannelModel {
+                dynamic_noise: found.effects.dynamic_noise,
+                ..Default::default()
+            };
+            let omega_rad_s: [&[f64]; 3] =
+                std::array::from_fn(|axis| run.signals.angular_rate_rad_s(axis));
+            (0..run.opts.replicates)
+                .into_par_iter()
+                .map(|r| {
+                    let mut rng = ChaCha8Rng::seed_from_u64(
+                        run.opts.seed ^ 0xd1_0153 ^ ((slot as u64) << 32) ^ r as u64,
+                    );
+                    let x = simulate_channel(
+                        spec,
+                        &growth,
+                        channel,
+                        omega_rad_s,
+                        dt_s,
+                        run.n,
+                        &mut rng,
+                    );
+                    log_wv(&x, dt_s, max_level)
+                })
+                .collect()
+        }
+    };
+    let (mean, sd) = level_stats(&sim_wv);
+    let z: Vec<f64> = (0..mean.len().min(measured_wv.len()))
+        .map(|j| (measured_wv[j] - mean[j]) / sd[j])
+        .collect();
+    // Significant and large enough to matter: at the finest levels the wavelet variance of a
+    // long record is so precise that a 1-2% model error (in sigma) is significant; below
+    // WV_MIN_LOG_DEVIATION it is not named.
+    let bad: Vec<usize> = (0..z.len())
+        .filter(|&j| {
+            z[j].abs() > run.z_strict.max(4.0)
+                && (measured_wv[j] - mean[j]).abs() > WV_MIN_LOG_DEVIATION
+        })
+        .collect();
+    if bad.is_empty() {
+        return;
+    }
+    for &j in &bad {
+        found.discrepancies.push(Discrepancy {
+            channel,
+            statistic: format!(
+                "log WV at level {} (scale {:.3} s)",
+                j + 1,
+                dt_s * 2f64.powi(j as i32 + 1)
+            ),
+            measured: measured_wv[j],
+            simulated_range: [mean[j] - 3.0 * sd[j], mean[j] + 3.0 * sd[j]],
+            detail: format!("z = {:.1}", z[j]),
+        });
+    }
+    refit_noise(channel, spec, resid, dt_s, &bad, found);
+}
+
+/// Refits the baseline's structure on what remains and names the changed parameters: the
+/// white noise when only the two finest levels are off, the correlated processes otherwise.
+fn refit_noise(
+    channel: Channel,
+    spec: &ModelSpec,
+    resid: &[f64],
+    dt_s: f64,
+    bad_levels: &[usize],
+    found: &mut StochasticFindings,
+) {
+    let Ok(wv) = haar_wv(resid, dt_s, &WvOptions::default()) else {
+        return;
+    };
+    let Ok(input) = FitInput::from_wv(&wv) else {
+        return;
+    };
+    let choice = ModelChoice::Fixed(spec.structure());
+    let Ok(fit) = analyze(
+        channel.name(),
+        &spec.unit,
+        &input,
+        &choice,
+        None,
+        &FitOptions::default(),
+    ) else {
+        return;
+    };
+    found.stochastic = fit.model_object.clone();
+    let only_small = bad_levels.iter().all(|&j| j < 2);
+    let cause = if only_small {
+        Cause::WhiteNoiseChange
+    } else {
+        Cause::CorrelatedNoiseChange
+    };
+    let params: Vec<_> = fit
+        .parameters
+        .iter()
+        .filter(|p| {
+            if only_small {
+                p.process == "WN"
+            } else {
+                p.process.starts_with("GM") || p.process == "RW"
+            }
+        } && p.name != "beta_per_s")
+        .collect();
+    if params.is_empty() {
+        return;
+    }
+    found.findings.push(Finding {
+        channel,
+        cause,
+        regressors: params
+            .iter()
+            .map(|p| format!("{} {} ({})", p.process, p.name, p.unit))
+            .collect(),
+        estimate: json!(params.iter().map(|p| p.value).collect::<Vec<_>>()),
+        ci95: json!(params
+            .iter()
+            .map(|p| p.ci95.unwrap_or([f64::NAN, f64::NAN]))
+            .collect::<Vec<_>>()),
+        variance_explained: f64::NAN,
+    });
+}

@@ -1,0 +1,547 @@
+//! The deterministic terms of each channel's error, found in two stages. Per channel: a
+//! stepwise selection over the regressors physics says could drive the channel (its own
+//! input, the other axes' inputs, specific force on a gyro, angular acceleration, the rate of
+//! change of specific force), each fitted jointly with the calibration, then a search for a
+//! step of the bias on what the kept terms leave. Across channels: a joint fit of all kept
+//! terms with the calibration, so a term one channel shows only because another channel's
+//! term moved the calibration drops out. Last, per channel, the kept terms as findings with
+//! their coefficients, intervals and shares of the error variance.
+
+use rayon::prelude::*;
+use serde_json::json;
+
+use super::engine::{
+    ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run, Z_FLOOR,
+};
+use super::moments::{eliminate_on_moments, residual_of, Absorber, MeasuredSpread, Term};
+use super::stats::{local_step_null_sd, local_step_robust_sd, local_step_scan};
+use crate::calibration::CalibrationDesign;
+use crate::model::{Cause, Channel};
+
+/// True when a term's share of the error variance reaches `min`; a NaN share (an error
+/// without variance) never does.
+fn explains_enough(share: f64, min: f64) -> bool {
+    share >= min
+}
+
+/// A regressor that may drive a channel's error, and the cause it stands for.
+pub(super) struct Candidate<'a> {
+    pub name: String,
+    pub values: &'a [f64],
+    pub cause: Cause,
+    /// The body axis of the regressor (x, y, z = 0, 1, 2): where its coefficient goes in the
+    /// channel's model row.
+    pub axis: usize,
+}
+
+/// What the per-channel and joint stages found on one channel.
+pub(super) struct ChannelTerms {
+    pub terms: Vec<Term>,
+    /// Time of the bias step, s from the start of the sensor recording, when one was found.
+    pub step_at_s: Option<f64>,
+    pub discrepancies: Vec<Discrepancy>,
+    /// What the other channels' terms pushed into this channel through the calibration, to
+    /// be taken out of its error (zeros without a calibration).
+    pub calibration_spill: Vec<f64>,
+}
+
+/// The deterministic candidates of `channel` by physics. Each is fitted jointly with the
+/// calibration (boresight, lever arm, biases) on every channel's rows, so its coefficient is
+/// the one of a joint fit: a gyro's omega_z -> gx term is otherwise half absorbed by the
+/// boresight, and an accelerometer's jerk term by the time offset. Static data (no
+/// dynamics) has none.
+fn candidates<'a>(run: &'a Run, channel: Channel) -> Vec<Candidate<'a>> {
+    let mut cands = Vec::new();
+    if !run.has_dynamics {
+        return cands;
+    }
+    let gyro = channel.is_gyro();
+    for (j, axis_name) in ["x", "y", "z"].into_iter().enumerate() {
+        let (input, input_name) = if gyro {
+            (run.signals.angular_rate_rad_s(j), "omega")
+        } else {
+            (&run.specific_force_m_s2[j][..], "f")
+        };
+        cands.push(Candidate {
+            name: format!("{input_name}_{axis_name}"),
+            values: input,
+            cause: if j == channel.axis() {
+                Cause::ScaleFactor
+            } else {
+                Cause::CrossAxis
+            },
+            axis: j,
+        });
+        if gyro {
+            cands.push(Candidate {
+                name: format!("f_{axis_name}"),
+                values: &run.specific_force_m_s2[j],
+                cause: Cause::GSensitivity,
+                axis: j,
+            });
+        }
+        cands.push(Candidate {
+            name: format!("omega_dot_{axis_name}"),
+            values: run.signals.angular_acceleration_rad_s2(j),
+            cause: Cause::AngularAcceleration,
+            axis: j,
+        });
+        cands.push(Candidate {
+            name: format!("f_dot_{axis_name}"),
+            values: &run.specific_force_rate_m_s3[j],
+            cause: Cause::Jerk,
+            axis: j,
+        });
+    }
+    cands
+}
+
+/// The calibration's moments of the error and of each replicate's baseline simulations over
+/// all channels: what a term's joint fit with the calibration needs of the other channels.
+/// Empty without a calibration design.
+struct CalibrationMoments {
+    error: nalgebra::DVector<f64>,
+    sims: Vec<nalgebra::DVector<f64>>,
+}
+
+impl CalibrationMoments {
+    fn of(run: &Run, errors: &[Option<&[f64]>; 6]) -> Self {
+        let Some(d) = run.design else {
+            return Self {
+                error: nalgebra::DVector::zeros(0),
+                sims: Vec::new(),
+            };
+        };
+        // Every channel's baseline simulations of one replicate (the ones stage 1 draws).
+        let sims_of = |r: usize| -> [Option<Vec<f64>>; 6] {
+            std::array::from_fn(|i| {
+                let channel = Channel::ALL[i];
+                let slot = run.channels.iter().position(|c| *c == channel)?;
+                Some(run.baseline_sim(slot, r, run.baseline.channels.get(&channel)?))
+            })
+        };
+        Self {
+            error: d.moments_all(errors),
+            sims: (0..run.opts.replicates)
+                .into_par_iter()
+                .map(|r| {
+                    let sims = sims_of(r);
+                    d.moments_all(&std::array::from_fn(|i| sims[i].as_deref()))
+                })
+                .collect(),
+        }
+    }
+}
+
+/// The stepwise selection of one channel's terms, with what it needs of the channel: its
+/// error and baseline simulations, and their moments with the calibration.
+struct Selection<'a> {
+    absorber: Absorber<'a>,
+    channel: Channel,
+    e: &'a [f64],
+    moments_e: &'a nalgebra::DVector<f64>,
+    sims: &'a [Vec<f64>],
+    moments_sims: &'a [nalgebra::DVector<f64>],
+    z_strict: f64,
+    min_variance_explained: f64,
+}
+
+impl Selection<'_> {
+    /// Backward elimination with simulation-calibrated standard errors: the baseline noise
+    /// (slow Gauss-Markov wander included) is regressed on the same measured dynamics, so
+    /// spurious correlation of slow noise with slow manoeuvres is in the null distribution.
+    /// HAC alone under-covers for such persistent noise.
+    fn select(&self, cands: &[Candidate]) -> Vec<Term> {
+        let terms: Vec<Term> = cands
+            .par_iter()
+            .map(|c| {
+                Term::new(
+                    &self.absorber,
+                    self.channel,
+                    c,
+                    self.e,
+                    self.moments_e,
+                    self.sims,
+                    self.moments_sims,
+                )
+            })
+            .collect();
+        let gram = nalgebra::DMatrix::from_fn(terms.len(), terms.len(), |a, b| {
+            self.absorber.gram(&terms[a], &terms[b])
+        });
+        let var_e = variance(self.e);
+        let small = |k: usize, b: f64| {
+            let explained = b.powi(2) * variance(&terms[k].own) / var_e;
+            !explains_enough(explained, self.min_variance_explained)
+        };
+        let kept = eliminate_on_moments(
+            &gram,
+            &terms,
+            self.z_strict,
+            &small,
+            Some(MeasuredSpread {
+                e: self.e,
+                weight: self.absorber.weight(self.channel),
+            }),
+        );
+        let mut terms: Vec<Option<Term>> = terms.into_iter().map(Some).collect();
+        kept.into_iter()
+            .map(|(k, b, sd)| {
+                let mut t = terms[k].take().expect("each term once");
+                t.coef = b;
+                t.se = sd;
+                t.sd_floor = sd;
+                t
+            })
+            .collect()
+    }
+}
+
+/// A step of the bias found on a channel.
+struct FoundStep {
+    /// First epoch after the step.
+    index: usize,
+    /// Time of the step, s from the start of the sensor recording.
+    at_s: f64,
+    discrepancy: Discrepancy,
+}
+
+/// A step of the bias, looked for at short windows (the difference of the means just after
+/// and just before each epoch), where slow Gauss-Markov wander barely moves while a step
+/// stands whole, on the residual of the kept terms, with the null spread at each window from
+/// the baseline simulations.
+fn find_bias_step(
+    run: &Run,
+    channel: Channel,
+    e: &[f64],
+    terms: &[Term],
+    sims: &[Vec<f64>],
+) -> Option<FoundStep> {
+    let windows: Vec<usize> = (6..20)
+        .map(|j| 1usize << j)
+        .take_while(|&w| w <= run.n / 8)
+        .collect();
+    let null_sd = local_step_null_sd(sims, &windows);
+    let resid = residual_of(e, terms);
+    let sim_z: Vec<f64> = sims
+        .par_iter()
+        .filter_map(|s| local_step_scan(s, &windows, &null_sd))
+        .map(|m| m.z)
+        .collect();
+    let range = simulated_range(&sim_z);
+    // The residual is scaled by its own noise where that is larger than the baseline's (a
+    // stronger correlated noise wanders in steps the baseline's would not); the threshold on
+    // the largest z still comes from the simulations.
+    let own_sd = local_step_robust_sd(&resid, &windows);
+    let scale_sd: Vec<f64> = null_sd
+        .iter()
+        .zip(&own_sd)
+        .map(|(a, b)| a.max(*b))
+        .collect();
+    let step = local_step_scan(&resid, &windows, &scale_sd)?;
+    // Without a step in any simulation (range -inf) the threshold is z_strict; a NaN z is
+    // no step.
+    let stands_out = step.z > (1.25 * range[1]).max(run.z_strict);
+    if !stands_out {
+        return None;
+    }
+    let t_s = &run.signals.t_s;
+    Some(FoundStep {
+        index: step.index,
+        at_s: t_s[step.index] - run.sensor.t_s[0],
+        discrepancy: Discrepancy {
+            channel,
+            statistic: "largest local step of the mean (|z| at its window)".into(),
+            measured: step.z,
+            simulated_range: range,
+            detail: format!(
+                "at t = {:.2} s, window {} samples, local size {:.4e}",
+                t_s[step.index], step.window, step.size
+            ),
+        },
+    })
+}
+
+/// Stage 1 on one channel (`slot` in the run's channels): the stepwise selection over the
+/// physics candidates, then a bias step. When a step is found, it joins the candidates and
+/// the selection runs again, so terms that were standing in for it (a scale factor, when
+/// the input's level changes during the run) drop out and its size and interval come from
+/// the joint fit.
+fn channel_terms(
+    run: &Run,
+    calibration_moments: &CalibrationMoments,
+    slot: usize,
+    channel: Channel,
+) -> Result<ChannelTerms, DiagnoseError> {
+    let e = run.error(channel);
+    let spec = run.spec(channel)?;
+    let step_values: Vec<f64>;
+    let mut cands = candidates(run, channel);
+    // Baseline simulations: the null distribution of every statistic.
+    let sims = run.baseline_sims(slot, spec);
+    let absorber = run.absorber();
+    let (own_moments_e, own_moments_sims);
+    let (moments_e, moments_sims) = match absorber {
+        Absorber::Design(_) => (&calibration_moments.error, &calibration_moments.sims),
+        Absorber::Mean => {
+            own_moments_e = absorber.project(channel, e).moments;
+            own_moments_sims = sims
+                .iter()
+                .map(|s| absorber.project(channel, s).moments)
+                .collect::<Vec<_>>();
+            (&own_moments_e, &own_moments_sims)
+        }
+    };
+    let selection = Selection {
+        absorber,
+        channel,
+        e,
+        moments_e,
+        sims: &sims,
+        moments_sims,
+        z_strict: run.z_strict,
+        min_variance_explained: run.opts.min_variance_explained,
+    };
+    let mut terms = selection.select(&cands);
+    let mut discrepancies = Vec::new();
+    let mut step_at_s = None;
+    if let Some(step) = find_bias_step(run, channel, e, &terms, &sims) {
+        discrepancies.push(step.discrepancy);
+        step_values = (0..run.n)
+            .map(|t| if t >= step.index { 1.0 } else { 0.0 })
+            .collect();
+        cands.push(Candidate {
+            name: format!("step_at_{:.2}_s", step.at_s),
+            values: &step_values,
+            cause: Cause::BiasShift,
+            axis: 0,
+        });
+        step_at_s = Some(step.at_s);
+        terms = selection.select(&cands);
+    }
+    Ok(ChannelTerms {
+        terms,
+        step_at_s,
+        discrepancies,
+        calibration_spill: vec![0.0; run.n],
+    })
+}
+
+/// The deterministic terms of every channel of the run (in the run's channel order): stage 1
+/// per channel, then, with a calibration, stage 2 across channels: the terms kept per channel
+/// are fitted jointly with the calibration and each other, so a term one channel shows only
+/// because another channel's term pulled the boresight or lever arm drops out.
+pub(super) fn find_terms(run: &Run) -> Result<Vec<ChannelTerms>, DiagnoseError> {
+    let errors: [Option<&[f64]>; 6] =
+        std::array::from_fn(|i| run.signals.error_of(Channel::ALL[i]));
+    let calibration_moments = CalibrationMoments::of(run, &errors);
+    let stage1: Vec<Result<ChannelTerms, DiagnoseError>> = run
+        .channels
+        .par_iter()
+        .enumerate()
+        .map(|(slot, &channel)| channel_terms(run, &calibration_moments, slot, channel))
+        .collect();
+    let mut per_channel: Vec<ChannelTerms> = stage1.into_iter().collect::<Result<_, _>>()?;
+    let Some(design) = run.design else {
+        return Ok(per_channel);
+    };
+    let all: Vec<Term> = per_channel
+        .iter_mut()
+        .flat_map(|c| std::mem::take(&mut c.terms))
+        .collect();
+    let joint = joint_terms(design, all, run.z_strict, &|t: &Term, b: f64| {
+        let explained =
+            b.powi(2) * variance(&t.own) / errors[t.channel.index()].map_or(f64::NAN, variance);
+        !explains_enough(explained, run.opts.min_variance_explained)
+    });
+    let mut joint_spill = joint.spill;
+    for t in joint.terms {
+        per_channel[run.slot(t.channel)].terms.push(t);
+    }
+    for (found, channel) in per_channel.iter_mut().zip(&run.channels) {
+        if let Some(spill) = joint_spill[channel.index()].take() {
+            found.calibration_spill = spill;
+        }
+    }
+    Ok(per_channel)
+}
+
+/// terms had pushed into it through the calibration (to be taken out of its error).
+struct JointTerms {
+    terms: Vec<Term>,
+    spill: [Option<Vec<f64>>; 6],
+}
+
+/// Fits the terms of all channels jointly with the calibration and with each other, and
+/// eliminates, one at a time, those no longer significant or too small to matter (`small`
+/// at their coefficient).
+///
+/// Why: a term on one channel moves the calibration (a gyro's omega_z -> gx term pulls the
+/// boresight about y), and the moved calibration leaves a copy of the term's pattern on the
+/// other channels (f_x on az). Each channel's own fit sees that copy as a term of its own;
+/// in the joint fit the copy is explained by the term that caused it.
+fn joint_terms(
+    design: &CalibrationDesign,
+    terms: Vec<Term>,
+    z_strict: f64,
+    small: &dyn Fn(&Term, f64) -> bool,
+) -> JointTerms {
+    let absorber = Absorber::Design(design);
+    let k = terms.len();
+    let gram = nalgebra::DMatrix::from_fn(k, k, |a, b| absorber.gram(&terms[a], &terms[b]));
+    let kept = eliminate_on_moments(&gram, &terms, z_strict, &|i, b| small(&terms[i], b), None);
+    let mut spill: [Option<Vec<f64>>; 6] =
+        std::array::from_fn(|ch| design.has_channel(ch).then(|| vec![0.0; design.epochs()]));
+    let mut terms: Vec<Option<Term>> = terms.into_iter().map(Some).collect();
+    let mut out = Vec::new();
+    for (i, coef, se) in kept {
+        let mut t = terms[i].take().expect("each term once");
+        // What the calibration took from this term shows on the other channels as
+        // -coef * X_ch absorbed.
+        for (ch, s) in spill.iter_mut().enumerate() {
+            if let Some(s) = s.as_mut().filter(|_| ch != t.channel.index()) {
+                let fit = design.fitted(ch, &t.projection.absorbed);
+                s.iter_mut().zip(fit).for_each(|(v, x)| *v -= coef * x);
+            }
+        }
+        t.coef = coef;
+        t.se = se;
+        out.push(t);
+    }
+    JointTerms { terms: out, spill }
+}
+
+/// A kept term's coefficient as the extended model carries it.
+#[derive(Debug, Clone, Copy)]
+pub(super) struct Coefficient {
+    pub value: f64,
+    pub ci95: [f64; 2],
+    /// Share of the channel's error variance the term accounts for.
+    pub variance_explained: f64,
+}
+
+/// A channel's deterministic terms after both stages: each term with its coefficient
+/// (`coefficients[k]` belongs to `terms[k]`) and the bias left beside them.
+pub(super) struct FittedTerms {
+    pub terms: Vec<Term>,
+    pub coefficients: Vec<Coefficient>,
+    /// Mean error the terms leave, channel unit.
+    pub intercept: f64,
+    /// Time of the bias step, s from the start of the sensor recording, if one was kept.
+    pub step_at_s: Option<f64>,
+}
+
+/// Causes of per-channel terms, in the order their findings are reported.
+const TERM_CAUSES: [Cause; 6] = [
+    Cause::ScaleFactor,
+    Cause::CrossAxis,
+    Cause::GSensitivity,
+    Cause::AngularAcceleration,
+    Cause::Jerk,
+    Cause::BiasShift,
+];
+
+impl FittedTerms {
+    /// The terms `found` on `channel`, whose error (as the joint calibration leaves it) is `e`.
+    pub fn new(run: &Run, channel: Channel, found: ChannelTerms, e: &[f64]) -> Self {
+        let n = run.n;
+        let terms = found.terms;
+        let var_e = variance(e);
+        let mut coefficients: Vec<Coefficient> = terms
+            .iter()
+            .map(|t| Coefficient {
+                value: t.coef,
+                ci95: ci(t.coef, t.se),
+                variance_explained: t.coef.powi(2) * variance(&t.own) / var_e,
+            })
+            .collect();
+        let intercept = e.iter().sum::<f64>() / n as f64
+            - terms
+                .iter()
+                .map(|t| t.coef * t.own.iter().sum::<f64>() / n as f64)
+                .sum::<f64>();
+        // A term on the channel's own derivative is measured on data shifted by the common
+        // time offset, so that offset's uncertainty is part of the term's.
+        if let Some(offset) = run.calibration.and_then(|c| c.time_offset_s) {
+            for (c, t) in coefficients.iter_mut().zip(&terms) {
+                let own_derivative = t.axis == channel.axis()
+                    && match t.cause {
+                        Cause::AngularAcceleration => channel.is_gyro(),
+                        Cause::Jerk => !channel.is_gyro(),
+                        _ => false,
+                    };
+                if own_derivative {
+                    let se = (c.ci95[1] - c.ci95[0]) / (2.0 * Z_FLOOR);
+                    c.ci95 = ci(c.value, se.hypot(offset.sigma));
+                }
+            }
+        }
+        Self {
+            terms,
+            coefficients,
+            intercept,
+            step_at_s: found.step_at_s,
+        }
+    }
+
+    /// The deterministic part of the error over `range` with these `coefficients` (one per
+    /// term, or none): the sum of each term's regressor times its coefficient.
+    pub fn deterministic(
+        &self,
+        coefficients: &[Coefficient],
+        range: std::ops::Range<usize>,
+    ) -> Vec<f64> {
+        range
+            .map(|t| {
+                coefficients
+                    .iter()
+                    .zip(&self.terms)
+                    .map(|(c, term)| c.value * term.own[t])
+                    .sum::<f64>()
+            })
+            .collect()
+    }
+
+    /// One finding per cause with kept terms on `channel`.
+    pub fn findings(&self, channel: Channel) -> Vec<Finding> {
+        let mut findings = Vec::new();
+        for cause in TERM_CAUSES {
+            let kept: Vec<(&Coefficient, &Term)> = self
+                .coefficients
+                .iter()
+                .zip(&self.terms)
+                .filter(|(_, t)| t.cause == cause)
+                .collect();
+            if kept.is_empty() {
+                continue;
+            }
+            let single = kept.len() == 1;
+            findings.push(Finding {
+                channel,
+                cause,
+                regressors: kept.iter().map(|(_, t)| t.name.clone()).collect(),
+                estimate: if single {
+                    json!(kept[0].0.value)
+                } else {
+                    json!(kept.iter().map(|(c, _)| c.value).collect::<Vec<_>>())
+                },
+                ci95: if single {
+                    json!(kept[0].0.ci95)
+                } else {
+                    json!(kept.iter().map(|(c, _)| c.ci95).collect::<Vec<_>>())
+                },
+                variance_explained: kept.iter().map(|(c, _)| c.variance_explained).sum(),
+            });
+        }
+        findings
+    }
+
+    /// What the calibration took from these terms, to correct its estimates.
+    pub fn absorbed_by(&self, design: &CalibrationDesign) -> nalgebra::DVector<f64> {
+        let mut total = nalgebra::DVector::<f64>::zeros(design.parameters());
+        for (c, t) in self.coefficients.iter().zip(&self.terms) {
+            total += &t.projection.absorbed * c.value;
+        }
+        total
+    }
+}
