@@ -234,3 +234,77 @@ fn the_boards_wavelet_variances_refit_into_a_model_the_simulator_runs() {
     ]);
     assert!(d.join("sim/imu0.csv").exists());
 }
+
+/// diagnose -> simulate and diagnose -> diagnose --baseline: the extended model of one
+/// diagnosis is a model file the simulator runs (with the mounting the calibration found)
+/// and the baseline of the next diagnosis.
+#[test]
+fn the_extended_model_simulates_and_serves_as_the_next_baseline() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    std::fs::write(d.join("m.json"), MEMS_MODEL).unwrap();
+    dynacal(&[
+        "simulate",
+        "--model",
+        path(&d.join("m.json")),
+        "--seconds",
+        "120",
+        "--seed",
+        "5",
+        "--out",
+        path(&d.join("run")),
+    ]);
+    let (sensor, reference) = (d.join("run/mems.csv"), d.join("run/reference.csv"));
+    dynacal(&[
+        "diagnose",
+        "--sensor",
+        path(&sensor),
+        "--reference",
+        path(&reference),
+        "--json",
+        path(&d.join("d1.json")),
+        "--report",
+        path(&d.join("rep")),
+    ]);
+    let extended = d.join("rep/extended-model.json");
+    let model = SimModel::load(&extended).unwrap();
+    let first = read_json(&d.join("d1.json"));
+    let boresight = first["calibration"]["boresight_rad"]["value"]
+        .as_array()
+        .unwrap();
+    for (axis, b) in boresight.iter().enumerate() {
+        let deg = b.as_f64().unwrap().to_degrees();
+        assert!((model.imus[0].boresight_rpy_deg[axis] - deg).abs() < 1e-12);
+    }
+    for c in Channel::ALL {
+        assert!(model.imus[0].model_of(c).stochastic.is_some(), "{c}");
+    }
+
+    dynacal(&[
+        "simulate",
+        "--model",
+        path(&extended),
+        "--seconds",
+        "30",
+        "--out",
+        path(&d.join("again")),
+    ]);
+    let again = dynacal::interchange::ImuRecording::read(&d.join("again/diagnosed.csv")).unwrap();
+    assert_eq!(again.channels().len(), 6);
+    assert_eq!(again.sample_rate_hz, Some(100.0));
+
+    dynacal(&[
+        "diagnose",
+        "--sensor",
+        path(&sensor),
+        "--reference",
+        path(&reference),
+        "--baseline",
+        path(&extended),
+        "--json",
+        path(&d.join("d2.json")),
+    ]);
+    let second = read_json(&d.join("d2.json"));
+    let source = second["baseline_source"].as_str().unwrap();
+    assert!(source.contains("extended-model.json"), "{source}");
+}

@@ -60,7 +60,7 @@ pub(super) fn extended_model(
     let deg = 180.0 / std::f64::consts::PI;
     let mut imu = ImuModel {
         channels,
-        ..ImuModel::bare("diagnosed", rate_hz)
+        ..ImuModel::bare("diagnosed", crate::interchange::shortest_rate_hz(rate_hz))
     };
     if let Some(cal) = calibration {
         if let Some(l) = sensor_wide.lever_arm_b_m {

@@ -76,7 +76,7 @@ pub struct VibrationLine {
     pub frequency_hz: f64,
     /// Amplitude, channel unit.
     pub amplitude: f64,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "is_zero")]
     pub phase_rad: f64,
 }
 
