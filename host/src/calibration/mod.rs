@@ -215,12 +215,7 @@ mod tests {
             t_s: t_s.clone(),
             ..Default::default()
         };
-        let (mut rg, mut ra, mut sg, mut sa): (
-            [Vec<f64>; 3],
-            [Vec<f64>; 3],
-            [Vec<f64>; 3],
-            [Vec<f64>; 3],
-        ) = Default::default();
+        let [mut rg, mut ra, mut sg, mut sa]: [crate::interchange::Triplet; 4] = Default::default();
         for &t in &t_s {
             let (w, _, f) = motion(t);
             // The sensor lags: its sample at t shows the truth at t - dt_true.
