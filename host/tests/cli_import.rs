@@ -39,11 +39,18 @@ fn import_psins_folder_writes_mems_and_fog_files_and_reports_them() {
         stdout.contains("psins-mems.csv.gz: 10001 samples, 100.000 s, [gx gy gz ax ay az]"),
         "{stdout}"
     );
-    // The written file reads back to exactly what the library produced.
+    // The written file reads back to exactly what the library produced, and states the rate
+    // estimated once from its time column.
     let written = ImuRecording::read(&out.path().join("psins-mems.csv.gz")).unwrap();
     let direct =
         dynacal::import::psins_fog_mems::read_mems(&input.join("mems_increments.csv.gz")).unwrap();
-    assert_eq!(written, direct);
+    assert_eq!(
+        written,
+        ImuRecording {
+            sample_rate_hz: Some(100.0),
+            ..direct
+        }
+    );
     let mut names: Vec<String> = std::fs::read_dir(out.path())
         .unwrap()
         .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())

@@ -19,8 +19,9 @@ pub struct Args {
     /// Seed of every random draw (trajectory script, noises, clocks).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Model file (simulator model or a fitted GMWM model); default: a navigation-grade
-    /// reference, no MEMS IMU, GNSS and PPS.
+    /// Model file (`docs/formats.md` section 3): the output of `dynacal fit`, the extended
+    /// model of `dynacal diagnose`, a hand-written simulator model, or a bare GMWM model;
+    /// default: a navigation-grade reference, no MEMS IMU, GNSS and PPS.
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Output folder (created if absent).
