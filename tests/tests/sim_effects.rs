@@ -288,7 +288,7 @@ fn table_one_example_models_carry_the_papers_parameters_and_simulate_them() {
                 scenario: Scenario::Static,
                 seconds: 2f64.powi(18) / 100.0,
                 seed: 9,
-                disabled: vec!["quantization".into()],
+                disabled: vec![dynacal::model::Effect::Quantization],
                 keep_ideal: true,
             };
             let out = simulate(&m, &opts, &|_| {}).unwrap();
@@ -362,7 +362,7 @@ fn scale_factor_error_is_proportional_to_the_rate() {
         scenario: Scenario::Car,
         seconds: 60.0,
         seed: 4,
-        disabled: vec!["scale_factor".into()],
+        disabled: vec![dynacal::model::Effect::ScaleFactor],
         keep_ideal: true,
     };
     let m = model_with(100.0, vec![sf_imu()]);
@@ -598,7 +598,7 @@ fn written_outputs_read_back_list_every_effect_and_repeat_bit_for_bit_for_a_seed
         scenario: Scenario::Car,
         seconds: 30.0,
         seed: 17,
-        disabled: vec!["outliers".into()],
+        disabled: vec![dynacal::model::Effect::Outliers],
         keep_ideal: false,
     };
     let dirs = [tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap()];

@@ -29,7 +29,7 @@ pub struct Args {
     pub out: PathBuf,
     /// Switch effects off everywhere, e.g. `--disable white_noise,vibration`.
     #[arg(long, value_delimiter = ',')]
-    pub disable: Vec<String>,
+    pub disable: Vec<dynacal::model::Effect>,
     /// Also write `<imu>-ideal.csv`: error-free sensor outputs at the true sampling instants.
     #[arg(long)]
     pub ideal: bool,

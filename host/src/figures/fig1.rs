@@ -139,7 +139,7 @@ pub fn fig1_model() -> SimModel {
     // an uncalibrated reference accelerometer bias b tilts the boresight by b/g (100 ug gives
     // 1e-4 rad, about twice the final 3σ of roll and pitch here) without the filter knowing.
     // The reference of the figure is taken as bias-calibrated; its noise stays.
-    reference.disabled = vec!["bias".into()];
+    reference.disabled = vec![crate::model::Effect::Bias];
     SimModel {
         comment: Some("dynacal fig1: paper Fig. 1 on simulated data".into()),
         trajectory: TrajectoryConfig {

@@ -278,8 +278,13 @@ mod tests {
         );
         let e =
             msg(r#"{"imus": [{"name": "a", "rate_hz": 100, "gyro": {"disabled": ["noise"]}}]}"#);
+        // An effect's name is checked by serde: the message names the line and column and
+        // lists the known effects.
         assert!(
-            e.contains("imus[0].channels.gx.disabled") && e.contains("unknown effect `noise`"),
+            e.contains("m.json")
+                && e.contains("`noise`")
+                && e.contains("line 1")
+                && e.contains("white_noise"),
             "{e}"
         );
         let e = msg(

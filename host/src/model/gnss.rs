@@ -34,7 +34,7 @@ pub struct GnssModel {
     #[serde(default)]
     pub outages: Vec<[f64; 2]>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub disabled: Vec<String>,
+    pub disabled: Vec<super::Effect>,
 }
 
 impl Default for GnssModel {

@@ -10,40 +10,154 @@ use serde::{Deserialize, Serialize};
 use super::Channel;
 use crate::gmwm::model::{ModelSpec, Process};
 
-/// Names of all switchable effects.
-pub const EFFECTS: &[&str] = &[
-    // stochastic processes of the GMWM model, by kind
-    "white_noise",
-    "quantization_noise",
-    "random_walk",
-    "drift",
-    "gauss_markov",
-    // deterministic and other per-channel effects
-    "bias",
-    "scale_factor",
-    "cross_axis",
-    "g_sensitivity",
-    "angular_acceleration_sensitivity",
-    "jerk_sensitivity",
-    "dynamic_noise",
-    "vibration",
-    "outliers",
-    "bias_step",
-    "saturation",
-    "quantization",
-    // per-sensor effects
-    "lever_arm",
-    "boresight",
-    "time_offset",
-    "clock_drift",
-    "clock_jitter",
-    // GNSS effects
-    "gnss_position_noise",
-    "gnss_position_bias",
-    "gnss_velocity_noise",
-    "gnss_outages",
-    "pps_jitter",
-];
+/// An effect of the model that can be switched off without deleting its parameters (in a
+/// `disabled` list of a channel, a sensor or the GNSS receiver, or everywhere with `dynacal
+/// simulate --disable`); written as its snake_case name.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord, Hash, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Effect {
+    /// Switches off white noise of the stochastic model.
+    WhiteNoise,
+    /// Switches off quantization noise of the stochastic model.
+    QuantizationNoise,
+    /// Switches off random walk of the stochastic model.
+    RandomWalk,
+    /// Switches off drift of the stochastic model.
+    Drift,
+    /// Switches off every Gauss-Markov process of the stochastic model.
+    GaussMarkov,
+    /// Switches off the constant bias.
+    Bias,
+    /// Switches off the scale-factor error.
+    ScaleFactor,
+    /// Switches off the cross-axis sensitivity.
+    CrossAxis,
+    /// Switches off the gyro g-sensitivity.
+    GSensitivity,
+    /// Switches off the angular-acceleration sensitivity.
+    AngularAccelerationSensitivity,
+    /// Switches off the jerk sensitivity.
+    JerkSensitivity,
+    /// Switches off noise following the dynamics.
+    DynamicNoise,
+    /// Switches off the vibration lines.
+    Vibration,
+    /// Switches off outliers.
+    Outliers,
+    /// Switches off the bias steps.
+    BiasStep,
+    /// Switches off saturation.
+    Saturation,
+    /// Switches off rounding of the output to its step.
+    Quantization,
+    /// Switches off the lever arm.
+    LeverArm,
+    /// Switches off the boresight.
+    Boresight,
+    /// Switches off the time offset.
+    TimeOffset,
+    /// Switches off the sample clock's frequency offset and random walk.
+    ClockDrift,
+    /// Switches off the sample clock's jitter.
+    ClockJitter,
+    /// Switches off white noise of the GNSS position.
+    GnssPositionNoise,
+    /// Switches off the correlated GNSS position error.
+    GnssPositionBias,
+    /// Switches off white noise of the GNSS velocity.
+    GnssVelocityNoise,
+    /// Switches off the GNSS outages.
+    GnssOutages,
+    /// Switches off the PPS jitter.
+    PpsJitter,
+}
+
+impl Effect {
+    /// Every effect, in the order the simulator applies them.
+    pub const ALL: [Effect; 27] = [
+        Effect::WhiteNoise,
+        Effect::QuantizationNoise,
+        Effect::RandomWalk,
+        Effect::Drift,
+        Effect::GaussMarkov,
+        Effect::Bias,
+        Effect::ScaleFactor,
+        Effect::CrossAxis,
+        Effect::GSensitivity,
+        Effect::AngularAccelerationSensitivity,
+        Effect::JerkSensitivity,
+        Effect::DynamicNoise,
+        Effect::Vibration,
+        Effect::Outliers,
+        Effect::BiasStep,
+        Effect::Saturation,
+        Effect::Quantization,
+        Effect::LeverArm,
+        Effect::Boresight,
+        Effect::TimeOffset,
+        Effect::ClockDrift,
+        Effect::ClockJitter,
+        Effect::GnssPositionNoise,
+        Effect::GnssPositionBias,
+        Effect::GnssVelocityNoise,
+        Effect::GnssOutages,
+        Effect::PpsJitter,
+    ];
+
+    /// The name in model files and on the command line.
+    pub const fn name(self) -> &'static str {
+        match self {
+            Effect::WhiteNoise => "white_noise",
+            Effect::QuantizationNoise => "quantization_noise",
+            Effect::RandomWalk => "random_walk",
+            Effect::Drift => "drift",
+            Effect::GaussMarkov => "gauss_markov",
+            Effect::Bias => "bias",
+            Effect::ScaleFactor => "scale_factor",
+            Effect::CrossAxis => "cross_axis",
+            Effect::GSensitivity => "g_sensitivity",
+            Effect::AngularAccelerationSensitivity => "angular_acceleration_sensitivity",
+            Effect::JerkSensitivity => "jerk_sensitivity",
+            Effect::DynamicNoise => "dynamic_noise",
+            Effect::Vibration => "vibration",
+            Effect::Outliers => "outliers",
+            Effect::BiasStep => "bias_step",
+            Effect::Saturation => "saturation",
+            Effect::Quantization => "quantization",
+            Effect::LeverArm => "lever_arm",
+            Effect::Boresight => "boresight",
+            Effect::TimeOffset => "time_offset",
+            Effect::ClockDrift => "clock_drift",
+            Effect::ClockJitter => "clock_jitter",
+            Effect::GnssPositionNoise => "gnss_position_noise",
+            Effect::GnssPositionBias => "gnss_position_bias",
+            Effect::GnssVelocityNoise => "gnss_velocity_noise",
+            Effect::GnssOutages => "gnss_outages",
+            Effect::PpsJitter => "pps_jitter",
+        }
+    }
+
+    /// Every name, comma-separated (for messages).
+    pub fn all_names() -> String {
+        Self::ALL.map(Effect::name).join(", ")
+    }
+}
+
+impl std::fmt::Display for Effect {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl std::str::FromStr for Effect {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        Self::ALL
+            .into_iter()
+            .find(|e| e.name() == s)
+            .ok_or_else(|| format!("unknown effect `{s}` (known: {})", Self::all_names()))
+    }
+}
 
 /// What makes a channel's noise level depend on the dynamics.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
@@ -96,7 +210,7 @@ pub struct Outliers {
 pub struct ChannelModel {
     /// Effects switched off for this channel.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub disabled: Vec<String>,
+    pub disabled: Vec<Effect>,
     /// Stochastic error processes (white noise, quantization noise, random walk, drift, any
     /// number of Gauss-Markov): a GMWM model object as `dynacal fit` writes it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -183,9 +297,9 @@ pub struct ImuModel {
     pub time_offset_s: f64,
     #[serde(default, skip_serializing_if = "is_default")]
     pub clock: ClockModel,
-    /// Effects switched off for the whole sensor (any name of [`EFFECTS`]).
+    /// Effects switched off for the whole sensor.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub disabled: Vec<String>,
+    pub disabled: Vec<Effect>,
     /// Default error model of gx, gy, gz.
     #[serde(default, skip_serializing_if = "is_default")]
     pub gyro: ChannelModel,

@@ -27,7 +27,7 @@ pub use file::{ModelFileError, SimModel, MODEL_FILE_VERSION};
 pub use fitted::{imu_channel_of_name, imu_name_from};
 pub use gnss::{GnssBias, GnssModel, PpsModel};
 pub use imu::{
-    BiasStep, ChannelModel, ClockModel, DynamicDriver, DynamicNoise, ImuModel, Outliers,
-    VibrationLine, EFFECTS,
+    BiasStep, ChannelModel, ClockModel, DynamicDriver, DynamicNoise, Effect, ImuModel, Outliers,
+    VibrationLine,
 };
 pub use units::{stochastic_in_si, unit_to_si};

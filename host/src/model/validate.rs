@@ -6,7 +6,7 @@ use std::path::Path;
 
 use super::file::{ModelFileError, SimModel, MODEL_FILE_VERSION};
 use super::gnss::{GnssModel, PpsModel};
-use super::imu::{ChannelModel, ClockModel, ImuModel, EFFECTS};
+use super::imu::{ChannelModel, ClockModel, ImuModel};
 use super::units::unit_to_si;
 use super::Channel;
 
@@ -42,16 +42,6 @@ impl Checker<'_> {
             Ok(())
         } else {
             Err(self.bad(field, message.into()))
-        }
-    }
-
-    fn effect_names(&self, field: String, names: &[String]) -> Checked {
-        match names.iter().find(|n| !EFFECTS.contains(&n.as_str())) {
-            None => Ok(()),
-            Some(n) => Err(self.bad(
-                field,
-                format!("unknown effect `{n}` (known: {})", EFFECTS.join(", ")),
-            )),
         }
     }
 }
@@ -133,7 +123,6 @@ fn validate_imu(check: &Checker, at: &str, imu: &ImuModel, is_reference: bool) -
     }
     check.finite(format!("{at}.time_offset_s"), imu.time_offset_s)?;
     validate_clock(check, at, &imu.clock, imu.rate_hz)?;
-    check.effect_names(format!("{at}.disabled"), &imu.disabled)?;
     for channel in Channel::ALL {
         let field = |x: &str| format!("{at}.channels.{channel}.{x}");
         validate_channel(check, &field, channel, imu.model_of(channel))?;
@@ -201,7 +190,6 @@ fn validate_channel(
     channel: Channel,
     ch: &ChannelModel,
 ) -> Checked {
-    check.effect_names(field("disabled"), &ch.disabled)?;
     if let Some(spec) = &ch.stochastic {
         validate_stochastic(check, field, channel, spec)?;
     }
@@ -302,7 +290,6 @@ fn validate_gnss(check: &Checker, g: &GnssModel) -> Checked {
         "gnss.rate_hz".into(),
         format!("{} must be in (0, 100] Hz", g.rate_hz),
     )?;
-    check.effect_names("gnss.disabled".into(), &g.disabled)?;
     check.require(
         g.position_sigma_ned_m
             .iter()

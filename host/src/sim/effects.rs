@@ -11,7 +11,7 @@ use serde_json::{json, Value};
 use super::trajectory::Truth;
 use crate::gmwm::model::{ModelSpec, Process, Structure};
 use crate::model::{
-    unit_to_si, BiasStep, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers,
+    unit_to_si, BiasStep, ChannelModel, DynamicDriver, DynamicNoise, Effect, ImuModel, Outliers,
     VibrationLine,
 };
 
@@ -26,16 +26,16 @@ pub struct Mount {
 
 impl Mount {
     /// The mount of `imu`, with lever arm and boresight switched off as `disabled` says.
-    pub fn of(imu: &ImuModel, disabled: &BTreeSet<String>) -> Self {
+    pub fn of(imu: &ImuModel, disabled: &BTreeSet<Effect>) -> Self {
         let [r, p, y] = imu.boresight_rpy_deg.map(f64::to_radians);
         let c_sb = Rotation3::from_euler_angles(r, p, y).into_inner();
         Mount {
-            c_bs: if disabled.contains("boresight") {
+            c_bs: if disabled.contains(&Effect::Boresight) {
                 Matrix3::identity()
             } else {
                 c_sb.transpose()
             },
-            lever_arm_b_m: if disabled.contains("lever_arm") {
+            lever_arm_b_m: if disabled.contains(&Effect::LeverArm) {
                 Vector3::zeros()
             } else {
                 Vector3::from(imu.lever_arm_b_m)
@@ -119,7 +119,7 @@ pub struct ChannelEffects {
 pub fn stochastic_at_rate(
     spec: &ModelSpec,
     rate_hz: f64,
-    disabled: &BTreeSet<String>,
+    disabled: &BTreeSet<Effect>,
 ) -> Option<ModelSpec> {
     let (k, _) = unit_to_si(&spec.unit)?;
     let k2 = k * k;
@@ -127,7 +127,7 @@ pub fn stochastic_at_rate(
     let processes: Vec<Process> = spec
         .processes
         .iter()
-        .filter(|p| !disabled.contains(process_effect(p)))
+        .filter(|p| !disabled.contains(&process_effect(p)))
         .map(|p| match *p {
             Process::WhiteNoise { sigma2 } => Process::WhiteNoise {
                 sigma2: sigma2 * k2 * ratio,
@@ -168,14 +168,14 @@ fn spec_is_angular(spec: &ModelSpec) -> bool {
     unit_to_si(&spec.unit).is_some_and(|(_, a)| a)
 }
 
-/// The effect name of a stochastic process.
-pub fn process_effect(p: &Process) -> &'static str {
+/// The effect a stochastic process is.
+pub fn process_effect(p: &Process) -> Effect {
     match p {
-        Process::WhiteNoise { .. } => "white_noise",
-        Process::QuantizationNoise { .. } => "quantization_noise",
-        Process::RandomWalk { .. } => "random_walk",
-        Process::Drift { .. } => "drift",
-        Process::GaussMarkov { .. } => "gauss_markov",
+        Process::WhiteNoise { .. } => Effect::WhiteNoise,
+        Process::QuantizationNoise { .. } => Effect::QuantizationNoise,
+        Process::RandomWalk { .. } => Effect::RandomWalk,
+        Process::Drift { .. } => Effect::Drift,
+        Process::GaussMarkov { .. } => Effect::GaussMarkov,
     }
 }
 
@@ -186,20 +186,20 @@ impl ChannelEffects {
         model: &ChannelModel,
         index: usize,
         rate_hz: f64,
-        disabled: &BTreeSet<String>,
+        disabled: &BTreeSet<Effect>,
     ) -> Self {
         let mut fx = ChannelEffects {
             index,
             ..Default::default()
         };
-        let on = |name: &str| !disabled.contains(name);
+        let on = |effect: Effect| !disabled.contains(&effect);
         let mut report = Vec::new();
-        let mut note = |name: &str, enabled: bool, params: Value| {
-            report.push(json!({"effect": name, "enabled": enabled, "parameters": params}));
+        let mut note = |effect: Effect, enabled: bool, params: Value| {
+            report.push(json!({"effect": effect, "enabled": enabled, "parameters": params}));
         };
         if let Some(spec) = &model.stochastic {
             for p in &spec.processes {
-                let name = process_effect(p);
+                let effect = process_effect(p);
                 let params = serde_json::to_value(ModelSpec {
                     model: p.kind().token().into(),
                     unit: spec.unit.clone(),
@@ -210,8 +210,8 @@ impl ChannelEffects {
                 .and_then(|v| v.get("processes").and_then(|p| p.get(0)).cloned())
                 .unwrap_or(Value::Null);
                 note(
-                    name,
-                    on(name),
+                    effect,
+                    on(effect),
                     json!({"unit": spec.unit, "sample_rate_hz": spec.sample_rate_hz, "process": params}),
                 );
             }
@@ -228,8 +228,8 @@ impl ChannelEffects {
             };
         }
         let unit = if index < 3 { "rad/s" } else { "m/s^2" };
-        scalar!(bias, "bias", unit);
-        scalar!(scale_factor, "scale_factor", "1");
+        scalar!(bias, Effect::Bias, unit);
+        scalar!(scale_factor, Effect::ScaleFactor, "1");
         macro_rules! row {
             ($field:ident, $name:expr, $unit:expr) => {
                 if let Some(v) = model.$field {
@@ -240,69 +240,73 @@ impl ChannelEffects {
                 }
             };
         }
-        row!(cross_axis, "cross_axis", "1");
-        row!(g_sensitivity, "g_sensitivity", format!("{unit} per m/s^2"));
+        row!(cross_axis, Effect::CrossAxis, "1");
+        row!(
+            g_sensitivity,
+            Effect::GSensitivity,
+            format!("{unit} per m/s^2")
+        );
         row!(
             angular_acceleration_sensitivity,
-            "angular_acceleration_sensitivity",
+            Effect::AngularAccelerationSensitivity,
             format!("{unit} per rad/s^2")
         );
         row!(
             jerk_sensitivity,
-            "jerk_sensitivity",
+            Effect::JerkSensitivity,
             format!("{unit} per m/s^3")
         );
         if let Some(d) = model.dynamic_noise {
             note(
-                "dynamic_noise",
-                on("dynamic_noise"),
+                Effect::DynamicNoise,
+                on(Effect::DynamicNoise),
                 serde_json::to_value(d).unwrap_or(Value::Null),
             );
-            fx.dynamic_noise = on("dynamic_noise").then_some(d);
+            fx.dynamic_noise = on(Effect::DynamicNoise).then_some(d);
         }
         if !model.vibration_lines.is_empty() {
             note(
-                "vibration",
-                on("vibration"),
+                Effect::Vibration,
+                on(Effect::Vibration),
                 serde_json::to_value(&model.vibration_lines).unwrap_or(Value::Null),
             );
-            if on("vibration") {
+            if on(Effect::Vibration) {
                 fx.vibration_lines = model.vibration_lines.clone();
             }
         }
         if !model.bias_steps.is_empty() {
             note(
-                "bias_step",
-                on("bias_step"),
+                Effect::BiasStep,
+                on(Effect::BiasStep),
                 serde_json::to_value(&model.bias_steps).unwrap_or(Value::Null),
             );
-            if on("bias_step") {
+            if on(Effect::BiasStep) {
                 fx.bias_steps = model.bias_steps.clone();
             }
         }
         if let Some(o) = model.outliers {
             note(
-                "outliers",
-                on("outliers"),
+                Effect::Outliers,
+                on(Effect::Outliers),
                 serde_json::to_value(o).unwrap_or(Value::Null),
             );
-            fx.outliers = on("outliers").then_some(o);
+            fx.outliers = on(Effect::Outliers).then_some(o);
         }
         if let Some(s) = model.saturation {
             note(
-                "saturation",
-                on("saturation"),
+                Effect::Saturation,
+                on(Effect::Saturation),
                 json!({"limit": s, "unit": unit}),
             );
-            fx.saturation = on("saturation").then_some(s);
+            fx.saturation = on(Effect::Saturation).then_some(s);
         }
         if let Some(q) = model.quantization_step {
             note(
-                "quantization",
-                on("quantization"),
+                Effect::Quantization,
+                on(Effect::Quantization),
                 json!({"step": q, "unit": unit}),
             );
-            fx.quantization_step = on("quantization").then_some(q);
+            fx.quantization_step = on(Effect::Quantization).then_some(q);
         }
         fx.report = report;
         fx
@@ -402,10 +406,7 @@ mod tests {
         let k = kin();
         let expected = 0.01 + 1e-3 * -0.2 + 2e-3 * 0.1 + 1e-4 * -9.8 + 1e-5 * 2.0 + 1e-6 * 4.0;
         assert!((fx.deterministic(&k, 0.0) - expected).abs() < 1e-15);
-        let off: BTreeSet<String> = ["bias", "g_sensitivity"]
-            .iter()
-            .map(|s| s.to_string())
-            .collect();
+        let off: BTreeSet<Effect> = [Effect::Bias, Effect::GSensitivity].into();
         let fx = ChannelEffects::resolve(&model, 1, 100.0, &off);
         assert!((fx.deterministic(&k, 0.0) - (expected - 0.01 - 1e-4 * -9.8)).abs() < 1e-15);
         let report = fx.report();
@@ -454,7 +455,7 @@ mod tests {
                 sigma2: d2
             }
         );
-        let off: BTreeSet<String> = ["random_walk".to_string()].into();
+        let off: BTreeSet<Effect> = [Effect::RandomWalk].into();
         let s = stochastic_at_rate(&spec, 100.0, &off).unwrap();
         assert_eq!(s.model, "WN+GM");
         s.validate().unwrap();

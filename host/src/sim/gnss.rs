@@ -9,7 +9,7 @@ use rand_distr::StandardNormal;
 
 use super::sensors::{stream, ImuRun};
 use super::trajectory::Trajectory;
-use crate::model::{GnssModel, PpsModel};
+use crate::model::{Effect, GnssModel, PpsModel};
 use dynacal_core::nav::{earth_rate_ned_rad_s, radii};
 
 /// GNSS fixes, column by column.
@@ -33,17 +33,17 @@ pub fn simulate_gnss(
     model: &GnssModel,
     duration_s: f64,
     seed: u64,
-    global_disabled: &BTreeSet<String>,
+    global_disabled: &BTreeSet<Effect>,
 ) -> GnssFixes {
     let mut disabled = global_disabled.clone();
-    disabled.extend(model.disabled.iter().cloned());
-    let on = |n: &str| !disabled.contains(n);
+    disabled.extend(model.disabled.iter().copied());
+    let on = |effect: Effect| !disabled.contains(&effect);
     let mut rng = stream(seed, 100, 1, 0);
     let dt = 1.0 / model.rate_hz;
     let n = (duration_s * model.rate_hz).floor() as usize;
     let r = Vector3::from(model.lever_arm_b_m);
     let mut fixes = GnssFixes::default();
-    let bias_model = model.position_bias.filter(|_| on("gnss_position_bias"));
+    let bias_model = model.position_bias.filter(|_| on(Effect::GnssPositionBias));
     let mut bias = Vector3::zeros();
     if let Some(b) = bias_model {
         for k in 0..3 {
@@ -51,12 +51,12 @@ pub fn simulate_gnss(
             bias[k] = b.sigma_ned_m[k] * z;
         }
     }
-    let white_p = if on("gnss_position_noise") {
+    let white_p = if on(Effect::GnssPositionNoise) {
         model.position_sigma_ned_m
     } else {
         [0.0; 3]
     };
-    let white_v = if on("gnss_velocity_noise") {
+    let white_v = if on(Effect::GnssVelocityNoise) {
         model.velocity_sigma_ned_m_s
     } else {
         [0.0; 3]
@@ -77,7 +77,7 @@ pub fn simulate_gnss(
             let z: f64 = rng.sample(StandardNormal);
             *x = z * if a < 3 { white_p[a] } else { white_v[a - 3] };
         }
-        if on("gnss_outages") && model.outages.iter().any(|o| t >= o[0] && t < o[1]) {
+        if on(Effect::GnssOutages) && model.outages.iter().any(|o| t >= o[0] && t < o[1]) {
             continue;
         }
         let tr = traj.truth(t);
@@ -119,10 +119,10 @@ pub fn simulate_pps(
     imus: &[ImuRun],
     duration_s: f64,
     seed: u64,
-    global_disabled: &BTreeSet<String>,
+    global_disabled: &BTreeSet<Effect>,
 ) -> PpsTable {
     let mut rng = stream(seed, 101, 1, 0);
-    let jitter = if global_disabled.contains("pps_jitter") {
+    let jitter = if global_disabled.contains(&Effect::PpsJitter) {
         0.0
     } else {
         model.jitter_s

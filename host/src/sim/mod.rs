@@ -21,7 +21,7 @@ use std::collections::BTreeSet;
 use rayon::prelude::*;
 use serde_json::{json, Value};
 
-pub use crate::model::{ModelFileError, SimModel, EFFECTS};
+pub use crate::model::{Effect, ModelFileError, SimModel};
 pub use trajectory::{Scenario, Trajectory, Truth};
 
 use gnss::{GnssFixes, PpsTable};
@@ -34,8 +34,8 @@ pub struct SimOptions {
     /// Length of the run, s.
     pub seconds: f64,
     pub seed: u64,
-    /// Effects switched off everywhere (names from [`EFFECTS`]).
-    pub disabled: Vec<String>,
+    /// Effects switched off everywhere.
+    pub disabled: Vec<Effect>,
     /// Keep the error-free sensor outputs (for `-ideal` files and tests).
     pub keep_ideal: bool,
 }
@@ -58,8 +58,6 @@ pub struct SimOutput {
 pub enum SimError {
     #[error("--seconds {0} must be positive and finite")]
     BadDuration(f64),
-    #[error("--disable: unknown effect `{0}` (known: {known})", known = EFFECTS.join(", "))]
-    UnknownEffect(String),
 }
 
 /// Runs a simulation. `progress(done_samples)` is called as IMU samples are finished; the
@@ -72,12 +70,7 @@ pub fn simulate(
     if !(opts.seconds.is_finite() && opts.seconds > 0.0) {
         return Err(SimError::BadDuration(opts.seconds));
     }
-    for d in &opts.disabled {
-        if !EFFECTS.contains(&d.as_str()) {
-            return Err(SimError::UnknownEffect(d.clone()));
-        }
-    }
-    let disabled: BTreeSet<String> = opts.disabled.iter().cloned().collect();
+    let disabled: BTreeSet<Effect> = opts.disabled.iter().copied().collect();
     // The truth must exist wherever a sensor samples: allow for time offsets and clocks.
     let margin = model
         .imus
@@ -161,7 +154,7 @@ fn truth_json(
                 )
             })
             .collect();
-        let on = |n: &str| !run.disabled.contains(n);
+        let on = |effect: Effect| !run.disabled.contains(&effect);
         let c = m.clock;
         json!({
             "name": run.name,
@@ -169,11 +162,11 @@ fn truth_json(
             "samples": run.recording.len(),
             "time_column": if run.name == reference.name { "GPS time" } else { "the IMU's own clock (see pps.csv)" },
             "sensor_effects": [
-                {"effect": "lever_arm", "enabled": on("lever_arm"), "parameters": {"lever_arm_b_m": m.lever_arm_b_m}},
-                {"effect": "boresight", "enabled": on("boresight"), "parameters": {"boresight_rpy_deg": m.boresight_rpy_deg, "c_bs_row_major": run.mount.c_bs.transpose().as_slice()}},
-                {"effect": "time_offset", "enabled": on("time_offset"), "parameters": {"time_offset_s": m.time_offset_s, "meaning": "the sample stamped t was taken at true time t - time_offset_s"}},
-                {"effect": "clock_drift", "enabled": on("clock_drift"), "parameters": {"frequency_offset_ppm": c.frequency_offset_ppm, "frequency_random_walk_ppm_per_sqrt_s": c.frequency_random_walk_ppm_per_sqrt_s, "last_tick_true_t_s": run.clock.tick_t_s.last()}},
-                {"effect": "clock_jitter", "enabled": on("clock_jitter"), "parameters": {"jitter_s": c.jitter_s}},
+                {"effect": "lever_arm", "enabled": on(Effect::LeverArm), "parameters": {"lever_arm_b_m": m.lever_arm_b_m}},
+                {"effect": "boresight", "enabled": on(Effect::Boresight), "parameters": {"boresight_rpy_deg": m.boresight_rpy_deg, "c_bs_row_major": run.mount.c_bs.transpose().as_slice()}},
+                {"effect": "time_offset", "enabled": on(Effect::TimeOffset), "parameters": {"time_offset_s": m.time_offset_s, "meaning": "the sample stamped t was taken at true time t - time_offset_s"}},
+                {"effect": "clock_drift", "enabled": on(Effect::ClockDrift), "parameters": {"frequency_offset_ppm": c.frequency_offset_ppm, "frequency_random_walk_ppm_per_sqrt_s": c.frequency_random_walk_ppm_per_sqrt_s, "last_tick_true_t_s": run.clock.tick_t_s.last()}},
+                {"effect": "clock_jitter", "enabled": on(Effect::ClockJitter), "parameters": {"jitter_s": c.jitter_s}},
             ],
             "channels": channels,
         })

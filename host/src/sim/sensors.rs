@@ -15,7 +15,7 @@ use super::clock::ClockRun;
 use super::effects::{sensor_kinematics, ChannelEffects, Mount};
 use super::trajectory::Trajectory;
 use crate::interchange::{ImuRecording, Triplet};
-use crate::model::ImuModel;
+use crate::model::{Effect, ImuModel};
 
 const CHUNK: usize = 8192;
 
@@ -45,7 +45,7 @@ pub struct ImuRun {
     pub channels: Vec<ChannelEffects>,
     pub mount: Mount,
     /// Effects switched off for this sensor (sensor list plus global list).
-    pub disabled: BTreeSet<String>,
+    pub disabled: BTreeSet<Effect>,
 }
 
 /// Options of [`simulate_imu`].
@@ -56,7 +56,7 @@ pub struct ImuJob<'a> {
     pub duration_s: f64,
     pub seed: u64,
     /// Effects switched off globally.
-    pub disabled: &'a BTreeSet<String>,
+    pub disabled: &'a BTreeSet<Effect>,
     /// Also write attitude, position and velocity (the reference IMU).
     pub with_navigation: bool,
     pub keep_ideal: bool,
@@ -72,7 +72,7 @@ struct ImuSetup {
     mount: Mount,
     channels: Vec<ChannelEffects>,
     /// Effects switched off for this sensor (sensor list plus global list).
-    disabled: BTreeSet<String>,
+    disabled: BTreeSet<Effect>,
 }
 
 impl ImuSetup {
@@ -80,18 +80,18 @@ impl ImuSetup {
     fn new(job: &ImuJob) -> Self {
         let model = job.model;
         let n = (job.duration_s * model.rate_hz).floor().max(1.0) as usize;
-        let mut disabled: BTreeSet<String> = job.disabled.clone();
-        disabled.extend(model.disabled.iter().cloned());
+        let mut disabled: BTreeSet<Effect> = job.disabled.clone();
+        disabled.extend(model.disabled.iter().copied());
         let mut clock_rng = stream(job.seed, job.sensor, 1, 0);
         let clock = ClockRun::realise(
             &model.clock,
             model.rate_hz,
             n,
-            !disabled.contains("clock_drift"),
-            !disabled.contains("clock_jitter"),
+            !disabled.contains(&Effect::ClockDrift),
+            !disabled.contains(&Effect::ClockJitter),
             &mut clock_rng,
         );
-        let offset = if disabled.contains("time_offset") {
+        let offset = if disabled.contains(&Effect::TimeOffset) {
             0.0
         } else {
             model.time_offset_s
