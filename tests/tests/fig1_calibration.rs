@@ -5,9 +5,10 @@
 
 use dynacal::figures::fig1::{
     fig1, fig1_filter, fig1_model, inter_imu_noise, run_calibration, simulate_fig1,
-    true_calibrations, AngularAccelerationStencil, CalibrationTrace,
+    true_calibrations, CalibrationTrace,
 };
 use dynacal::figures::plot::fig1_svg;
+use dynacal::numeric::AngularAccelerationStencil;
 use nalgebra::Vector3;
 
 const SECONDS: f64 = 60.0;

@@ -25,6 +25,7 @@ use crate::gmwm::model::{ModelSpec, Process};
 use crate::interchange::Triplet;
 use crate::model::{unit_to_si, ChannelModel, ClockModel, GnssModel, ImuModel};
 use crate::nav_smoother::{SmootherError, SmoothingEkf};
+use crate::numeric::{stencil_gain, AngularAccelerationStencil, STENCIL};
 use crate::sim::gnss::GnssFixes;
 use crate::sim::trajectory::TrajectoryConfig;
 use crate::sim::{simulate, Scenario, SimError, SimModel, SimOptions, SimOutput};
@@ -249,72 +250,6 @@ fn white_sigma(channel: &ChannelModel) -> f64 {
         })
         .sum();
     variance.sqrt() * factor
-}
-
-/// Weights of the sixth-order central difference [`AngularAccelerationStencil`] applies to
-/// `ω[k+j] − ω[k−j]`, j = 1, 2, 3, per `dt`.
-const STENCIL: [f64; 3] = [45.0 / 60.0, -9.0 / 60.0, 1.0 / 60.0];
-/// Half-width of the stencil, samples (also the delay of its output).
-const STENCIL_HALF: usize = 3;
-
-/// Gain of [`STENCIL`] on a sinusoid of phase step `x = w dt`: its output over the true
-/// derivative, `Σ 2 c_j sin(j x) / x`, 1 − O(x^6).
-fn stencil_gain(x: f64) -> f64 {
-    STENCIL
-        .iter()
-        .enumerate()
-        .map(|(j, c)| 2.0 * c * ((j + 1) as f64 * x).sin())
-        .sum::<f64>()
-        / x
-}
-
-/// Angular acceleration by a sixth-order central difference over seven equally spaced
-/// reference-rate samples, delayed by three samples.
-///
-/// Why not the core's `RateDifferentiator`: its three-point central difference returns
-/// `sin(w dt)/(w dt)` of a vibration line's angular acceleration, 89 % of the car's 26 Hz
-/// engine roll and pitch lines at 200 Hz. That scales the modelled `Ω̇ r` down, and the
-/// filter answers by scaling the lever arm up: in this simulation both IMUs' lever arms came
-/// out 6-7 % too long, ten times their 3σ. This stencil's gain is 0.998 there.
-#[derive(Debug, Clone)]
-pub struct AngularAccelerationStencil<T, P> {
-    window: std::collections::VecDeque<(Vector3<T>, P)>,
-}
-
-impl<T: RealField + Copy, P: Copy> Default for AngularAccelerationStencil<T, P> {
-    fn default() -> Self {
-        Self {
-            window: std::collections::VecDeque::with_capacity(2 * STENCIL_HALF + 1),
-        }
-    }
-}
-
-impl<T: RealField + Copy, P: Copy> AngularAccelerationStencil<T, P> {
-    /// Pushes the rate `omega_ib_b_rad_s` (rad/s) with its payload; once seven samples are
-    /// held, returns the middle one's rate, angular acceleration (rad/s^2) and payload.
-    /// `dt_s` is the (constant) sampling interval.
-    pub fn push(
-        &mut self,
-        dt_s: T,
-        omega_ib_b_rad_s: Vector3<T>,
-        payload: P,
-    ) -> Option<(Vector3<T>, Vector3<T>, P)> {
-        if self.window.len() == 2 * STENCIL_HALF + 1 {
-            self.window.pop_front();
-        }
-        self.window.push_back((omega_ib_b_rad_s, payload));
-        if self.window.len() < 2 * STENCIL_HALF + 1 {
-            return None;
-        }
-        let mid = STENCIL_HALF;
-        let mut omega_dot = Vector3::zeros();
-        for (j, weight) in STENCIL.iter().enumerate() {
-            let w: T = nalgebra::convert(*weight);
-            omega_dot += (self.window[mid + j + 1].0 - self.window[mid - j - 1].0) * (w / dt_s);
-        }
-        let (omega, payload) = self.window[mid];
-        Some((omega, omega_dot, payload))
-    }
 }
 
 /// Amplitude of the error of the [`AngularAccelerationStencil`] on the trajectory's roll and

@@ -5,7 +5,7 @@
 //!
 //! - [`imu`]: one IMU's mounting, clock and per-channel error effects;
 //! - [`gnss`]: the GNSS receiver and PPS of a simulation;
-//! - [`file`]: the whole model file, its version and loading (also of older files);
+//! - [`file`](mod@file): the whole model file, its version and loading (also of older files);
 //! - [`fitted`]: a model file from fitted stochastic models, by series name;
 //! - [`units`]: the units a stochastic model may be stated in;
 //! - `validate`: range checks naming the field.
