@@ -11,8 +11,8 @@ use serde_json::{json, Value};
 use super::trajectory::Truth;
 use crate::gmwm::model::{ModelSpec, Process, Structure};
 use crate::model::{
-    unit_to_si, BiasStep, ChannelModel, DynamicDriver, DynamicNoise, Effect, ImuModel, Outliers,
-    VibrationLine,
+    stochastic_in_si, BiasStep, ChannelModel, DynamicDriver, DynamicNoise, Effect, ImuModel,
+    Outliers, VibrationLine,
 };
 
 /// Where a sensor sits on the platform.
@@ -121,51 +121,42 @@ pub fn stochastic_at_rate(
     rate_hz: f64,
     disabled: &BTreeSet<Effect>,
 ) -> Option<ModelSpec> {
-    let (k, _) = unit_to_si(&spec.unit)?;
-    let k2 = k * k;
-    let ratio = rate_hz / spec.sample_rate_hz;
-    let processes: Vec<Process> = spec
+    let kept: Vec<Process> = spec
         .processes
         .iter()
         .filter(|p| !disabled.contains(&process_effect(p)))
-        .map(|p| match *p {
-            Process::WhiteNoise { sigma2 } => Process::WhiteNoise {
-                sigma2: sigma2 * k2 * ratio,
-            },
-            Process::QuantizationNoise { q2 } => Process::QuantizationNoise { q2: q2 * k2 },
-            Process::RandomWalk { sigma2 } => Process::RandomWalk {
-                sigma2: sigma2 * k2 / ratio,
-            },
-            Process::Drift { slope_per_s } => Process::Drift {
-                slope_per_s: slope_per_s * k,
-            },
-            Process::GaussMarkov { beta_per_s, sigma2 } => Process::GaussMarkov {
-                beta_per_s,
-                sigma2: sigma2 * k2,
-            },
-        })
+        .cloned()
         .collect();
-    if processes.is_empty() {
+    if kept.is_empty() {
         return None;
     }
-    let model = Structure {
-        kinds: processes.iter().map(Process::kind).collect(),
-    }
-    .name();
+    let si = stochastic_in_si(&ModelSpec {
+        model: Structure {
+            kinds: kept.iter().map(Process::kind).collect(),
+        }
+        .name(),
+        processes: kept,
+        ..spec.clone()
+    })?;
+    let ratio = rate_hz / spec.sample_rate_hz;
+    let processes = si
+        .processes
+        .into_iter()
+        .map(|p| match p {
+            Process::WhiteNoise { sigma2 } => Process::WhiteNoise {
+                sigma2: sigma2 * ratio,
+            },
+            Process::RandomWalk { sigma2 } => Process::RandomWalk {
+                sigma2: sigma2 / ratio,
+            },
+            other => other,
+        })
+        .collect();
     Some(ModelSpec {
-        model,
-        unit: if spec_is_angular(spec) {
-            "rad/s".into()
-        } else {
-            "m/s2".into()
-        },
         sample_rate_hz: rate_hz,
         processes,
+        ..si
     })
-}
-
-fn spec_is_angular(spec: &ModelSpec) -> bool {
-    unit_to_si(&spec.unit).is_some_and(|(_, a)| a)
 }
 
 /// The effect a stochastic process is.
