@@ -5,10 +5,12 @@
 //! inside its 95% interval; on runs with nothing beyond the baseline it must name nothing.
 
 use dynacal::diagnose::engine::{diagnose, Baseline, DiagnoseOptions, DiagnoseReport};
+use dynacal::gmwm::inference::ModelChoice;
 use dynacal::gmwm::model::{ModelSpec, Process};
+use dynacal::input::InputArgs;
+use dynacal::model::{fit_file, fitted_model};
 use dynacal::model::{
-    BiasStep, Cause, Channel, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers,
-    VibrationLine,
+    BiasStep, Cause, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers, VibrationLine,
 };
 use dynacal::sim::SimOptions;
 use dynacal::sim::{simulate, Scenario, SimModel};
@@ -281,22 +283,32 @@ fn hide(cause: Option<&'static str>, seed: u64) -> (SimModel, Option<Hidden>) {
     (model, hidden)
 }
 
-/// The baseline a static calibration would give: the stochastic part only.
-fn static_baseline() -> Baseline {
-    Baseline {
-        channels: Channel::ALL
-            .into_iter()
-            .map(|c| {
-                let spec = if c.is_gyro() {
-                    gyro_spec()
-                } else {
-                    accel_spec()
-                };
-                (c, spec)
-            })
-            .collect(),
-        source: "test baseline".into(),
-    }
+/// The baseline a user has: `dynacal fit --model auto` on a static recording of the same
+/// sensor (without the effect hidden under dynamics), as long as the drive, written as a
+/// model file and read back as `dynacal diagnose --baseline` reads it. The static record is
+/// simulated with its own seed, so its noise is not the drive's.
+fn fitted_baseline(seed: u64, seconds: f64) -> Baseline {
+    let (model, _) = hide(None, seed);
+    let out = simulate(
+        &model,
+        &SimOptions {
+            scenario: Scenario::Static,
+            seconds,
+            seed: seed ^ 0x57a7_1c00,
+            disabled: vec![],
+            keep_ideal: false,
+        },
+        &|_| {},
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("static-mems.csv");
+    out.imus[0].recording.write(&csv).unwrap();
+    let fits = fit_file(&csv, &InputArgs::default(), &ModelChoice::Auto, None).unwrap();
+    let (file, _) = fitted_model(&csv, "auto", &fits).unwrap();
+    let path = dir.path().join("baseline.json");
+    std::fs::write(&path, serde_json::to_string(&file).unwrap()).unwrap();
+    Baseline::load(&path).unwrap()
 }
 
 fn run(cause: Option<&'static str>, seed: u64) -> (DiagnoseReport, Option<Hidden>) {
@@ -314,11 +326,10 @@ fn run(cause: Option<&'static str>, seed: u64) -> (DiagnoseReport, Option<Hidden
     )
     .unwrap();
     let sensor = out.imus[0].recording.clone();
-    let baseline = static_baseline();
     let report = diagnose(
         &sensor,
         Some(&out.reference.recording),
-        Some(baseline),
+        Some(fitted_baseline(seed, SECONDS)),
         &DiagnoseOptions {
             seed,
             ..Default::default()
@@ -677,7 +688,7 @@ fn extended_model_runs_in_the_simulator_and_carries_the_found_effect() {
     let again = diagnose(
         &out.imus[0].recording,
         Some(&out.reference.recording),
-        Some(static_baseline()),
+        Some(fitted_baseline(77, SECONDS)),
         &DiagnoseOptions {
             seed: 77,
             ..Default::default()

@@ -10,7 +10,8 @@ use dynacal::gmwm::compare::{compare, format_table};
 
 use dynacal::input::InputArgs;
 
-use super::fit::{fit_file, model_choice};
+use super::fit::model_choice;
+use dynacal::model::fit_file;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -4,14 +4,11 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use rayon::prelude::*;
 
-use dynacal::gmwm::fit::{FitInput, FitOptions};
-use dynacal::gmwm::inference::{analyze, BootstrapOptions, ChannelFit, ModelChoice};
-use dynacal::gmwm::model::{ModelSpec, Structure};
-use dynacal::input::{load_wavelet_variances, InputArgs};
-use dynacal::model::SimModel;
-use dynacal::wv::WvOptions;
+use dynacal::gmwm::inference::{BootstrapOptions, ModelChoice};
+use dynacal::gmwm::model::Structure;
+use dynacal::input::InputArgs;
+use dynacal::model::{fit_file, fitted_model};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -43,32 +40,6 @@ pub fn model_choice(model: &str) -> anyhow::Result<ModelChoice> {
     } else {
         ModelChoice::Fixed(Structure::parse(model)?)
     })
-}
-
-/// Fits every channel of `file` (channels in parallel).
-pub fn fit_file(
-    file: &std::path::Path,
-    input: &InputArgs,
-    choice: &ModelChoice,
-    bootstrap: Option<BootstrapOptions>,
-) -> anyhow::Result<Vec<ChannelFit>> {
-    let channels = load_wavelet_variances(file, input, &WvOptions::default())?;
-    channels
-        .par_iter()
-        .map(|c| {
-            let input = FitInput::from_wv(&c.wv)
-                .with_context(|| format!("{}: channel {}", file.display(), c.channel))?;
-            analyze(
-                &c.channel,
-                &c.unit,
-                &input,
-                choice,
-                bootstrap,
-                &FitOptions::default(),
-            )
-            .with_context(|| format!("{}: channel {}", file.display(), c.channel))
-        })
-        .collect()
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -110,60 +81,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             println!("  warning: {w}");
         }
     }
-    let model = fitted_model(&args.file, &args.model, &fits)?;
+    let (model, notes) = fitted_model(&args.file, &args.model, &fits)?;
+    for note in notes {
+        println!("note: {note}");
+    }
     dynacal::output::write_json_atomic(&args.json, &model)
         .with_context(|| format!("writing {}", args.json.display()))?;
     Ok(())
-}
-
-/// What `dynacal fit` writes beside the model: the statistics of every channel's fit.
-#[derive(serde::Serialize)]
-struct FitRecord<'a> {
-    file: String,
-    requested_model: &'a str,
-    channels: &'a [ChannelFit],
-}
-
-/// The model file of `fits`: each channel's fitted model on the IMU channel its name
-/// denotes (the IMU named after the file), with the fit statistics beside it. Channels that
-/// name no IMU channel stay in the statistics only, and the user is told.
-fn fitted_model(
-    file: &std::path::Path,
-    requested_model: &str,
-    fits: &[ChannelFit],
-) -> anyhow::Result<SimModel> {
-    let specs: Vec<(String, ModelSpec)> = fits
-        .iter()
-        .map(|f| (f.channel.clone(), f.model_object.clone()))
-        .collect();
-    let (mut model, unmapped) = SimModel::from_channel_models(&recording_stem(file), &specs);
-    if !unmapped.is_empty() {
-        println!(
-            "note: {} name no IMU channel (gx..az): kept in `fit` only, not in the model",
-            unmapped.join(", ")
-        );
-    }
-    model.comment = Some(format!(
-        "fitted by dynacal fit on {} (model {requested_model})",
-        file.display()
-    ));
-    model.fit = Some(serde_json::to_value(FitRecord {
-        file: file.display().to_string(),
-        requested_model,
-        channels: fits,
-    })?);
-    if let Err(e) = model.validate(file) {
-        println!("note: the fitted model will not load in `dynacal simulate`: {e}");
-    }
-    Ok(model)
-}
-
-/// A file's name without its directory and its extensions (`in/psins-mems.csv.gz` ->
-/// `psins-mems`): the name of the IMU a fit describes.
-fn recording_stem(file: &std::path::Path) -> String {
-    let name = file
-        .file_name()
-        .map(|n| n.to_string_lossy().into_owned())
-        .unwrap_or_default();
-    name.split('.').next().unwrap_or_default().to_string()
 }

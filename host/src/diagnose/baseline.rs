@@ -10,13 +10,18 @@ use crate::error_signal::ErrorSignals;
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
-use crate::model::{Channel, ModelFileError, SimModel};
+use crate::model::{fitted_record_samples, Channel, ModelFileError, SimModel};
 use crate::wv::{haar_wv, WvOptions};
 
 /// The baseline stochastic model per channel, in SI units (rad/s, m/s^2).
 #[derive(Debug, Clone)]
 pub struct Baseline {
     pub channels: BTreeMap<Channel, ModelSpec>,
+    /// Per channel, the samples of the record its model was fitted on. The simulations that
+    /// calibrate the tests then draw the model from its sampling distribution at that
+    /// length (a fit is not the truth); a channel missing here is taken as exactly known,
+    /// and the report says so.
+    pub record_samples: BTreeMap<Channel, usize>,
     /// Where it came from, in words.
     pub source: String,
 }
@@ -32,8 +37,13 @@ impl Baseline {
         };
         let model = SimModel::load(path).map_err(err)?;
         let channels = model.stochastic_si(path).map_err(err)?;
+        let record_samples = fitted_record_samples(&model)
+            .into_iter()
+            .filter(|(c, _)| channels.contains_key(c))
+            .collect();
         Ok(Self {
             channels,
+            record_samples,
             source: format!("file {}", path.display()),
         })
     }
@@ -76,6 +86,7 @@ pub(super) fn fit_quietest(
         out.insert(channel, fit.model_object);
     }
     Ok(Baseline {
+        record_samples: out.keys().map(|c| (*c, w)).collect(),
         channels: out,
         source: format!(
             "fitted (model auto) on the quietest stretch t = {:.1}..{:.1} s (mean |omega| {:.4} rad/s)",

@@ -10,6 +10,7 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::engine::{ci, DiagnoseError, Finding, Run, LEVER_ARM_MODEL_SIGMA_M};
+use super::null::normal_p_value;
 use crate::calibration::{
     build_error_signals_with_design, CalibrationDesign, CalibrationSummary, ErrorOptions,
 };
@@ -89,13 +90,13 @@ fn simulated_calibration_sd(run: &Run, design: &CalibrationDesign) -> Vec<f64> {
             let series: Vec<Option<Vec<f64>>> = Channel::ALL
                 .iter()
                 .map(|c| {
-                    let spec = run.baseline.channels.get(c)?;
+                    let slot = run.channels.iter().position(|x| x == c)?;
                     let i = c.index();
                     design.has_channel(i).then(|| {
                         let mut rng = ChaCha8Rng::seed_from_u64(
                             run.opts.seed ^ 0x5eed_ca1b ^ ((r as u64) << 8) ^ i as u64,
                         );
-                        spec.simulate(run.n, &mut rng)
+                        run.null_model(slot, r).simulate(run.n, &mut rng)
                     })
                 })
                 .collect();
@@ -142,6 +143,7 @@ pub(super) fn sensor_wide_terms(
                     estimate: json!(value),
                     ci95: json!(ci(value, sigma)),
                     variance_explained: f64::NAN,
+                    p_value: Some(run.family_p(normal_p_value(value / sigma))),
                 });
             }
         }
@@ -157,6 +159,11 @@ pub(super) fn sensor_wide_terms(
         let significant = (0..3).any(|i| {
             sigma[i] > 0.0 && (value[i] / sigma[i]).abs() > run.z_strict && value[i].abs() > 0.005
         });
+        // The most significant component's p-value, over the three components tested.
+        let p = (0..3)
+            .filter(|&i| sigma[i] > 0.0)
+            .map(|i| normal_p_value(value[i] / sigma[i]))
+            .fold(1.0, f64::min);
         if significant {
             for &channel in run.channels.iter().filter(|c| !c.is_gyro()) {
                 out.findings.push(Finding {
@@ -170,6 +177,7 @@ pub(super) fn sensor_wide_terms(
                         ci(value[2], sigma[2])
                     ]),
                     variance_explained: f64::NAN,
+                    p_value: Some(run.family_p(p)),
                 });
             }
         }

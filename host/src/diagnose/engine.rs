@@ -44,7 +44,8 @@ use statrs::distribution::{ContinuousCDF, Normal};
 pub use super::baseline::Baseline;
 use super::calibration::{calibrate, sensor_wide_terms};
 use super::extension::{channel_model, extended_model};
-use super::gain::measure_gain;
+use super::gain::{in_sample_gain, ChannelModelSims};
+use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, select};
 use super::moments::Absorber;
 use super::stochastic::find_stochastic_effects;
 use super::terms::{find_terms, ChannelTerms, FittedTerms};
@@ -76,10 +77,9 @@ pub struct DiagnoseOptions {
     /// Baseline simulations per channel.
     pub replicates: usize,
     pub seed: u64,
-    /// Family-wise false-alarm level of a whole run (split over its tests).
+    /// Family-wise false-alarm level of a whole run: the probability that a run with
+    /// nothing beyond the baseline names anything (Bonferroni over its tests).
     pub alpha: f64,
-    /// Fraction of the epochs held out (at the end) for the held-out gain.
-    pub holdout_fraction: f64,
     /// Smallest share of a channel's error variance a deterministic term must explain.
     pub min_variance_explained: f64,
 }
@@ -89,8 +89,7 @@ impl Default for DiagnoseOptions {
         Self {
             replicates: 30,
             seed: 1,
-            alpha: 0.01,
-            holdout_fraction: 0.3,
+            alpha: 0.05,
             min_variance_explained: 0.005,
         }
     }
@@ -109,6 +108,11 @@ pub struct Finding {
     pub ci95: Value,
     /// Share of the channel's error variance this term accounts for.
     pub variance_explained: f64,
+    /// Family-wise p-value: the p-value of the test that named the cause times the number
+    /// of tests of the run (Bonferroni), at most 1. A cause is named only below the run's
+    /// `alpha`. None for a property read without a test (raw values on a lattice).
+    #[serde(default)]
+    pub p_value: Option<f64>,
 }
 
 /// Per-channel gain of the extended model over the baseline.
@@ -120,9 +124,22 @@ pub struct Gain {
     pub held_out_baseline: f64,
     pub held_out_extended: f64,
     /// Share of the error variance the extended model's deterministic terms explain
-    /// (in-sample, and on the held-out part with coefficients from the first part).
+    /// (in-sample, and held out: fitted on the other blocks of the cross-validation).
     pub variance_explained: f64,
     pub held_out_variance_explained: f64,
+    /// Causes named on the channel that did not enter the extended model.
+    #[serde(default)]
+    pub not_kept: Vec<NotKept>,
+}
+
+/// A cause named on a channel but left out of the extended model: adding it did not lower
+/// the cross-validated misfit (by 1% or more).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct NotKept {
+    pub cause: Cause,
+    /// The cross-validated WV misfit of the model before it, and with it.
+    pub held_out_without: f64,
+    pub held_out_with: f64,
 }
 
 /// A statistic the baseline fails to reproduce.
@@ -140,6 +157,14 @@ pub struct Discrepancy {
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct DiagnoseReport {
     pub baseline_source: String,
+    /// The family-wise level of the run: the probability that a run with nothing beyond the
+    /// baseline names anything.
+    #[serde(default)]
+    pub alpha: f64,
+    /// The number of tests of the run (Bonferroni's m); a cause is named when its test's
+    /// p-value is below alpha / tests.
+    #[serde(default)]
+    pub tests: usize,
     pub calibration: Option<CalibrationSummary>,
     pub findings: Vec<Finding>,
     pub gain: BTreeMap<Channel, Gain>,
@@ -227,10 +252,12 @@ pub(super) struct Run<'a> {
     pub specific_force_rate_m_s3: [Vec<f64>; 3],
     /// Two-sided normal quantile of one test at `alpha_test`.
     pub z_strict: f64,
-    /// False-alarm level of one test (Bonferroni over the run's tests).
+    /// Number of tests of the run (Bonferroni's m).
+    pub tests: usize,
+    /// False-alarm level of one test: the run's `alpha` over its tests.
     pub alpha_test: f64,
-    /// First epoch of the held-out end.
-    pub split: usize,
+    /// Per slot, the model of each baseline simulation ([`super::null::null_models`]).
+    pub null_models: Vec<Vec<ModelSpec>>,
 }
 
 impl Run<'_> {
@@ -263,22 +290,34 @@ impl Run<'_> {
             })
     }
 
+    /// The model of baseline simulation `r` of the channel at `slot`: the baseline drawn
+    /// from its sampling distribution (or the baseline itself when that is not known).
+    pub fn null_model(&self, slot: usize, r: usize) -> &ModelSpec {
+        let models = &self.null_models[slot];
+        &models[r % models.len()]
+    }
+
     /// Baseline simulation `r` of the channel at `slot`: the null distribution of every
     /// statistic. Seeded by slot and replicate, so every stage draws the same ones.
-    pub fn baseline_sim(&self, slot: usize, r: usize, spec: &ModelSpec) -> Vec<f64> {
+    pub fn baseline_sim(&self, slot: usize, r: usize) -> Vec<f64> {
         use rand::SeedableRng;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
             self.opts.seed ^ ((slot as u64) << 32) ^ r as u64,
         );
-        spec.simulate(self.n, &mut rng)
+        self.null_model(slot, r).simulate(self.n, &mut rng)
     }
 
     /// Every baseline simulation of the channel at `slot`.
-    pub fn baseline_sims(&self, slot: usize, spec: &ModelSpec) -> Vec<Vec<f64>> {
+    pub fn baseline_sims(&self, slot: usize) -> Vec<Vec<f64>> {
         (0..self.opts.replicates)
             .into_par_iter()
-            .map(|r| self.baseline_sim(slot, r, spec))
+            .map(|r| self.baseline_sim(slot, r))
             .collect()
+    }
+
+    /// The family-wise p-value of a test whose own p-value is `p` (Bonferroni).
+    pub fn family_p(&self, p: f64) -> f64 {
+        (p * self.tests as f64).min(1.0)
     }
 
     /// What a fit of terms jointly with the calibration needs of it.
@@ -296,6 +335,19 @@ impl Run<'_> {
             .saturating_sub(2)
             .max(1)
     }
+}
+
+/// The number of tests a run makes, the m of its Bonferroni rule: per channel the
+/// deterministic candidates (15 regressors and a bias step, with dynamics), noise growth,
+/// outliers, vibration lines (one test, already corrected over the spectrum's bins) and one
+/// test per wavelet-variance level; and the sensor-wide time offset and lever arm.
+fn tests_of_run(channels: usize, n: usize, has_dynamics: bool) -> usize {
+    let levels = ((n.max(2) as f64).log2().floor() as usize)
+        .saturating_sub(2)
+        .max(1);
+    let deterministic = if has_dynamics { 16 } else { 1 };
+    let sensor_wide = if has_dynamics { 4 } else { 0 };
+    (channels * (deterministic + 3 + levels) + sensor_wide).max(1)
 }
 
 /// The epochs of error signals and what every stage reads of them.
@@ -345,6 +397,8 @@ struct ChannelResult {
     model: ChannelModel,
     /// What the calibration took from the channel's terms.
     absorbed: Option<nalgebra::DVector<f64>>,
+    /// What was not tested on the channel, and why.
+    notes: Vec<String>,
 }
 
 /// The stages after the deterministic terms, on one channel (at `slot`): its terms as
@@ -363,28 +417,35 @@ fn diagnose_channel(
         .zip(&found.calibration_spill)
         .map(|(v, s)| v - s)
         .collect();
-    let sims = run.baseline_sims(slot, spec);
+    let sims = run.baseline_sims(slot);
     let mut discrepancies = std::mem::take(&mut found.discrepancies);
     let terms = FittedTerms::new(run, channel, found, &e);
-    let mut findings = terms.findings(channel);
+    let mut findings = terms.findings(run, channel);
     let fitted = terms.deterministic(&terms.coefficients, 0..run.n);
     let resid: Vec<f64> = (0..run.n)
         .map(|t| e[t] - terms.intercept - fitted[t])
         .collect();
     let stochastic = find_stochastic_effects(run, slot, channel, spec, &e, resid, &sims);
-    let (gain, wv_curves) = measure_gain(
-        run,
-        slot,
-        spec,
-        &e,
-        &terms,
-        &stochastic.stochastic,
-        &stochastic.effects,
-    );
-    let model = channel_model(&terms, &stochastic);
+    let selection = select(run, slot, spec, &e, &terms, &stochastic);
+    let coefficients = kept_coefficients(&terms, &selection.kept);
+    let effects = kept_effects(&stochastic, &selection.kept);
+    let extended = ChannelModelSims {
+        coefficients: &coefficients,
+        stochastic: keeps_noise_model(&selection.kept).then_some(&stochastic.stochastic),
+        effects: &effects,
+        intercept: terms.intercept,
+    };
+    let (mut gain, wv_curves) = in_sample_gain(run, slot, &e, &terms, &extended);
+    gain.held_out_baseline = selection.held_out_baseline;
+    gain.held_out_extended = selection.held_out_extended;
+    gain.held_out_variance_explained = selection.held_out_variance_explained;
+    let model = channel_model(&terms, &stochastic, &selection.kept);
+    gain.not_kept = selection.not_kept;
     findings.extend(stochastic.findings);
     discrepancies.extend(stochastic.discrepancies);
+    let notes = stochastic.notes;
     Ok(ChannelResult {
+        notes,
         findings,
         discrepancies,
         gain,
@@ -419,9 +480,22 @@ pub fn diagnose(
             b
         }
     };
-    // Tests per channel: 15 regressors + ~8 stochastic statistics; Bonferroni over all.
-    let tests = (channels.len() * 24).max(1) as f64;
-    let alpha_test = opts.alpha / tests;
+    for channel in &channels {
+        if !baseline.channels.contains_key(channel) {
+            return Err(DiagnoseError::Channel {
+                channel: *channel,
+                message: format!(
+                    "the baseline model ({}) has no model for it",
+                    baseline.source
+                ),
+            });
+        }
+    }
+    let (null_models, null_notes) =
+        super::null::null_models(&baseline, &channels, opts.replicates, opts.seed);
+    notes.extend(null_notes);
+    let tests = tests_of_run(channels.len(), n, reference.is_some());
+    let alpha_test = opts.alpha / tests as f64;
     let z_strict = Normal::new(0.0, 1.0)
         .expect("normal")
         .inverse_cdf(1.0 - alpha_test / 2.0);
@@ -450,8 +524,9 @@ pub fn diagnose(
         specific_force_m_s2,
         specific_force_rate_m_s3,
         z_strict,
+        tests,
         alpha_test,
-        split: ((1.0 - opts.holdout_fraction) * n as f64) as usize,
+        null_models,
     };
     let found = find_terms(&run)?;
     let results: Vec<Result<ChannelResult, DiagnoseError>> = run
@@ -477,6 +552,7 @@ pub fn diagnose(
         }
         channel_findings.extend(r.findings);
         discrepancies.extend(r.discrepancies);
+        notes.extend(r.notes);
         gain.insert(channel, r.gain);
         wv_curves.insert(channel, r.wv_curves);
         channel_models.insert(channel, r.model);
@@ -492,6 +568,8 @@ pub fn diagnose(
     }
     Ok(DiagnoseReport {
         baseline_source: baseline.source.clone(),
+        alpha: opts.alpha,
+        tests: run.tests,
         calibration: calibrated.calibration.map(|(c, _)| c),
         findings,
         gain,

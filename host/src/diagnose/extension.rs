@@ -9,19 +9,34 @@
 use std::collections::BTreeMap;
 
 use super::calibration::SensorWideTerms;
+use super::generalise::{keeps_noise_model, kept_effects, Component};
 use super::stochastic::StochasticFindings;
 use super::terms::FittedTerms;
 use crate::calibration::CalibrationSummary;
 use crate::model::{BiasStep, Cause, Channel, ChannelModel, ImuModel, SimModel};
 
-/// The extended model of one channel.
-pub(super) fn channel_model(terms: &FittedTerms, stochastic: &StochasticFindings) -> ChannelModel {
+/// The extended model of one channel: the baseline with the found effects that generalise
+/// (`kept`, [`super::generalise`]) and the bias; the quantization step, a property of the
+/// raw output the misfit of the error cannot score, whenever it was found.
+pub(super) fn channel_model(
+    terms: &FittedTerms,
+    stochastic: &StochasticFindings,
+    kept: &[Component],
+) -> ChannelModel {
     let mut model = ChannelModel {
-        stochastic: Some(stochastic.stochastic.clone()),
+        stochastic: Some(if keeps_noise_model(kept) {
+            stochastic.stochastic.clone()
+        } else {
+            stochastic.baseline.clone()
+        }),
         bias: Some(terms.intercept),
-        ..stochastic.effects.clone()
+        quantization_step: stochastic.effects.quantization_step,
+        ..kept_effects(stochastic, kept)
     };
     for (c, t) in terms.coefficients.iter().zip(&terms.terms) {
+        if !kept.contains(&Component::Terms(t.cause)) {
+            continue;
+        }
         let row = match t.cause {
             Cause::ScaleFactor => {
                 model.scale_factor = Some(c.value);

@@ -1,8 +1,9 @@
 //! The gain of the extended model over the baseline: the wavelet-variance misfit of the
-//! measured error against simulations of each model along the measured dynamics, in-sample
-//! and on the held-out end of the run (deterministic coefficients refitted on the first part
-//! only), with the share of the error variance the deterministic terms explain, and the
-//! wavelet-variance curves the report plots.
+//! measured error against simulations of each model along the measured dynamics (the
+//! baseline drawn as the tests' null draws it), with the share of the error variance the
+//! deterministic terms explain, and the wavelet-variance curves the report plots. The
+//! held-out side, and which found effects enter the extended model, is
+//! [`super::generalise`]'s.
 
 use std::collections::BTreeSet;
 
@@ -16,7 +17,6 @@ use super::engine::{variance, Gain, Run, WvCurves, Z_FLOOR};
 use super::terms::{Coefficient, FittedTerms};
 use crate::gmwm::model::ModelSpec;
 use crate::model::{Channel, ChannelModel, VibrationLine};
-use crate::regress::{backward_elimination, RegressionOptions};
 use crate::sim::effects::{ChannelEffects, SensorKinematics};
 use crate::wv::{haar_wv, WvOptions};
 
@@ -53,7 +53,7 @@ pub(super) fn level_stats(sims: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
 }
 
 /// Mean squared z-score of the measured log-WV against simulated ones: the WV misfit.
-fn wv_misfit(measured: &[f64], sims: &[Vec<f64>]) -> f64 {
+pub(super) fn wv_misfit(measured: &[f64], sims: &[Vec<f64>]) -> f64 {
     let (mean, sd) = level_stats(sims);
     let j = mean.len().min(measured.len());
     if j == 0 {
@@ -168,18 +168,19 @@ pub(super) fn simulate_channel(
     x
 }
 
-/// A model of one channel to simulate: deterministic coefficients (none for the baseline),
-/// the stochastic processes, the effects beyond them, and the bias.
-struct ChannelModelSims<'a> {
-    coefficients: &'a [Coefficient],
-    stochastic: &'a ModelSpec,
-    effects: &'a ChannelModel,
-    intercept: f64,
+/// A model of one channel to simulate: deterministic coefficients (one per term of the
+/// channel; zero for a term left out), the stochastic processes (None: the baseline, drawn
+/// per simulation as the tests' null draws it), the effects beyond them, and the bias.
+pub(super) struct ChannelModelSims<'a> {
+    pub coefficients: &'a [Coefficient],
+    pub stochastic: Option<&'a ModelSpec>,
+    pub effects: &'a ChannelModel,
+    pub intercept: f64,
 }
 
 /// Log-WVs of simulations of `model` over the epochs `range`, seeded by `salt`, the channel's
-/// `slot` and the replicate.
-fn simulate_model(
+/// `slot` and the replicate: models compared on the same `salt` share their random numbers.
+pub(super) fn simulate_model(
     run: &Run,
     slot: usize,
     terms: &FittedTerms,
@@ -217,8 +218,9 @@ fn simulate_model(
                 })
                 .collect();
             let d = terms.deterministic(&drawn, range.clone());
+            let stochastic = model.stochastic.unwrap_or_else(|| run.null_model(slot, r));
             let mut x = simulate_channel(
-                model.stochastic,
+                stochastic,
                 model.effects,
                 channel,
                 omega_rad_s,
@@ -234,105 +236,67 @@ fn simulate_model(
         .collect()
 }
 
-/// The coefficients refitted on the first part of the error only (`e_first`), for the
-/// held-out gain; intervals and shares stay those of the whole run.
-fn held_out_coefficients(terms: &FittedTerms, e_first: &[f64]) -> Vec<Coefficient> {
-    if terms.coefficients.is_empty() {
-        return Vec::new();
-    }
-    let split = e_first.len();
-    let regressors: Vec<(&str, &[f64])> = terms
-        .terms
-        .iter()
-        .map(|t| (t.name.as_str(), &t.own[..split]))
-        .collect();
-    let opts = RegressionOptions {
-        alpha: 1.0,
-        ..Default::default()
-    };
-    match backward_elimination(e_first, &regressors, &opts) {
-        Ok(rep) => terms
-            .coefficients
-            .iter()
-            .zip(&terms.terms)
-            .map(|(c, t)| Coefficient {
-                value: rep.coefficient(&t.name).map_or(0.0, |x| x.estimate),
-                ..*c
-            })
-            .collect(),
-        Err(_) => terms.coefficients.clone(),
-    }
-}
-
-/// The gain of the extended model (`terms`, `stochastic` and `effects`) over the baseline
-/// `spec` on one channel whose error is `e`, and the curves behind it.
-pub(super) fn measure_gain(
+/// The WV misfit of the error `e` over `range` against simulations of `model` there.
+pub(super) fn misfit_over(
     run: &Run,
     slot: usize,
-    spec: &ModelSpec,
+    terms: &FittedTerms,
+    e: &[f64],
+    model: &ChannelModelSims,
+    range: std::ops::Range<usize>,
+    salt: u64,
+) -> f64 {
+    let sims = simulate_model(run, slot, terms, model, range.clone(), salt);
+    let max_level = sims.iter().map(Vec::len).min().unwrap_or(0) as u32;
+    wv_misfit(&log_wv(&e[range], run.dt_s, max_level.max(1)), &sims)
+}
+
+/// Share of the variance of `e` over `range` that `coefficients` explain there.
+pub(super) fn variance_explained_over(
+    terms: &FittedTerms,
+    coefficients: &[Coefficient],
+    e: &[f64],
+    range: std::ops::Range<usize>,
+) -> f64 {
+    let d = terms.deterministic(coefficients, range.clone());
+    let part = &e[range];
+    let left: Vec<f64> = part.iter().zip(&d).map(|(a, b)| a - b).collect();
+    1.0 - variance(&left) / variance(part)
+}
+
+/// The gain of the extended model (`terms` kept as `coefficients`, zero for a term left
+/// out, `stochastic` (None: the baseline's) and `effects`) over the baseline on one channel
+/// whose error is `e`, in-sample, with the curves behind it. The held-out figures are the
+/// cross-validated ones of the selection ([`super::generalise`]), filled in by the caller.
+pub(super) fn in_sample_gain(
+    run: &Run,
+    slot: usize,
     e: &[f64],
     terms: &FittedTerms,
-    stochastic: &ModelSpec,
-    effects: &ChannelModel,
+    extended: &ChannelModelSims,
 ) -> (Gain, WvCurves) {
-    let (n, split, dt_s) = (run.n, run.split, run.dt_s);
-    let max_level = run.max_wv_level();
+    let n = run.n;
     let no_effects = ChannelModel::default();
+    let zero: Vec<Coefficient> = terms.coefficients.iter().map(Coefficient::zero).collect();
     let baseline = ChannelModelSims {
-        coefficients: &[],
-        stochastic: spec,
+        coefficients: &zero,
+        stochastic: None,
         effects: &no_effects,
         intercept: 0.0,
     };
-    let extended = ChannelModelSims {
-        coefficients: &terms.coefficients,
-        stochastic,
-        effects,
-        intercept: terms.intercept,
-    };
-    let e_wv = log_wv(e, dt_s, max_level);
+    let e_wv = log_wv(e, run.dt_s, run.max_wv_level());
     let base_sims = simulate_model(run, slot, terms, &baseline, 0..n, 11);
-    let ext_sims = simulate_model(run, slot, terms, &extended, 0..n, 13);
-    let wv_curves = WvCurves::new(dt_s, &e_wv, &base_sims, &ext_sims);
-
-    // Held out: deterministic coefficients refitted on the first part only.
-    let first = held_out_coefficients(terms, &e[..split]);
-    let extended_first = ChannelModelSims {
-        coefficients: &first,
-        ..extended
-    };
-    let max_level_h = max_level
-        .min(((n - split) as f64).log2() as u32)
-        .saturating_sub(2);
-    let e_tail = &e[split..];
-    let tail_wv = log_wv(e_tail, dt_s, max_level_h);
-    let held_base = wv_misfit(
-        &tail_wv,
-        &simulate_model(run, slot, terms, &baseline, split..n, 17),
-    );
-    let held_ext = wv_misfit(
-        &tail_wv,
-        &simulate_model(run, slot, terms, &extended_first, split..n, 19),
-    );
-    let fitted = terms.deterministic(&terms.coefficients, 0..n);
-    let ve_in = 1.0 - variance(&(0..n).map(|t| e[t] - fitted[t]).collect::<Vec<_>>()) / variance(e);
-    let d_tail = terms.deterministic(&first, split..n);
-    let ve_out = 1.0
-        - variance(
-            &e_tail
-                .iter()
-                .zip(&d_tail)
-                .map(|(a, b)| a - b)
-                .collect::<Vec<_>>(),
-        ) / variance(e_tail);
+    let ext_sims = simulate_model(run, slot, terms, extended, 0..n, 13);
+    let wv_curves = WvCurves::new(run.dt_s, &e_wv, &base_sims, &ext_sims);
     let gain = Gain {
         metric: "wv_misfit (mean squared z of log wavelet variance vs model simulations)".into(),
         baseline: wv_misfit(&e_wv, &base_sims),
         extended: wv_misfit(&e_wv, &ext_sims),
-        held_out_baseline: held_base,
-        held_out_extended: held_ext,
-        variance_explained: ve_in,
-        held_out_variance_explained: ve_out,
+        held_out_baseline: f64::NAN,
+        held_out_extended: f64::NAN,
+        variance_explained: variance_explained_over(terms, extended.coefficients, e, 0..n),
+        held_out_variance_explained: f64::NAN,
+        not_kept: Vec::new(),
     };
     (gain, wv_curves)
 }

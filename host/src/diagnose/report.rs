@@ -16,7 +16,9 @@ use std::path::{Path, PathBuf};
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use super::engine::{DiagnoseReport, Finding, Gain, WvCurves};
+use super::engine::{DiagnoseReport, Finding, Gain, NotKept, WvCurves};
+use super::generalise::FOLDS;
+use super::readable::{self, significant};
 use crate::figures::plot::{
     chart, decade_label, draw_err, draw_legend, grey_grid, render_svg, titled_with_legend, usable,
     CategoryAxis, Decades, DrawError, Frame, Glyph, FONT, LEGEND_WIDTH_PX,
@@ -212,12 +214,12 @@ pub fn markdown(r: &DiagnoseReport, figures: &Figures) -> String {
     for d in &r.discrepancies {
         let _ = writeln!(
             s,
-            "| {} | {} | {:.4e} | [{:.4e}, {:.4e}] | {} |",
+            "| {} | {} | {} | [{}, {}] | {} |",
             d.channel,
             table_cell(&d.statistic),
-            d.measured,
-            d.simulated_range[0],
-            d.simulated_range[1],
+            significant(d.measured, 4),
+            significant(d.simulated_range[0], 4),
+            significant(d.simulated_range[1], 4),
             table_cell(&d.detail)
         );
     }
@@ -233,21 +235,30 @@ pub fn markdown(r: &DiagnoseReport, figures: &Figures) -> String {
             );
         }
     }
-    let _ = writeln!(s, "\n## Named causes\n\n| channel | cause | regressors | estimate (SI) | 95% interval | variance explained |\n|---|---|---|---|---|---|");
+    let _ = writeln!(
+        s,
+        "\n## Named causes\n\nA cause is named when the p-value of its test, times the {} tests of the run (Bonferroni), is below alpha = {}: a run with nothing beyond the baseline names anything with probability at most alpha. Its 95% interval excludes the no-effect value.\n\n| channel | cause | regressors | estimate ± 95% half-width | family-wise p | variance explained | in the extended model |\n|---|---|---|---|---|---|---|",
+        r.tests, r.alpha
+    );
     for f in &r.findings {
+        let kept = r
+            .gain
+            .get(&f.channel)
+            .is_none_or(|g| g.not_kept.iter().all(|n| n.cause != f.cause));
         let _ = writeln!(
             s,
-            "| {} | {} | {} | {} | {} | {:.2} % |",
+            "| {} | {} | {} | {} | {} | {}% | {} |",
             f.channel,
             f.cause,
             table_cell(&f.regressors.join(", ")),
-            f.estimate,
-            f.ci95,
-            100.0 * f.variance_explained
+            readable::estimate(f),
+            readable::p_value(f.p_value),
+            significant(100.0 * f.variance_explained, 3),
+            if kept { "yes" } else { "no (see below)" }
         );
     }
     if r.findings.is_empty() {
-        let _ = writeln!(s, "| - | nothing beyond the baseline | | | | |");
+        let _ = writeln!(s, "| - | nothing beyond the baseline | | | | | |");
     }
     if let Some(file) = &figures.findings {
         let without = r.findings.iter().filter(|f| !has_variance_share(f)).count();
@@ -263,18 +274,35 @@ pub fn markdown(r: &DiagnoseReport, figures: &Figures) -> String {
             );
         }
     }
-    let _ = writeln!(s, "\n## Gain of the extended model\n\nmetric: WV misfit (mean squared z of the log wavelet variance against model simulations; about 1 for a model that fits)\n\n| channel | baseline | extended | held-out baseline | held-out extended | variance explained | held-out variance explained |\n|---|---|---|---|---|---|---|");
+    let _ = writeln!(s, "\n## Gain of the extended model\n\nmetric: WV misfit (mean squared z of the log wavelet variance against model simulations; about 1 for a model that fits). Held out: cross-validation over {} contiguous blocks of the run (fitted on the others, scored on each block in turn); a named cause enters the extended model only if it lowers that misfit by 1% or more.\n\n| channel | baseline | extended | held-out baseline | held-out extended | variance explained | held-out variance explained |\n|---|---|---|---|---|---|---|", FOLDS);
     for (ch, g) in &r.gain {
         let _ = writeln!(
             s,
-            "| {ch} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} % | {:.2} % |",
-            g.baseline,
-            g.extended,
-            g.held_out_baseline,
-            g.held_out_extended,
-            100.0 * g.variance_explained,
-            100.0 * g.held_out_variance_explained
+            "| {ch} | {} | {} | {} | {} | {}% | {}% |",
+            significant(g.baseline, 4),
+            significant(g.extended, 4),
+            significant(g.held_out_baseline, 4),
+            significant(g.held_out_extended, 4),
+            significant(100.0 * g.variance_explained, 3),
+            significant(100.0 * g.held_out_variance_explained, 3)
         );
+    }
+    let not_kept: Vec<(Channel, &NotKept)> = r
+        .gain
+        .iter()
+        .flat_map(|(ch, g)| g.not_kept.iter().map(move |n| (*ch, n)))
+        .collect();
+    if !not_kept.is_empty() {
+        let _ = writeln!(s, "\nNamed but not kept in the extended model (held out, they did not improve the misfit):\n\n| channel | cause | held-out misfit without | with |\n|---|---|---|---|");
+        for (ch, n) in not_kept {
+            let _ = writeln!(
+                s,
+                "| {ch} | {} | {} | {} |",
+                n.cause,
+                significant(n.held_out_without, 4),
+                significant(n.held_out_with, 4)
+            );
+        }
     }
     if let Some(file) = &figures.gain {
         let _ = writeln!(
@@ -709,6 +737,7 @@ mod tests {
             estimate: json!(0.003),
             ci95: json!([0.002, 0.004]),
             variance_explained,
+            p_value: Some(1e-4),
         }
     }
 
@@ -721,12 +750,15 @@ mod tests {
             held_out_extended,
             variance_explained: 0.02,
             held_out_variance_explained: 0.01,
+            not_kept: vec![],
         }
     }
 
     fn report() -> DiagnoseReport {
         DiagnoseReport {
             baseline_source: "test baseline".into(),
+            alpha: 0.05,
+            tests: 120,
             calibration: None,
             findings: vec![
                 finding("gx", "scale_factor", 0.04),
@@ -961,7 +993,7 @@ mod tests {
         assert!(at("](wv-gx.svg)") < at("## Named causes"));
         assert!(at("## Named causes") < at("](findings.svg)"));
         assert!(at("](findings.svg)") < at("## Gain of the extended model"));
-        assert!(at("| gx | 12.000 | 0.900 |") < at("](gain.svg)"));
+        assert!(at("| gx | 12.00 | 0.9000 |") < at("](gain.svg)"));
         assert!(md.contains("1 of 3 findings carry no variance share"));
         // Without figures (the text printed on stdout) nothing is linked.
         assert!(!markdown(&report(), &Figures::default()).contains("]("));

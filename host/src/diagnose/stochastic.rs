@@ -13,12 +13,14 @@ use serde_json::json;
 use super::engine::{
     ci, simulated_range, variance, Discrepancy, Finding, Run, WV_MIN_LOG_DEVIATION,
 };
-use super::gain::{level_stats, log_wv, simulate_channel};
+use super::gain::{log_wv, simulate_channel};
+use super::null::{normal_p_value, poisson_upper_tail, wv_level_test, LevelTest};
+use super::readable::significant;
 use super::stats::{
     find_outliers, noise_vs_dynamics, outlier_process, spectral_lines, welch_psd, SpectralLine,
 };
 use crate::gmwm::fit::{FitInput, FitOptions};
-use crate::gmwm::inference::{analyze, ModelChoice};
+use crate::gmwm::inference::{analyze, parameter_values, ModelChoice};
 use crate::gmwm::model::ModelSpec;
 use crate::model::{
     Cause, Channel, ChannelModel, DynamicDriver, DynamicNoise, Outliers, VibrationLine,
@@ -36,6 +38,10 @@ pub(super) struct StochasticFindings {
     /// The stochastic model of the extended model: the baseline's, or its structure refitted
     /// on what remains when that departs from the baseline's wavelet variance.
     pub stochastic: ModelSpec,
+    /// The baseline's stochastic model of the channel.
+    pub baseline: ModelSpec,
+    /// What was not tested, and why.
+    pub notes: Vec<String>,
 }
 
 /// Runs the tests in order on `resid` (the channel's error `e` less its deterministic
@@ -54,6 +60,8 @@ pub(super) fn find_stochastic_effects(
         discrepancies: Vec::new(),
         effects: ChannelModel::default(),
         stochastic: spec.clone(),
+        baseline: spec.clone(),
+        notes: Vec::new(),
     };
     // Noise growing with the dynamics, looked at before outliers: the largest samples of a
     // noise that grows in the manoeuvres are not outliers, and the outlier search then runs
@@ -87,7 +95,10 @@ fn noise_growth(
         .map(|s| noise_vs_dynamics(s, &run.omega_norm, window).t)
         .collect();
     let range = simulated_range(&sim_t);
-    if !(nd.t > run.z_strict.max(range[1] * 1.5) && nd.sigma_per_unit > 0.0) {
+    if !(nd.t > run.z_strict.max(range[1] * 1.5)
+        && nd.sigma_per_unit > 0.0
+        && nd.sigma_per_unit_ci95[0] > 0.0)
+    {
         return None;
     }
     found.discrepancies.push(Discrepancy {
@@ -105,6 +116,7 @@ fn noise_growth(
         estimate: json!(nd.sigma_per_unit),
         ci95: json!(nd.sigma_per_unit_ci95),
         variance_explained: nd.sigma_per_unit.powi(2) * mean_omega2 / variance(e),
+        p_value: Some(run.family_p(normal_p_value(nd.t))),
     });
     found.effects.dynamic_noise = Some(DynamicNoise {
         driver: DynamicDriver::AngularRateNorm,
@@ -186,7 +198,11 @@ fn outliers(
         simulated_range: range,
         detail,
     });
-    if !op.separated {
+    // Under the null the count is about Poisson with the simulations' mean (one count
+    // added, so that no simulation with an outlier does not make the null count zero).
+    let null_mean = (sim_counts.iter().sum::<f64>() + 1.0) / sim_counts.len() as f64;
+    let p = poisson_upper_tail(out.indices.len(), null_mean);
+    if !(op.separated && op.probability_ci95[0] > 0.0 && p < run.alpha_test) {
         return;
     }
     let ve = devs.iter().map(|d| d * d).sum::<f64>() / n as f64 / variance(e);
@@ -200,6 +216,7 @@ fn outliers(
         estimate: json!(op.probability_per_sample),
         ci95: json!(op.probability_ci95),
         variance_explained: ve,
+        p_value: Some(run.family_p(p)),
     });
     found.effects.outliers = Some(Outliers {
         probability: op.probability_per_sample,
@@ -287,14 +304,23 @@ fn vibration_lines(
         let w = std::f64::consts::TAU * freq_hz;
         let (a, b) = fit_sinusoid(freq_hz, resid, dt_s);
         let amp = (a * a + b * b).sqrt();
-        for (i, y) in resid.iter_mut().enumerate() {
-            let (s, c) = (w * i as f64 * dt_s).sin_cos();
-            *y -= a * s + b * c;
-        }
+        let after: Vec<f64> = resid
+            .iter()
+            .enumerate()
+            .map(|(i, y)| {
+                let (s, c) = (w * i as f64 * dt_s).sin_cos();
+                y - (a * s + b * c)
+            })
+            .collect();
         // Statistical error of a least-squares sinusoid, plus a 3% allowance for what the
         // sampling does to a line near or above Nyquist (clock jitter, the boresight
         // rotation mixing axes), which the statistical part ignores.
-        let noise = ((variance(resid) * 2.0 / n as f64) + (0.015 * amp).powi(2)).sqrt();
+        let noise = ((variance(&after) * 2.0 / n as f64) + (0.015 * amp).powi(2)).sqrt();
+        let interval = ci(amp, noise);
+        if interval[0] <= 0.0 {
+            continue;
+        }
+        resid.copy_from_slice(&after);
         let line = SpectralLine {
             freq_hz,
             ..line.clone()
@@ -311,8 +337,9 @@ fn vibration_lines(
             cause: Cause::Vibration,
             regressors: vec![format!("sinusoid at {:.3} Hz (as sampled)", line.freq_hz)],
             estimate: json!(amp),
-            ci95: json!(ci(amp, noise)),
+            ci95: json!(interval),
             variance_explained: amp * amp / 2.0 / variance(e),
+            p_value: Some(run.family_p(line.p_value)),
         });
         found.effects.vibration_lines.push(VibrationLine {
             frequency_hz: line.freq_hz,
@@ -342,6 +369,7 @@ fn quantization(run: &Run, channel: Channel, e: &[f64], found: &mut StochasticFi
         estimate: json!(q),
         ci95: json!(ci(q, q_se)),
         variance_explained: q * q / 12.0 / variance(e),
+        p_value: None,
     });
     found.effects.quantization_step = Some(q);
 }
@@ -416,7 +444,7 @@ fn noise_change(
                         run.opts.seed ^ 0xd1_0153 ^ ((slot as u64) << 32) ^ r as u64,
                     );
                     let x = simulate_channel(
-                        spec,
+                        run.null_model(slot, r),
                         &growth,
                         channel,
                         omega_rad_s,
@@ -429,17 +457,35 @@ fn noise_change(
                 .collect()
         }
     };
-    let (mean, sd) = level_stats(&sim_wv);
-    let z: Vec<f64> = (0..mean.len().min(measured_wv.len()))
-        .map(|j| (measured_wv[j] - mean[j]) / sd[j])
+    let levels = measured_wv
+        .len()
+        .min(sim_wv.iter().map(Vec::len).min().unwrap_or(0));
+    let tests: Vec<LevelTest> = (0..levels)
+        .map(|j| {
+            let sims_j: Vec<f64> = sim_wv.iter().map(|s| s[j]).collect();
+            wv_level_test(measured_wv[j], &sims_j, run.alpha_test)
+        })
         .collect();
+    let scale_s = |j: usize| dt_s * 2f64.powi(j as i32 + 1);
+    let undecided: Vec<usize> = (0..levels).filter(|&j| !tests[j].decidable).collect();
+    if let (Some(&first), Some(&last)) = (undecided.first(), undecided.last()) {
+        found.notes.push(format!(
+            "{channel}: the wavelet variance at {} of {levels} levels (scales {} to {} s) has too few degrees of freedom to decide (equivalent dof {:.1} to {:.1}): not tested",
+            undecided.len(),
+            significant(scale_s(first), 3),
+            significant(scale_s(last), 3),
+            undecided.iter().map(|&j| tests[j].edof).fold(f64::INFINITY, f64::min),
+            undecided.iter().map(|&j| tests[j].edof).fold(0.0, f64::max),
+        ));
+    }
     // Significant and large enough to matter: at the finest levels the wavelet variance of a
     // long record is so precise that a 1-2% model error (in sigma) is significant; below
     // WV_MIN_LOG_DEVIATION it is not named.
-    let bad: Vec<usize> = (0..z.len())
+    let bad: Vec<usize> = (0..levels)
         .filter(|&j| {
-            z[j].abs() > run.z_strict.max(4.0)
-                && (measured_wv[j] - mean[j]).abs() > WV_MIN_LOG_DEVIATION
+            tests[j].decidable
+                && tests[j].p_value < run.alpha_test
+                && (measured_wv[j] - tests[j].null_log_mean).abs() > WV_MIN_LOG_DEVIATION
         })
         .collect();
     if bad.is_empty() {
@@ -449,16 +495,26 @@ fn noise_change(
         found.discrepancies.push(Discrepancy {
             channel,
             statistic: format!(
-                "log WV at level {} (scale {:.3} s)",
+                "wavelet variance ({}^2) at level {} (scale {} s)",
+                run.spec(channel).map_or("SI", |s| s.unit.as_str()),
                 j + 1,
-                dt_s * 2f64.powi(j as i32 + 1)
+                significant(scale_s(j), 3)
             ),
-            measured: measured_wv[j],
-            simulated_range: [mean[j] - 3.0 * sd[j], mean[j] + 3.0 * sd[j]],
-            detail: format!("z = {:.1}", z[j]),
+            measured: measured_wv[j].exp(),
+            simulated_range: simulated_range(
+                &sim_wv.iter().map(|s| s[j].exp()).collect::<Vec<_>>(),
+            ),
+            detail: format!(
+                "variance x{:.3} the baseline's; p = {:.2e} (chi-square, {:.1} equivalent dof), {:.2e} family-wise",
+                (measured_wv[j] - tests[j].null_log_mean).exp(),
+                tests[j].p_value,
+                tests[j].edof,
+                run.family_p(tests[j].p_value)
+            ),
         });
     }
-    refit_noise(channel, spec, resid, dt_s, &bad, found);
+    let p = bad.iter().map(|&j| tests[j].p_value).fold(1.0, f64::min);
+    refit_noise(channel, spec, resid, dt_s, &bad, run.family_p(p), found);
 }
 
 /// Refits the baseline's structure on what remains and names the changed parameters: the
@@ -469,6 +525,7 @@ fn refit_noise(
     resid: &[f64],
     dt_s: f64,
     bad_levels: &[usize],
+    p_value: f64,
     found: &mut StochasticFindings,
 ) {
     let Ok(wv) = haar_wv(resid, dt_s, &WvOptions::default()) else {
@@ -488,7 +545,6 @@ fn refit_noise(
     ) else {
         return;
     };
-    found.stochastic = fit.model_object.clone();
     let only_small = bad_levels.iter().all(|&j| j < 2);
     let cause = if only_small {
         Cause::WhiteNoiseChange
@@ -506,9 +562,22 @@ fn refit_noise(
             }
         } && p.name != "beta_per_s")
         .collect();
-    if params.is_empty() {
+    // Named only when a changed parameter's interval excludes the baseline's value.
+    let baseline_params = parameter_values(spec);
+    let changed = params.iter().any(|p| {
+        let before = baseline_params
+            .iter()
+            .find(|(process, name, _)| *process == p.process && *name == p.name)
+            .map(|(_, _, v)| *v);
+        match (p.ci95, before) {
+            (Some([lo, hi]), Some(v)) => v < lo || v > hi,
+            _ => false,
+        }
+    });
+    if params.is_empty() || !changed {
         return;
     }
+    found.stochastic = fit.model_object.clone();
     found.findings.push(Finding {
         channel,
         cause,
@@ -522,5 +591,6 @@ fn refit_noise(
             .map(|p| p.ci95.unwrap_or([f64::NAN, f64::NAN]))
             .collect::<Vec<_>>()),
         variance_explained: f64::NAN,
+        p_value: Some(p_value),
     });
 }

@@ -10,10 +10,9 @@
 use rayon::prelude::*;
 use serde_json::json;
 
-use super::engine::{
-    ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run, Z_FLOOR,
-};
+use super::engine::{ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run};
 use super::moments::{eliminate_on_moments, residual_of, Absorber, MeasuredSpread, Term};
+use super::null::normal_p_value;
 use super::stats::{local_step_null_sd, local_step_robust_sd, local_step_scan};
 use crate::calibration::CalibrationDesign;
 use crate::model::{Cause, Channel};
@@ -117,7 +116,7 @@ impl CalibrationMoments {
             std::array::from_fn(|i| {
                 let channel = Channel::ALL[i];
                 let slot = run.channels.iter().position(|c| *c == channel)?;
-                Some(run.baseline_sim(slot, r, run.baseline.channels.get(&channel)?))
+                Some(run.baseline_sim(slot, r))
             })
         };
         Self {
@@ -274,11 +273,10 @@ fn channel_terms(
     channel: Channel,
 ) -> Result<ChannelTerms, DiagnoseError> {
     let e = run.error(channel);
-    let spec = run.spec(channel)?;
     let step_values: Vec<f64>;
     let mut cands = candidates(run, channel);
     // Baseline simulations: the null distribution of every statistic.
-    let sims = run.baseline_sims(slot, spec);
+    let sims = run.baseline_sims(slot);
     let absorber = run.absorber();
     let (own_moments_e, own_moments_sims);
     let (moments_e, moments_sims) = match absorber {
@@ -418,6 +416,20 @@ pub(super) struct Coefficient {
     pub ci95: [f64; 2],
     /// Share of the channel's error variance the term accounts for.
     pub variance_explained: f64,
+    /// Two-sided p-value of the coefficient against zero, from its final interval.
+    pub p_value: f64,
+}
+
+impl Coefficient {
+    /// The coefficient of a term left out of a model: zero, exactly.
+    pub fn zero(_: &Coefficient) -> Coefficient {
+        Coefficient {
+            value: 0.0,
+            ci95: [0.0, 0.0],
+            variance_explained: 0.0,
+            p_value: 1.0,
+        }
+    }
 }
 
 /// A channel's deterministic terms after both stages: each term with its coefficient
@@ -442,45 +454,54 @@ const TERM_CAUSES: [Cause; 6] = [
 ];
 
 impl FittedTerms {
-    /// The terms `found` on `channel`, whose error (as the joint calibration leaves it) is `e`.
+    /// The terms `found` on `channel`, whose error (as the joint calibration leaves it) is
+    /// `e`. A term whose final interval (widened by the time offset's uncertainty where it
+    /// rides on the channel's own derivative) no longer excludes zero at the run's per-test
+    /// level is dropped: a finding means its effect is there.
     pub fn new(run: &Run, channel: Channel, found: ChannelTerms, e: &[f64]) -> Self {
         let n = run.n;
-        let terms = found.terms;
         let var_e = variance(e);
-        let mut coefficients: Vec<Coefficient> = terms
-            .iter()
-            .map(|t| Coefficient {
-                value: t.coef,
-                ci95: ci(t.coef, t.se),
-                variance_explained: t.coef.powi(2) * variance(&t.own) / var_e,
-            })
-            .collect();
-        let intercept = e.iter().sum::<f64>() / n as f64
-            - terms
-                .iter()
-                .map(|t| t.coef * t.own.iter().sum::<f64>() / n as f64)
-                .sum::<f64>();
-        // A term on the channel's own derivative is measured on data shifted by the common
-        // time offset, so that offset's uncertainty is part of the term's.
-        if let Some(offset) = run.calibration.and_then(|c| c.time_offset_s) {
-            for (c, t) in coefficients.iter_mut().zip(&terms) {
+        let offset_sigma_s = run
+            .calibration
+            .and_then(|c| c.time_offset_s)
+            .map(|o| o.sigma);
+        let (terms, coefficients): (Vec<Term>, Vec<Coefficient>) = found
+            .terms
+            .into_iter()
+            .map(|t| {
+                // A term on the channel's own derivative is measured on data shifted by the
+                // common time offset, so that offset's uncertainty is part of the term's.
                 let own_derivative = t.axis == channel.axis()
                     && match t.cause {
                         Cause::AngularAcceleration => channel.is_gyro(),
                         Cause::Jerk => !channel.is_gyro(),
                         _ => false,
                     };
-                if own_derivative {
-                    let se = (c.ci95[1] - c.ci95[0]) / (2.0 * Z_FLOOR);
-                    c.ci95 = ci(c.value, se.hypot(offset.sigma));
-                }
-            }
-        }
+                let se = match offset_sigma_s {
+                    Some(sigma) if own_derivative => t.se.hypot(sigma),
+                    _ => t.se,
+                };
+                let c = Coefficient {
+                    value: t.coef,
+                    ci95: ci(t.coef, se),
+                    variance_explained: t.coef.powi(2) * variance(&t.own) / var_e,
+                    p_value: normal_p_value(t.coef / se),
+                };
+                (t, c)
+            })
+            .filter(|(_, c)| c.p_value < run.alpha_test)
+            .unzip();
+        let intercept = e.iter().sum::<f64>() / n as f64
+            - terms
+                .iter()
+                .map(|t| t.coef * t.own.iter().sum::<f64>() / n as f64)
+                .sum::<f64>();
+        let step_kept = terms.iter().any(|t| t.cause == Cause::BiasShift);
         Self {
             terms,
             coefficients,
             intercept,
-            step_at_s: found.step_at_s,
+            step_at_s: found.step_at_s.filter(|_| step_kept),
         }
     }
 
@@ -502,8 +523,9 @@ impl FittedTerms {
             .collect()
     }
 
-    /// One finding per cause with kept terms on `channel`.
-    pub fn findings(&self, channel: Channel) -> Vec<Finding> {
+    /// One finding per cause with kept terms on `channel`, its p-value the largest of its
+    /// terms' (each named term is significant), family-wise.
+    pub fn findings(&self, run: &Run, channel: Channel) -> Vec<Finding> {
         let mut findings = Vec::new();
         for cause in TERM_CAUSES {
             let kept: Vec<(&Coefficient, &Term)> = self
@@ -531,6 +553,9 @@ impl FittedTerms {
                     json!(kept.iter().map(|(c, _)| c.ci95).collect::<Vec<_>>())
                 },
                 variance_explained: kept.iter().map(|(c, _)| c.variance_explained).sum(),
+                p_value: Some(
+                    run.family_p(kept.iter().map(|(c, _)| c.p_value).fold(0.0, f64::max)),
+                ),
             });
         }
         findings

@@ -245,6 +245,16 @@ fn sorted_interval(a: f64, b: f64) -> [f64; 2] {
     }
 }
 
+/// The reported parameters of a model, without intervals: (process, name, value), in the
+/// order and the units [`parameters`] reports them.
+pub fn parameter_values(model: &ModelSpec) -> Vec<(String, String, f64)> {
+    let theta = model.theta();
+    parameter_map(&model.structure(), &model.unit, model.dt_s())
+        .into_iter()
+        .map(|(process, name, _, k, f)| (process, name, f(theta[k])))
+        .collect()
+}
+
 /// The reported parameters with their intervals. `bootstrap_theta` (replicates of theta)
 /// gives percentile intervals on the transformed scale when present.
 pub fn parameters(
@@ -282,6 +292,50 @@ pub fn parameters(
         .collect()
 }
 
+/// One parametric-bootstrap replicate: `n` samples simulated from `model` with `rng`, their
+/// Haar WV at `levels` (all levels up to the largest when a level is missing from the
+/// simulation's WV), and an LM refit of `structure` from `theta0`. None when the WV or the
+/// refit fails or the refit does not converge.
+fn refit_on_simulation<R: rand::Rng + ?Sized>(
+    model: &ModelSpec,
+    structure: &Structure,
+    theta0: &[f64],
+    levels: &[u32],
+    n: usize,
+    rng: &mut R,
+    opts: &FitOptions,
+) -> Option<Vec<f64>> {
+    let max_level = levels.iter().copied().max().unwrap_or(1);
+    let x = model.simulate(n, rng);
+    let wv = haar_wv(
+        &x,
+        model.dt_s(),
+        &WvOptions {
+            max_level: Some(max_level),
+            ..WvOptions::default()
+        },
+    )
+    .ok()?;
+    let full = FitInput::from_wv(&wv).ok()?;
+    let idx: Vec<usize> = levels
+        .iter()
+        .filter_map(|j| full.levels.iter().position(|x| x == j))
+        .collect();
+    let sub = FitInput {
+        levels: idx.iter().map(|&i| full.levels[i]).collect(),
+        variance: idx.iter().map(|&i| full.variance[i]).collect(),
+        omega: idx.iter().map(|&i| full.omega[i]).collect(),
+        n_coefficients: idx.iter().map(|&i| full.n_coefficients[i]).collect(),
+        dt_s: full.dt_s,
+        n: full.n,
+    };
+    if sub.levels.len() <= structure.n_params() {
+        return None;
+    }
+    let refit = refit_from(structure, &sub, theta0, opts);
+    refit.converged().then_some(refit.theta)
+}
+
 /// Parametric bootstrap: `replicates` series of `input.n` samples simulated from the fitted
 /// model (seeded: ChaCha8 with `seed`, stream = replicate index, so the result does not
 /// depend on the thread count), their WV at the same levels, and an LM refit from theta_hat.
@@ -295,40 +349,51 @@ pub fn bootstrap(
     opts: &FitOptions,
 ) -> Vec<Vec<f64>> {
     let model = fit.model(unit, input.dt_s);
-    let max_level = input.levels.iter().copied().max().unwrap_or(1);
     (0..replicates)
         .into_par_iter()
         .filter_map(|b| {
             let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
             rng.set_stream(b as u64);
-            let x = model.simulate(input.n, &mut rng);
-            let wv = haar_wv(
-                &x,
-                input.dt_s,
-                &WvOptions {
-                    max_level: Some(max_level),
-                    ..WvOptions::default()
-                },
+            refit_on_simulation(
+                &model,
+                &fit.structure,
+                &fit.theta,
+                &input.levels,
+                input.n,
+                &mut rng,
+                opts,
             )
-            .ok()?;
-            let full = FitInput::from_wv(&wv).ok()?;
-            let idx: Vec<usize> = input
-                .levels
-                .iter()
-                .filter_map(|j| full.levels.iter().position(|x| x == j))
-                .collect();
-            let sub = FitInput {
-                levels: idx.iter().map(|&i| full.levels[i]).collect(),
-                variance: idx.iter().map(|&i| full.variance[i]).collect(),
-                omega: idx.iter().map(|&i| full.omega[i]).collect(),
-                n_coefficients: idx.iter().map(|&i| full.n_coefficients[i]).collect(),
-                dt_s: full.dt_s,
-                n: full.n,
-            };
-            let refit = refit_from(&fit.structure, &sub, &fit.theta, opts);
-            refit.converged().then_some(refit.theta)
         })
         .collect()
+}
+
+/// A draw from the sampling distribution of a model fitted on a record of `record_samples`
+/// samples: the model refitted (same structure, from its own parameters) on a record of
+/// that length simulated from it, at every level with four or more averaging blocks. What a
+/// fit of the same length could as well have returned; None when the refit fails.
+pub fn sampling_draw<R: rand::Rng + ?Sized>(
+    model: &ModelSpec,
+    record_samples: usize,
+    rng: &mut R,
+) -> Option<ModelSpec> {
+    let structure = model.structure();
+    let max_level = ((record_samples as f64).log2().floor() as u32).saturating_sub(2);
+    let levels: Vec<u32> = (1..=max_level).collect();
+    let theta = refit_on_simulation(
+        model,
+        &structure,
+        &model.theta(),
+        &levels,
+        record_samples,
+        rng,
+        &FitOptions::default(),
+    )?;
+    Some(ModelSpec::from_theta(
+        &structure,
+        &theta,
+        &model.unit,
+        model.sample_rate_hz,
+    ))
 }
 
 /// One candidate of an automatic model selection.

@@ -15,6 +15,7 @@
 mod cause;
 pub mod file;
 pub mod fitted;
+pub mod fitting;
 pub mod gnss;
 pub mod imu;
 pub mod units;
@@ -25,6 +26,7 @@ pub use cause::Cause;
 pub use dynacal_core::{Channel, SensorKind};
 pub use file::{ModelFileError, SimModel, MODEL_FILE_VERSION};
 pub use fitted::{imu_channel_of_name, imu_name_from};
+pub use fitting::{fit_file, fitted_model, fitted_record_samples, FitFileError};
 pub use gnss::{GnssBias, GnssModel, PpsModel};
 pub use imu::{
     BiasStep, ChannelModel, ClockModel, DynamicDriver, DynamicNoise, Effect, ImuModel, Outliers,
