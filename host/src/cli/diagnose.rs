@@ -36,6 +36,10 @@ pub struct Args {
     /// Seed of the simulations.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Family-wise false-alarm level: the probability that a run with nothing beyond the
+    /// baseline names any cause (Bonferroni over the run's tests).
+    #[arg(long, default_value_t = 0.05)]
+    pub alpha: f64,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -43,6 +47,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.replicates >= 5,
         "--replicates must be at least 5, got {}",
         args.replicates
+    );
+    anyhow::ensure!(
+        args.alpha > 0.0 && args.alpha < 1.0,
+        "--alpha must lie in (0, 1), got {}",
+        args.alpha
     );
     let sensor = load_recording(&args.sensor, true)?;
     let reference = args
@@ -54,6 +63,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let opts = DiagnoseOptions {
         replicates: args.replicates,
         seed: args.seed,
+        alpha: args.alpha,
         ..Default::default()
     };
     let report = diagnose(&sensor, reference.as_ref(), baseline, &opts)

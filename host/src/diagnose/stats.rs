@@ -17,6 +17,11 @@ pub struct Psd {
     pub density: Vec<f64>,
     /// Number of averaged segments.
     pub segments: usize,
+    /// The segments' worth as independent averages, (sum p)^2 / sum p^2 over their powers
+    /// p: the number of segments for stationary noise, fewer when the noise level changes
+    /// (a noise that grows in manoeuvres), whose averaged periodogram then has heavier
+    /// tails than chi2(2K)/2K.
+    pub effective_segments: f64,
     /// Bin width, Hz.
     pub df_hz: f64,
 }
@@ -36,6 +41,7 @@ pub fn welch_psd(x: &[f64], dt_s: f64, segment_len: usize) -> Psd {
     let mut spectrum = fft.make_output_vec();
     let mut acc = vec![0.0; m / 2 + 1];
     let mut segments = 0;
+    let mut segment_powers: Vec<f64> = Vec::new();
     let mut start = 0;
     while start + m <= x.len() {
         let seg = &x[start..start + m];
@@ -43,11 +49,13 @@ pub fn welch_psd(x: &[f64], dt_s: f64, segment_len: usize) -> Psd {
         for i in 0..m {
             input[i] = (seg[i] - mean) * window[i];
         }
+        let power: f64 = input.iter().map(|v| v * v).sum();
         if fft.process(&mut input, &mut spectrum).is_ok() {
             for (a, c) in acc.iter_mut().zip(&spectrum) {
                 *a += c.norm_sqr();
             }
             segments += 1;
+            segment_powers.push(power);
         }
         start += step;
     }
@@ -61,10 +69,18 @@ pub fn welch_psd(x: &[f64], dt_s: f64, segment_len: usize) -> Psd {
             a * scale * one_sided
         })
         .collect();
+    let total: f64 = segment_powers.iter().sum();
+    let squares: f64 = segment_powers.iter().map(|p| p * p).sum();
+    let effective_segments = if squares > 0.0 {
+        total * total / squares
+    } else {
+        segments as f64
+    };
     Psd {
         freq_hz: (0..=m / 2).map(|k| k as f64 * fs / m as f64).collect(),
         density,
         segments,
+        effective_segments,
         df_hz: fs / m as f64,
     }
 }
@@ -84,7 +100,7 @@ pub struct SpectralLine {
 }
 
 /// Finds lines: bins whose density exceeds a running-median background by more than chance
-/// allows (each Welch bin is background x chi2(2K)/2K for K segments), Bonferroni-corrected
+/// allows (each Welch bin is background x chi2(2K)/2K for K effective segments), Bonferroni-corrected
 /// over the bins, at family-wise level `alpha`. Adjacent significant bins form one line.
 pub fn spectral_lines(psd: &Psd, alpha: f64) -> Vec<SpectralLine> {
     let n = psd.density.len();
@@ -92,6 +108,7 @@ pub fn spectral_lines(psd: &Psd, alpha: f64) -> Vec<SpectralLine> {
         return Vec::new();
     }
     let half = 8usize;
+    let dof = 2.0 * psd.effective_segments.max(1.0);
     let background: Vec<f64> = (0..n)
         .map(|k| {
             let lo = k.saturating_sub(half);
@@ -100,10 +117,9 @@ pub fn spectral_lines(psd: &Psd, alpha: f64) -> Vec<SpectralLine> {
             let mid = w.len() / 2;
             // Median of chi2(2K)/2K is below 1; correct so the background is the mean.
             let med = *w.select_nth_unstable_by(mid, f64::total_cmp).1;
-            med / chi2_median_over_dof(2 * psd.segments)
+            med / chi2_median_over_dof(dof)
         })
         .collect();
-    let dof = 2.0 * psd.segments as f64;
     let chi = statrs::distribution::ChiSquared::new(dof).expect("dof > 0");
     use statrs::distribution::ContinuousCDF;
     let bins = (n - 1) as f64;
@@ -152,9 +168,9 @@ pub fn spectral_lines(psd: &Psd, alpha: f64) -> Vec<SpectralLine> {
     lines
 }
 
-fn chi2_median_over_dof(dof: usize) -> f64 {
+fn chi2_median_over_dof(dof: f64) -> f64 {
     // Wilson-Hilferty: median of chi2(k) ~ k (1 - 2/(9k))^3.
-    let k = dof as f64;
+    let k = dof;
     (1.0 - 2.0 / (9.0 * k)).powi(3)
 }
 
@@ -553,6 +569,27 @@ mod tests {
         assert_eq!(lines.len(), 1, "{lines:?}");
         assert!((lines[0].freq_hz - 17.3).abs() < 0.15, "{lines:?}");
         assert!((lines[0].amplitude - 0.02).abs() < 0.004, "{lines:?}");
+    }
+
+    /// Noise whose level changes (quiet, then four times louder in "manoeuvres") has no
+    /// line: the test counts the segments by their worth, not their number.
+    #[test]
+    fn a_changing_noise_level_is_not_a_line() {
+        let mut rng = ChaCha8Rng::seed_from_u64(21);
+        let mut alarms = 0;
+        for _ in 0..20 {
+            let x: Vec<f64> = white(&mut rng, 30_000, 1.0)
+                .into_iter()
+                .enumerate()
+                .map(|(i, v)| if (i / 2000) % 5 == 0 { 4.0 * v } else { v })
+                .collect();
+            let psd = welch_psd(&x, 0.01, 1024);
+            assert!(psd.effective_segments < 0.6 * psd.segments as f64);
+            alarms += !spectral_lines(&psd, 0.01).is_empty() as usize;
+        }
+        assert!(alarms <= 1, "{alarms} of 20 series showed a line");
+        let steady = welch_psd(&white(&mut rng, 30_000, 1.0), 0.01, 1024);
+        assert!(steady.effective_segments > 0.95 * steady.segments as f64);
     }
 
     #[test]

@@ -495,7 +495,7 @@ fn noise_change(
         found.discrepancies.push(Discrepancy {
             channel,
             statistic: format!(
-                "wavelet variance ({}^2) at level {} (scale {} s)",
+                "wavelet variance (({})^2) at level {} (scale {} s)",
                 run.spec(channel).map_or("SI", |s| s.unit.as_str()),
                 j + 1,
                 significant(scale_s(j), 3)

@@ -23,6 +23,9 @@
 //! t - time_offset_s. The sensor errors (bias, white noise, first-order Gauss-Markov, and
 //! optional hidden effects) are generated here too, not by `ModelSpec::simulate`.
 
+// Each test file that includes the generator uses a part of it.
+#![allow(dead_code)]
+
 use dynacal::interchange::{ImuRecording, Triplet, CHANNELS};
 use dynacal_core::nav::{earth_rate_ned_rad_s, gravity_ned_m_s2, radii, transport_rate_ned_rad_s};
 use nalgebra::{Matrix3, Rotation3, Vector3};
