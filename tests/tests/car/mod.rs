@@ -80,6 +80,28 @@ pub fn base_imu() -> ImuModel {
     imu
 }
 
+/// One of `chans` drawn from `rng`, or `on` when given and among them (the draw is made
+/// either way, so a seed draws the same magnitudes with or without `on`).
+fn pick(rng: &mut ChaCha8Rng, chans: &[&'static str], on: Option<&'static str>) -> &'static str {
+    let drawn = chans[rng.random_range(0..chans.len())];
+    on.filter(|c| chans.contains(c)).unwrap_or(drawn)
+}
+
+fn ch_index(c: &str) -> usize {
+    dynacal::interchange::CHANNELS
+        .iter()
+        .position(|x| *x == c)
+        .unwrap()
+}
+
+fn channel_model(c: &str, imu: &ImuModel) -> ChannelModel {
+    imu.model_of(c.parse().expect("a channel")).clone()
+}
+
+fn set(c: &'static str, m: ChannelModel, imu: &mut ImuModel) {
+    imu.channels.insert(c.parse().expect("a channel name"), m);
+}
+
 /// Hides `cause` in `imu` (a drive of `seconds`), its channel and magnitude drawn from
 /// `rng`, or on channel `on` when given and the cause can sit there.
 pub fn apply(
@@ -89,198 +111,214 @@ pub fn apply(
     seconds: f64,
     on: Option<&'static str>,
 ) -> Hidden {
-    let pick = |rng: &mut ChaCha8Rng, chans: &[&'static str]| {
-        let drawn = chans[rng.random_range(0..chans.len())];
-        on.filter(|c| chans.contains(c)).unwrap_or(drawn)
+    let mut h = Hidden {
+        cause,
+        channel: "gx",
+        truth: None,
+        component: None,
+        term: String::new(),
     };
-    let ch_index = |c: &str| {
-        dynacal::interchange::CHANNELS
-            .iter()
-            .position(|x| *x == c)
-            .unwrap()
-    };
-    let channel_model =
-        |c: &str, imu: &ImuModel| imu.model_of(c.parse().expect("a channel")).clone();
-    {
-        let mut h = Hidden {
-            cause,
-            channel: "gx",
-            truth: None,
-            component: None,
-            term: String::new(),
-        };
-        let set = |c: &'static str, m: ChannelModel, imu: &mut ImuModel| {
-            imu.channels.insert(c.parse().expect("a channel name"), m);
-        };
-        match cause {
-            "scale_factor" => {
-                let c = pick(rng, &["gz", "ax", "ay"]);
-                let v =
-                    rng.random_range(0.01..0.03) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
-                let mut m = channel_model(c, imu);
-                m.scale_factor = Some(v);
-                set(c, m, imu);
-                h.term = format!(
-                    "{}_{}",
-                    if c.starts_with('g') { "omega" } else { "f" },
-                    &c[1..]
-                );
-                h.channel = c;
-                h.truth = Some(v);
-            }
-            "cross_axis" => {
-                // Gyros only: on a car an accelerometer cross-axis term f_y -> ax cannot be told
-                // from a boresight about z (both are ax ~ f_y), so it is absorbed by the
-                // calibration; a gyro's ω_z -> gx is pinned by the accelerometers' gravity.
-                let (c, j) = [("gx", 2usize), ("gy", 2)][rng.random_range(0..2)];
-                let v = rng.random_range(0.01..0.03);
-                let mut m = channel_model(c, imu);
-                let mut k = [0.0; 3];
-                k[j] = v;
-                m.cross_axis = Some(k);
-                set(c, m, imu);
-                h.term = format!("omega_{}", ["x", "y", "z"][j]);
-                h.channel = c;
-                h.truth = Some(v);
-            }
-            "g_sensitivity" => {
-                let c = pick(rng, &["gx", "gy", "gz"]);
-                let j = rng.random_range(0..2);
-                let v = rng.random_range(1.5e-3..3e-3);
-                let mut m = channel_model(c, imu);
-                let mut k = [0.0; 3];
-                k[j] = v;
-                m.g_sensitivity = Some(k);
-                set(c, m, imu);
-                h.term = format!("f_{}", ["x", "y", "z"][j]);
-                h.channel = c;
-                h.truth = Some(v);
-            }
-            "angular_acceleration" => {
-                // Gyros only: on an accelerometer a sensitivity to omega_dot is the tangential
-                // term of a lever arm, which the calibration estimates.
-                let c = pick(rng, &["gx", "gy", "gz"]);
-                let v = rng.random_range(0.01..0.02);
-                let mut m = channel_model(c, imu);
-                m.angular_acceleration_sensitivity = Some([0.0, 0.0, v]);
-                set(c, m, imu);
-                h.term = "omega_dot_z".into();
-                h.channel = c;
-                h.truth = Some(v);
-            }
-            "jerk" => {
-                // On az only: on a car the vertical channel carries the body and wheel-hop
-                // vibration whose jerk makes a 2-4 ms sensitivity observable in a drive; the
-                // lateral and longitudinal jerk of driving is too weak (measured: 3.1 ms on
-                // ay went unseen, see BENCHMARKS.md).
-                let c = "az";
-                let v = rng.random_range(0.002..0.004);
-                let mut m = channel_model(c, imu);
-                let mut k = [0.0; 3];
-                k[ch_index(c) - 3] = v;
-                m.jerk_sensitivity = Some(k);
-                set(c, m, imu);
-                h.channel = c;
-                h.truth = Some(v);
-            }
-            "time_offset" => {
-                let v = rng.random_range(0.005..0.02);
-                imu.time_offset_s = v;
-                h.channel = "gz";
-                h.truth = Some(v);
-            }
-            "lever_arm" => {
-                let r = [
-                    rng.random_range(0.2..0.5),
-                    rng.random_range(-0.4..-0.1),
-                    rng.random_range(0.1..0.3),
-                ];
-                imu.lever_arm_b_m = r;
-                h.channel = "ay";
-                h.component = Some(0);
-                h.truth = Some(r[0]);
-            }
-            "noise_scales_with_dynamics" => {
-                let c = pick(rng, &["gx", "gy", "gz"]);
-                let v = rng.random_range(0.03..0.06);
-                let mut m = channel_model(c, imu);
-                m.dynamic_noise = Some(DynamicNoise {
-                    driver: DynamicDriver::AngularRateNorm,
-                    sigma_per_unit: v,
-                });
-                set(c, m, imu);
-                h.channel = c;
-                h.truth = Some(v);
-            }
-            "vibration" => {
-                let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"]);
-                let a = if c.starts_with('g') {
-                    rng.random_range(0.003..0.006)
-                } else {
-                    rng.random_range(0.03..0.06)
-                };
-                let f = rng.random_range(60.0..140.0);
-                let mut m = channel_model(c, imu);
-                m.vibration_lines = vec![VibrationLine {
-                    frequency_hz: f,
-                    amplitude: a,
-                    phase_rad: 0.3,
-                }];
-                set(c, m, imu);
-                h.channel = c;
-                h.truth = Some(a);
-            }
-            "outliers" => {
-                let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"]);
-                let s = if c.starts_with('g') { 0.2 } else { 1.0 };
-                let p = rng.random_range(5e-4..2e-3);
-                let mut m = channel_model(c, imu);
-                m.outliers = Some(Outliers {
-                    probability: p,
-                    sigma: s,
-                });
-                set(c, m, imu);
-                h.channel = c;
-                h.truth = Some(p);
-            }
-            "bias_shift" => {
-                let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"]);
-                let size = if c.starts_with('g') {
-                    rng.random_range(0.006..0.01)
-                } else {
-                    rng.random_range(0.05..0.08)
-                };
-                let mut m = channel_model(c, imu);
-                let at_s = rng.random_range(0.3..0.7) * seconds;
-                m.bias_steps = vec![BiasStep { at_s, size }];
-                set(c, m, imu);
-                h.term = format!("step at {at_s:.2} s");
-                h.channel = c;
-                h.truth = Some(size);
-            }
-            "correlated_noise_change" => {
-                let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"]);
-                let mut m = channel_model(c, imu);
-                let mut s = m.stochastic.clone().unwrap();
-                if let Process::GaussMarkov { sigma2, .. } = &mut s.processes[1] {
-                    *sigma2 *= 9.0;
-                }
-                m.stochastic = Some(s);
-                set(c, m, imu);
-                h.channel = c;
-            }
-            "quantization" => {
-                let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"]);
-                let q = if c.starts_with('g') { 1e-3 } else { 5e-3 };
-                let mut m = channel_model(c, imu);
-                m.quantization_step = Some(q);
-                set(c, m, imu);
-                h.channel = c;
-                h.truth = Some(q);
-            }
-            other => panic!("no generator for {other}"),
+    match cause {
+        "scale_factor"
+        | "cross_axis"
+        | "g_sensitivity"
+        | "angular_acceleration"
+        | "jerk"
+        | "time_offset"
+        | "lever_arm" => hide_term(cause, rng, imu, on, &mut h),
+        _ => hide_noise(cause, rng, imu, seconds, on, &mut h),
+    }
+    h
+}
+
+/// The deterministic and sensor-wide causes of [`apply`].
+fn hide_term(
+    cause: &'static str,
+    rng: &mut ChaCha8Rng,
+    imu: &mut ImuModel,
+    on: Option<&'static str>,
+    h: &mut Hidden,
+) {
+    match cause {
+        "scale_factor" => {
+            let c = pick(rng, &["gz", "ax", "ay"], on);
+            let v = rng.random_range(0.01..0.03) * if rng.random_bool(0.5) { 1.0 } else { -1.0 };
+            let mut m = channel_model(c, imu);
+            m.scale_factor = Some(v);
+            set(c, m, imu);
+            h.term = format!(
+                "{}_{}",
+                if c.starts_with('g') { "omega" } else { "f" },
+                &c[1..]
+            );
+            h.channel = c;
+            h.truth = Some(v);
         }
-        h
+        "cross_axis" => {
+            // Gyros only: on a car an accelerometer cross-axis term f_y -> ax cannot be told
+            // from a boresight about z (both are ax ~ f_y), so it is absorbed by the
+            // calibration; a gyro's ω_z -> gx is pinned by the accelerometers' gravity.
+            let (c, j) = [("gx", 2usize), ("gy", 2)][rng.random_range(0..2)];
+            let v = rng.random_range(0.01..0.03);
+            let mut m = channel_model(c, imu);
+            let mut k = [0.0; 3];
+            k[j] = v;
+            m.cross_axis = Some(k);
+            set(c, m, imu);
+            h.term = format!("omega_{}", ["x", "y", "z"][j]);
+            h.channel = c;
+            h.truth = Some(v);
+        }
+        "g_sensitivity" => {
+            let c = pick(rng, &["gx", "gy", "gz"], on);
+            let j = rng.random_range(0..2);
+            let v = rng.random_range(1.5e-3..3e-3);
+            let mut m = channel_model(c, imu);
+            let mut k = [0.0; 3];
+            k[j] = v;
+            m.g_sensitivity = Some(k);
+            set(c, m, imu);
+            h.term = format!("f_{}", ["x", "y", "z"][j]);
+            h.channel = c;
+            h.truth = Some(v);
+        }
+        "angular_acceleration" => {
+            // Gyros only: on an accelerometer a sensitivity to omega_dot is the tangential
+            // term of a lever arm, which the calibration estimates.
+            let c = pick(rng, &["gx", "gy", "gz"], on);
+            let v = rng.random_range(0.01..0.02);
+            let mut m = channel_model(c, imu);
+            m.angular_acceleration_sensitivity = Some([0.0, 0.0, v]);
+            set(c, m, imu);
+            h.term = "omega_dot_z".into();
+            h.channel = c;
+            h.truth = Some(v);
+        }
+        "jerk" => {
+            // On az only: on a car the vertical channel carries the body and wheel-hop
+            // vibration whose jerk makes a 2-4 ms sensitivity observable in a drive; the
+            // lateral and longitudinal jerk of driving is too weak (measured: 3.1 ms on
+            // ay went unseen, see BENCHMARKS.md).
+            let c = "az";
+            let v = rng.random_range(0.002..0.004);
+            let mut m = channel_model(c, imu);
+            let mut k = [0.0; 3];
+            k[ch_index(c) - 3] = v;
+            m.jerk_sensitivity = Some(k);
+            set(c, m, imu);
+            h.channel = c;
+            h.truth = Some(v);
+        }
+        "time_offset" => {
+            let v = rng.random_range(0.005..0.02);
+            imu.time_offset_s = v;
+            h.channel = "gz";
+            h.truth = Some(v);
+        }
+        "lever_arm" => {
+            let r = [
+                rng.random_range(0.2..0.5),
+                rng.random_range(-0.4..-0.1),
+                rng.random_range(0.1..0.3),
+            ];
+            imu.lever_arm_b_m = r;
+            h.channel = "ay";
+            h.component = Some(0);
+            h.truth = Some(r[0]);
+        }
+        other => panic!("no term generator for {other}"),
+    }
+}
+
+/// The stochastic causes (and the bias step) of [`apply`].
+fn hide_noise(
+    cause: &'static str,
+    rng: &mut ChaCha8Rng,
+    imu: &mut ImuModel,
+    seconds: f64,
+    on: Option<&'static str>,
+    h: &mut Hidden,
+) {
+    match cause {
+        "noise_scales_with_dynamics" => {
+            let c = pick(rng, &["gx", "gy", "gz"], on);
+            let v = rng.random_range(0.03..0.06);
+            let mut m = channel_model(c, imu);
+            m.dynamic_noise = Some(DynamicNoise {
+                driver: DynamicDriver::AngularRateNorm,
+                sigma_per_unit: v,
+            });
+            set(c, m, imu);
+            h.channel = c;
+            h.truth = Some(v);
+        }
+        "vibration" => {
+            let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"], on);
+            let a = if c.starts_with('g') {
+                rng.random_range(0.003..0.006)
+            } else {
+                rng.random_range(0.03..0.06)
+            };
+            let f = rng.random_range(60.0..140.0);
+            let mut m = channel_model(c, imu);
+            m.vibration_lines = vec![VibrationLine {
+                frequency_hz: f,
+                amplitude: a,
+                phase_rad: 0.3,
+            }];
+            set(c, m, imu);
+            h.channel = c;
+            h.truth = Some(a);
+        }
+        "outliers" => {
+            let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"], on);
+            let s = if c.starts_with('g') { 0.2 } else { 1.0 };
+            let p = rng.random_range(5e-4..2e-3);
+            let mut m = channel_model(c, imu);
+            m.outliers = Some(Outliers {
+                probability: p,
+                sigma: s,
+            });
+            set(c, m, imu);
+            h.channel = c;
+            h.truth = Some(p);
+        }
+        "bias_shift" => {
+            let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"], on);
+            let size = if c.starts_with('g') {
+                rng.random_range(0.006..0.01)
+            } else {
+                rng.random_range(0.05..0.08)
+            };
+            let mut m = channel_model(c, imu);
+            let at_s = rng.random_range(0.3..0.7) * seconds;
+            m.bias_steps = vec![BiasStep { at_s, size }];
+            set(c, m, imu);
+            h.term = format!("step at {at_s:.2} s");
+            h.channel = c;
+            h.truth = Some(size);
+        }
+        "correlated_noise_change" => {
+            let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"], on);
+            let mut m = channel_model(c, imu);
+            let mut s = m.stochastic.clone().unwrap();
+            if let Process::GaussMarkov { sigma2, .. } = &mut s.processes[1] {
+                *sigma2 *= 9.0;
+            }
+            m.stochastic = Some(s);
+            set(c, m, imu);
+            h.channel = c;
+        }
+        "quantization" => {
+            let c = pick(rng, &["gx", "gy", "gz", "ax", "ay", "az"], on);
+            let q = if c.starts_with('g') { 1e-3 } else { 5e-3 };
+            let mut m = channel_model(c, imu);
+            m.quantization_step = Some(q);
+            set(c, m, imu);
+            h.channel = c;
+            h.truth = Some(q);
+        }
+        other => panic!("no generator for {other}"),
     }
 }
 
