@@ -383,3 +383,32 @@ fn rates() {
         assert!(effects_all.spurious as f64 <= 0.1 * effects_all.runs as f64);
     }
 }
+
+/// One ship run chosen from the environment, to look into what the rates report:
+/// `DYNACAL_SHIP_CAUSES=bias_shift DYNACAL_SEED=13 DYNACAL_SECONDS=900 cargo test --release
+/// -p dynacal-tests --test diagnosis_rates -- --ignored one_ship_run --nocapture` (no causes:
+/// a null run).
+#[test]
+#[ignore]
+fn one_ship_run() {
+    let causes: Vec<&'static str> = std::env::var("DYNACAL_SHIP_CAUSES")
+        .unwrap_or_default()
+        .split(',')
+        .filter_map(|c| SHIP_CAUSES.iter().find(|k| **k == c.trim()).copied())
+        .collect();
+    let seed = env_usize("DYNACAL_SEED", 301) as u64;
+    let seconds = env_usize("DYNACAL_SECONDS", 300) as f64;
+    let (report, hidden) = ship_run(&causes, seed, seconds);
+    for n in &report.notes {
+        eprintln!("note {n}");
+    }
+    eprintln!("calibration {:?}", report.calibration);
+    for d in &report.discrepancies {
+        eprintln!("discrepancy {d:?}");
+    }
+    score(
+        &format!("ship {causes:?} {seconds} s seed {seed}"),
+        &report,
+        &hidden,
+    );
+}
