@@ -102,6 +102,22 @@ fn report_directory_holds_the_markdown_and_every_plot_it_links() {
     assert_eq!(curves.len(), 6, "a WV curve per channel");
 
     let md = std::fs::read_to_string(report.join("report.md")).unwrap();
+    // The rule is stated with the run's own count of tests, and every named cause carries a
+    // family-wise p-value below alpha (none: a property read without a test).
+    let tests = diag["tests"].as_u64().unwrap();
+    assert!(tests >= 6 * 20, "{tests} tests counted for six channels");
+    assert!(
+        md.contains(&format!(
+            "times the {tests} tests of the run (Bonferroni), is below alpha = 0.05"
+        )),
+        "{md}"
+    );
+    for f in diag["findings"].as_array().unwrap() {
+        match f["p_value"].as_f64() {
+            Some(p) => assert!(p < 0.05, "{f}"),
+            None => assert_eq!(f["cause"], "quantization", "{f}"),
+        }
+    }
     let links = image_links(&md);
     let mut expected: Vec<String> = curves.keys().map(|c| format!("wv-{c}.svg")).collect();
     expected.push("gain.svg".into());
@@ -210,4 +226,26 @@ fn report_directory_that_cannot_be_created_fails_naming_it_and_writes_nothing() 
         std::fs::read_to_string(&blocker).unwrap(),
         "not a directory"
     );
+}
+
+#[test]
+fn alpha_outside_zero_to_one_is_refused_before_any_work() {
+    let tmp = tempfile::tempdir().unwrap();
+    let json = tmp.path().join("diag.json");
+    let o = dynacal(&[
+        "diagnose",
+        "--sensor",
+        "no-such-sensor.csv",
+        "--alpha",
+        "1.5",
+        "--json",
+        path(&json),
+    ]);
+    assert!(!o.status.success());
+    let stderr = String::from_utf8_lossy(&o.stderr);
+    assert!(
+        stderr.contains("--alpha must lie in (0, 1), got 1.5"),
+        "{stderr}"
+    );
+    assert!(!json.exists());
 }
