@@ -128,12 +128,20 @@ fn variance_upper_factor(r: usize) -> f64 {
 }
 
 /// Tests a measured log wavelet variance against the same statistic on `sims_log` (log
-/// WVs of the baseline's simulations at one level), at per-test level `alpha_test`.
-pub(super) fn wv_level_test(measured_log: f64, sims_log: &[f64], alpha_test: f64) -> LevelTest {
+/// WVs of the baseline's simulations at one level), at per-test level `alpha_test`. The
+/// null's degrees of freedom are at most `max_edof`, those the level's own estimator has
+/// (eta3 of its coefficients): simulations of a baseline that puts white noise where the
+/// data have correlated noise spread less than the measured level can.
+pub(super) fn wv_level_test(
+    measured_log: f64,
+    sims_log: &[f64],
+    max_edof: f64,
+    alpha_test: f64,
+) -> LevelTest {
     let r = sims_log.len();
     let mean = sims_log.iter().sum::<f64>() / r as f64;
     let var = sims_log.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (r as f64 - 1.0);
-    let var = (var * variance_upper_factor(r)).max(1e-8);
+    let var = (var * variance_upper_factor(r)).max(trigamma(0.5 * max_edof));
     let edof = edof_of_log_variance(var);
     let chi = ChiSquared::new(edof).expect("positive dof");
     // E ln(chi2_eta / eta), so that the law is centred on the simulations' mean.
@@ -201,7 +209,7 @@ mod tests {
         for _ in 0..trials {
             let sims: Vec<f64> = (0..30).map(|_| draw(&mut rng)).collect();
             let measured = draw(&mut rng);
-            if wv_level_test(measured, &sims, 1e-3).p_value < 0.01 {
+            if wv_level_test(measured, &sims, 1e9, 1e-3).p_value < 0.01 {
                 alarms += 1;
             }
         }
@@ -212,7 +220,7 @@ mod tests {
         for _ in 0..2000 {
             let sims: Vec<f64> = (0..30).map(|_| draw(&mut rng)).collect();
             let measured = draw(&mut rng) + 4f64.ln() * 2.0;
-            if wv_level_test(measured, &sims, 1e-3).p_value < 0.01 {
+            if wv_level_test(measured, &sims, 1e9, 1e-3).p_value < 0.01 {
                 found += 1;
             }
         }
@@ -230,7 +238,7 @@ mod tests {
         let sims_many: Vec<f64> = (0..30)
             .map(|_| (many.sample(&mut rng) / 400.0f64).ln())
             .collect();
-        assert!(!wv_level_test(0.0, &sims_few, 1e-4).decidable);
-        assert!(wv_level_test(0.0, &sims_many, 1e-4).decidable);
+        assert!(!wv_level_test(0.0, &sims_few, 1e9, 1e-4).decidable);
+        assert!(wv_level_test(0.0, &sims_many, 1e9, 1e-4).decidable);
     }
 }

@@ -25,7 +25,7 @@ use crate::gmwm::model::ModelSpec;
 use crate::model::{
     Cause, Channel, ChannelModel, DynamicDriver, DynamicNoise, Outliers, VibrationLine,
 };
-use crate::wv::{haar_wv, WvOptions};
+use crate::wv::{eta3, haar_wv, WvOptions};
 
 /// What the stochastic stage found on one channel.
 pub(super) struct StochasticFindings {
@@ -463,7 +463,14 @@ fn noise_change(
     let tests: Vec<LevelTest> = (0..levels)
         .map(|j| {
             let sims_j: Vec<f64> = sim_wv.iter().map(|s| s[j]).collect();
-            wv_level_test(measured_wv[j], &sims_j, run.alpha_test)
+            let level = j as u32 + 1;
+            let coefficients = (resid.len() + 1).saturating_sub(1 << level);
+            wv_level_test(
+                measured_wv[j],
+                &sims_j,
+                eta3(coefficients, level),
+                run.alpha_test,
+            )
         })
         .collect();
     let scale_s = |j: usize| dt_s * 2f64.powi(j as i32 + 1);
