@@ -233,6 +233,12 @@ impl WaveletVariance {
     }
 }
 
+/// M_j, the Haar MODWT coefficients of level `level` over `n` samples: n - 2^j + 1 (none
+/// when the level is wider than the series).
+pub fn level_coefficients(n: usize, level: u32) -> usize {
+    (n + 1).saturating_sub(1 << level)
+}
+
 /// The eta3 equivalent degrees of freedom of level j from M_j coefficients: max(M_j / 2^j, 1).
 pub fn eta3(m_j: usize, level: u32) -> f64 {
     (m_j as f64 / (1u64 << level) as f64).max(1.0)
@@ -788,7 +794,10 @@ pub fn read_smac_golden(path: &Path) -> Result<Vec<GoldenWv>, WvError> {
                     return Err(format(format!("{at}: level {j} exceeds n = {}", sensor.n)));
                 }
             }
-            let n_coefficients = levels.iter().map(|&j| sensor.n + 1 - (1 << j)).collect();
+            let n_coefficients = levels
+                .iter()
+                .map(|&j| level_coefficients(sensor.n, j))
+                .collect();
             out.push(GoldenWv {
                 sensor_key: key.clone(),
                 sensor: sensor.sensor.clone(),

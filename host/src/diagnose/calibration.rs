@@ -100,14 +100,28 @@ fn simulated_calibration_sd(run: &Run, design: &CalibrationDesign) -> Vec<f64> {
                     })
                 })
                 .collect();
-            let refs: [Option<&[f64]>; 6] = std::array::from_fn(|i| series[i].as_deref());
-            design.absorbed_all(&refs)
+            absorbed_from(design, &series)
         })
         .collect();
-    (0..design.parameters())
+    parameter_sd(&thetas, design.parameters())
+}
+
+/// What the calibration takes from one series per channel (in [`Channel::ALL`] order).
+fn absorbed_from(
+    design: &CalibrationDesign,
+    series: &[Option<Vec<f64>>],
+) -> nalgebra::DVector<f64> {
+    let refs: [Option<&[f64]>; 6] = std::array::from_fn(|i| series[i].as_deref());
+    design.absorbed_all(&refs)
+}
+
+/// Sample standard deviation of each of the `parameters` components over `vectors`.
+fn parameter_sd(vectors: &[nalgebra::DVector<f64>], parameters: usize) -> Vec<f64> {
+    let r = vectors.len() as f64;
+    (0..parameters)
         .map(|a| {
-            let m = thetas.iter().map(|t| t[a]).sum::<f64>() / reps as f64;
-            (thetas.iter().map(|t| (t[a] - m).powi(2)).sum::<f64>() / (reps as f64 - 1.0)).sqrt()
+            let m = vectors.iter().map(|t| t[a]).sum::<f64>() / r;
+            (vectors.iter().map(|t| (t[a] - m).powi(2)).sum::<f64>() / (r - 1.0)).sqrt()
         })
         .collect()
 }
@@ -135,16 +149,13 @@ fn batch_calibration_sd(run: &Run, design: &CalibrationDesign) -> Vec<f64> {
                     })
                 })
                 .collect();
-            let refs: [Option<&[f64]>; 6] = std::array::from_fn(|i| series[i].as_deref());
-            design.absorbed_all(&refs)
+            absorbed_from(design, &series)
         })
         .collect();
-    (0..design.parameters())
-        .map(|a| {
-            let m = pushes.iter().map(|t| t[a]).sum::<f64>() / BLOCKS as f64;
-            let ss = pushes.iter().map(|t| (t[a] - m).powi(2)).sum::<f64>();
-            (ss * BLOCKS as f64 / (BLOCKS as f64 - 1.0)).sqrt()
-        })
+    // The error is the sum of the blocks' pushes: its variance is BLOCKS times theirs.
+    parameter_sd(&pushes, design.parameters())
+        .into_iter()
+        .map(|sd| sd * (BLOCKS as f64).sqrt())
         .collect()
 }
 

@@ -44,7 +44,7 @@ use statrs::distribution::{ContinuousCDF, Normal};
 pub use super::baseline::Baseline;
 use super::calibration::{calibrate, sensor_wide_terms};
 use super::extension::{channel_model, extended_model};
-use super::gain::{in_sample_gain, ChannelModelSims};
+use super::gain::{measure_gain, ChannelModelSims};
 use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, select};
 use super::moments::Absorber;
 use super::stochastic::find_stochastic_effects;
@@ -331,10 +331,16 @@ impl Run<'_> {
     /// Coarsest wavelet level compared on the whole run (levels 1..=this): the largest
     /// that still averages over four or more blocks.
     pub fn max_wv_level(&self) -> u32 {
-        ((self.n as f64).log2().floor() as u32)
-            .saturating_sub(2)
-            .max(1)
+        max_wv_level(self.n)
     }
+}
+
+/// Coarsest wavelet level compared on a run of `n` epochs (levels 1..=this): the largest
+/// that still averages over four or more blocks.
+fn max_wv_level(n: usize) -> u32 {
+    ((n.max(2) as f64).log2().floor() as u32)
+        .saturating_sub(2)
+        .max(1)
 }
 
 /// The number of tests a run makes, the m of its Bonferroni rule: per channel the
@@ -342,9 +348,7 @@ impl Run<'_> {
 /// outliers, vibration lines (one test, already corrected over the spectrum's bins) and one
 /// test per wavelet-variance level; and the sensor-wide time offset and lever arm.
 fn tests_of_run(channels: usize, n: usize, has_dynamics: bool) -> usize {
-    let levels = ((n.max(2) as f64).log2().floor() as usize)
-        .saturating_sub(2)
-        .max(1);
+    let levels = max_wv_level(n) as usize;
     let deterministic = if has_dynamics { 16 } else { 1 };
     let sensor_wide = if has_dynamics { 4 } else { 0 };
     (channels * (deterministic + 3 + levels) + sensor_wide).max(1)
@@ -435,12 +439,8 @@ fn diagnose_channel(
         effects: &effects,
         intercept: terms.intercept,
     };
-    let (mut gain, wv_curves) = in_sample_gain(run, slot, &e, &terms, &extended);
-    gain.held_out_baseline = selection.held_out_baseline;
-    gain.held_out_extended = selection.held_out_extended;
-    gain.held_out_variance_explained = selection.held_out_variance_explained;
-    let model = channel_model(&terms, &stochastic, &selection.kept);
-    gain.not_kept = selection.not_kept;
+    let model = channel_model(&terms, &stochastic, &selection.kept, spec);
+    let (gain, wv_curves) = measure_gain(run, slot, &e, &terms, &extended, selection);
     findings.extend(stochastic.findings);
     discrepancies.extend(stochastic.discrepancies);
     let notes = stochastic.notes;

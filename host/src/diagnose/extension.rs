@@ -13,21 +13,23 @@ use super::generalise::{keeps_noise_model, kept_effects, Component};
 use super::stochastic::StochasticFindings;
 use super::terms::FittedTerms;
 use crate::calibration::CalibrationSummary;
+use crate::gmwm::model::ModelSpec;
 use crate::model::{BiasStep, Cause, Channel, ChannelModel, ImuModel, SimModel};
 
-/// The extended model of one channel: the baseline with the found effects that generalise
+/// The extended model of one channel: the `baseline` with the found effects that generalise
 /// (`kept`, [`super::generalise`]) and the bias; the quantization step, a property of the
 /// raw output the misfit of the error cannot score, whenever it was found.
 pub(super) fn channel_model(
     terms: &FittedTerms,
     stochastic: &StochasticFindings,
     kept: &[Component],
+    baseline: &ModelSpec,
 ) -> ChannelModel {
     let mut model = ChannelModel {
         stochastic: Some(if keeps_noise_model(kept) {
             stochastic.stochastic.clone()
         } else {
-            stochastic.baseline.clone()
+            baseline.clone()
         }),
         bias: Some(terms.intercept),
         quantization_step: stochastic.effects.quantization_step,

@@ -1,8 +1,8 @@
 //! The gain of the extended model over the baseline: the wavelet-variance misfit of the
 //! measured error against simulations of each model along the measured dynamics (the
 //! baseline drawn as the tests' null draws it), with the share of the error variance the
-//! deterministic terms explain, and the wavelet-variance curves the report plots. The
-//! held-out side, and which found effects enter the extended model, is
+//! deterministic terms explain, and the wavelet-variance curves the report plots. Which
+//! found effects enter the extended model, and their held-out figures, are
 //! [`super::generalise`]'s.
 
 use std::collections::BTreeSet;
@@ -14,6 +14,7 @@ use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
 use super::engine::{variance, Gain, Run, WvCurves, Z_FLOOR};
+use super::generalise::Selection;
 use super::terms::{Coefficient, FittedTerms};
 use crate::gmwm::model::ModelSpec;
 use crate::model::{Channel, ChannelModel, VibrationLine};
@@ -266,18 +267,19 @@ pub(super) fn variance_explained_over(
 
 /// The gain of the extended model (`terms` kept as `coefficients`, zero for a term left
 /// out, `stochastic` (None: the baseline's) and `effects`) over the baseline on one channel
-/// whose error is `e`, in-sample, with the curves behind it. The held-out figures are the
-/// cross-validated ones of the selection ([`super::generalise`]), filled in by the caller.
-pub(super) fn in_sample_gain(
+/// whose error is `e`: in-sample here, held out as the cross-validated `selection` measured
+/// it; with the curves behind it.
+pub(super) fn measure_gain(
     run: &Run,
     slot: usize,
     e: &[f64],
     terms: &FittedTerms,
     extended: &ChannelModelSims,
+    selection: Selection,
 ) -> (Gain, WvCurves) {
     let n = run.n;
     let no_effects = ChannelModel::default();
-    let zero: Vec<Coefficient> = terms.coefficients.iter().map(Coefficient::zero).collect();
+    let zero: Vec<Coefficient> = vec![Coefficient::ZERO; terms.coefficients.len()];
     let baseline = ChannelModelSims {
         coefficients: &zero,
         stochastic: None,
@@ -294,11 +296,11 @@ pub(super) fn in_sample_gain(
         metric: "wv_misfit (mean squared z of log wavelet variance vs model simulations)".into(),
         baseline: wv_misfit(&e_wv, &base_sims),
         extended: wv_misfit(&e_wv, &ext_sims),
-        held_out_baseline: f64::NAN,
-        held_out_extended: f64::NAN,
+        held_out_baseline: selection.held_out_baseline,
+        held_out_extended: selection.held_out_extended,
         variance_explained: variance_explained_over(terms, extended.coefficients, e, 0..n),
-        held_out_variance_explained: f64::NAN,
-        not_kept: Vec::new(),
+        held_out_variance_explained: selection.held_out_variance_explained,
+        not_kept: selection.not_kept,
     };
     (gain, wv_curves)
 }

@@ -129,7 +129,7 @@ pub(super) fn kept_coefficients(terms: &FittedTerms, kept: &[Component]) -> Vec<
             if kept.contains(&Component::Terms(t.cause)) {
                 *c
             } else {
-                Coefficient::zero(c)
+                Coefficient::ZERO
             }
         })
         .collect()
@@ -198,48 +198,61 @@ fn noise_model_on(spec: &ModelSpec, residual: &[f64], dt_s: f64) -> Option<Model
     Some(fit.model_object)
 }
 
-/// The cross-validated misfit of the model with `kept` (mean over the blocks), and the
-/// held-out share of variance its terms explain.
-fn cross_validated(
-    run: &Run,
+/// One channel's data and what was found on it: what every candidate model is scored on.
+struct Scoring<'a> {
+    run: &'a Run<'a>,
     slot: usize,
-    spec: &ModelSpec,
-    e: &[f64],
-    terms: &FittedTerms,
-    found: &StochasticFindings,
-    kept: &[Component],
-) -> (f64, f64) {
-    let n = run.n;
-    let edge = |k: usize| k * n / FOLDS;
-    let effects = kept_effects(found, kept);
-    let (mut misfit, mut explained) = (0.0, 0.0);
-    for k in 0..FOLDS {
-        let test = edge(k)..edge(k + 1);
-        let train = [0..edge(k), edge(k + 1)..n];
-        let coefficients = coefficients_on(terms, kept, e, &train);
-        let noise = keeps_noise_model(kept).then(|| {
-            let d: Vec<f64> = train
-                .iter()
-                .flat_map(|r| terms.deterministic(&coefficients, r.clone()))
-                .collect();
-            let residual: Vec<f64> = gather(e, &train)
-                .iter()
-                .zip(&d)
-                .map(|(a, b)| a - b)
-                .collect();
-            noise_model_on(spec, &residual, run.dt_s).unwrap_or_else(|| found.stochastic.clone())
-        });
-        let model = ChannelModelSims {
-            coefficients: &coefficients,
-            stochastic: noise.as_ref(),
-            effects: &effects,
-            intercept: 0.0,
-        };
-        let salt = 23 + k as u64;
-        misfit += misfit_over(run, slot, terms, e, &model, test.clone(), salt);
-        explained += variance_explained_over(terms, &coefficients, e, test);
+    spec: &'a ModelSpec,
+    e: &'a [f64],
+    terms: &'a FittedTerms,
+    found: &'a StochasticFindings,
+}
+
+impl Scoring<'_> {
+    /// The cross-validated misfit of the model with `kept` (mean over the blocks), and the
+    /// held-out share of variance its terms explain.
+    fn cross_validated(&self, kept: &[Component]) -> (f64, f64) {
+        let Scoring {
+            run,
+            slot,
+            spec,
+            e,
+            terms,
+            found,
+        } = *self;
+        let n = run.n;
+        let edge = |k: usize| k * n / FOLDS;
+        let effects = kept_effects(found, kept);
+        let (mut misfit, mut explained) = (0.0, 0.0);
+        for k in 0..FOLDS {
+            let test = edge(k)..edge(k + 1);
+            let train = [0..edge(k), edge(k + 1)..n];
+            let coefficients = coefficients_on(terms, kept, e, &train);
+            let noise = keeps_noise_model(kept).then(|| {
+                let d: Vec<f64> = train
+                    .iter()
+                    .flat_map(|r| terms.deterministic(&coefficients, r.clone()))
+                    .collect();
+                let residual: Vec<f64> = gather(e, &train)
+                    .iter()
+                    .zip(&d)
+                    .map(|(a, b)| a - b)
+                    .collect();
+                noise_model_on(spec, &residual, run.dt_s)
+                    .unwrap_or_else(|| found.stochastic.clone())
+            });
+            let model = ChannelModelSims {
+                coefficients: &coefficients,
+                stochastic: noise.as_ref(),
+                effects: &effects,
+                intercept: 0.0,
+            };
+            let salt = 23 + k as u64;
+            misfit += misfit_over(run, slot, terms, e, &model, test.clone(), salt);
+            explained += variance_explained_over(terms, &coefficients, e, test);
+        }
+        (misfit / FOLDS as f64, explained / FOLDS as f64)
     }
-    (misfit / FOLDS as f64, explained / FOLDS as f64)
 }
 
 /// Forward selection of the channel's found effects by their cross-validated misfit.
@@ -251,7 +264,15 @@ pub(super) fn select(
     terms: &FittedTerms,
     found: &StochasticFindings,
 ) -> Selection {
-    let score = |kept: &[Component]| cross_validated(run, slot, spec, e, terms, found, kept);
+    let scoring = Scoring {
+        run,
+        slot,
+        spec,
+        e,
+        terms,
+        found,
+    };
+    let score = |kept: &[Component]| scoring.cross_validated(kept);
     let (held_out_baseline, _) = score(&[]);
     let mut kept: Vec<Component> = Vec::new();
     let (mut current, mut explained) = (held_out_baseline, 0.0);

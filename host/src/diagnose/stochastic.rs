@@ -25,7 +25,7 @@ use crate::gmwm::model::ModelSpec;
 use crate::model::{
     Cause, Channel, ChannelModel, DynamicDriver, DynamicNoise, Outliers, VibrationLine,
 };
-use crate::wv::{eta3, haar_wv, WvOptions};
+use crate::wv::{eta3, haar_wv, level_coefficients, WvOptions};
 
 /// What the stochastic stage found on one channel.
 pub(super) struct StochasticFindings {
@@ -38,8 +38,6 @@ pub(super) struct StochasticFindings {
     /// The stochastic model of the extended model: the baseline's, or its structure refitted
     /// on what remains when that departs from the baseline's wavelet variance.
     pub stochastic: ModelSpec,
-    /// The baseline's stochastic model of the channel.
-    pub baseline: ModelSpec,
     /// What was not tested, and why.
     pub notes: Vec<String>,
 }
@@ -60,7 +58,6 @@ pub(super) fn find_stochastic_effects(
         discrepancies: Vec::new(),
         effects: ChannelModel::default(),
         stochastic: spec.clone(),
-        baseline: spec.clone(),
         notes: Vec::new(),
     };
     // Noise growing with the dynamics, looked at before outliers: the largest samples of a
@@ -464,11 +461,10 @@ fn noise_change(
         .map(|j| {
             let sims_j: Vec<f64> = sim_wv.iter().map(|s| s[j]).collect();
             let level = j as u32 + 1;
-            let coefficients = (resid.len() + 1).saturating_sub(1 << level);
             wv_level_test(
                 measured_wv[j],
                 &sims_j,
-                eta3(coefficients, level),
+                eta3(level_coefficients(resid.len(), level), level),
                 run.alpha_test,
             )
         })
@@ -503,7 +499,7 @@ fn noise_change(
             channel,
             statistic: format!(
                 "wavelet variance (({})^2) at level {} (scale {} s)",
-                run.spec(channel).map_or("SI", |s| s.unit.as_str()),
+                spec.unit,
                 j + 1,
                 significant(scale_s(j), 3)
             ),

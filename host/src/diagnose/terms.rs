@@ -422,14 +422,12 @@ pub(super) struct Coefficient {
 
 impl Coefficient {
     /// The coefficient of a term left out of a model: zero, exactly.
-    pub fn zero(_: &Coefficient) -> Coefficient {
-        Coefficient {
-            value: 0.0,
-            ci95: [0.0, 0.0],
-            variance_explained: 0.0,
-            p_value: 1.0,
-        }
-    }
+    pub const ZERO: Coefficient = Coefficient {
+        value: 0.0,
+        ci95: [0.0, 0.0],
+        variance_explained: 0.0,
+        p_value: 1.0,
+    };
 }
 
 /// A channel's deterministic terms after both stages: each term with its coefficient
