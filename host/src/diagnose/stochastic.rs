@@ -472,13 +472,29 @@ fn noise_change(
     let scale_s = |j: usize| dt_s * 2f64.powi(j as i32 + 1);
     let undecided: Vec<usize> = (0..levels).filter(|&j| !tests[j].decidable).collect();
     if let (Some(&first), Some(&last)) = (undecided.first(), undecided.last()) {
+        let edof: Vec<f64> = undecided.iter().map(|&j| tests[j].edof).collect();
+        let (lo, hi) = (
+            edof.iter().copied().fold(f64::INFINITY, f64::min),
+            edof.iter().copied().fold(0.0, f64::max),
+        );
+        let (scales, dof) = if first == last {
+            (
+                format!("scale {} s", significant(scale_s(first), 3)),
+                format!("{lo:.1}"),
+            )
+        } else {
+            (
+                format!(
+                    "scales {} to {} s",
+                    significant(scale_s(first), 3),
+                    significant(scale_s(last), 3)
+                ),
+                format!("{lo:.1} to {hi:.1}"),
+            )
+        };
         found.notes.push(format!(
-            "{channel}: the wavelet variance at {} of {levels} levels (scales {} to {} s) has too few degrees of freedom to decide (equivalent dof {:.1} to {:.1}): not tested",
+            "{channel}: the wavelet variance at {} of {levels} levels ({scales}) has too few degrees of freedom to decide (equivalent dof {dof}): not tested",
             undecided.len(),
-            significant(scale_s(first), 3),
-            significant(scale_s(last), 3),
-            undecided.iter().map(|&j| tests[j].edof).fold(f64::INFINITY, f64::min),
-            undecided.iter().map(|&j| tests[j].edof).fold(0.0, f64::max),
         ));
     }
     // Significant and large enough to matter: at the finest levels the wavelet variance of a
