@@ -11,7 +11,8 @@
 //!
 //! DYNACAL_RATES_PARTS (comma-separated: single, pairs, null, ship) selects parts;
 //! DYNACAL_POWER_SEEDS sets the seeds per cause and length (5); DYNACAL_NULL_RUNS the car
-//! null runs (40), DYNACAL_SHIP_NULL_RUNS the ship's (10).
+//! null runs (40), DYNACAL_SHIP_NULL_RUNS the ship's (10); DYNACAL_RATES_CAUSES
+//! (comma-separated cause names) limits the one-effect runs to those causes.
 
 mod car;
 mod ship;
@@ -93,6 +94,13 @@ fn env_usize(name: &str, default: usize) -> usize {
         .unwrap_or(default)
 }
 
+/// True when `cause` is among DYNACAL_RATES_CAUSES (comma-separated; all when unset).
+fn cause_enabled(cause: &str) -> bool {
+    std::env::var("DYNACAL_RATES_CAUSES")
+        .map(|v| v.split(',').any(|c| c.trim() == cause))
+        .unwrap_or(true)
+}
+
 fn part_enabled(part: &str) -> bool {
     std::env::var("DYNACAL_RATES_PARTS")
         .map(|s| s.split(',').any(|p| p.trim() == part))
@@ -105,7 +113,7 @@ const TABLE_HEAD: &str = "| hidden | named on the right channel | and truth insi
 fn single_effects(seconds: f64, seeds: u64) -> Tally {
     println!("\n### One effect hidden, {seconds} s car drives\n\n{TABLE_HEAD}");
     let mut all = Tally::default();
-    for cause in causes_under_test() {
+    for cause in causes_under_test().into_iter().filter(|c| cause_enabled(c)) {
         let mut t = Tally::default();
         for seed in 11..11 + seeds {
             let (report, hidden) = run(&[(cause, None)], seed, seconds);
@@ -308,7 +316,7 @@ fn ship_run(causes: &[&'static str], seed: u64, seconds: f64) -> (DiagnoseReport
 fn ship_part(seeds: u64, null_runs: usize) -> (Tally, usize, usize) {
     println!("\n### The ship generator (not the project's simulator), 900 s runs\n\n{TABLE_HEAD}");
     let mut all = Tally::default();
-    for cause in SHIP_CAUSES {
+    for cause in SHIP_CAUSES.into_iter().filter(|c| cause_enabled(c)) {
         let mut t = Tally::default();
         for seed in 11..11 + seeds {
             let (report, hidden) = ship_run(&[cause], seed, 900.0);
@@ -384,21 +392,33 @@ fn rates() {
     }
 }
 
-/// One ship run chosen from the environment, to look into what the rates report:
-/// `DYNACAL_SHIP_CAUSES=bias_shift DYNACAL_SEED=13 DYNACAL_SECONDS=900 cargo test --release
-/// -p dynacal-tests --test diagnosis_rates -- --ignored one_ship_run --nocapture` (no causes:
-/// a null run).
+/// One run chosen from the environment, to look into what the rates report:
+/// `DYNACAL_GENERATOR=ship DYNACAL_CAUSES=bias_shift DYNACAL_SEED=13 DYNACAL_SECONDS=900
+/// cargo test --release -p dynacal-tests --test diagnosis_rates -- --ignored one_run
+/// --nocapture` (generator `car` or `ship`, default ship; no causes: a null run).
 #[test]
 #[ignore]
-fn one_ship_run() {
-    let causes: Vec<&'static str> = std::env::var("DYNACAL_SHIP_CAUSES")
+fn one_run() {
+    let car = std::env::var("DYNACAL_GENERATOR").is_ok_and(|g| g == "car");
+    let known = if car {
+        causes_under_test()
+    } else {
+        SHIP_CAUSES.to_vec()
+    };
+    let causes: Vec<&'static str> = std::env::var("DYNACAL_CAUSES")
         .unwrap_or_default()
         .split(',')
-        .filter_map(|c| SHIP_CAUSES.iter().find(|k| **k == c.trim()).copied())
+        .filter_map(|c| known.iter().find(|k| **k == c.trim()).copied())
         .collect();
     let seed = env_usize("DYNACAL_SEED", 301) as u64;
     let seconds = env_usize("DYNACAL_SECONDS", 300) as f64;
-    let (report, hidden) = ship_run(&causes, seed, seconds);
+    let (report, hidden) = if car {
+        let on: Vec<(&'static str, Option<&'static str>)> =
+            causes.iter().map(|c| (*c, None)).collect();
+        run(&on, seed, seconds)
+    } else {
+        ship_run(&causes, seed, seconds)
+    };
     for n in &report.notes {
         eprintln!("note {n}");
     }
@@ -406,8 +426,11 @@ fn one_ship_run() {
     for d in &report.discrepancies {
         eprintln!("discrepancy {d:?}");
     }
+    for f in &report.findings {
+        eprintln!("finding {f:?}");
+    }
     score(
-        &format!("ship {causes:?} {seconds} s seed {seed}"),
+        &format!("{causes:?} {seconds} s seed {seed}"),
         &report,
         &hidden,
     );

@@ -21,10 +21,11 @@
 //!   data), and at the end the sensor-wide terms (time offset, lever arm) as findings;
 //! - [`super::baseline`]: the model to compare with, given or fitted on the quietest stretch;
 //! - `terms`: the deterministic terms, per channel a stepwise selection over the physics
-//!   candidates and a bias step, each fitted jointly with the calibration on every channel's
-//!   rows (the least squares on moments of `moments`); then across channels, a joint fit of
-//!   all kept terms, so a term one channel shows only because another's term moved the
-//!   calibration drops out;
+//!   candidates, each fitted jointly with the calibration on every channel's rows by
+//!   generalised least squares (`moments`, in the metric of each channel's baseline noise,
+//!   `whiten`), and a bias step found by a local scan and sized from its windows; then
+//!   across channels, a joint fit of all kept terms, so a term one channel shows only
+//!   because another's term moved the calibration drops out;
 //! - `stochastic`: the stochastic effects of what the terms leave;
 //! - `gain`: the gain of the extended model over the baseline, in-sample and held out;
 //! - `extension`: the extended model, a simulator model file.

@@ -15,3 +15,4 @@ pub mod report;
 pub mod stats;
 mod stochastic;
 mod terms;
+mod whiten;

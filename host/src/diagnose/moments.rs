@@ -1,12 +1,16 @@
-//! Least squares on moments, jointly with the calibration: a deterministic term's regressor
-//! is seen through what the calibration (boresight, lever arm, biases, or a mean per channel
-//! on static data) would absorb of it, and a fit of several terms is solved on their inner
-//! products with each other, with the error and with every baseline simulation. The spread
-//! of a coefficient comes from the same fit on the simulations (so slow noise correlated
-//! with slow manoeuvres is in the null distribution) and from batch means of the measured
-//! residual; [`eliminate_on_moments`] is the stepwise selection over such terms.
+//! Least squares on inner products, jointly with the calibration: a deterministic term's
+//! regressor is seen through what the calibration (boresight, lever arm, biases, or a mean
+//! per channel on static data) would absorb of it, on its own channel and on the others the
+//! calibration's pull reaches, and a fit of several terms is solved on their inner products
+//! with each other, with the error and with every baseline simulation. The inner products
+//! are those of generalised least squares: each channel's series filtered by the whitening
+//! filter of its baseline noise model ([`super::whiten`]). The spread of a coefficient
+//! comes from the same fit on the simulations (so slow noise correlated with slow
+//! manoeuvres is in the null distribution) and from batch means of the measured residual;
+//! [`eliminate_on_moments`] is the stepwise selection over such terms.
 
 use super::terms::Candidate;
+use super::whiten::Whitener;
 use crate::calibration::CalibrationDesign;
 use crate::model::{Cause, Channel};
 
@@ -20,37 +24,25 @@ pub(super) enum Absorber<'a> {
     Mean,
 }
 
-/// A regressor on one channel seen through the calibration: its moments with the
-/// calibration's columns (X_c' W_c x) and the parameters the calibration would take from
-/// it, `absorbed` = (X'WX)^-1 X_c' W_c x.
+/// A regressor on one channel seen through the calibration: the parameters the calibration
+/// would take from it, `absorbed` = (X'WX)^-1 X_c' W_c x.
+#[derive(Clone)]
 pub(super) struct Projection {
-    pub moments: nalgebra::DVector<f64>,
     pub absorbed: nalgebra::DVector<f64>,
 }
 
 impl Absorber<'_> {
-    pub fn weight(&self, channel: Channel) -> f64 {
-        match self {
-            Absorber::Design(d) => d.weight(channel.index()),
-            Absorber::Mean => 1.0,
-        }
-    }
     pub fn project(&self, channel: Channel, x: &[f64]) -> Projection {
         match self {
-            Absorber::Design(d) => {
-                let moments = d.moments(channel.index(), x);
-                Projection {
-                    absorbed: d.bread() * &moments,
-                    moments,
-                }
-            }
-            Absorber::Mean => {
-                let sum = x.iter().sum::<f64>();
-                Projection {
-                    moments: nalgebra::DVector::from_element(1, sum),
-                    absorbed: nalgebra::DVector::from_element(1, sum / x.len().max(1) as f64),
-                }
-            }
+            Absorber::Design(d) => Projection {
+                absorbed: d.bread() * d.moments(channel.index(), x),
+            },
+            Absorber::Mean => Projection {
+                absorbed: nalgebra::DVector::from_element(
+                    1,
+                    x.iter().sum::<f64>() / x.len().max(1) as f64,
+                ),
+            },
         }
     }
     /// `x` on `channel` minus what the calibration takes from it there.
@@ -64,32 +56,115 @@ impl Absorber<'_> {
             Absorber::Mean => x.iter().map(|v| v - p.absorbed[0]).collect(),
         }
     }
-    /// Weighted inner product of two terms after the calibration has taken its part from
-    /// both, over every channel's rows: w_c <x, y> [same channel] - x' W X (X'WX)^-1 X' W y.
-    pub fn gram(&self, a: &Term, b: &Term) -> f64 {
-        let same = if a.channel == b.channel {
-            self.weight(a.channel) * a.raw.iter().zip(&b.raw).map(|(x, y)| x * y).sum::<f64>()
-        } else {
-            0.0
+    /// Every channel's series `y` (gx..az) less what the calibration fitted on all of them
+    /// together takes from it: what the engine sees of a series after the calibration.
+    fn calibrate(&self, y: &[Option<&[f64]>; 6]) -> [Option<Vec<f64>>; 6] {
+        let theta = match self {
+            Absorber::Design(d) => Some(d.bread() * d.moments_all(y)),
+            Absorber::Mean => None,
         };
-        same - a.projection.moments.dot(&b.projection.absorbed)
+        std::array::from_fn(|ch| {
+            let y = y[ch]?;
+            Some(match (self, &theta) {
+                (Absorber::Design(d), Some(theta)) if d.has_channel(ch) => y
+                    .iter()
+                    .zip(d.fitted(ch, theta))
+                    .map(|(v, f)| v - f)
+                    .collect(),
+                (Absorber::Design(_), _) => y.to_vec(),
+                (Absorber::Mean, _) => {
+                    let m = y.iter().sum::<f64>() / y.len().max(1) as f64;
+                    y.iter().map(|v| v - m).collect()
+                }
+            })
+        })
     }
 }
 
-/// A deterministic term on one channel: its regressor as measured
-/// (`raw`) and stripped of what the calibration absorbs from it on its own channel (`own`),
-/// its moments after the calibration with the error and with each baseline simulation, and
-/// its coefficient with the standard error the simulations give it.
+/// The run as generalised least squares sees it: per channel the whitening filter of its
+/// baseline noise model ([`Whitener`]), and the calibrated error and every replicate's
+/// calibrated baseline simulation, filtered. Inner products of filtered series are the
+/// metric every term's fit uses.
+pub(super) struct WhiteSpace {
+    whiteners: [Option<Whitener>; 6],
+    errors: [Option<Vec<f64>>; 6],
+    sims: Vec<[Option<Vec<f64>>; 6]>,
+}
+
+impl WhiteSpace {
+    /// `errors`: every channel's error (None where absent); `sims_of(r)`: every channel's
+    /// baseline simulation of replicate r, for r in 0..replicates.
+    pub fn new(
+        absorber: &Absorber,
+        whiteners: [Option<Whitener>; 6],
+        errors: [Option<&[f64]>; 6],
+        replicates: usize,
+        sims_of: &(dyn Fn(usize) -> [Option<Vec<f64>>; 6] + Sync),
+    ) -> Self {
+        use rayon::prelude::*;
+        let whiten = |calibrated: [Option<Vec<f64>>; 6]| -> [Option<Vec<f64>>; 6] {
+            let mut calibrated = calibrated;
+            std::array::from_fn(|ch| {
+                let w = whiteners[ch].as_ref()?;
+                calibrated[ch].take().map(|y| w.apply(&y))
+            })
+        };
+        let errors = whiten(absorber.calibrate(&errors));
+        let sims = (0..replicates)
+            .into_par_iter()
+            .map(|r| {
+                let s = sims_of(r);
+                whiten(absorber.calibrate(&std::array::from_fn(|ch| s[ch].as_deref())))
+            })
+            .collect();
+        Self {
+            whiteners,
+            errors,
+            sims,
+        }
+    }
+
+    /// The filtered calibrated error of `channel`.
+    pub fn error(&self, channel: Channel) -> &[f64] {
+        self.errors[channel.index()]
+            .as_deref()
+            .expect("a channel of the run")
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// Inner product of two series given per channel (absent channels count zero).
+fn dot_channels(a: &[Option<Vec<f64>>; 6], b: &[Option<Vec<f64>>; 6]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| match (x, y) {
+            (Some(x), Some(y)) => dot(x, y),
+            _ => 0.0,
+        })
+        .sum()
+}
+
+/// A deterministic term on one channel: its regressor stripped of what the calibration
+/// absorbs from it on its own channel (`own`), its signature on every channel after the
+/// calibration (on its own channel `own`, on the others minus what the calibration's pull
+/// leaves there) filtered by each channel's whitening filter, its inner products in that
+/// metric with the error and with each baseline simulation, and its coefficient with the
+/// standard error the simulations give it.
+#[derive(Clone)]
 pub(super) struct Term {
     pub channel: Channel,
     pub name: String,
     pub cause: Cause,
     /// The body axis of the regressor (x, y, z = 0, 1, 2).
     pub axis: usize,
-    raw: Vec<f64>,
     /// The regressor less what the calibration absorbs of it on its own channel.
     pub own: Vec<f64>,
     pub projection: Projection,
+    /// The signature on each channel (gx..az), filtered.
+    white: [Option<Vec<f64>>; 6],
     on_error: f64,
     on_sims: Vec<f64>,
     pub coef: f64,
@@ -97,52 +172,113 @@ pub(super) struct Term {
     /// Smallest standard error the term's coefficient may have: the measured-residual
     /// spread of its own channel's fit, kept for the joint fit across channels.
     pub sd_floor: f64,
+    /// Some(p-value of its own estimator) when the coefficient (and its standard error)
+    /// comes from that estimator, not from the regression: a bias step's local estimate.
+    /// The selection neither refits nor drops such a term; it fits the others on what the
+    /// term leaves ([`Term::take_out`]).
+    pub fixed: Option<f64>,
 }
 
 impl Term {
-    /// `moments_e` and `moments_sims`: the calibration's moments of the error and of each
-    /// replicate's simulations (all channels with a design, this one without).
-    pub fn new(
-        absorber: &Absorber,
-        channel: Channel,
-        c: &Candidate,
-        e: &[f64],
-        moments_e: &nalgebra::DVector<f64>,
-        sims: &[Vec<f64>],
-        moments_sims: &[nalgebra::DVector<f64>],
-    ) -> Self {
+    pub fn new(absorber: &Absorber, channel: Channel, c: &Candidate, space: &WhiteSpace) -> Self {
         let projection = absorber.project(channel, c.values);
-        let w = absorber.weight(channel);
-        let after = |y: &[f64], m: &nalgebra::DVector<f64>| {
-            w * c.values.iter().zip(y).map(|(a, b)| a * b).sum::<f64>() - projection.absorbed.dot(m)
-        };
+        let own = absorber.own(channel, c.values, &projection);
+        let white: [Option<Vec<f64>>; 6] = std::array::from_fn(|ch| {
+            let w = space.whiteners[ch].as_ref()?;
+            if ch == channel.index() {
+                return Some(w.apply(&own));
+            }
+            match absorber {
+                Absorber::Design(d) if d.has_channel(ch) => {
+                    let pulled: Vec<f64> = d
+                        .fitted(ch, &projection.absorbed)
+                        .into_iter()
+                        .map(|v| -v)
+                        .collect();
+                    Some(w.apply(&pulled))
+                }
+                _ => None,
+            }
+        });
         Term {
             channel,
             name: c.name.clone(),
             cause: c.cause,
             axis: c.axis,
-            raw: c.values.to_vec(),
-            own: absorber.own(channel, c.values, &projection),
-            on_error: after(e, moments_e),
-            on_sims: sims
-                .iter()
-                .zip(moments_sims)
-                .map(|(s, m)| after(s, m))
-                .collect(),
+            on_error: dot_channels(&white, &space.errors),
+            on_sims: space.sims.iter().map(|s| dot_channels(&white, s)).collect(),
+            own,
+            white,
             projection,
             coef: 0.0,
             se: f64::NAN,
             sd_floor: 0.0,
+            fixed: None,
         }
+    }
+
+    /// The filtered signature on the term's own channel.
+    fn white_own(&self) -> &[f64] {
+        self.white[self.channel.index()]
+            .as_deref()
+            .expect("a term has its own channel")
+    }
+
+    /// A term whose coefficient `coef` (standard error `se`, two-sided p-value `p_value`
+    /// against zero) comes from outside the regression; see [`Term::fixed`].
+    pub fn fix(&mut self, coef: f64, se: f64, p_value: f64) {
+        self.coef = coef;
+        self.se = se;
+        self.sd_floor = se;
+        self.fixed = Some(p_value);
+    }
+
+    /// Fits this term on the error less `fixed` (its coefficient times its regressor): the
+    /// error's inner product is linear in the error, so it loses the fixed coefficient
+    /// times the two terms' inner product.
+    pub fn take_out(&mut self, fixed: &Term) {
+        let g = gram(self, fixed);
+        self.on_error -= fixed.coef * g;
+    }
+
+    /// The filtered error of the term's own channel less `coef` times this term there:
+    /// what [`MeasuredSpread`] needs when this term is fixed.
+    pub fn taken_from(&self, white_error: &[f64]) -> Vec<f64> {
+        white_error
+            .iter()
+            .zip(self.white_own())
+            .map(|(v, x)| v - self.coef * x)
+            .collect()
     }
 }
 
-/// The error left after the terms: `e` minus each term's own-channel regressor times its
-/// coefficient, minus the mean of what remains.
-pub(super) fn residual_of(e: &[f64], terms: &[Term]) -> Vec<f64> {
+/// Inner product of two terms' signatures in the whitened metric, over every channel.
+pub(super) fn gram(a: &Term, b: &Term) -> f64 {
+    dot_channels(&a.white, &b.white)
+}
+
+/// The Gram matrix of `terms`.
+pub(super) fn gram_matrix(terms: &[Term]) -> nalgebra::DMatrix<f64> {
+    nalgebra::DMatrix::from_fn(terms.len(), terms.len(), |a, b| gram(&terms[a], &terms[b]))
+}
+
+/// The error left after a least-squares fit of every one of `terms` (named or not, jointly
+/// with the calibration; exactly collinear directions get no coefficient): what no
+/// candidate can explain, however weakly. Why: a term too weak to be named at the run's
+/// family-wise level still leaves its pattern in the error, and a bias step looked for on
+/// that pattern finds a turn's onset.
+pub(super) fn full_fit_residual(e: &[f64], terms: &[Term]) -> Vec<f64> {
+    let k = terms.len();
+    let gram = gram_matrix(terms);
+    let rhs = nalgebra::DVector::from_iterator(k, terms.iter().map(|t| t.on_error));
+    let scale = gram.diagonal().amax().max(f64::MIN_POSITIVE);
+    let beta = gram
+        .svd(true, true)
+        .solve(&rhs, 1e-10 * scale)
+        .unwrap_or_else(|_| nalgebra::DVector::zeros(k));
     let mut r = e.to_vec();
-    for t in terms {
-        r.iter_mut().zip(&t.own).for_each(|(v, x)| *v -= t.coef * x);
+    for (t, b) in terms.iter().zip(beta.iter()) {
+        r.iter_mut().zip(&t.own).for_each(|(v, x)| *v -= b * x);
     }
     let m = r.iter().sum::<f64>() / r.len().max(1) as f64;
     r.iter_mut().for_each(|v| *v -= m);
@@ -157,12 +293,11 @@ struct MomentFit {
 }
 
 /// The error a fit of terms on one channel leaves, for a spread of its coefficients that
-/// does not lean on the baseline model: `e` with `weight`, the calibration's weight of the
-/// channel.
+/// does not lean on the baseline model: the channel's filtered error
+/// ([`WhiteSpace::error`]).
 #[derive(Clone, Copy)]
 pub(super) struct MeasuredSpread<'a> {
-    pub e: &'a [f64],
-    pub weight: f64,
+    pub white_error: &'a [f64],
 }
 
 /// Blocks of the batch-means spread: long enough (45 s of a 900 s drive) to hold most of the
@@ -181,11 +316,11 @@ fn measured_spread(
     beta: &[f64],
     gram_inv: &nalgebra::DMatrix<f64>,
 ) -> Vec<f64> {
-    let n = spread.e.len();
-    let mut u = spread.e.to_vec();
+    let n = spread.white_error.len();
+    let mut u = spread.white_error.to_vec();
     for (a, &k) in active.iter().enumerate() {
         u.iter_mut()
-            .zip(&terms[k].own)
+            .zip(terms[k].white_own())
             .for_each(|(v, x)| *v -= beta[a] * x);
     }
     let mean = u.iter().sum::<f64>() / n.max(1) as f64;
@@ -196,12 +331,11 @@ fn measured_spread(
             nalgebra::DVector::from_iterator(
                 active.len(),
                 active.iter().map(|&k| {
-                    spread.weight
-                        * terms[k].own[range.clone()]
-                            .iter()
-                            .zip(&u[range.clone()])
-                            .map(|(x, v)| x * (v - mean))
-                            .sum::<f64>()
+                    terms[k].white_own()[range.clone()]
+                        .iter()
+                        .zip(&u[range.clone()])
+                        .map(|(x, v)| x * (v - mean))
+                        .sum::<f64>()
                 }),
             )
         })
@@ -354,19 +488,29 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
     use rand_distr::{Distribution, StandardNormal};
 
-    /// Candidates on one channel without a calibration design: the true regressor, a proxy
-    /// that is the true one modulated (as f_y is speed times omega_z), and an unrelated one.
+    /// Candidates on one channel without a calibration design, fitted with a white-noise
+    /// baseline of sd 0.05 (so generalised least squares is ordinary least squares): the
+    /// columns' terms, their Gram matrix and the channel's filtered error.
     fn moment_terms(
         e: &[f64],
         sims: &[Vec<f64>],
         columns: &[(&str, Vec<f64>)],
-    ) -> (nalgebra::DMatrix<f64>, Vec<Term>) {
+    ) -> (nalgebra::DMatrix<f64>, Vec<Term>, Vec<f64>) {
         let absorber = Absorber::Mean;
-        let m_e = absorber.project(Channel::Gx, e).moments;
-        let m_sims: Vec<_> = sims
-            .iter()
-            .map(|s| absorber.project(Channel::Gx, s).moments)
-            .collect();
+        let spec = crate::gmwm::model::ModelSpec {
+            model: "WN".into(),
+            unit: "rad/s".into(),
+            sample_rate_hz: 100.0,
+            processes: vec![crate::gmwm::model::Process::WhiteNoise { sigma2: 0.0025 }],
+        };
+        let mut whiteners: [Option<Whitener>; 6] = std::array::from_fn(|_| None);
+        whiteners[0] = Some(Whitener::new(&spec, e.len()));
+        let mut errors: [Option<&[f64]>; 6] = [None; 6];
+        errors[0] = Some(e);
+        let sims_of = |r: usize| -> [Option<Vec<f64>>; 6] {
+            std::array::from_fn(|ch| (ch == 0).then(|| sims[r].clone()))
+        };
+        let space = WhiteSpace::new(&absorber, whiteners, errors, sims.len(), &sims_of);
         let terms: Vec<Term> = columns
             .iter()
             .map(|(name, values)| {
@@ -376,13 +520,11 @@ mod tests {
                     cause: Cause::ScaleFactor,
                     axis: 0,
                 };
-                Term::new(&absorber, Channel::Gx, &c, e, &m_e, sims, &m_sims)
+                Term::new(&absorber, Channel::Gx, &c, &space)
             })
             .collect();
-        let gram = nalgebra::DMatrix::from_fn(terms.len(), terms.len(), |a, b| {
-            absorber.gram(&terms[a], &terms[b])
-        });
-        (gram, terms)
+        let white_error = space.error(Channel::Gx).to_vec();
+        (gram_matrix(&terms), terms, white_error)
     }
 
     fn white_series(rng: &mut ChaCha8Rng, n: usize, sigma: f64) -> Vec<f64> {
@@ -420,28 +562,29 @@ mod tests {
             .zip(&noise)
             .map(|(x, w)| 0.02 * x + w)
             .collect();
-        let (gram, terms) = moment_terms(&e, &sims, &columns);
-        let kept = eliminate_on_moments(
-            &gram,
-            &terms,
-            4.0,
-            &never_small,
-            Some(MeasuredSpread { e: &e, weight: 1.0 }),
-        );
-        assert_eq!(kept.len(), 1, "{kept:?}");
-        let (k, b, sd) = kept[0];
-        assert_eq!(terms[k].name, "truth");
-        assert!((b - 0.02).abs() < 3.0 * sd, "{b} +- {sd}");
-
-        let (gram, terms) = moment_terms(&noise, &sims, &columns);
+        let (gram, terms, white_error) = moment_terms(&e, &sims, &columns);
         let kept = eliminate_on_moments(
             &gram,
             &terms,
             4.0,
             &never_small,
             Some(MeasuredSpread {
-                e: &noise,
-                weight: 1.0,
+                white_error: &white_error,
+            }),
+        );
+        assert_eq!(kept.len(), 1, "{kept:?}");
+        let (k, b, sd) = kept[0];
+        assert_eq!(terms[k].name, "truth");
+        assert!((b - 0.02).abs() < 3.0 * sd, "{b} +- {sd}");
+
+        let (gram, terms, white_error) = moment_terms(&noise, &sims, &columns);
+        let kept = eliminate_on_moments(
+            &gram,
+            &terms,
+            4.0,
+            &never_small,
+            Some(MeasuredSpread {
+                white_error: &white_error,
             }),
         );
         assert!(kept.is_empty(), "{kept:?}");
@@ -464,7 +607,7 @@ mod tests {
             })
             .collect();
         let columns = [("slow", slow)];
-        let (gram, terms) = moment_terms(&e, &sims, &columns);
+        let (gram, terms, white_error) = moment_terms(&e, &sims, &columns);
         let never_small = |_: usize, _: f64| false;
         assert_eq!(
             eliminate_on_moments(&gram, &terms, 4.0, &never_small, None).len(),
@@ -475,7 +618,9 @@ mod tests {
             &terms,
             4.0,
             &never_small,
-            Some(MeasuredSpread { e: &e, weight: 1.0 })
+            Some(MeasuredSpread {
+                white_error: &white_error
+            })
         )
         .is_empty());
     }

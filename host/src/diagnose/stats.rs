@@ -281,18 +281,47 @@ pub struct LocalStep {
     pub size: f64,
     /// |size| over the null standard deviation at that window.
     pub z: f64,
+    /// The null standard deviation of a local step at that window, error units: the size's
+    /// standard error.
+    pub sd: f64,
 }
 
 /// Scans `x` for its most significant step: at each window of `windows`, the local step
-/// [`local_steps`] divided by `null_sd` (the same window's standard deviation under the
-/// baseline noise, from simulations), maximised over windows and indices.
+/// [`local_steps`] divided by its standard deviation, maximised over windows and indices.
+/// That deviation is the larger of `null_sd` (the window's spread under the baseline noise,
+/// from simulations, slow wander included) and the spread the two windows' own sample
+/// variances give the difference, sqrt((s_before^2 + s_after^2) / window). Why the local
+/// floor: an outlier, or noise that grows in a manoeuvre, moves a window's mean as a step
+/// does, but it also inflates that window's variance, while a step leaves both windows as
+/// quiet as the rest of the run.
 pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<LocalStep> {
+    let n = x.len();
+    let mut sum = Vec::with_capacity(n + 1);
+    let mut sum_sq = Vec::with_capacity(n + 1);
+    let (mut a, mut b) = (0.0, 0.0);
+    sum.push(0.0);
+    sum_sq.push(0.0);
+    // Centred on the series' mean, so the sums of squares lose no precision to a bias.
+    let centre = x.iter().sum::<f64>() / n.max(1) as f64;
+    for v in x {
+        a += v - centre;
+        b += (v - centre).powi(2);
+        sum.push(a);
+        sum_sq.push(b);
+    }
+    let window_variance = |from: usize, w: usize| {
+        let l = w as f64;
+        let m = (sum[from + w] - sum[from]) / l;
+        ((sum_sq[from + w] - sum_sq[from]) / l - m * m).max(0.0) * l / (l - 1.0).max(1.0)
+    };
     let mut best: Option<LocalStep> = None;
     for (&w, &sd) in windows.iter().zip(null_sd) {
         if !(sd > 0.0) {
             continue;
         }
         for (i, d) in local_steps(x, w).into_iter().enumerate() {
+            let local_sd = ((window_variance(i, w) + window_variance(i + w, w)) / w as f64).sqrt();
+            let sd = sd.max(local_sd);
             let z = d.abs() / sd;
             if best.as_ref().is_none_or(|b| z > b.z) {
                 best = Some(LocalStep {
@@ -300,6 +329,7 @@ pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<
                     window: w,
                     size: d,
                     z,
+                    sd,
                 });
             }
         }
@@ -739,6 +769,37 @@ mod tests {
         assert!((s.index as i64 - 12_000).abs() < 64, "{s:?}");
         assert!((s.size - 0.08).abs() < 0.03, "{s:?}");
         assert!(s.z > 1.5 * null_max, "{s:?} vs null max {null_max}");
+    }
+
+    #[test]
+    fn an_outlier_or_a_noise_burst_is_not_a_step() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let n = 20_000;
+        let windows = [64usize, 256, 1024];
+        let sims: Vec<Vec<f64>> = (0..10).map(|_| white(&mut rng, n, 0.02)).collect();
+        let sd = local_step_null_sd(&sims, &windows);
+        let null_max = sims
+            .iter()
+            .map(|s| local_step_scan(s, &windows, &sd).unwrap().z)
+            .fold(0.0f64, f64::max);
+        // One 2 m/s^2 outlier (100 sigma): its window's mean moves 5 null sds at 64 samples.
+        let mut outlier = white(&mut rng, n, 0.02);
+        outlier[7_000] += 2.0;
+        let z = local_step_scan(&outlier, &windows, &sd).unwrap().z;
+        assert!(z < 1.25 * null_max, "outlier z {z} vs null max {null_max}");
+        // Ten seconds of noise eight times stronger.
+        let mut burst = white(&mut rng, n, 0.02);
+        burst[9_000..10_000].iter_mut().for_each(|v| *v *= 8.0);
+        let z = local_step_scan(&burst, &windows, &sd).unwrap().z;
+        assert!(z < 1.25 * null_max, "burst z {z} vs null max {null_max}");
+        // A step of 0.02 m/s^2 (one noise sigma) still stands out.
+        let mut stepped = white(&mut rng, n, 0.02);
+        stepped[12_000..].iter_mut().for_each(|v| *v += 0.02);
+        let s = local_step_scan(&stepped, &windows, &sd).unwrap();
+        assert!(
+            s.z > 1.25 * null_max && (s.index as i64 - 12_000).abs() < 100,
+            "{s:?}"
+        );
     }
 
     #[test]

@@ -11,9 +11,13 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::engine::{ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run};
-use super::moments::{eliminate_on_moments, residual_of, Absorber, MeasuredSpread, Term};
-use super::null::normal_p_value;
+use super::moments::Absorber;
+use super::moments::{
+    eliminate_on_moments, full_fit_residual, gram_matrix, MeasuredSpread, Term, WhiteSpace,
+};
+use super::null::{normal_p_value, scan_p_value};
 use super::stats::{local_step_null_sd, local_step_robust_sd, local_step_scan};
+use super::whiten::Whitener;
 use crate::calibration::CalibrationDesign;
 use crate::model::{Cause, Channel};
 
@@ -95,79 +99,68 @@ fn candidates<'a>(run: &'a Run, channel: Channel) -> Vec<Candidate<'a>> {
     cands
 }
 
-/// The calibration's moments of the error and of each replicate's baseline simulations over
-/// all channels: what a term's joint fit with the calibration needs of the other channels.
-/// Empty without a calibration design.
-struct CalibrationMoments {
-    error: nalgebra::DVector<f64>,
-    sims: Vec<nalgebra::DVector<f64>>,
-}
-
-impl CalibrationMoments {
-    fn of(run: &Run, errors: &[Option<&[f64]>; 6]) -> Self {
-        let Some(d) = run.design else {
-            return Self {
-                error: nalgebra::DVector::zeros(0),
-                sims: Vec::new(),
-            };
-        };
-        // Every channel's baseline simulations of one replicate (the ones stage 1 draws).
-        let sims_of = |r: usize| -> [Option<Vec<f64>>; 6] {
-            std::array::from_fn(|i| {
-                let channel = Channel::ALL[i];
-                let slot = run.channels.iter().position(|c| *c == channel)?;
-                Some(run.baseline_sim(slot, r))
-            })
-        };
-        Self {
-            error: d.moments_all(errors),
-            sims: (0..run.opts.replicates)
-                .into_par_iter()
-                .map(|r| {
-                    let sims = sims_of(r);
-                    d.moments_all(&std::array::from_fn(|i| sims[i].as_deref()))
-                })
-                .collect(),
-        }
+/// The run in the metric of generalised least squares: every channel filtered by the
+/// whitening filter of its baseline model, the errors and each replicate's baseline
+/// simulations after the calibration.
+fn white_space(run: &Run) -> Result<WhiteSpace, DiagnoseError> {
+    let mut whiteners: [Option<Whitener>; 6] = std::array::from_fn(|_| None);
+    for channel in &run.channels {
+        whiteners[channel.index()] = Some(Whitener::new(run.spec(*channel)?, run.n));
     }
+    let errors: [Option<&[f64]>; 6] =
+        std::array::from_fn(|i| run.signals.error_of(Channel::ALL[i]));
+    // Every channel's baseline simulations of one replicate (the ones every stage draws).
+    let sims_of = |r: usize| -> [Option<Vec<f64>>; 6] {
+        std::array::from_fn(|i| {
+            let channel = Channel::ALL[i];
+            let slot = run.channels.iter().position(|c| *c == channel)?;
+            Some(run.baseline_sim(slot, r))
+        })
+    };
+    Ok(WhiteSpace::new(
+        &run.absorber(),
+        whiteners,
+        errors,
+        run.opts.replicates,
+        &sims_of,
+    ))
 }
 
 /// The stepwise selection of one channel's terms, with what it needs of the channel: its
-/// error and baseline simulations, and their moments with the calibration.
+/// error and the run in the metric of generalised least squares.
 struct Selection<'a> {
     absorber: Absorber<'a>,
     channel: Channel,
     e: &'a [f64],
-    moments_e: &'a nalgebra::DVector<f64>,
-    sims: &'a [Vec<f64>],
-    moments_sims: &'a [nalgebra::DVector<f64>],
+    space: &'a WhiteSpace,
     z_strict: f64,
     min_variance_explained: f64,
 }
 
 impl Selection<'_> {
+    /// Every candidate as a term fitted with the calibration, coefficients not yet set.
+    fn terms(&self, cands: &[Candidate]) -> Vec<Term> {
+        cands
+            .par_iter()
+            .map(|c| Term::new(&self.absorber, self.channel, c, self.space))
+            .collect()
+    }
+
     /// Backward elimination with simulation-calibrated standard errors: the baseline noise
     /// (slow Gauss-Markov wander included) is regressed on the same measured dynamics, so
     /// spurious correlation of slow noise with slow manoeuvres is in the null distribution.
-    /// HAC alone under-covers for such persistent noise.
-    fn select(&self, cands: &[Candidate]) -> Vec<Term> {
-        let terms: Vec<Term> = cands
-            .par_iter()
-            .map(|c| {
-                Term::new(
-                    &self.absorber,
-                    self.channel,
-                    c,
-                    self.e,
-                    self.moments_e,
-                    self.sims,
-                    self.moments_sims,
-                )
-            })
-            .collect();
-        let gram = nalgebra::DMatrix::from_fn(terms.len(), terms.len(), |a, b| {
-            self.absorber.gram(&terms[a], &terms[b])
-        });
+    /// HAC alone under-covers for such persistent noise. With a `fixed` term (a bias step
+    /// estimated locally) the candidates are fitted on what it leaves.
+    fn select(&self, mut terms: Vec<Term>, fixed: Option<&Term>) -> Vec<Term> {
+        let white_error = self.space.error(self.channel);
+        let spread_e = match fixed {
+            Some(f) => {
+                terms.iter_mut().for_each(|t| t.take_out(f));
+                f.taken_from(white_error)
+            }
+            None => white_error.to_vec(),
+        };
+        let gram = gram_matrix(&terms);
         let var_e = variance(self.e);
         let small = |k: usize, b: f64| {
             let explained = b.powi(2) * variance(&terms[k].own) / var_e;
@@ -179,8 +172,7 @@ impl Selection<'_> {
             self.z_strict,
             &small,
             Some(MeasuredSpread {
-                e: self.e,
-                weight: self.absorber.weight(self.channel),
+                white_error: &spread_e,
             }),
         );
         let mut terms: Vec<Option<Term>> = terms.into_iter().map(Some).collect();
@@ -202,26 +194,37 @@ struct FoundStep {
     index: usize,
     /// Time of the step, s from the start of the sensor recording.
     at_s: f64,
+    /// The step's size (difference of the window means either side of it, channel unit)
+    /// and its standard error (the null spread of that difference at its window).
+    size: f64,
+    se: f64,
+    /// P-value of the scan's largest |z| ([`scan_p_value`]), one test.
+    p_value: f64,
     discrepancy: Discrepancy,
 }
 
 /// A step of the bias, looked for at short windows (the difference of the means just after
 /// and just before each epoch), where slow Gauss-Markov wander barely moves while a step
-/// stands whole, on the residual of the kept terms, with the null spread at each window from
-/// the baseline simulations.
+/// stands whole, on `resid`, what a fit of every candidate term leaves
+/// ([`full_fit_residual`]), with the null spread at each window from the baseline
+/// simulations. `steps_elsewhere`: what other channels' steps took from this
+/// channel through the calibration, given back (a step on ay pulls the boresight about z,
+/// which leaves a copy of f_y's turns on ax, and a turn's onset looks like a local step).
 fn find_bias_step(
     run: &Run,
     channel: Channel,
-    e: &[f64],
-    terms: &[Term],
+    mut resid: Vec<f64>,
     sims: &[Vec<f64>],
+    steps_elsewhere: Option<&[f64]>,
 ) -> Option<FoundStep> {
     let windows: Vec<usize> = (6..20)
         .map(|j| 1usize << j)
         .take_while(|&w| w <= run.n / 8)
         .collect();
     let null_sd = local_step_null_sd(sims, &windows);
-    let resid = residual_of(e, terms);
+    if let Some(spill) = steps_elsewhere {
+        resid.iter_mut().zip(spill).for_each(|(r, s)| *r += s);
+    }
     let sim_z: Vec<f64> = sims
         .par_iter()
         .filter_map(|s| local_step_scan(s, &windows, &null_sd))
@@ -248,6 +251,9 @@ fn find_bias_step(
     Some(FoundStep {
         index: step.index,
         at_s: t_s[step.index] - run.sensor.t_s[0],
+        size: step.size,
+        se: step.sd,
+        p_value: scan_p_value(step.z, &sim_z),
         discrepancy: Discrepancy {
             channel,
             statistic: "largest local step of the mean (|z| at its window)".into(),
@@ -262,60 +268,54 @@ fn find_bias_step(
 }
 
 /// Stage 1 on one channel (`slot` in the run's channels): the stepwise selection over the
-/// physics candidates, then a bias step. When a step is found, it joins the candidates and
-/// the selection runs again, so terms that were standing in for it (a scale factor, when
-/// the input's level changes during the run) drop out and its size and interval come from
-/// the joint fit.
+/// physics candidates, then a bias step. A step found takes its size and interval from its
+/// local estimate (the window means either side of it), and the selection runs again on
+/// what it leaves, so terms that were standing in for it (a scale factor, when the input's
+/// level changes during the run) drop out. Why local: a step regressor over the whole run
+/// (0 before, 1 after) is confounded with slow wander, whose spread over a fitted
+/// baseline's drawn models is wide, while a step stands whole at a window of seconds, where
+/// the wander barely moves.
 fn channel_terms(
     run: &Run,
-    calibration_moments: &CalibrationMoments,
+    space: &WhiteSpace,
     slot: usize,
     channel: Channel,
+    steps_elsewhere: Option<&[f64]>,
 ) -> Result<ChannelTerms, DiagnoseError> {
     let e = run.error(channel);
-    let step_values: Vec<f64>;
-    let mut cands = candidates(run, channel);
-    // Baseline simulations: the null distribution of every statistic.
+    let cands = candidates(run, channel);
+    // Baseline simulations: the null distribution of the step scan.
     let sims = run.baseline_sims(slot);
     let absorber = run.absorber();
-    let (own_moments_e, own_moments_sims);
-    let (moments_e, moments_sims) = match absorber {
-        Absorber::Design(_) => (&calibration_moments.error, &calibration_moments.sims),
-        Absorber::Mean => {
-            own_moments_e = absorber.project(channel, e).moments;
-            own_moments_sims = sims
-                .iter()
-                .map(|s| absorber.project(channel, s).moments)
-                .collect::<Vec<_>>();
-            (&own_moments_e, &own_moments_sims)
-        }
-    };
     let selection = Selection {
         absorber,
         channel,
         e,
-        moments_e,
-        sims: &sims,
-        moments_sims,
+        space,
         z_strict: run.z_strict,
         min_variance_explained: run.opts.min_variance_explained,
     };
-    let mut terms = selection.select(&cands);
+    let candidate_terms = selection.terms(&cands);
+    let mut terms = selection.select(candidate_terms.clone(), None);
     let mut discrepancies = Vec::new();
     let mut step_at_s = None;
-    if let Some(step) = find_bias_step(run, channel, e, &terms, &sims) {
+    let unexplained = full_fit_residual(e, &candidate_terms);
+    if let Some(step) = find_bias_step(run, channel, unexplained, &sims, steps_elsewhere) {
         discrepancies.push(step.discrepancy);
-        step_values = (0..run.n)
+        let step_values: Vec<f64> = (0..run.n)
             .map(|t| if t >= step.index { 1.0 } else { 0.0 })
             .collect();
-        cands.push(Candidate {
+        let candidate = Candidate {
             name: format!("step_at_{:.2}_s", step.at_s),
             values: &step_values,
             cause: Cause::BiasShift,
             axis: 0,
-        });
+        };
+        let mut step_term = Term::new(&absorber, channel, &candidate, space);
+        step_term.fix(step.size, step.se, step.p_value);
         step_at_s = Some(step.at_s);
-        terms = selection.select(&cands);
+        terms = selection.select(candidate_terms, Some(&step_term));
+        terms.push(step_term);
     }
     Ok(ChannelTerms {
         terms,
@@ -332,14 +332,38 @@ fn channel_terms(
 pub(super) fn find_terms(run: &Run) -> Result<Vec<ChannelTerms>, DiagnoseError> {
     let errors: [Option<&[f64]>; 6] =
         std::array::from_fn(|i| run.signals.error_of(Channel::ALL[i]));
-    let calibration_moments = CalibrationMoments::of(run, &errors);
-    let stage1: Vec<Result<ChannelTerms, DiagnoseError>> = run
+    let space = white_space(run)?;
+    let stage1 = |slot: usize, channel: Channel, steps_elsewhere: Option<&[f64]>| {
+        channel_terms(run, &space, slot, channel, steps_elsewhere)
+    };
+    let first: Vec<Result<ChannelTerms, DiagnoseError>> = run
         .channels
         .par_iter()
         .enumerate()
-        .map(|(slot, &channel)| channel_terms(run, &calibration_moments, slot, channel))
+        .map(|(slot, &channel)| stage1(slot, channel, None))
         .collect();
-    let mut per_channel: Vec<ChannelTerms> = stage1.into_iter().collect::<Result<_, _>>()?;
+    let mut per_channel: Vec<ChannelTerms> = first.into_iter().collect::<Result<_, _>>()?;
+    // Steps found, their pull on the calibration given back to the other channels, and
+    // the scan run again there.
+    if let Some(design) = run.design {
+        let spills = step_spills(design, run, &per_channel);
+        let again: Vec<Result<Option<ChannelTerms>, DiagnoseError>> = run
+            .channels
+            .par_iter()
+            .enumerate()
+            .map(|(slot, &channel)| {
+                spills[slot]
+                    .as_deref()
+                    .map(|s| stage1(slot, channel, Some(s)))
+                    .transpose()
+            })
+            .collect();
+        for (slot, redone) in again.into_iter().enumerate() {
+            if let Some(r) = redone? {
+                per_channel[slot] = r;
+            }
+        }
+    }
     let Some(design) = run.design else {
         return Ok(per_channel);
     };
@@ -364,7 +388,41 @@ pub(super) fn find_terms(run: &Run) -> Result<Vec<ChannelTerms>, DiagnoseError> 
     Ok(per_channel)
 }
 
-/// terms had pushed into it through the calibration (to be taken out of its error).
+/// Per channel (run slot), what the bias steps found on the other channels took from it
+/// through the calibration (None where no other channel has a step): each step's
+/// coefficient times the calibration's fit of what it absorbed of the step, on this
+/// channel's rows.
+fn step_spills(
+    design: &CalibrationDesign,
+    run: &Run,
+    per_channel: &[ChannelTerms],
+) -> Vec<Option<Vec<f64>>> {
+    let steps: Vec<&Term> = per_channel
+        .iter()
+        .flat_map(|c| c.terms.iter().filter(|t| t.fixed.is_some()))
+        .collect();
+    run.channels
+        .iter()
+        .map(|channel| {
+            let elsewhere: Vec<&&Term> = steps.iter().filter(|t| t.channel != *channel).collect();
+            if elsewhere.is_empty() {
+                return None;
+            }
+            let mut spill = vec![0.0; run.n];
+            for t in elsewhere {
+                let fit = design.fitted(channel.index(), &t.projection.absorbed);
+                spill
+                    .iter_mut()
+                    .zip(fit)
+                    .for_each(|(v, x)| *v += t.coef * x);
+            }
+            Some(spill)
+        })
+        .collect()
+}
+
+/// The terms the joint fit keeps and, per channel, what the other channels' kept terms
+/// had pushed into it through the calibration (to be taken out of its error).
 struct JointTerms {
     terms: Vec<Term>,
     spill: [Option<Vec<f64>>; 6],
@@ -377,17 +435,29 @@ struct JointTerms {
 /// Why: a term on one channel moves the calibration (a gyro's omega_z -> gx term pulls the
 /// boresight about y), and the moved calibration leaves a copy of the term's pattern on the
 /// other channels (f_x on az). Each channel's own fit sees that copy as a term of its own;
-/// in the joint fit the copy is explained by the term that caused it.
+/// in the joint fit the copy is explained by the term that caused it. Fixed terms (a bias
+/// step's local estimate) keep their coefficients; the others are fitted on what they leave.
 fn joint_terms(
     design: &CalibrationDesign,
     terms: Vec<Term>,
     z_strict: f64,
     small: &dyn Fn(&Term, f64) -> bool,
 ) -> JointTerms {
-    let absorber = Absorber::Design(design);
+    let (fixed, mut terms): (Vec<Term>, Vec<Term>) =
+        terms.into_iter().partition(|t| t.fixed.is_some());
+    for t in terms.iter_mut() {
+        fixed.iter().for_each(|f| t.take_out(f));
+    }
     let k = terms.len();
-    let gram = nalgebra::DMatrix::from_fn(k, k, |a, b| absorber.gram(&terms[a], &terms[b]));
-    let kept = eliminate_on_moments(&gram, &terms, z_strict, &|i, b| small(&terms[i], b), None);
+    let gram = gram_matrix(&terms);
+    let mut kept = eliminate_on_moments(&gram, &terms, z_strict, &|i, b| small(&terms[i], b), None);
+    let fixed_kept: Vec<(usize, f64, f64)> = fixed
+        .iter()
+        .enumerate()
+        .map(|(i, f)| (k + i, f.coef, f.se))
+        .collect();
+    kept.extend(fixed_kept);
+    terms.extend(fixed);
     let mut spill: [Option<Vec<f64>>; 6] =
         std::array::from_fn(|ch| design.has_channel(ch).then(|| vec![0.0; design.epochs()]));
     let mut terms: Vec<Option<Term>> = terms.into_iter().map(Some).collect();
@@ -483,7 +553,7 @@ impl FittedTerms {
                     value: t.coef,
                     ci95: ci(t.coef, se),
                     variance_explained: t.coef.powi(2) * variance(&t.own) / var_e,
-                    p_value: normal_p_value(t.coef / se),
+                    p_value: t.fixed.unwrap_or_else(|| normal_p_value(t.coef / se)),
                 };
                 (t, c)
             })
