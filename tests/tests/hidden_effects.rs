@@ -231,3 +231,54 @@ fn dump_reports() {
         std::fs::write(dir.join(name), text).unwrap();
     }
 }
+
+/// Static data (no reference): a bias step hidden in a static record is found by the local
+/// scan and sized from its windows, against a baseline fitted on another static record.
+#[test]
+fn finds_a_bias_step_on_static_data() {
+    let seconds = 300.0;
+    let (model, _) = car::hide(&[("bias_shift", Some("ax"))], 41, seconds);
+    let out = simulate(
+        &model,
+        &SimOptions {
+            scenario: Scenario::Static,
+            seconds,
+            seed: 41,
+            disabled: vec![],
+            keep_ideal: false,
+        },
+        &|_| {},
+    )
+    .unwrap();
+    let report = diagnose(
+        &out.imus[0].recording,
+        None,
+        Some(fitted_baseline(41, seconds)),
+        &DiagnoseOptions {
+            seed: 41,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let step = model.imus[0]
+        .model_of("ax".parse().unwrap())
+        .bias_steps
+        .first()
+        .cloned()
+        .expect("a hidden step");
+    let found = report
+        .findings
+        .iter()
+        .find(|f| f.cause == Cause::BiasShift)
+        .unwrap_or_else(|| panic!("no step named: {:?}", report.findings));
+    assert_eq!(found.channel.name(), "ax");
+    assert!(
+        contains(&found.ci95, step.size, None, WIDEN_95_TO_999),
+        "{found:?} vs {step:?}"
+    );
+    assert!(
+        report.findings.iter().all(|f| f.channel.name() == "ax"),
+        "{:?}",
+        report.findings
+    );
+}

@@ -269,13 +269,16 @@ pub(super) fn gram_matrix(terms: &[Term]) -> nalgebra::DMatrix<f64> {
 /// that pattern finds a turn's onset.
 pub(super) fn full_fit_residual(e: &[f64], terms: &[Term]) -> Vec<f64> {
     let k = terms.len();
-    let gram = gram_matrix(terms);
-    let rhs = nalgebra::DVector::from_iterator(k, terms.iter().map(|t| t.on_error));
-    let scale = gram.diagonal().amax().max(f64::MIN_POSITIVE);
-    let beta = gram
-        .svd(true, true)
-        .solve(&rhs, 1e-10 * scale)
-        .unwrap_or_else(|_| nalgebra::DVector::zeros(k));
+    let beta = if k == 0 {
+        nalgebra::DVector::zeros(0)
+    } else {
+        let gram = gram_matrix(terms);
+        let rhs = nalgebra::DVector::from_iterator(k, terms.iter().map(|t| t.on_error));
+        let scale = gram.diagonal().amax().max(f64::MIN_POSITIVE);
+        gram.svd(true, true)
+            .solve(&rhs, 1e-10 * scale)
+            .unwrap_or_else(|_| nalgebra::DVector::zeros(k))
+    };
     let mut r = e.to_vec();
     for (t, b) in terms.iter().zip(beta.iter()) {
         r.iter_mut().zip(&t.own).for_each(|(v, x)| *v -= b * x);

@@ -117,11 +117,19 @@ fn white_space(run: &Run) -> Result<WhiteSpace, DiagnoseError> {
             Some(run.baseline_sim(slot, r))
         })
     };
+    // Static data has no candidate terms and a step's coefficient is its own estimate, so
+    // nothing is fitted against the simulations there: none are filtered (on a long static
+    // record they would hold six channels times the replicates in memory for nothing).
+    let replicates = if run.has_dynamics {
+        run.opts.replicates
+    } else {
+        0
+    };
     Ok(WhiteSpace::new(
         &run.absorber(),
         whiteners,
         errors,
-        run.opts.replicates,
+        replicates,
         &sims_of,
     ))
 }
