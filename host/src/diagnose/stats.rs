@@ -337,6 +337,50 @@ pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<
     best
 }
 
+/// Window at which [`step_sharpness`] looks again at a step found at `window`: a quarter of
+/// it, no shorter than 16 samples.
+fn sharp_window(window: usize) -> usize {
+    (window / 4).max(16).min(window)
+}
+
+/// At every index k, the local step at [`sharp_window`] minus the one at `window` (aligned
+/// on the same k); empty when the series is too short.
+fn sharpness_series(x: &[f64], window: usize) -> Vec<f64> {
+    let short = sharp_window(window);
+    let long = local_steps(x, window);
+    let near = local_steps(x, short);
+    // local_steps(x, w)[j] sits at index j + w.
+    long.iter()
+        .enumerate()
+        .map(|(j, d)| near[j + window - short] - d)
+        .collect()
+}
+
+/// How far a change of the mean found at `index` (at `window`) is from a step: the local
+/// step at a quarter of the window minus the one at the window, over its standard deviation
+/// (the larger of its spread over `sims`, the baseline's simulations, and its robust spread
+/// over `x` itself). A step is as large at the shorter window, so this is small (standard
+/// normal); a change spread over the window (a ramp, slow wander) is smaller at the shorter
+/// window and this is large. NaN when it cannot be computed.
+pub fn step_sharpness(x: &[f64], index: usize, window: usize, sims: &[Vec<f64>]) -> f64 {
+    let observed = sharpness_series(x, window);
+    let Some(&at) = index.checked_sub(window).and_then(|j| observed.get(j)) else {
+        return f64::NAN;
+    };
+    let mut pooled = (0.0, 0usize);
+    for s in sims {
+        for d in sharpness_series(s, window) {
+            pooled.0 += d * d;
+            pooled.1 += 1;
+        }
+    }
+    let simulated = (pooled.0 / pooled.1.max(1) as f64).sqrt();
+    let mut abs: Vec<f64> = observed.iter().map(|d| d.abs()).collect();
+    let mid = abs.len() / 2;
+    let own = 1.4826 * *abs.select_nth_unstable_by(mid, f64::total_cmp).1;
+    at.abs() / simulated.max(own)
+}
+
 /// Standard deviation of [`local_steps`] at each window over a set of series (simulations of
 /// the baseline), pooled over indices.
 pub fn local_step_null_sd(series: &[Vec<f64>], windows: &[usize]) -> Vec<f64> {
@@ -800,6 +844,25 @@ mod tests {
             s.z > 1.25 * null_max && (s.index as i64 - 12_000).abs() < 100,
             "{s:?}"
         );
+    }
+
+    #[test]
+    fn a_step_is_sharp_and_a_ramp_is_not() {
+        let mut rng = ChaCha8Rng::seed_from_u64(12);
+        let n = 40_000;
+        let sims: Vec<Vec<f64>> = (0..10).map(|_| white(&mut rng, n, 0.02)).collect();
+        let window = 2048;
+        // A step of 0.03 at 20000, and a ramp of the same size over 3000 samples.
+        let mut stepped = white(&mut rng, n, 0.02);
+        stepped[20_000..].iter_mut().for_each(|v| *v += 0.03);
+        let mut ramp = white(&mut rng, n, 0.02);
+        for (k, v) in ramp.iter_mut().enumerate().skip(18_500) {
+            *v += 0.03 * ((k - 18_500) as f64 / 3000.0).min(1.0);
+        }
+        let step_z = step_sharpness(&stepped, 20_000, window, &sims);
+        let ramp_z = step_sharpness(&ramp, 20_000, window, &sims);
+        assert!(step_z < 3.0, "step {step_z}");
+        assert!(ramp_z > 3.0, "ramp {ramp_z}");
     }
 
     #[test]

@@ -16,7 +16,7 @@ use super::moments::{
     eliminate_on_moments, full_fit_residual, gram_matrix, MeasuredSpread, Term, WhiteSpace,
 };
 use super::null::{normal_p_value, scan_p_value};
-use super::stats::{local_step_null_sd, local_step_robust_sd, local_step_scan};
+use super::stats::{local_step_null_sd, local_step_robust_sd, local_step_scan, step_sharpness};
 use super::whiten::Whitener;
 use crate::calibration::CalibrationDesign;
 use crate::model::{Cause, Channel};
@@ -208,8 +208,16 @@ struct FoundStep {
     se: f64,
     /// P-value of the scan's largest |z| ([`scan_p_value`]), one test.
     p_value: f64,
+    /// Whether the change is as large at a quarter of its window ([`step_sharpness`]): a
+    /// step, not a change of the mean spread over the window (slow wander, a ramp), which
+    /// is left to the wavelet-variance tests.
+    sharp: bool,
     discrepancy: Discrepancy,
 }
+
+/// Largest [`step_sharpness`] of a change of the mean still taken for a step: about three
+/// standard deviations, so a true step is refused in about 0.3% of runs.
+const MAX_STEP_BLUR: f64 = 3.0;
 
 /// A step of the bias, looked for at short windows (the difference of the means just after
 /// and just before each epoch), where slow Gauss-Markov wander barely moves while a step
@@ -256,20 +264,33 @@ fn find_bias_step(
         return None;
     }
     let t_s = &run.signals.t_s;
+    let blur = step_sharpness(&resid, step.index, step.window, sims);
+    let sharp = !(blur > MAX_STEP_BLUR);
     Some(FoundStep {
         index: step.index,
         at_s: t_s[step.index] - run.sensor.t_s[0],
         size: step.size,
         se: step.sd,
         p_value: scan_p_value(step.z, &sim_z),
+        sharp,
         discrepancy: Discrepancy {
             channel,
             statistic: "largest local step of the mean (|z| at its window)".into(),
             measured: step.z,
             simulated_range: range,
             detail: format!(
-                "at t = {:.2} s, window {} samples, local size {:.4e}",
-                t_s[step.index], step.window, step.size
+                "at t = {:.2} s, window {} samples, local size {:.4e}{}",
+                t_s[step.index],
+                step.window,
+                step.size,
+                if sharp {
+                    String::new()
+                } else {
+                    format!(
+                        "; spread over the window (a quarter of it sees {blur:.1} sigma less): \
+                         slow wander, not a step"
+                    )
+                }
             ),
         },
     })
@@ -308,22 +329,33 @@ fn channel_terms(
     let mut discrepancies = Vec::new();
     let mut step_at_s = None;
     let unexplained = full_fit_residual(e, &candidate_terms);
-    if let Some(step) = find_bias_step(run, channel, unexplained, &sims, steps_elsewhere) {
-        discrepancies.push(step.discrepancy);
-        let step_values: Vec<f64> = (0..run.n)
-            .map(|t| if t >= step.index { 1.0 } else { 0.0 })
-            .collect();
-        let candidate = Candidate {
-            name: format!("step_at_{:.2}_s", step.at_s),
-            values: &step_values,
-            cause: Cause::BiasShift,
-            axis: 0,
-        };
-        let mut step_term = Term::new(&absorber, channel, &candidate, space);
-        step_term.fix(step.size, step.se, step.p_value);
-        step_at_s = Some(step.at_s);
-        terms = selection.select(candidate_terms, Some(&step_term));
-        terms.push(step_term);
+    if let Some(found) = find_bias_step(run, channel, unexplained, &sims, steps_elsewhere) {
+        let FoundStep {
+            index,
+            at_s,
+            size,
+            se,
+            p_value,
+            sharp,
+            discrepancy,
+        } = found;
+        discrepancies.push(discrepancy);
+        if sharp {
+            let step_values: Vec<f64> = (0..run.n)
+                .map(|t| if t >= index { 1.0 } else { 0.0 })
+                .collect();
+            let candidate = Candidate {
+                name: format!("step_at_{at_s:.2}_s"),
+                values: &step_values,
+                cause: Cause::BiasShift,
+                axis: 0,
+            };
+            let mut step_term = Term::new(&absorber, channel, &candidate, space);
+            step_term.fix(size, se, p_value);
+            step_at_s = Some(at_s);
+            terms = selection.select(candidate_terms, Some(&step_term));
+            terms.push(step_term);
+        }
     }
     Ok(ChannelTerms {
         terms,
