@@ -17,6 +17,7 @@ pub mod model;
 pub mod nav_smoother;
 pub mod numeric;
 pub mod output;
+pub mod redundancy;
 pub mod regress;
 pub mod replay;
 pub mod sim;

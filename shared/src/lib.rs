@@ -9,6 +9,7 @@ pub mod channel;
 pub mod log;
 pub mod nav;
 pub mod recorder;
+pub mod redundancy;
 pub mod replay;
 pub mod wavelet;
 

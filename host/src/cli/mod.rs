@@ -28,6 +28,8 @@ pub enum Command {
     Decode(decode::Args),
     /// What the simulation gets wrong: named causes, extended model, measured gain.
     Diagnose(diagnose::Args),
+    /// Three or more IMUs sampled together: each unit's own error and live noise level.
+    Redundancy(redundancy::Args),
     /// Simulate a car or static run: reference IMU, MEMS IMUs, GNSS and PPS.
     Simulate(simulate::Args),
     /// Run the firmware in QEMU on a minute of real ADIS16405 data and check the log.
@@ -48,6 +50,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Errors(args) => errors::run(args),
         Command::Diagnose(args) => diagnose::run(args),
         Command::Regress(args) => regress::run(args),
+        Command::Redundancy(args) => redundancy::run(args),
         Command::Fit(args) => fit::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Wv(args) => wv::run(args),
@@ -64,6 +67,7 @@ mod fig1;
 mod fit;
 mod import;
 mod info;
+mod redundancy;
 mod regress;
 mod simulate;
 mod wv;
