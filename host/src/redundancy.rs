@@ -54,10 +54,12 @@ pub enum RotationBasis {
 #[derive(Debug, Clone, Serialize)]
 pub struct Alignment {
     pub basis: RotationBasis,
-    /// Rotation from the first unit's axes to this unit's (y_k = C y_0), roll-pitch-yaw, deg.
-    pub rotation_rpy_deg: [f64; 3],
-    /// 1-sigma of the rotation about the axis the motion turned least, deg.
-    pub rotation_sigma_deg: f64,
+    /// Rotation from the first unit's axes to this unit's (y_k = C y_0), roll-pitch-yaw, deg;
+    /// None where the motion does not determine it (then it is not applied).
+    pub rotation_rpy_deg: Option<[f64; 3]>,
+    /// 1-sigma of the rotation about the axis the motion turned least, deg (None where it is
+    /// not determined).
+    pub rotation_sigma_deg: Option<f64>,
     /// Lever arm from the first unit to this one, in the first unit's axes, m, with its
     /// 1-sigma; None where it cannot be determined (no angular acceleration to see it).
     pub lever_arm_m: Option<[f64; 3]>,
@@ -367,8 +369,8 @@ fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -> Aligned {
                 (_, true) => RotationBasis::Gyros,
                 (_, false) => RotationBasis::Undetermined,
             },
-            rotation_rpy_deg: rpy_deg(&c),
-            rotation_sigma_deg: sigma_rad.to_degrees(),
+            rotation_rpy_deg: determined.then(|| rpy_deg(&c)),
+            rotation_sigma_deg: determined.then(|| sigma_rad.to_degrees()),
             lever_arm_m: lever.map(|(r, _)| r),
             lever_arm_sigma_m: lever.map(|(_, s)| s),
         });

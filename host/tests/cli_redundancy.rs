@@ -130,6 +130,7 @@ fn three_simulated_units_find_their_own_noise_at_rest() {
     let r = simulate_and_analyse(dir.path(), "static");
     assert_within_10_percent(&r, &["gx", "gy", "gz", "ax", "ay", "az"]);
     assert_eq!(r["imus"][1]["alignment"]["basis"], "undetermined");
+    assert!(r["imus"][1]["alignment"]["rotation_rpy_deg"].is_null());
     let notes = r["notes"].to_string();
     assert!(notes.contains("not determined"), "{notes}");
 }
@@ -213,4 +214,91 @@ fn the_mpu9250_rig_characterises_its_gyros_against_each_units_own_fit() {
             assert_eq!(r["imus"][k]["alignment"]["basis"], "undetermined");
         }
     }
+}
+
+/// The seed paper's Fig. 8 held to the truth: unit u2's gyro noise grows with the angular
+/// rate (0.02 (rad/s)/(rad/s) on top of its white noise); its live level from the set
+/// follows its true level (the same exponential smoothing of sqrt(s^2 + (0.02 |omega|)^2))
+/// with a correlation above 0.8 over a drive, and the quiet units' levels do not follow it.
+#[test]
+fn the_live_level_of_a_unit_whose_noise_grows_with_the_rate_follows_its_truth() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = THREE_UNITS.replace(
+        r#""processes": [{"kind": "white_noise", "sigma2": 2.25e-6}]}}"#,
+        r#""processes": [{"kind": "white_noise", "sigma2": 2.25e-6}]},
+            "dynamic_noise": {"driver": "angular_rate_norm", "sigma_per_unit": 0.02}}"#,
+    );
+    assert_ne!(model, THREE_UNITS);
+    std::fs::write(d.join("m.json"), &model).unwrap();
+    ok(&[
+        "simulate",
+        "--model",
+        path(&d.join("m.json")),
+        "--seconds",
+        "600",
+        "--seed",
+        "9",
+        "--out",
+        path(&d.join("run")),
+    ]);
+    let units: Vec<String> = ["u0", "u1", "u2"]
+        .iter()
+        .map(|u| d.join(format!("run/{u}.csv")).display().to_string())
+        .collect();
+    let json = d.join("r.json");
+    let mut args: Vec<&str> = vec!["redundancy"];
+    args.extend(units.iter().map(String::as_str));
+    args.extend(["--json", path(&json)]);
+    ok(&args);
+    let r = read_json(&json);
+    // The true level, smoothed as the live estimator smooths (2 s), at the output times.
+    let reference = dynacal::interchange::ImuRecording::read(&d.join("run/reference.csv")).unwrap();
+    let gyro = reference.gyro_rad_s.as_ref().unwrap();
+    let dt = 1.0 / reference.rate_hz();
+    let alpha = 1.0 - (-dt / 2.0f64).exp();
+    let mut smoothed = 2.25e-6;
+    let mut truth_at = Vec::new();
+    let times: Vec<f64> = r["noise_level"][2]["t_s"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|t| t.as_f64().unwrap())
+        .collect();
+    let mut next = 0;
+    for (i, t_s) in reference.t_s.iter().enumerate() {
+        let rate2: f64 = gyro.iter().map(|axis| axis[i].powi(2)).sum();
+        smoothed += alpha * (2.25e-6 + 0.02f64.powi(2) * rate2 - smoothed);
+        while next < times.len() && times[next] <= *t_s {
+            truth_at.push(smoothed.sqrt());
+            next += 1;
+        }
+    }
+    let level = |k: usize| -> Vec<f64> {
+        r["noise_level"][k]["gyro_rad_s"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|v| v.as_f64().unwrap())
+            .collect()
+    };
+    let correlation = |x: &[f64], y: &[f64]| {
+        let n = x.len().min(y.len()) as f64;
+        let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+        let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+        let sxx: f64 = x.iter().take(y.len()).map(|a| (a - mx).powi(2)).sum();
+        let syy: f64 = y.iter().take(x.len()).map(|b| (b - my).powi(2)).sum();
+        sxy / (sxx * syy).sqrt()
+    };
+    let growing = correlation(&level(2), &truth_at);
+    eprintln!(
+        "correlation with the truth: growing unit {growing:.3}, quiet unit {:.3}",
+        correlation(&level(0), &truth_at)
+    );
+    assert!(growing > 0.8, "correlation {growing}");
+    let quiet = correlation(&level(0), &truth_at);
+    assert!(
+        quiet < 0.5,
+        "the quiet unit follows the growing one's truth: {quiet}"
+    );
 }
