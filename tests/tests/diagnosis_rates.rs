@@ -12,7 +12,8 @@
 //! DYNACAL_RATES_PARTS (comma-separated: single, pairs, null, ship) selects parts;
 //! DYNACAL_POWER_SEEDS sets the seeds per cause and length (5); DYNACAL_NULL_RUNS the car
 //! null runs (40), DYNACAL_SHIP_NULL_RUNS the ship's (10); DYNACAL_RATES_CAUSES
-//! (comma-separated cause names) limits the one-effect runs to those causes.
+//! (comma-separated cause names) limits the one-effect runs to those causes;
+//! DYNACAL_SEED_OFFSET shifts every seed (fresh seeds: 1000).
 
 mod car;
 mod ship;
@@ -94,6 +95,12 @@ fn env_usize(name: &str, default: usize) -> usize {
         .unwrap_or(default)
 }
 
+/// A part's first seed, shifted by DYNACAL_SEED_OFFSET (0 by default): the same tool on
+/// fresh seeds.
+fn first_seed(base: u64) -> u64 {
+    base + env_usize("DYNACAL_SEED_OFFSET", 0) as u64
+}
+
 /// True when `cause` is among DYNACAL_RATES_CAUSES (comma-separated; all when unset).
 fn cause_enabled(cause: &str) -> bool {
     std::env::var("DYNACAL_RATES_CAUSES")
@@ -115,7 +122,7 @@ fn single_effects(seconds: f64, seeds: u64) -> Tally {
     let mut all = Tally::default();
     for cause in causes_under_test().into_iter().filter(|c| cause_enabled(c)) {
         let mut t = Tally::default();
-        for seed in 11..11 + seeds {
+        for seed in first_seed(11)..first_seed(11) + seeds {
             let (report, hidden) = run(&[(cause, None)], seed, seconds);
             t.add(&score(
                 &format!("{cause} {seconds} s seed {seed}"),
@@ -164,7 +171,7 @@ fn pairs() -> Tally {
     for (label, list) in [("different channels", &different), ("same channel", &same)] {
         let mut t = Tally::default();
         for (k, pair) in list.iter().enumerate() {
-            let seed = 31 + k as u64;
+            let seed = first_seed(31) + k as u64;
             let (report, hidden) = run(pair, seed, 900.0);
             t.add(&score(
                 &format!("pair {pair:?} seed {seed}"),
@@ -183,7 +190,7 @@ fn null_runs(runs: usize) -> (usize, usize) {
     let mut alarms = 0;
     for k in 0..runs {
         let seconds = if k % 2 == 0 { 300.0 } else { 900.0 };
-        let seed = 201 + k as u64;
+        let seed = first_seed(201) + k as u64;
         let (report, _) = run(&[], seed, seconds);
         let o = score(&format!("null {seconds} s seed {seed}"), &report, &[]);
         alarms += (o.spurious > 0) as usize;
@@ -318,7 +325,7 @@ fn ship_part(seeds: u64, null_runs: usize) -> (Tally, usize, usize) {
     let mut all = Tally::default();
     for cause in SHIP_CAUSES.into_iter().filter(|c| cause_enabled(c)) {
         let mut t = Tally::default();
-        for seed in 11..11 + seeds {
+        for seed in first_seed(11)..first_seed(11) + seeds {
             let (report, hidden) = ship_run(&[cause], seed, 900.0);
             t.add(&score(
                 &format!("ship {cause} seed {seed}"),
@@ -333,7 +340,7 @@ fn ship_part(seeds: u64, null_runs: usize) -> (Tally, usize, usize) {
     let mut alarms = 0;
     for k in 0..null_runs {
         let seconds = if k % 2 == 0 { 300.0 } else { 900.0 };
-        let seed = 301 + k as u64;
+        let seed = first_seed(301) + k as u64;
         let (report, _) = ship_run(&[], seed, seconds);
         alarms += (score(&format!("ship null {seconds} s seed {seed}"), &report, &[]).spurious > 0)
             as usize;
