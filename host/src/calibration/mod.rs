@@ -10,7 +10,7 @@
 //! `signals` turns the fit into the error signals, their dynamics and the summary.
 //!
 //! Time base (`epochs`). Against a reference IMU the epochs are the sensor's own samples,
-//! with the reference interpolated to them (cubic); against a navigation solution they are
+//! with the reference interpolated to them (8-point Lagrange); against a navigation solution they are
 //! the solution's sample intervals, over which the sensor's running integrals (trapezoidal)
 //! give exact means whatever the sample rates. A time offset is applied by reading the
 //! reference, or the sensor's integrals, at shifted times.
