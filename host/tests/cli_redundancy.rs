@@ -25,6 +25,14 @@ fn path(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// `dynacal redundancy UNITS... --json JSON`, which must succeed.
+fn redundancy(units: &[String], json: &Path) {
+    let mut args: Vec<&str> = vec!["redundancy"];
+    args.extend(units.iter().map(String::as_str));
+    args.extend(["--json", path(json)]);
+    ok(&args);
+}
+
 fn read_json(p: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
 }
@@ -72,10 +80,7 @@ fn simulate_and_analyse(d: &Path, scenario: &str) -> serde_json::Value {
         .map(|u| out.join(format!("{u}.csv")).display().to_string())
         .collect();
     let json = d.join(format!("{scenario}.json"));
-    let mut args: Vec<&str> = vec!["redundancy"];
-    args.extend(units.iter().map(String::as_str));
-    args.extend(["--json", path(&json)]);
-    ok(&args);
+    redundancy(&units, &json);
     read_json(&json)
 }
 
@@ -202,10 +207,7 @@ fn the_mpu9250_rig_characterises_its_gyros_against_each_units_own_fit() {
         })
         .collect();
     let json = d.join("r.json");
-    let mut args: Vec<&str> = vec!["redundancy"];
-    args.extend(units.iter().map(String::as_str));
-    args.extend(["--json", path(&json)]);
-    ok(&args);
+    redundancy(&units, &json);
     let r = read_json(&json);
     for (k, file) in units.iter().enumerate() {
         let rec = dynacal::interchange::ImuRecording::read(Path::new(file)).unwrap();
@@ -257,10 +259,7 @@ fn the_live_level_of_a_unit_whose_noise_grows_with_the_rate_follows_its_truth() 
         .map(|u| d.join(format!("run/{u}.csv")).display().to_string())
         .collect();
     let json = d.join("r.json");
-    let mut args: Vec<&str> = vec!["redundancy"];
-    args.extend(units.iter().map(String::as_str));
-    args.extend(["--json", path(&json)]);
-    ok(&args);
+    redundancy(&units, &json);
     let r = read_json(&json);
     // The true level, smoothed as the live estimator smooths (2 s), at the output times.
     let reference = dynacal::interchange::ImuRecording::read(&d.join("run/reference.csv")).unwrap();

@@ -238,18 +238,7 @@ fn dump_reports() {
 fn finds_a_bias_step_on_static_data() {
     let seconds = 300.0;
     let (model, _) = car::hide(&[("bias_shift", Some("ax"))], 41, seconds);
-    let out = simulate(
-        &model,
-        &SimOptions {
-            scenario: Scenario::Static,
-            seconds,
-            seed: 41,
-            disabled: vec![],
-            keep_ideal: false,
-        },
-        &|_| {},
-    )
-    .unwrap();
+    let out = car::simulate_run(&model, Scenario::Static, seconds, 41);
     let report = diagnose(
         &out.imus[0].recording,
         None,

@@ -137,10 +137,9 @@ mod tests {
             / v
     }
 
-    #[test]
-    fn the_model_noise_comes_out_white_with_unit_variance() {
-        // White noise, a 20 s Gauss-Markov wander and a slow random walk.
-        let model = spec(vec![
+    /// A MEMS gyro's white noise (4 mrad/s per sample) and 20 s Gauss-Markov wander.
+    fn car_gyro_noise() -> Vec<Process> {
+        vec![
             Process::WhiteNoise {
                 sigma2: 0.004f64.powi(2),
             },
@@ -148,8 +147,15 @@ mod tests {
                 beta_per_s: 0.05,
                 sigma2: 0.002f64.powi(2),
             },
-            Process::RandomWalk { sigma2: 1e-10 },
-        ]);
+        ]
+    }
+
+    #[test]
+    fn the_model_noise_comes_out_white_with_unit_variance() {
+        // White noise, a 20 s Gauss-Markov wander and a slow random walk.
+        let mut processes = car_gyro_noise();
+        processes.push(Process::RandomWalk { sigma2: 1e-10 });
+        let model = spec(processes);
         let n = 200_000;
         let y = model.simulate(n, &mut ChaCha8Rng::seed_from_u64(4));
         let w = Whitener::new(&model, n).apply(&y);
@@ -168,15 +174,7 @@ mod tests {
     fn generalised_least_squares_beats_ordinary_on_a_slow_regressor() {
         // A regressor of slow pulses (10 s turns), noise with a 20 s wander: the coefficient's
         // spread over 200 noise draws, by ordinary and by prewhitened least squares.
-        let model = spec(vec![
-            Process::WhiteNoise {
-                sigma2: 0.004f64.powi(2),
-            },
-            Process::GaussMarkov {
-                beta_per_s: 0.05,
-                sigma2: 0.002f64.powi(2),
-            },
-        ]);
+        let model = spec(car_gyro_noise());
         let n = 30_000;
         let x: Vec<f64> = (0..n)
             .map(|t| if (t / 1000) % 3 == 1 { 0.2 } else { 0.0 })

@@ -16,7 +16,7 @@ use dynacal::model::{
     BiasStep, Cause, ChannelModel, DynamicDriver, DynamicNoise, ImuModel, Outliers, VibrationLine,
 };
 use dynacal::sim::SimOptions;
-use dynacal::sim::{simulate, Scenario, SimModel};
+use dynacal::sim::{simulate, Scenario, SimModel, SimOutput};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -346,18 +346,7 @@ pub fn hide(
 /// simulated with its own seed, so its noise is not the drive's.
 pub fn fitted_baseline(seed: u64, seconds: f64) -> Baseline {
     let (model, _) = hide(&[], seed, seconds);
-    let out = simulate(
-        &model,
-        &SimOptions {
-            scenario: Scenario::Static,
-            seconds,
-            seed: seed ^ 0x57a7_1c00,
-            disabled: vec![],
-            keep_ideal: false,
-        },
-        &|_| {},
-    )
-    .unwrap();
+    let out = simulate_run(&model, Scenario::Static, seconds, seed ^ 0x57a7_1c00);
     baseline_fitted_on(&out.imus[0].recording)
 }
 
@@ -374,6 +363,22 @@ pub fn baseline_fitted_on(static_record: &ImuRecording) -> Baseline {
     Baseline::load(&path).unwrap()
 }
 
+/// `model` simulated in `scenario` for `seconds` from `seed`, every effect on.
+pub fn simulate_run(model: &SimModel, scenario: Scenario, seconds: f64, seed: u64) -> SimOutput {
+    simulate(
+        model,
+        &SimOptions {
+            scenario,
+            seconds,
+            seed,
+            disabled: vec![],
+            keep_ideal: false,
+        },
+        &|_| {},
+    )
+    .unwrap()
+}
+
 /// A simulated car drive of `seconds` with the effects `hidden` (see [`hide`]), diagnosed
 /// against the navigation-grade reference with a baseline fitted as a user would
 /// ([`fitted_baseline`]).
@@ -383,18 +388,7 @@ pub fn run(
     seconds: f64,
 ) -> (DiagnoseReport, Vec<Hidden>) {
     let (model, hidden) = hide(hidden, seed, seconds);
-    let out = simulate(
-        &model,
-        &SimOptions {
-            scenario: Scenario::Car,
-            seconds,
-            seed,
-            disabled: vec![],
-            keep_ideal: false,
-        },
-        &|_| {},
-    )
-    .unwrap();
+    let out = simulate_run(&model, Scenario::Car, seconds, seed);
     let report = diagnose(
         &out.imus[0].recording,
         Some(&out.reference.recording),
