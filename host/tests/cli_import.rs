@@ -1,5 +1,6 @@
-//! `dynacal import` end to end: the binary on the real PSINS FOG/MEMS folder and on an
-//! unknown file (skips the real-data part when the data folder is absent).
+//! `dynacal import` end to end: the binary on the real PSINS FOG/MEMS folder, the ArduPilot
+//! log and the Xsens DOT folder, and on an unknown file and a damaged log (skips the
+//! real-data parts when the data folder is absent).
 
 use std::process::Command;
 
@@ -79,4 +80,119 @@ fn unknown_dataset_fails_with_nonzero_exit_naming_the_file() {
         "{stderr}"
     );
     assert!(!out.exists(), "no output folder for a failed detection");
+}
+
+/// Runs `dynacal import INPUT --out OUT`, returning success, stdout and stderr.
+fn import(input: &std::path::Path, out: &std::path::Path) -> (bool, String, String) {
+    let result = dynacal()
+        .arg("import")
+        .arg(input)
+        .arg("--out")
+        .arg(out)
+        .output()
+        .unwrap();
+    (
+        result.status.success(),
+        String::from_utf8_lossy(&result.stdout).into_owned(),
+        String::from_utf8_lossy(&result.stderr).into_owned(),
+    )
+}
+
+/// The file names in `dir`, sorted.
+fn names_in(dir: &std::path::Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    names
+}
+
+#[test]
+fn import_ardupilot_log_writes_one_file_per_imu_and_the_reference() {
+    let input = dynacal::data_dir().join("ardupilot-3imu-copter/log171.bin");
+    if !input.exists() {
+        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", input.display());
+        return;
+    }
+    let out = tempfile::tempdir().unwrap();
+    let (ok, stdout, stderr) = import(&input, out.path());
+    assert!(ok, "{stdout}{stderr}");
+    assert_eq!(
+        names_in(out.path()),
+        [
+            "ardupilot-log171-imu0.csv.gz",
+            "ardupilot-log171-imu1.csv.gz",
+            "ardupilot-log171-imu2.csv.gz",
+            "ardupilot-log171-reference.csv.gz"
+        ]
+    );
+    for k in 0..3 {
+        let line = format!(
+            "ardupilot-log171-imu{k}.csv.gz: 11916 samples, 242.601 s, [gx gy gz ax ay az]"
+        );
+        assert!(stdout.contains(&line), "{stdout}");
+    }
+    assert!(
+        stdout.contains(
+            "ardupilot-log171-reference.csv.gz: 1034 samples, 208.733 s, [attitude velocity_ned position]"
+        ),
+        "{stdout}"
+    );
+    let imu1 = ImuRecording::read(&out.path().join("ardupilot-log171-imu1.csv.gz")).unwrap();
+    assert_eq!(imu1.sample_rate_hz, Some(50.0));
+    assert_eq!((imu1.t_s[0], imu1.len()), (11.46, 11_916));
+}
+
+#[test]
+fn import_xsens_folder_writes_one_file_per_unit_and_skips_the_dji_record() {
+    let input = dynacal::data_dir().join("xsens-dot4-quadrotor");
+    if !input.exists() {
+        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", input.display());
+        return;
+    }
+    let out = tempfile::tempdir().unwrap();
+    let (ok, stdout, stderr) = import(&input, out.path());
+    assert!(ok, "{stdout}{stderr}");
+    assert_eq!(
+        names_in(out.path()),
+        [
+            "xsens-dot1-imu.csv.gz",
+            "xsens-dot2-imu.csv.gz",
+            "xsens-dot4-imu.csv.gz",
+            "xsens-dot7-imu.csv.gz"
+        ]
+    );
+    assert!(
+        stdout.contains("xsens-dot7-imu.csv.gz: 22867 samples, 190.559 s, [gx gy gz ax ay az]"),
+        "{stdout}"
+    );
+    assert!(
+        stdout.contains("airdata.csv.gz (not a dataset)"),
+        "{stdout}"
+    );
+    let dot4 = ImuRecording::read(&out.path().join("xsens-dot4-imu.csv.gz")).unwrap();
+    assert_eq!((dot4.sample_rate_hz, dot4.len()), (Some(120.0), 22_859));
+}
+
+#[test]
+fn damaged_log_fails_with_nonzero_exit_naming_the_file_and_offset() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("crash.bin");
+    // A DataFlash start (header, FMT) cut after 13 of the FMT message's 89 bytes.
+    let mut bytes = vec![0xA3, 0x95, 0x80, 0x80, 89];
+    bytes.extend(b"FMT\0BBnN");
+    std::fs::write(&path, &bytes).unwrap();
+    let out = dir.path().join("out");
+    let (ok, stdout, stderr) = import(&path, &out);
+    assert!(!ok, "{stdout}");
+    assert!(
+        stderr.contains("crash.bin")
+            && stderr.contains("byte offset 0: message 0 (FMT, 89 bytes) is truncated"),
+        "{stderr}"
+    );
+    assert!(
+        !out.exists() || names_in(&out).is_empty(),
+        "nothing written"
+    );
 }

@@ -1,15 +1,16 @@
 //! The importers on the real datasets in the data folder: sample counts and durations, and
 //! physical facts each converted recording must show (gravity, Earth rate, the MEMS gyro
-//! tracking the FOG attitude), which would fail on a wrong scale, sign or axis. Malformed
-//! copies of real files give errors naming file and line. Every test skips with a message
-//! when its dataset is absent.
+//! tracking the FOG attitude, the ArduPilot and Xsens DOT gyros tracking their own attitude
+//! outputs), which would fail on a wrong scale, sign or axis. Malformed copies of real files
+//! give errors naming file and line (byte offset for the binary log). Every test skips with a
+//! message when its dataset is absent.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
 use dynacal::import::{
-    adis16405, detect, frames, import_to_dir, mpu9250_tetra, mtig, psins_fog_mems, psins_lasergyro,
-    Dataset,
+    adis16405, ardupilot_dataflash, detect, frames, import_to_dir, mpu9250_tetra, mtig,
+    psins_fog_mems, psins_lasergyro, xsens_dot, Dataset,
 };
 use dynacal::interchange::{open_maybe_gz, ImuRecording};
 use nalgebra::{Rotation3, Vector3};
@@ -357,4 +358,338 @@ fn malformed_copies_of_real_files_fail_naming_file_and_line_and_write_nothing() 
         std::fs::write(&copy, lines.join("\n") + "\n").unwrap();
         assert!(!import_to_dir(&copy, &out).unwrap().written.is_empty());
     }
+}
+
+const G: f64 = 9.80665;
+
+/// The samples of `rec` whose time lies in [t0 + from_s, t0 + to_s), t0 its first sample.
+fn window(rec: &ImuRecording, from_s: f64, to_s: f64) -> std::ops::Range<usize> {
+    let t0 = rec.t_s[0];
+    let a = rec.t_s.partition_point(|t| *t < t0 + from_s);
+    let b = rec.t_s.partition_point(|t| *t < t0 + to_s);
+    a..b
+}
+
+/// Least-squares slope through the origin and correlation of `y` on `x`.
+fn slope_and_correlation(x: &[f64], y: &[f64]) -> (f64, f64) {
+    let slope =
+        x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>() / x.iter().map(|a| a * a).sum::<f64>();
+    let (mx, my) = (mean(x), mean(y));
+    let sxy: f64 = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum();
+    let sxx: f64 = x.iter().map(|a| (a - mx).powi(2)).sum();
+    let syy: f64 = y.iter().map(|b| (b - my).powi(2)).sum();
+    (slope, sxy / (sxx * syy).sqrt())
+}
+
+/// Integral of `rate` (one value per `t_s`) over (a, b], rectangle rule with each sample
+/// covering the step that ends at it.
+fn integral(t_s: &[f64], rate: &[f64], a: f64, b: f64) -> f64 {
+    let i = t_s.partition_point(|t| *t <= a).max(1);
+    let j = t_s.partition_point(|t| *t <= b);
+    (i..j).map(|k| rate[k] * (t_s[k] - t_s[k - 1])).sum()
+}
+
+fn wrap_pi(a: f64) -> f64 {
+    (a + std::f64::consts::PI).rem_euclid(std::f64::consts::TAU) - std::f64::consts::PI
+}
+
+#[test]
+fn ardupilot_log_has_three_imus_on_one_clock_reading_gravity_and_the_crash() {
+    let Some(path) = dataset("ardupilot-3imu-copter/log171.bin") else {
+        return;
+    };
+    assert_eq!(detect(&path).unwrap(), Some(Dataset::ArduPilotDataFlash));
+    let recs = ardupilot_dataflash::read(&path).unwrap();
+    let names: Vec<&str> = recs.iter().map(|r| r.0.as_str()).collect();
+    assert_eq!(names, ["imu0", "imu1", "imu2", "reference"]);
+    let imus: Vec<&ImuRecording> = recs[..3].iter().map(|r| &r.1).collect();
+    for (k, rec) in imus.iter().enumerate() {
+        assert_eq!(rec.len(), 11_916, "imu{k}");
+        assert_eq!(
+            rec.t_s, imus[0].t_s,
+            "imu{k}: the IMUs are sampled together"
+        );
+        assert!(
+            (rec.rate_hz() - 50.0).abs() < 1e-9,
+            "imu{k}: {}",
+            rec.rate_hz()
+        );
+    }
+    // The log's own clock: the first sample 11.46 s after boot.
+    assert_eq!((imus[0].t_s[0], imus[0].t_s[11_915]), (11.46, 254.061));
+
+    for (k, rec) in imus.iter().enumerate() {
+        let accel = rec.accel_m_s2.as_ref().unwrap();
+        let gyro = rec.gyro_rad_s.as_ref().unwrap();
+        let rest = window(rec, 18.0, 66.0);
+        let f_rest = mean_vec(accel, rest.clone());
+        let w_rest = mean_vec(gyro, rest.clone());
+        // Upside down on the ground after the crash.
+        let f_flipped = mean_vec(accel, window(rec, 234.0, 243.0));
+        let g_from_flip = (f_flipped[2] - f_rest[2]) / 2.0;
+        let (i_max, w_max) = (0..rec.len())
+            .map(|i| {
+                (
+                    i,
+                    (gyro[0][i].powi(2) + gyro[1][i].powi(2) + gyro[2][i].powi(2)).sqrt(),
+                )
+            })
+            .fold((0, 0.0), |a, b| if b.1 > a.1 { b } else { a });
+        let t_max = rec.t_s[i_max] - rec.t_s[0];
+        println!(
+            "imu{k}: at rest ({} samples) |f| = {:.3} m/s^2 ({:+.1}% of g), f = {f_rest:.3?}, |omega| = {:.2e} rad/s; \
+             upside down after the crash f_z = {:.3}: g from the flip {g_from_flip:.4}, z bias {:.3}; \
+             max |omega| {w_max:.2} rad/s at {t_max:.2} s",
+            rest.len(),
+            f_rest.norm(),
+            100.0 * (f_rest.norm() / G - 1.0),
+            w_rest.norm(),
+            f_flipped[2],
+            (f_flipped[2] + f_rest[2]) / 2.0,
+        );
+        assert_eq!(rest.len(), 2275);
+        // Level at rest: the down axis reads about -g (each unit's accelerometer z bias
+        // lowers it by 2-7%; the flip below shows the scale is right).
+        assert!((0.92..1.01).contains(&(f_rest.norm() / G)), "imu{k}");
+        assert!(f_rest[2] < -0.99 * f_rest.norm(), "imu{k}: FRD, z down");
+        assert!(
+            (g_from_flip / G - 1.0).abs() < 0.015,
+            "imu{k}: {g_from_flip}"
+        );
+        // rad/s as logged: still at rest, the crash's spin at 35 to 42 rad/s.
+        assert!(w_rest.norm() < 0.01, "imu{k}");
+        assert!(
+            (34.0..42.0).contains(&w_max) && (226.0..229.0).contains(&t_max),
+            "imu{k}"
+        );
+        if k == 0 {
+            // The README's figure for the first IMU: 35.6 rad/s.
+            assert!((35.5..35.7).contains(&w_max), "{w_max}");
+        }
+    }
+}
+
+#[test]
+fn ardupilot_reference_agrees_with_itself_and_with_the_gyros() {
+    let Some(path) = dataset("ardupilot-3imu-copter/log171.bin") else {
+        return;
+    };
+    let mut recs = ardupilot_dataflash::read(&path).unwrap();
+    let (name, reference) = recs.pop().unwrap();
+    assert_eq!(name, "reference");
+    let imu0 = &recs[0].1;
+    println!(
+        "reference: {} GPS fixes with attitude, {:.3} s to {:.3} s, median step {:.3} s",
+        reference.len(),
+        reference.t_s[0],
+        reference.t_s[reference.len() - 1],
+        reference.median_dt_s()
+    );
+    assert_eq!(reference.len(), 1034);
+    assert!((reference.median_dt_s() - 0.201).abs() < 1e-9);
+    let v = reference.velocity_ned_m_s.as_ref().unwrap();
+    let p = reference.position.as_ref().unwrap();
+    let att = reference.attitude_rad.as_ref().unwrap();
+    let max_speed = (0..reference.len())
+        .map(|i| v[0][i].hypot(v[1][i]))
+        .fold(0.0, f64::max);
+    println!("max ground speed {max_speed:.2} m/s");
+    assert!((12.0..12.5).contains(&max_speed));
+
+    // Position differences over 1 s agree with the NED velocity: north, east and down
+    // (VZ is down-positive, the height goes up when it is negative).
+    let r_earth = 6_378_137.0;
+    let (mut pos_rate, mut vel) = (Vec::new(), Vec::new());
+    for i in 0..reference.len() - 5 {
+        let dt = reference.t_s[i + 5] - reference.t_s[i];
+        if dt > 1.2 {
+            continue;
+        }
+        let d = [
+            (p[0][i + 5] - p[0][i]) * r_earth,
+            (p[1][i + 5] - p[1][i]) * r_earth * p[0][i].cos(),
+            -(p[2][i + 5] - p[2][i]),
+        ];
+        for k in 0..3 {
+            pos_rate.push(d[k] / dt);
+            vel.push((i + 1..=i + 5).map(|j| v[k][j]).sum::<f64>() / 5.0);
+        }
+    }
+    let (slope, corr) = slope_and_correlation(&vel, &pos_rate);
+    println!("position rate on velocity: slope {slope:.3}, correlation {corr:.3}");
+    assert!((slope - 1.0).abs() < 0.1 && corr > 0.95, "{slope} {corr}");
+
+    // In flight, the IMU's roll and pitch rates integrated over about 1 s follow the change of
+    // the reference's roll and pitch (small angles; the crash after 220 s left out).
+    let gyro = imu0.gyro_rad_s.as_ref().unwrap();
+    let t_first = imu0.t_s[0];
+    for axis in 0..2 {
+        let (mut integrated, mut change) = (Vec::new(), Vec::new());
+        for i in 0..reference.len() - 5 {
+            let (a, b) = (reference.t_s[i], reference.t_s[i + 5]);
+            if b - a > 1.2 || a < t_first + 70.0 || b > t_first + 220.0 {
+                continue;
+            }
+            integrated.push(integral(&imu0.t_s, &gyro[axis], a, b));
+            change.push(wrap_pi(att[axis][i + 5] - att[axis][i]));
+        }
+        let (slope, corr) = slope_and_correlation(&integrated, &change);
+        println!(
+            "axis {axis}: {} windows, ATT change on integrated gyro: slope {slope:.3}, correlation {corr:.3}",
+            change.len()
+        );
+        assert!(change.len() > 500);
+        assert!(
+            (0.75..1.15).contains(&slope) && corr > 0.9,
+            "{slope} {corr}"
+        );
+    }
+}
+
+#[test]
+fn damaged_copies_of_the_real_log_fail_naming_the_byte_offset_and_write_nothing() {
+    let Some(path) = dataset("ardupilot-3imu-copter/log171.bin") else {
+        return;
+    };
+    let bytes = std::fs::read(&path).unwrap();
+    let log = ardupilot_dataflash::DataFlashLog::parse(&path, bytes.clone()).unwrap();
+    assert_eq!(log.messages().len(), 91_530);
+    let tmp = tempfile::tempdir().unwrap();
+    let copy = tmp.path().join("log171-damaged.bin");
+    let out = tmp.path().join("out");
+
+    // Cut inside a message: the error names the message that starts before the cut.
+    let cut = 1_000_000;
+    let m = log.messages()[log.messages().partition_point(|m| m.offset <= cut) - 1];
+    std::fs::write(&copy, &bytes[..cut]).unwrap();
+    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    println!("{msg}");
+    assert!(
+        msg.contains("log171-damaged.bin")
+            && msg.contains(&format!("byte offset {}: message {}", m.offset, m.index))
+            && msg.contains("is truncated"),
+        "{msg}"
+    );
+
+    // One byte of a header changed.
+    let m = log.messages()[50_000];
+    let mut damaged = bytes.clone();
+    damaged[m.offset + 1] = 0x00;
+    std::fs::write(&copy, &damaged).unwrap();
+    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    println!("{msg}");
+    assert!(
+        msg.contains(&format!("byte offset {}: message 50000", m.offset))
+            && msg.contains("found A3 00"),
+        "{msg}"
+    );
+    assert_eq!(
+        std::fs::read_dir(&out).unwrap().count(),
+        0,
+        "nothing written"
+    );
+}
+
+/// `Euler_Y` (deg) of a DOT export by its `SampleTimeFine` stamp, rows with a finite value.
+fn dot_pitch_deg(path: &Path) -> std::collections::HashMap<u64, f64> {
+    let mut lines = BufReader::new(open_maybe_gz(path).unwrap()).lines();
+    let header: Vec<String> = lines
+        .next()
+        .unwrap()
+        .unwrap()
+        .split(',')
+        .map(|s| s.trim().to_string())
+        .collect();
+    let col = |name: &str| header.iter().position(|h| h == name).unwrap();
+    let (t, y) = (col("SampleTimeFine"), col("Euler_Y"));
+    lines
+        .map(Result::unwrap)
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').map(str::trim).collect();
+            (f[t].parse().unwrap(), f[y].parse().unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn xsens_dots_import_at_120_hz_on_one_clock_with_gyros_in_rad_s() {
+    let Some(dir) = dataset("xsens-dot4-quadrotor") else {
+        return;
+    };
+    let units = [
+        ("dot1", 22_902, vec![2]),
+        ("dot2", 22_863, vec![2]),
+        ("dot4", 22_859, vec![2]),
+        ("dot7", 22_867, vec![2, 3908, 3909]),
+    ];
+    let mut stamps = Vec::new();
+    for (unit, samples, dropped) in units {
+        let path = dir.join(format!("{unit}.csv.gz"));
+        assert_eq!(detect(&path).unwrap(), Some(Dataset::XsensDot));
+        let dot = xsens_dot::read(&path).unwrap();
+        let rec = &dot.recording;
+        assert_eq!(
+            (rec.len(), &dot.dropped_lines),
+            (samples, &dropped),
+            "{unit}"
+        );
+        assert_eq!(rec.sample_rate_hz, Some(120.0));
+        assert!((rec.median_dt_s() - 0.008333).abs() < 1e-12);
+        let us: Vec<u64> = rec.t_s.iter().map(|t| (t * 1e6).round() as u64).collect();
+
+        let accel = rec.accel_m_s2.as_ref().unwrap();
+        let f = mean_vec(accel, 0..rec.len());
+        let gyro = rec.gyro_rad_s.as_ref().unwrap();
+        let w_max = (0..rec.len())
+            .map(|i| (gyro[0][i].powi(2) + gyro[1][i].powi(2) + gyro[2][i].powi(2)).sqrt())
+            .fold(0.0, f64::max);
+
+        // The gyro about the unit's y axis, integrated over 1 s windows, follows the DOT's own
+        // pitch change (deg/s -> rad/s: a missing conversion would be a factor 57).
+        let pitch = dot_pitch_deg(&path);
+        let (mut integrated, mut change) = (Vec::new(), Vec::new());
+        for i in (0..rec.len() - 120).step_by(120) {
+            let (a, b) = (rec.t_s[i], rec.t_s[i + 120]);
+            integrated.push(integral(&rec.t_s, &gyro[1], a, b));
+            change.push((pitch[&us[i + 120]] - pitch[&us[i]]).to_radians());
+        }
+        let (slope, corr) = slope_and_correlation(&integrated, &change);
+        println!(
+            "{unit}: {} samples, {:.3} s to {:.3} s, dropped lines {dropped:?}; mean f {f:.3?} \
+             (|mean f| {:.3} m/s^2); max |omega| {w_max:.2} rad/s; pitch change on integrated gy: \
+             slope {slope:.4}, correlation {corr:.4}",
+            rec.len(),
+            rec.t_s[0],
+            rec.t_s[rec.len() - 1],
+            f.norm()
+        );
+        // Airborne the whole time: the mean specific force balances gravity, along the unit's
+        // z axis, which points about up.
+        assert!((f.norm() / G - 1.0).abs() < 0.06, "{unit}");
+        assert!(f[2] > 0.97 * f.norm(), "{unit}: z up");
+        assert!(
+            (0.97..1.03).contains(&slope) && corr > 0.995,
+            "{unit}: {slope} {corr}"
+        );
+        stamps.push((unit, us));
+    }
+    // One clock: over the span all four cover, every unit has the same stamps, except the two
+    // samples dot7 lacks (one the unit skipped, one dropped with its lost twin).
+    let lo = stamps.iter().map(|s| s.1[0]).max().unwrap();
+    let hi = stamps.iter().map(|s| *s.1.last().unwrap()).min().unwrap();
+    let inside = |s: &[u64]| -> Vec<u64> {
+        s.iter()
+            .copied()
+            .filter(|t| (lo..=hi).contains(t))
+            .collect()
+    };
+    let dot1 = inside(&stamps[0].1);
+    println!("common span {lo} us to {hi} us: {} stamps", dot1.len());
+    assert_eq!(dot1.len(), 22_854);
+    for (unit, s) in &stamps[1..3] {
+        assert_eq!(inside(s), dot1, "{unit}");
+    }
+    let mut dot7_expected = dot1.clone();
+    dot7_expected.retain(|t| *t != 710_081_700 && *t != 710_090_033);
+    assert_eq!(inside(&stamps[3].1), dot7_expected);
 }

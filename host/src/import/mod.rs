@@ -2,16 +2,19 @@
 //! interchange recordings ([`ImuRecording`]) in SI units, with the NED navigation frame and
 //! the forward-right-down body frame where the source's frames are known.
 //!
-//! One module per dataset; [`detect`] recognises a file by its first data line, and
-//! [`import_to_dir`] imports a file or folder and writes one interchange file per sensor,
-//! all of them or none. `docs/formats.md` states each conversion.
+//! One module per dataset; [`detect`] recognises a file by its first data line (a binary
+//! ArduPilot log by its first bytes), and [`import_to_dir`] imports a file or folder and
+//! writes one interchange file per sensor, all of them or none. `docs/formats.md` states each
+//! conversion.
 
 pub mod adis16405;
+pub mod ardupilot_dataflash;
 pub mod frames;
 pub mod mpu9250_tetra;
 pub mod mtig;
 pub mod psins_fog_mems;
 pub mod psins_lasergyro;
+pub mod xsens_dot;
 
 use std::collections::BTreeMap;
 use std::io::{BufRead, Read as _};
@@ -31,6 +34,13 @@ pub enum ImportError {
     Malformed {
         path: PathBuf,
         line: u64,
+        message: String,
+    },
+    /// A binary file is damaged at a byte offset (of the decompressed data).
+    #[error("{path}: byte offset {offset}: {message}")]
+    Corrupt {
+        path: PathBuf,
+        offset: u64,
         message: String,
     },
     /// The file (or no file in the folder) is a dataset this importer knows.
@@ -83,6 +93,10 @@ pub enum Dataset {
     PsinsLaserGyro,
     /// `mpu9250x4-tetra-static/static.csv.gz`: four MPU9250 sampled together.
     Mpu9250Tetra,
+    /// An ArduPilot DataFlash binary log (`ardupilot-3imu-copter/log171.bin`).
+    ArduPilotDataFlash,
+    /// An Xsens DOT CSV export (`xsens-dot4-quadrotor/dot*.csv.gz`).
+    XsensDot,
 }
 
 impl Dataset {
@@ -95,6 +109,8 @@ impl Dataset {
             Dataset::PsinsFog => "PSINS FOG INS reference (ENU attitude, velocity, position)",
             Dataset::PsinsLaserGyro => "PSINS laser-gyro SIMU log (integer increments)",
             Dataset::Mpu9250Tetra => "4 x MPU9250 tetra static rig",
+            Dataset::ArduPilotDataFlash => "ArduPilot DataFlash log (IMU instances, GPS + ATT)",
+            Dataset::XsensDot => "Xsens DOT CSV export (sensor axes)",
         }
     }
 }
@@ -104,10 +120,20 @@ fn header_fields(line: &str) -> Vec<&str> {
     line.split(',').map(str::trim).collect()
 }
 
-/// Recognises a dataset from its first data line (the CSV header, or for the PSINS SIMU log
-/// its first numeric line; blank lines and `%` comment lines are skipped). `Ok(None)` means
-/// "not a known dataset"; errors are I/O failures.
+/// Recognises a dataset from its first bytes (an ArduPilot DataFlash log: `A3 95 80`, a
+/// message header and `FMT`) or its first data line (the CSV header, or for the PSINS SIMU
+/// log its first numeric line; blank lines and `%` comment lines are skipped; an Xsens DOT
+/// header may follow a preamble). `Ok(None)` means "not a known dataset"; errors are I/O
+/// failures.
 pub fn detect(path: &Path) -> Result<Option<Dataset>, ImportError> {
+    let mut head = Vec::with_capacity(3);
+    open_maybe_gz(path)?
+        .take(3)
+        .read_to_end(&mut head)
+        .map_err(|e| ImportError::io(path, e))?;
+    if ardupilot_dataflash::is_dataflash(&head) {
+        return Ok(Some(Dataset::ArduPilotDataFlash));
+    }
     let Some((_, line)) = first_data_line(path)? else {
         return Ok(None);
     };
@@ -124,6 +150,8 @@ pub fn detect(path: &Path) -> Result<Option<Dataset>, ImportError> {
         Some(Dataset::Mpu9250Tetra)
     } else if psins_lasergyro::parse_numbers(&line).is_some_and(|v| v.len() == 6) {
         Some(Dataset::PsinsLaserGyro)
+    } else if xsens_dot::find_header(path)?.is_some() {
+        Some(Dataset::XsensDot)
     } else {
         None
     };
@@ -184,16 +212,27 @@ pub fn import_file(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>,
                 recording,
             })
             .collect(),
+        Dataset::ArduPilotDataFlash => ardupilot_dataflash::read(path)?
+            .into_iter()
+            .map(|(name, recording)| ImportedSensor {
+                name: format!("ardupilot-{stem}-{name}"),
+                recording,
+            })
+            .collect(),
+        Dataset::XsensDot => one(
+            format!("xsens-{stem}-imu"),
+            xsens_dot::read(path)?.recording,
+        ),
     })
 }
 
-/// The file name without directory and without `.gz` / `.csv` / `.imu` suffixes.
+/// The file name without directory and without `.gz` / `.csv` / `.imu` / `.bin` suffixes.
 fn file_stem(path: &Path) -> String {
     let mut name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    for suffix in [".gz", ".csv", ".imu"] {
+    for suffix in [".gz", ".csv", ".imu", ".bin", ".BIN"] {
         if let Some(s) = name.strip_suffix(suffix) {
             name = s.to_string();
         }
@@ -472,6 +511,23 @@ mod tests {
                 format!("{mpu_header}\n"),
                 Some(Dataset::Mpu9250Tetra),
             ),
+            (
+                "i.csv",
+                "SampleTimeFine,Euler_X,Acc_X,Acc_Y,Acc_Z,Gyr_X,Gyr_Y,Gyr_Z,\n".into(),
+                Some(Dataset::XsensDot),
+            ),
+            (
+                "j.csv",
+                "Xsens DOT export\n\nPacketCounter,SampleTimeFine,Acc_X,Acc_Y,Acc_Z,Gyr_X,Gyr_Y,Gyr_Z\n"
+                    .into(),
+                Some(Dataset::XsensDot),
+            ),
+            // The DJI flight record beside the DOT files is not imported.
+            (
+                "airdata.csv",
+                "time(millisecond),datetime(utc),latitude,longitude\n".into(),
+                None,
+            ),
             // An interchange file is not a raw dataset.
             ("g.csv", "t_s,gx_rad_s\n0,1\n".into(), None),
             ("h.txt", "% only comments\n".into(), None),
@@ -480,6 +536,13 @@ mod tests {
             let path = write(d, name, &text);
             assert_eq!(detect(&path).unwrap(), expected, "{name}");
         }
+        // A DataFlash log: a message header and the FMT type; binary bytes after a text-like
+        // start are not one.
+        let bin = d.join("log1.bin");
+        std::fs::write(&bin, [0xA3, 0x95, 0x80, 0x80, 89, 0, 0xFF]).unwrap();
+        assert_eq!(detect(&bin).unwrap(), Some(Dataset::ArduPilotDataFlash));
+        std::fs::write(&bin, [0xA3, 0x95, 0x81, 0x00]).unwrap();
+        assert_eq!(detect(&bin).unwrap(), None);
     }
 
     #[test]

@@ -1,0 +1,593 @@
+//! ArduPilot DataFlash binary logs (`.bin`, e.g. `ardupilot-3imu-copter/log171.bin`): every
+//! IMU instance as its own interchange recording, and a reference recording of GPS position
+//! and velocity with the autopilot's attitude (`ATT`).
+//!
+//! The format is self-describing: each message is `A3 95 <type>` and a payload whose layout
+//! an earlier `FMT` message (type 0x80, 89 bytes, itself of layout `BBnNZ`) defines: type,
+//! total length, a 4-character name, up to 16 format letters and comma-separated labels.
+//! Letters `c C e E` are integers in hundredths (centidegrees, centimetres, cm/s), `L` is
+//! latitude or longitude in 1e-7 degrees; this module returns them scaled ([`decode_number`]),
+//! so an `ATT` roll reads in degrees whether the firmware logs `c` (centidegrees, Copter 3.3)
+//! or `f` (degrees, 4.x).
+//!
+//! The parser is written here rather than taken from the `ardupilot-binlog` crate (0.2.0, which
+//! would build: edition 2024 needs Rust 1.85, our `rust-version`): that crate resynchronises
+//! silently on corrupt bytes, drops a truncated last message without a word, stops after 256
+//! consecutive bad messages as if the log had ended, gives no byte offsets, and computes a
+//! payload length as `length - 3` unchecked, which overflows on a `FMT` declaring fewer than 3
+//! bytes. A damaged log would import with samples missing and nobody told. Here any byte that
+//! is not part of a whole message of a defined type is an error naming the file, the byte
+//! offset and the message index.
+//!
+//! Conversions (`docs/formats.md`, section 2):
+//! - IMU: `IMU`, `IMU2`, `IMU3` (Copter 3.x) or `IMU` with an instance field `I` (4.x) become
+//!   `imu0`, `imu1`, `imu2`. `GyrX/Y/Z` rad/s and `AccX/Y/Z` m/s^2 as logged: ArduPilot's body
+//!   frame is forward-right-down, so no rotation. `t_s` is the log's own clock, seconds since
+//!   the autopilot booted (`TimeUS` / 1e6, or `TimeMS` / 1e3), not rebased to the first sample.
+//! - Reference: one row per `GPS` 3D fix (`Status` >= 3) inside the span of `ATT`; `t_s` is the
+//!   fix's arrival on the boot clock (`TimeUS`, or `T` in ms on 3.x firmware, whose `TimeMS` is
+//!   GPS time of week); lat/lon from `Lat`/`Lng`, `h_m` = `Alt` (above mean sea level: the log
+//!   has no geoid height); NED velocity `(Spd cos GCrs, Spd sin GCrs, VZ)`; attitude = `ATT`
+//!   roll, pitch, yaw (body FRD w.r.t. NED, Z-Y-X as ours) interpolated to the fix's time by
+//!   slerp between the two `ATT` samples around it (a fix whose `ATT` neighbours are more than
+//!   [`MAX_ATT_GAP_S`] apart is left out).
+
+use std::collections::BTreeMap;
+use std::io::Read as _;
+use std::path::{Path, PathBuf};
+
+use nalgebra::UnitQuaternion;
+
+use super::ImportError;
+use crate::interchange::{open_maybe_gz, ImuRecording};
+
+/// The two bytes every DataFlash message starts with.
+pub const MESSAGE_HEADER: [u8; 2] = [0xA3, 0x95];
+/// The message type of `FMT`, the message that defines message types.
+pub const FMT_TYPE: u8 = 0x80;
+/// Total length of a `FMT` message, bytes (3 header + 86 payload).
+pub const FMT_LENGTH: usize = 89;
+
+/// Largest gap between the two `ATT` samples around a GPS fix for the fix to get an
+/// interpolated attitude, s (`ATT` is logged at 10 Hz).
+pub const MAX_ATT_GAP_S: f64 = 0.5;
+
+/// Lowest `GPS.Status` that is a 3D fix (ArduPilot's `GPS_OK_FIX_3D`).
+pub const GPS_FIX_3D: f64 = 3.0;
+
+/// Size in bytes of one field of DataFlash format letter `letter`, `None` if the letter is
+/// not one ArduPilot defines.
+pub fn field_size(letter: u8) -> Option<usize> {
+    Some(match letter {
+        b'b' | b'B' | b'M' => 1,
+        b'h' | b'H' | b'c' | b'C' => 2,
+        b'i' | b'I' | b'e' | b'E' | b'f' | b'L' | b'n' => 4,
+        b'q' | b'Q' | b'd' => 8,
+        b'N' => 16,
+        b'Z' | b'a' => 64,
+        _ => return None,
+    })
+}
+
+/// The number a field holds, in the unit its letter implies: `c C e E` (hundredths) divided
+/// by 100, `L` (1e-7 degrees) times 1e-7, others as stored. `None` for the text and array
+/// letters (`n N Z a`) or a slice of the wrong length.
+pub fn decode_number(letter: u8, bytes: &[u8]) -> Option<f64> {
+    fn arr<const N: usize>(b: &[u8]) -> Option<[u8; N]> {
+        b.try_into().ok()
+    }
+    Some(match letter {
+        b'b' => f64::from(i8::from_le_bytes(arr(bytes)?)),
+        b'B' | b'M' => f64::from(u8::from_le_bytes(arr(bytes)?)),
+        b'h' => f64::from(i16::from_le_bytes(arr(bytes)?)),
+        b'H' => f64::from(u16::from_le_bytes(arr(bytes)?)),
+        b'i' => f64::from(i32::from_le_bytes(arr(bytes)?)),
+        b'I' => f64::from(u32::from_le_bytes(arr(bytes)?)),
+        b'q' => i64::from_le_bytes(arr(bytes)?) as f64,
+        b'Q' => u64::from_le_bytes(arr(bytes)?) as f64,
+        b'f' => f64::from(f32::from_le_bytes(arr(bytes)?)),
+        b'd' => f64::from_le_bytes(arr(bytes)?),
+        b'c' => f64::from(i16::from_le_bytes(arr(bytes)?)) / 100.0,
+        b'C' => f64::from(u16::from_le_bytes(arr(bytes)?)) / 100.0,
+        b'e' => f64::from(i32::from_le_bytes(arr(bytes)?)) / 100.0,
+        b'E' => f64::from(u32::from_le_bytes(arr(bytes)?)) / 100.0,
+        b'L' => f64::from(i32::from_le_bytes(arr(bytes)?)) * 1e-7,
+        _ => return None,
+    })
+}
+
+/// One message type as a `FMT` message defines it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct MessageFormat {
+    /// Message type byte.
+    pub type_id: u8,
+    /// Total message length, bytes, the 3-byte header included.
+    pub length: usize,
+    /// Name, e.g. `IMU2`, `GPS`, `ATT`.
+    pub name: String,
+    /// Format letters, one per field.
+    pub format: String,
+    /// Field labels, one per format letter.
+    pub labels: Vec<String>,
+    /// Byte offset of each field from the start of the message (header included).
+    offsets: Vec<usize>,
+}
+
+impl MessageFormat {
+    /// Checks a definition: known letters, a length equal to 3 plus the fields' sizes, one
+    /// label per letter. The error says what is wrong (the caller adds where).
+    pub fn new(
+        type_id: u8,
+        length: usize,
+        name: &str,
+        format: &str,
+        labels: &str,
+    ) -> Result<Self, String> {
+        if name.is_empty() {
+            return Err(format!("type {type_id} has an empty name"));
+        }
+        let mut offsets = Vec::with_capacity(format.len());
+        let mut at = 3;
+        for letter in format.bytes() {
+            let size = field_size(letter).ok_or_else(|| {
+                format!(
+                    "{name}: format `{format}` has the unknown letter `{}`",
+                    letter as char
+                )
+            })?;
+            offsets.push(at);
+            at += size;
+        }
+        if at != length {
+            return Err(format!(
+                "{name}: length {length} bytes, but its format `{format}` needs {at}"
+            ));
+        }
+        let labels: Vec<String> = if labels.is_empty() {
+            Vec::new()
+        } else {
+            labels.split(',').map(str::to_string).collect()
+        };
+        if labels.len() != format.len() {
+            return Err(format!(
+                "{name}: {} labels for the {} letters of format `{format}`",
+                labels.len(),
+                format.len()
+            ));
+        }
+        Ok(MessageFormat {
+            type_id,
+            length,
+            name: name.to_string(),
+            format: format.to_string(),
+            labels,
+            offsets,
+        })
+    }
+
+    /// The index of the field labelled `label`.
+    pub fn field(&self, label: &str) -> Option<usize> {
+        self.labels.iter().position(|l| l == label)
+    }
+}
+
+/// The layout of `FMT` itself, which no message defines.
+fn fmt_format() -> MessageFormat {
+    MessageFormat::new(
+        FMT_TYPE,
+        FMT_LENGTH,
+        "FMT",
+        "BBnNZ",
+        "Type,Length,Name,Format,Columns",
+    )
+    .unwrap_or_else(|e| unreachable!("the FMT layout is valid: {e}"))
+}
+
+/// One message of a log: where it is and which format it has.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Message {
+    /// 0-based position among the log's messages.
+    pub index: usize,
+    /// Byte offset of its `A3 95` header in the (decompressed) file.
+    pub offset: usize,
+    /// Index into [`DataFlashLog::formats`].
+    pub format: usize,
+}
+
+/// A parsed DataFlash log: the bytes, every format defined, every message.
+#[derive(Debug, Clone)]
+pub struct DataFlashLog {
+    path: PathBuf,
+    bytes: Vec<u8>,
+    formats: Vec<MessageFormat>,
+    messages: Vec<Message>,
+}
+
+/// An error at a byte offset of `path`.
+fn corrupt(path: &Path, offset: usize, message: impl Into<String>) -> ImportError {
+    ImportError::Corrupt {
+        path: path.to_path_buf(),
+        offset: offset as u64,
+        message: message.into(),
+    }
+}
+
+/// Bytes as upper-case hex pairs separated by spaces (`A3 95`).
+fn hex(bytes: &[u8]) -> String {
+    let pairs: Vec<String> = bytes.iter().map(|b| format!("{b:02X}")).collect();
+    pairs.join(" ")
+}
+
+/// A NUL-padded text field: the bytes before the first NUL, which must be printable ASCII.
+fn text_field(bytes: &[u8]) -> Result<&str, String> {
+    let end = bytes.iter().position(|b| *b == 0).unwrap_or(bytes.len());
+    let text = &bytes[..end];
+    if text.iter().all(|b| (0x20..0x7f).contains(b)) {
+        Ok(std::str::from_utf8(text).unwrap_or_default())
+    } else {
+        Err(format!("text field {:02X?} is not printable ASCII", text))
+    }
+}
+
+/// Parses the payload of a `FMT` message (`bytes` is the whole 89-byte message).
+fn parse_fmt(bytes: &[u8]) -> Result<MessageFormat, String> {
+    let type_id = bytes[3];
+    let length = usize::from(bytes[4]);
+    let name = text_field(&bytes[5..9])?;
+    let format = text_field(&bytes[9..25])?;
+    let labels = text_field(&bytes[25..89])?;
+    let parsed = MessageFormat::new(type_id, length, name, format, labels)?;
+    if type_id == FMT_TYPE && parsed != fmt_format() {
+        return Err(format!(
+            "redefines FMT (type 0x80) as `{format}`, {length} bytes"
+        ));
+    }
+    Ok(parsed)
+}
+
+impl DataFlashLog {
+    /// Reads and parses a log file (gzip-compressed or not).
+    pub fn read(path: &Path) -> Result<Self, ImportError> {
+        let mut bytes = Vec::new();
+        open_maybe_gz(path)?
+            .read_to_end(&mut bytes)
+            .map_err(|e| ImportError::io(path, e))?;
+        Self::parse(path, bytes)
+    }
+
+    /// Parses a whole log held in memory; `path` is only for messages. Every byte must
+    /// belong to a complete message of a type an earlier `FMT` defined.
+    pub fn parse(path: &Path, bytes: Vec<u8>) -> Result<Self, ImportError> {
+        let mut formats = vec![fmt_format()];
+        let mut by_type: [Option<usize>; 256] = [None; 256];
+        by_type[usize::from(FMT_TYPE)] = Some(0);
+        let mut messages = Vec::new();
+        let mut offset = 0;
+        while offset < bytes.len() {
+            let index = messages.len();
+            let rest = &bytes[offset..];
+            let start = &rest[..rest.len().min(2)];
+            if start != &MESSAGE_HEADER[..start.len()] {
+                return Err(corrupt(
+                    path,
+                    offset,
+                    format!(
+                        "message {index}: expected the message header A3 95, found {}",
+                        hex(start)
+                    ),
+                ));
+            }
+            if rest.len() < 3 {
+                return Err(corrupt(
+                    path,
+                    offset,
+                    format!(
+                        "message {index}: the file ends {} byte(s) into a message header",
+                        rest.len()
+                    ),
+                ));
+            }
+            let type_id = rest[2];
+            let Some(format) = by_type[usize::from(type_id)] else {
+                return Err(corrupt(
+                    path,
+                    offset,
+                    format!("message {index}: type {type_id} (0x{type_id:02X}) has no FMT definition before it"),
+                ));
+            };
+            let length = formats[format].length;
+            if rest.len() < length {
+                return Err(corrupt(
+                    path,
+                    offset,
+                    format!(
+                        "message {index} ({}, {length} bytes) is truncated: the file ends after {} of its bytes",
+                        formats[format].name,
+                        rest.len()
+                    ),
+                ));
+            }
+            if type_id == FMT_TYPE {
+                let defined = parse_fmt(&rest[..length])
+                    .map_err(|e| corrupt(path, offset, format!("message {index} (FMT): {e}")))?;
+                by_type[usize::from(defined.type_id)] = Some(formats.len());
+                formats.push(defined);
+            }
+            messages.push(Message {
+                index,
+                offset,
+                format,
+            });
+            offset += length;
+        }
+        Ok(DataFlashLog {
+            path: path.to_path_buf(),
+            bytes,
+            formats,
+            messages,
+        })
+    }
+
+    /// Every format defined, in the order of their `FMT` messages (the first is `FMT`'s own).
+    pub fn formats(&self) -> &[MessageFormat] {
+        &self.formats
+    }
+    /// Every message, in file order.
+    pub fn messages(&self) -> &[Message] {
+        &self.messages
+    }
+    /// The format of a message.
+    pub fn format_of(&self, m: &Message) -> &MessageFormat {
+        &self.formats[m.format]
+    }
+    /// The messages named `name`, in file order.
+    pub fn named<'a>(&'a self, name: &'a str) -> impl Iterator<Item = &'a Message> + 'a {
+        self.messages
+            .iter()
+            .filter(move |m| self.formats[m.format].name == name)
+    }
+
+    /// The numeric field `label` of message `m`, scaled by its letter ([`decode_number`]);
+    /// `None` if the message has no such numeric field.
+    pub fn value(&self, m: &Message, label: &str) -> Option<f64> {
+        let format = &self.formats[m.format];
+        let i = format.field(label)?;
+        let letter = format.format.as_bytes()[i];
+        let start = m.offset + format.offsets[i];
+        decode_number(letter, self.bytes.get(start..start + field_size(letter)?)?)
+    }
+
+    /// An error about message `m`, naming its index, name and byte offset.
+    pub fn error_at(&self, m: &Message, message: impl std::fmt::Display) -> ImportError {
+        corrupt(
+            &self.path,
+            m.offset,
+            format!(
+                "message {} ({}): {message}",
+                m.index, self.formats[m.format].name
+            ),
+        )
+    }
+
+    /// Field `label` of `m`, which must be present and finite.
+    fn required(&self, m: &Message, label: &str) -> Result<f64, ImportError> {
+        match self.value(m, label) {
+            Some(v) if v.is_finite() => Ok(v),
+            Some(v) => Err(self.error_at(m, format!("`{label}` is {v}, not a finite number"))),
+            None => Err(self.error_at(m, format!("has no numeric field `{label}`"))),
+        }
+    }
+
+    /// The first of `clocks` (label, seconds per unit) that `m` has, in seconds.
+    fn time_s(&self, m: &Message, clocks: &[(&str, f64)]) -> Result<f64, ImportError> {
+        for (label, unit_per_s) in clocks {
+            if self.value(m, label).is_some() {
+                return Ok(self.required(m, label)? / unit_per_s);
+            }
+        }
+        let names: Vec<&str> = clocks.iter().map(|c| c.0).collect();
+        Err(self.error_at(m, format!("has no time field ({})", names.join(" or "))))
+    }
+}
+
+/// The boot-clock time fields of IMU and ATT messages: label and units per second.
+const BOOT_CLOCK: [(&str, f64); 2] = [("TimeUS", 1e6), ("TimeMS", 1e3)];
+/// The boot-clock time of a GPS message: `TimeUS` (4.x), or `T` in ms (3.x, whose `TimeMS` is
+/// GPS time of week).
+const GPS_BOOT_CLOCK: [(&str, f64); 2] = [("TimeUS", 1e6), ("T", 1e3)];
+
+/// Checks that `t` follows `previous` (the last time of the same series); the error names
+/// the message and both times.
+fn check_after(
+    log: &DataFlashLog,
+    m: &Message,
+    t: f64,
+    previous: Option<f64>,
+    series: &str,
+) -> Result<(), ImportError> {
+    match previous {
+        Some(p) if !(t > p) => Err(log.error_at(
+            m,
+            format!(
+                "time {t} s is {} the previous {series} sample's {p} s",
+                if t == p { "a duplicate of" } else { "before" }
+            ),
+        )),
+        _ => Ok(()),
+    }
+}
+
+/// Which IMU a message is: `IMU` (instance from its field `I` where it has one, else 0),
+/// `IMU2` = 1, `IMU3` = 2, ...; `None` for other messages.
+fn imu_instance(log: &DataFlashLog, m: &Message) -> Option<usize> {
+    let name = log.format_of(m).name.as_str();
+    let suffix = name.strip_prefix("IMU")?;
+    if suffix.is_empty() {
+        // A 4.x IMU message names its instance; the value was written as a small integer.
+        return Some(log.value(m, "I").map_or(0, |i| i as usize));
+    }
+    let k: usize = suffix.parse().ok()?;
+    (2..=9).contains(&k).then(|| k - 1)
+}
+
+/// Every IMU instance of the log as a recording, by instance number (0, 1, 2...).
+pub fn read_imus(log: &DataFlashLog) -> Result<BTreeMap<usize, ImuRecording>, ImportError> {
+    const GYRO: [&str; 3] = ["GyrX", "GyrY", "GyrZ"];
+    const ACCEL: [&str; 3] = ["AccX", "AccY", "AccZ"];
+    let mut out: BTreeMap<usize, ImuRecording> = BTreeMap::new();
+    for m in log.messages() {
+        let Some(k) = imu_instance(log, m) else {
+            continue;
+        };
+        let t = log.time_s(m, &BOOT_CLOCK)?;
+        let rec = out.entry(k).or_insert_with(|| ImuRecording {
+            gyro_rad_s: Some(Default::default()),
+            accel_m_s2: Some(Default::default()),
+            ..Default::default()
+        });
+        check_after(log, m, t, rec.t_s.last().copied(), &format!("IMU {k}"))?;
+        rec.t_s.push(t);
+        for (labels, triplet) in [(GYRO, &mut rec.gyro_rad_s), (ACCEL, &mut rec.accel_m_s2)] {
+            let columns = triplet.get_or_insert_with(Default::default);
+            for (label, column) in labels.iter().zip(columns.iter_mut()) {
+                column.push(log.required(m, label)?);
+            }
+        }
+    }
+    for rec in out.values() {
+        rec.validate(&log.path)?;
+    }
+    Ok(out)
+}
+
+/// `ATT` samples: time (s, boot clock) and attitude (body FRD w.r.t. NED).
+fn read_attitude(log: &DataFlashLog) -> Result<Vec<(f64, UnitQuaternion<f64>)>, ImportError> {
+    let mut out: Vec<(f64, UnitQuaternion<f64>)> = Vec::new();
+    for m in log.named("ATT") {
+        let t = log.time_s(m, &BOOT_CLOCK)?;
+        check_after(log, m, t, out.last().map(|s| s.0), "ATT")?;
+        let mut rpy = [0.0; 3];
+        for (v, label) in rpy.iter_mut().zip(["Roll", "Pitch", "Yaw"]) {
+            let deg = log.required(m, label)?;
+            // Degrees after the letter's scaling; anything larger is a unit the format
+            // letters do not explain.
+            if deg.abs() > 720.0 {
+                return Err(log.error_at(m, format!("`{label}` = {deg} is not in degrees")));
+            }
+            *v = deg.to_radians();
+        }
+        out.push((t, UnitQuaternion::from_euler_angles(rpy[0], rpy[1], rpy[2])));
+    }
+    Ok(out)
+}
+
+/// The attitude at `t` by slerp between the `ATT` samples around it, if they are at most
+/// [`MAX_ATT_GAP_S`] apart.
+fn attitude_at(att: &[(f64, UnitQuaternion<f64>)], t: f64) -> Option<UnitQuaternion<f64>> {
+    let after = att.partition_point(|s| s.0 < t);
+    let (t1, q1) = att.get(after)?;
+    if *t1 == t {
+        return Some(*q1);
+    }
+    let (t0, q0) = att.get(after.checked_sub(1)?)?;
+    if t1 - t0 > MAX_ATT_GAP_S {
+        return None;
+    }
+    Some(q0.slerp(q1, (t - t0) / (t1 - t0)))
+}
+
+/// The reference recording: GPS 3D fixes with NED velocity and the interpolated `ATT`
+/// attitude (see the module docs). `None` when the log has no `ATT` or no fix inside it.
+pub fn read_reference(log: &DataFlashLog) -> Result<Option<ImuRecording>, ImportError> {
+    let att = read_attitude(log)?;
+    let mut rec = ImuRecording {
+        attitude_rad: Some(Default::default()),
+        position: Some(Default::default()),
+        velocity_ned_m_s: Some(Default::default()),
+        ..Default::default()
+    };
+    let mut previous = None;
+    for m in log.named("GPS") {
+        // A 4.x log holds every receiver under `GPS` with an instance field `I`.
+        if log.required(m, "Status")? < GPS_FIX_3D || log.value(m, "I").is_some_and(|i| i != 0.0) {
+            continue;
+        }
+        let t = log.time_s(m, &GPS_BOOT_CLOCK)?;
+        check_after(log, m, t, previous, "GPS fix")?;
+        previous = Some(t);
+        let Some(q) = attitude_at(&att, t) else {
+            continue;
+        };
+        let (roll, pitch, yaw) = q.euler_angles();
+        let speed = log.required(m, "Spd")?;
+        let course = log.required(m, "GCrs")?.to_radians();
+        let rows = [
+            (&mut rec.attitude_rad, [roll, pitch, yaw]),
+            (
+                &mut rec.position,
+                [
+                    log.required(m, "Lat")?.to_radians(),
+                    log.required(m, "Lng")?.to_radians(),
+                    log.required(m, "Alt")?,
+                ],
+            ),
+            (
+                &mut rec.velocity_ned_m_s,
+                [
+                    speed * course.cos(),
+                    speed * course.sin(),
+                    log.required(m, "VZ")?,
+                ],
+            ),
+        ];
+        for (triplet, row) in rows {
+            let columns = triplet.get_or_insert_with(Default::default);
+            for (column, v) in columns.iter_mut().zip(row) {
+                column.push(v);
+            }
+        }
+        rec.t_s.push(t);
+    }
+    if rec.t_s.is_empty() {
+        return Ok(None);
+    }
+    rec.validate(&log.path)?;
+    Ok(Some(rec))
+}
+
+/// One output of [`read`]: `imu0`, `imu1`, ... or `reference`, and its recording.
+pub type NamedRecording = (String, ImuRecording);
+
+/// Reads a log into `imu{k}` recordings (one per IMU instance) and, where the log has GPS
+/// fixes and `ATT`, a `reference` recording. A log without IMU messages is an error.
+pub fn read(path: &Path) -> Result<Vec<NamedRecording>, ImportError> {
+    let log = DataFlashLog::read(path)?;
+    let imus = read_imus(&log)?;
+    if imus.is_empty() {
+        return Err(corrupt(
+            path,
+            0,
+            format!(
+                "no IMU messages among its {} messages (IMU, IMU2, IMU3 expected)",
+                log.messages().len()
+            ),
+        ));
+    }
+    let mut out: Vec<NamedRecording> = imus
+        .into_iter()
+        .map(|(k, rec)| (format!("imu{k}"), rec))
+        .collect();
+    if let Some(reference) = read_reference(&log)? {
+        out.push(("reference".into(), reference));
+    }
+    Ok(out)
+}
+
+/// True when `head` (a file's first bytes) starts a DataFlash log: a message header and the
+/// `FMT` type.
+pub fn is_dataflash(head: &[u8]) -> bool {
+    head.len() >= 3 && head[..2] == MESSAGE_HEADER && head[2] == FMT_TYPE
+}
+
+#[cfg(test)]
+mod tests;
