@@ -17,6 +17,10 @@
 
 use nalgebra::ComplexField;
 
+pub mod faults;
+
+pub use faults::{FaultConfig, FaultEvent, FaultKind, FaultMonitor};
+
 /// Most units a set may hold.
 pub const MAX_UNITS: usize = 8;
 

@@ -21,6 +21,17 @@ pub struct Args {
     /// Time constant of the live noise level, s.
     #[arg(long, default_value_t = 2.0)]
     pub live_time_constant_s: f64,
+    /// Write the fused virtual IMU here (interchange CSV, `.gz` to compress): the weighted
+    /// mean of the healthy units in the first unit's frame and at its place.
+    #[arg(long)]
+    pub fused: Option<PathBuf>,
+    /// Per-axis range of every unit's gyros, rad/s, for the saturation test (default: each
+    /// unit's clipping level as its data show it, if they show one).
+    #[arg(long)]
+    pub gyro_range_rad_s: Option<f64>,
+    /// Per-axis range of every unit's accelerometers, m/s^2 (default as for the gyros).
+    #[arg(long)]
+    pub accel_range_m_s2: Option<f64>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -34,8 +45,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .iter()
         .map(|p| Ok((p.display().to_string(), load_recording(p, true)?)))
         .collect::<anyhow::Result<Vec<_>>>()?;
+    for (name, range) in [
+        ("--gyro-range-rad-s", args.gyro_range_rad_s),
+        ("--accel-range-m-s2", args.accel_range_m_s2),
+    ] {
+        if let Some(r) = range {
+            anyhow::ensure!(
+                r > 0.0 && r.is_finite(),
+                "{name} must be a positive number, got {r}"
+            );
+        }
+    }
     let opts = RedundancyOptions {
         live_time_constant_s: args.live_time_constant_s,
+        ranges: [args.gyro_range_rad_s, args.accel_range_m_s2],
         ..Default::default()
     };
     let report = redundancy(&units, &opts).context("the redundancy analysis")?;
@@ -53,8 +76,33 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             level.t_s.len()
         );
     }
+    for f in &report.faults {
+        let unit = f.imu.map_or("an unplaced unit".to_string(), |k| {
+            report.imus[k].name.clone()
+        });
+        eprintln!(
+            "fault: {unit} {} {} at {:.3} s (readmitted: {})",
+            f.channel,
+            f.kind,
+            f.t_detected_s,
+            f.t_readmitted_s
+                .map_or("never".to_string(), |t| format!("{t:.3} s"))
+        );
+    }
     for note in &report.notes {
         eprintln!("note: {note}");
+    }
+    if let Some(path) = &args.fused {
+        let fused = report.fused.as_ref().with_context(|| {
+            format!(
+                "no fused output for {}: the motion does not determine the units' rotations, \
+                 so they have no common frame",
+                path.display()
+            )
+        })?;
+        fused
+            .write(path)
+            .with_context(|| format!("writing {}", path.display()))?;
     }
     dynacal::output::write_json_atomic(&args.json, &report)
         .with_context(|| format!("writing {}", args.json.display()))

@@ -1,0 +1,369 @@
+//! `dynacal redundancy`: three or more IMUs sampled together characterise themselves without
+//! a reference. Each unit is brought into the first unit's frame (the rotation from the
+//! gyros, Wahba's problem solved by SVD, when the motion turns about two axes or more; the
+//! lever arm from the accelerometers' differences against angular acceleration and
+//! centripetal terms, the seed paper's eq. (9) between two MEMS units), then every pairwise
+//! difference of the aligned signals, which cancels the motion, gives its Haar wavelet
+//! variance per scale, and the units' own wavelet variances follow per scale by
+//! non-negative least squares over the pairs ([`dynacal_core::redundancy::own_variances`]),
+//! with each unit's white-noise variance from the finest scale. The live white-noise level of
+//! each unit over time comes from the core's [`LiveNoise`], the same code the board runs.
+//!
+//! What the units share cancels in every difference (a common temperature drift, the same
+//! vibration): the figures are the independent parts of the errors. On static data nothing
+//! needs aligning (a constant difference has no wavelet variance) and no rotation or lever
+//! arm can be determined; the output says so.
+
+mod align;
+mod faults;
+mod grid;
+
+use std::collections::BTreeMap;
+
+use dynacal_core::redundancy::{
+    own_variances, pair_index, pairs, LiveNoise, MotionThresholds, MAX_UNITS,
+};
+use serde::Serialize;
+
+pub use faults::{clipping_level, kind_name, FaultRecord, Ranges};
+
+use crate::interchange::ImuRecording;
+use crate::wv::{haar_wv, WvOptions};
+
+/// Channel names in interchange order: gyros then accelerometers.
+const CHANNELS: [&str; 6] = ["gx", "gy", "gz", "ax", "ay", "az"];
+
+/// Why a set of recordings cannot be analysed together.
+#[derive(Debug, thiserror::Error)]
+pub enum RedundancyError {
+    #[error("{0} recordings given: the analysis needs 3 to {MAX_UNITS} IMUs sampled together")]
+    Units(usize),
+    #[error("{name}: {message}")]
+    Unit { name: String, message: String },
+}
+
+/// How a unit's rotation to the first unit was found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RotationBasis {
+    /// The first unit itself.
+    Reference,
+    /// From the gyros: the motion turned about two axes or more.
+    Gyros,
+    /// Not determined: the motion did not turn about two axes (static data determine no
+    /// rotation about gravity); the unit's axes are compared as they are.
+    Undetermined,
+}
+
+/// A unit's place relative to the first unit.
+#[derive(Debug, Clone, Serialize)]
+pub struct Alignment {
+    pub basis: RotationBasis,
+    /// Rotation from the first unit's axes to this unit's (y_k = C y_0), roll-pitch-yaw, deg;
+    /// None where the motion does not determine it (then it is not applied).
+    pub rotation_rpy_deg: Option<[f64; 3]>,
+    /// 1-sigma of the rotation about the axis the motion turned least, deg (None where it is
+    /// not determined).
+    pub rotation_sigma_deg: Option<f64>,
+    /// Lever arm from the first unit to this one, in the first unit's axes, m, with its
+    /// 1-sigma; None where it cannot be determined (no angular acceleration to see it). The
+    /// sigma covers the accelerometers' noise only, not the error of the angular
+    /// acceleration the lever arm multiplies: on a simulated drive the errors were 1-3 mm
+    /// against a sigma of 0.2 mm (BENCHMARKS.md).
+    pub lever_arm_m: Option<[f64; 3]>,
+    pub lever_arm_sigma_m: Option<[f64; 3]>,
+}
+
+/// One unit's own error wavelet variance on one channel.
+#[derive(Debug, Clone, Serialize)]
+pub struct OwnWv {
+    pub scales_s: Vec<f64>,
+    /// Own wavelet variance per scale, SI unit squared.
+    pub variance: Vec<f64>,
+    /// Where the least squares gave a negative variance, held at 0.
+    pub clamped: Vec<bool>,
+}
+
+/// What the set says of one unit.
+#[derive(Debug, Clone, Serialize)]
+pub struct UnitReport {
+    pub name: String,
+    pub alignment: Alignment,
+    /// Own white-noise variance per channel, SI unit squared, at the unit's sample rate:
+    /// twice the own wavelet variance at the finest scale (white noise of variance s^2 has
+    /// s^2 / 2 there).
+    pub white_noise_sigma2: BTreeMap<String, f64>,
+    pub wv: BTreeMap<String, OwnWv>,
+}
+
+/// A unit's live white-noise standard deviation over time.
+#[derive(Debug, Clone, Serialize)]
+pub struct NoiseLevel {
+    pub t_s: Vec<f64>,
+    pub gyro_rad_s: Vec<f64>,
+    pub accel_m_s2: Vec<f64>,
+}
+
+/// The whole analysis.
+#[derive(Debug, Clone, Serialize)]
+pub struct RedundancyReport {
+    pub imus: Vec<UnitReport>,
+    pub noise_level: Vec<NoiseLevel>,
+    /// Whether the platform moved, per output time of `noise_level`.
+    pub moving: Vec<bool>,
+    /// Faults found, in the order they were confirmed.
+    pub faults: Vec<FaultRecord>,
+    pub notes: Vec<String>,
+    /// The fused virtual IMU in the first unit's frame (the accelerometers at the first
+    /// unit's place): the weighted mean of the healthy units on the common grid; None where
+    /// the motion does not determine the units' rotations (no common frame to fuse in).
+    #[serde(skip)]
+    pub fused: Option<ImuRecording>,
+}
+
+/// Options of the analysis.
+#[derive(Debug, Clone)]
+pub struct RedundancyOptions {
+    /// Time constant of the live noise level, s.
+    pub live_time_constant_s: f64,
+    /// Spacing of the live noise level's output, s.
+    pub live_output_interval_s: f64,
+    /// Per-axis range of every unit's gyros (rad/s) and accelerometers (m/s^2), for the
+    /// saturation test; where None, each unit's clipping level from its own data
+    /// ([`clipping_level`]).
+    pub ranges: Ranges,
+}
+
+impl Default for RedundancyOptions {
+    fn default() -> Self {
+        Self {
+            live_time_constant_s: 2.0,
+            live_output_interval_s: 0.5,
+            ranges: [None, None],
+        }
+    }
+}
+
+/// Checks that the recordings are 3 to MAX_UNITS IMUs with both triads and 64 samples or
+/// more; whether they were sampled together is [`grid::common_grid`]'s to say.
+fn check_units(units: &[(String, ImuRecording)]) -> Result<(), RedundancyError> {
+    if !(3..=MAX_UNITS).contains(&units.len()) {
+        return Err(RedundancyError::Units(units.len()));
+    }
+    for (name, r) in units {
+        let fail = |message: String| RedundancyError::Unit {
+            name: name.clone(),
+            message,
+        };
+        if r.gyro_rad_s.is_none() || r.accel_m_s2.is_none() {
+            return Err(fail("needs both a gyro and an accelerometer triad".into()));
+        }
+        if r.len() < 64 {
+            return Err(fail(format!("{} samples: at least 64 are needed", r.len())));
+        }
+    }
+    Ok(())
+}
+
+/// Each unit's own wavelet variance on channel `c`, from the wavelet variances of every
+/// pairwise difference, per scale.
+fn own_wv(signals: &[[Vec<f64>; 6]], c: usize, dt_s: f64) -> Vec<OwnWv> {
+    let units = signals.len();
+    let mut scales_s = Vec::new();
+    let mut pair_wv: Vec<Vec<f64>> = vec![Vec::new(); pairs(units)];
+    for k in 0..units {
+        for l in k + 1..units {
+            let d: Vec<f64> = signals[k][c]
+                .iter()
+                .zip(&signals[l][c])
+                .map(|(a, b)| a - b)
+                .collect();
+            let wv = haar_wv(&d, dt_s, &WvOptions::default()).expect("at least 64 samples");
+            scales_s = wv.scales_s.clone();
+            pair_wv[pair_index(units, k, l)] = wv.variance;
+        }
+    }
+    let mut out: Vec<OwnWv> = (0..units)
+        .map(|_| OwnWv {
+            scales_s: scales_s.clone(),
+            variance: Vec::new(),
+            clamped: Vec::new(),
+        })
+        .collect();
+    for level in 0..scales_s.len() {
+        let at_level: Vec<f64> = pair_wv.iter().map(|p| p[level]).collect();
+        let own = own_variances(units, &at_level).expect("3..=MAX_UNITS units, variances");
+        for (k, o) in out.iter_mut().enumerate() {
+            o.variance.push(own.value[k]);
+            o.clamped.push(own.clamped[k]);
+        }
+    }
+    out
+}
+
+/// Each unit's live gyro and accelerometer white-noise level (the core's [`LiveNoise`]) and
+/// the motion state, sampled every `opts.live_output_interval_s`.
+fn live_levels<const N: usize>(
+    signals: &[[Vec<f64>; 6]],
+    t_s: &[f64],
+    dt_s: f64,
+    opts: &RedundancyOptions,
+) -> (Vec<NoiseLevel>, Vec<bool>) {
+    let tau = opts.live_time_constant_s as f32;
+    let mut gyro = LiveNoise::<N>::new(dt_s as f32, tau, MotionThresholds::default());
+    let mut accel = LiveNoise::<N>::new(dt_s as f32, tau, MotionThresholds::default());
+    let mut levels: Vec<NoiseLevel> = (0..N)
+        .map(|_| NoiseLevel {
+            t_s: Vec::new(),
+            gyro_rad_s: Vec::new(),
+            accel_m_s2: Vec::new(),
+        })
+        .collect();
+    let mut moving = Vec::new();
+    let every = ((opts.live_output_interval_s / dt_s).round() as usize).max(1);
+    for i in 0..t_s.len() {
+        let triad = |first: usize| -> [[f32; 3]; N] {
+            std::array::from_fn(|k| std::array::from_fn(|a| signals[k][first + a][i] as f32))
+        };
+        let g = triad(0);
+        let rate: [f32; 3] =
+            std::array::from_fn(|a| g.iter().map(|u| u[a]).sum::<f32>() / N as f32);
+        gyro.push(&g, rate);
+        accel.push(&triad(3), rate);
+        if i % every == every - 1 {
+            for (k, level) in levels.iter_mut().enumerate() {
+                level.t_s.push(t_s[i]);
+                level.gyro_rad_s.push(gyro.sigma(k) as f64);
+                level.accel_m_s2.push(accel.sigma(k) as f64);
+            }
+            moving.push(gyro.moving());
+        }
+    }
+    (levels, moving)
+}
+
+/// The analysis of `units` (name, recording), sampled together.
+pub fn redundancy(
+    units: &[(String, ImuRecording)],
+    opts: &RedundancyOptions,
+) -> Result<RedundancyReport, RedundancyError> {
+    check_units(units)?;
+    let grid = grid::common_grid(units)?;
+    let mut notes = vec![
+        "what the units share (a common temperature drift, the same vibration) cancels in \
+         every difference: these are the independent parts of the units' errors"
+            .to_string(),
+    ];
+    note_dropouts(units, &grid.present, &mut notes);
+    let first = &grid.filled[0].1;
+    let dt_s = first.median_dt_s();
+    let aligned = align::align(&grid.filled, &mut notes);
+    let per_channel: Vec<Vec<OwnWv>> = (0..6).map(|c| own_wv(&aligned.signals, c, dt_s)).collect();
+    let imus = units
+        .iter()
+        .zip(aligned.alignments.clone())
+        .enumerate()
+        .map(|(k, ((name, _), alignment))| {
+            let wv: BTreeMap<String, OwnWv> = CHANNELS
+                .iter()
+                .zip(&per_channel)
+                .map(|(c, own)| (c.to_string(), own[k].clone()))
+                .collect();
+            UnitReport {
+                name: name.clone(),
+                alignment,
+                white_noise_sigma2: wv
+                    .iter()
+                    .map(|(c, w)| (c.clone(), 2.0 * w.variance[0]))
+                    .collect(),
+                wv,
+            }
+        })
+        .collect();
+    let (noise_level, moving) = match units.len() {
+        3 => live_levels::<3>(&aligned.signals, &first.t_s, dt_s, opts),
+        4 => live_levels::<4>(&aligned.signals, &first.t_s, dt_s, opts),
+        5 => live_levels::<5>(&aligned.signals, &first.t_s, dt_s, opts),
+        6 => live_levels::<6>(&aligned.signals, &first.t_s, dt_s, opts),
+        7 => live_levels::<7>(&aligned.signals, &first.t_s, dt_s, opts),
+        _ => live_levels::<8>(&aligned.signals, &first.t_s, dt_s, opts),
+    };
+    let ranges: Vec<Ranges> = units
+        .iter()
+        .map(|(_, r)| {
+            let own = |sensor: usize, triad: &Option<[Vec<f64>; 3]>| {
+                opts.ranges[sensor].or_else(|| triad.as_ref().and_then(clipping_level))
+            };
+            [own(0, &r.gyro_rad_s), own(1, &r.accel_m_s2)]
+        })
+        .collect();
+    let lengths_only = aligned
+        .alignments
+        .iter()
+        .any(|a| a.basis == RotationBasis::Undetermined);
+    let monitoring = faults::monitor(&faults::MonitorInput {
+        signals: &aligned.signals,
+        present: &grid.present,
+        t_s: &grid.t_s,
+        dt_s,
+        ranges: &ranges,
+        lengths_only,
+    });
+    note_faults(&monitoring, units.len(), &mut notes);
+    Ok(RedundancyReport {
+        imus,
+        noise_level,
+        moving,
+        faults: monitoring.faults,
+        notes,
+        fused: monitoring.fused,
+    })
+}
+
+/// What the output must say of units that missed samples.
+fn note_dropouts(units: &[(String, ImuRecording)], present: &[Vec<bool>], notes: &mut Vec<String>) {
+    for ((name, _), p) in units.iter().zip(present) {
+        let missing = p.iter().filter(|x| !**x).count();
+        if missing > 0 {
+            notes.push(format!(
+                "{name}: no sample at {missing} of the {} shared times (dropouts): filled by \
+                 interpolation for its wavelet variances, left out of the fused output",
+                p.len()
+            ));
+        }
+    }
+}
+
+/// What the output must say of the fault monitoring.
+fn note_faults(monitoring: &faults::Monitoring, units: usize, notes: &mut Vec<String>) {
+    if monitoring.faults.iter().any(|f| f.imu.is_none()) {
+        notes.push(
+            "with only two healthy units left, a disagreement is detected but cannot be placed: \
+             such faults have no imu, and neither unit is excluded"
+                .into(),
+        );
+    }
+    if monitoring.unfused > 0 {
+        notes.push(format!(
+            "at {} sensor samples no unit was healthy: the fused output there is the plain mean \
+             of the units present",
+            monitoring.unfused
+        ));
+    }
+    if monitoring.fused.is_none() {
+        notes.push(
+            "the motion does not determine every unit's rotation, so the units' axes are not \
+             in one frame: faults are sought in the rotation-invariant lengths of the gyro and \
+             accelerometer vectors only (a fault along one axis shows little in a length), \
+             and there is no fused output"
+                .into(),
+        );
+    }
+    if units == 3 {
+        notes.push(
+            "three units isolate one faulty unit at a time; while one is out, the other two \
+             only detect"
+                .into(),
+        );
+    }
+}

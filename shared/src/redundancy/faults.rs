@@ -1,0 +1,1173 @@
+//! Fault detection and isolation among N >= 3 units of one sensor type (gyros or
+//! accelerometers), sampled together and brought into one frame, and the fused virtual
+//! sensor of the healthy ones. Allocation-free: the board runs it on every sample set.
+//!
+//! Every pair (k, l) and axis keeps a slow mean of its difference (the units' relative
+//! bias, which drifts) and a variance of what is left, so each new difference has a
+//! z-score that needs no knowledge of the units' noise. A unit is suspected when **every**
+//! pair it is in fails a test and no pair of healthy units without it does (a single fault
+//! among three or more is isolated; with two units left it is only detected). The tests:
+//! - dropout (no sample), saturation (at the configured range) and stuck output (all three
+//!   axes unchanged while the others move) from the unit's own samples;
+//! - spike: one difference beyond `spike_sigma`;
+//! - shift: an exponentially weighted mean of the z-score (about `fast_time_constant_s`)
+//!   beyond `shift_sigma` times its own learned spread: a bias step, a scale change under
+//!   motion, a time slip under vibration;
+//! - noise burst: the unit's own white-noise level (products of first differences with two
+//!   others, as [`super::LiveNoise`]) rising `burst_ratio` times above its slow level, more
+//!   than every other unit's does (the dynamics raise all units' levels together, Fig. 8);
+//! - norm (accelerometers): the length of the unit's vector, which needs no alignment, off
+//!   the others' by more than `norm_tolerance` of it (a gross scale error).
+//!
+//! A suspected unit leaves the fused output at once; its kind is decided over the next
+//! `confirm_s` by what explains its residual against the healthy units: a constant (bias
+//! step), the signal (scale factor), the signal's rate of change (time slip), a few samples
+//! (spike), or nothing (noise burst). It is readmitted after `clean_s` without a failed test;
+//! meanwhile its pairs' means keep learning, so a unit whose bias stepped returns with its
+//! new bias. Why per-sample tests are not enough for a false-alarm rate: 1e-5 per test at
+//! 100 Hz is 4 alarms an hour; the spike and shift thresholds are set for rates measured over
+//! hours of fault-free data (BENCHMARKS.md).
+
+// Float methods without std; with std the inherent ones are used instead.
+#[allow(unused_imports)]
+use nalgebra::ComplexField;
+
+use super::MAX_UNITS;
+
+/// What went wrong with a unit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FaultKind {
+    /// No sample from the unit.
+    Dropout,
+    /// A sample at the unit's range limit.
+    Saturation,
+    /// The unit's output stopped changing.
+    Stuck,
+    /// A few samples far from the others'.
+    Spike,
+    /// The unit's bias changed.
+    BiasStep,
+    /// The unit's residual follows the signal: its scale factor changed (or, by the norm
+    /// test, differs from the others').
+    ScaleFactor,
+    /// The unit's noise rose alone.
+    NoiseBurst,
+    /// The unit's residual follows the signal's rate of change: its samples are late or early.
+    TimeSlip,
+}
+
+/// A confirmed fault.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct FaultEvent {
+    /// The faulty unit; None when only two units were healthy: the pair disagrees, and which
+    /// of them is wrong cannot be told.
+    pub unit: Option<u8>,
+    /// Axis of the triad that showed it most (0, 1, 2), where the kind has one.
+    pub axis: Option<u8>,
+    pub kind: FaultKind,
+    /// Sample set at which the unit was first suspected (and left the fused output).
+    pub detected_sample: u32,
+    /// Sample set at which the kind was decided.
+    pub confirmed_sample: u32,
+}
+
+/// Settings of the monitor. Times in seconds; thresholds in standard deviations.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FaultConfig {
+    pub sample_interval_s: f32,
+    /// Per-axis magnitude at which a unit saturates, sensor unit (INFINITY: not tested).
+    pub range: [f32; MAX_UNITS],
+    /// Relative difference of a unit's vector length from the others' median that is a
+    /// fault (None: not tested; meant for accelerometers, whose length is gravity at rest).
+    pub norm_tolerance: Option<f32>,
+    pub spike_sigma: f32,
+    pub shift_sigma: f32,
+    /// Ratio of a unit's fast to slow own-noise variance, over the largest such ratio of the
+    /// other units, that is a noise burst.
+    pub burst_ratio: f32,
+    pub stuck_s: f32,
+    /// Change of a unit's sample from the previous one, in its own learned spread of such
+    /// changes, beyond which the unit jumped; when two or more and at least half of the
+    /// healthy units jump together, the platform moved (a bump, a pothole) and no unit is suspected for
+    /// `common_hold_s`: units at different places and in different axes see one jolt
+    /// differently, which is no fault.
+    pub common_sigma: f32,
+    pub common_hold_s: f32,
+    pub confirm_s: f32,
+    pub clean_s: f32,
+    /// Time constant of the pairs' relative-bias means.
+    pub mean_time_constant_s: f32,
+    /// Time constant of the pairs' spread (and of the units' slow noise levels).
+    pub spread_time_constant_s: f32,
+    /// Time constant of the shift test's mean and of the fast noise level.
+    pub fast_time_constant_s: f32,
+}
+
+impl FaultConfig {
+    /// Defaults for a sample interval: thresholds chosen on fault-free simulated drives and
+    /// real recordings (rates in BENCHMARKS.md).
+    pub fn new(sample_interval_s: f32) -> Self {
+        Self {
+            sample_interval_s,
+            range: [f32::INFINITY; MAX_UNITS],
+            norm_tolerance: None,
+            spike_sigma: 9.0,
+            shift_sigma: 7.0,
+            burst_ratio: 9.0,
+            stuck_s: 0.1,
+            common_sigma: 5.0,
+            common_hold_s: 1.0,
+            confirm_s: 1.0,
+            clean_s: 5.0,
+            mean_time_constant_s: 10.0,
+            spread_time_constant_s: 5.0,
+            fast_time_constant_s: 0.25,
+        }
+    }
+
+    fn samples(&self, seconds: f32) -> u32 {
+        (seconds / self.sample_interval_s) as u32
+    }
+
+    fn alpha(&self, time_constant_s: f32) -> f32 {
+        1.0 - (-self.sample_interval_s / time_constant_s).exp()
+    }
+}
+
+/// What one pair's difference on one axis has learned.
+#[derive(Debug, Clone, Copy, Default)]
+struct PairAxis {
+    /// Slow mean of z_k - z_l: the relative bias.
+    mean: f32,
+    /// Variance of z_k - z_l about its mean.
+    spread: f32,
+    /// Fast mean of the z-score.
+    shift: f32,
+    /// Learned variance of `shift`.
+    shift_spread: f32,
+}
+
+/// Which test suspected a unit.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Trigger {
+    Spike,
+    Shift,
+    Burst,
+    Norm,
+}
+
+/// Evidence gathered over a suspected unit's confirmation window, per axis: the sums of the
+/// least squares of its residual r against the healthy units on a constant, the signal x
+/// (from its value at the window's start, for conditioning) and the signal's change per
+/// sample v.
+#[derive(Debug, Clone, Copy, Default)]
+struct Episode {
+    start: Option<[f32; 3]>,
+    /// Per axis: the normal matrix of (1, x, v) and the products with r, and sum of r^2.
+    normal: [[[f32; 3]; 3]; 3],
+    cross: [[f32; 3]; 3],
+    rr: [f32; 3],
+    count: u32,
+    /// Samples whose largest z-score was beyond the spike threshold.
+    excursions: u32,
+}
+
+impl Episode {
+    fn add(&mut self, r: [f32; 3], x: [f32; 3], v: [f32; 3]) {
+        let start = *self.start.get_or_insert(x);
+        for a in 0..3 {
+            let g = [1.0, x[a] - start[a], v[a]];
+            for i in 0..3 {
+                for j in 0..3 {
+                    self.normal[a][i][j] += g[i] * g[j];
+                }
+                self.cross[a][i] += g[i] * r[a];
+            }
+            self.rr[a] += r[a] * r[a];
+        }
+        self.count += 1;
+    }
+}
+
+/// One unit's state.
+#[derive(Debug, Clone, Copy)]
+struct Unit {
+    healthy: bool,
+    /// Sample the current fault was detected at, and what triggered it (None: confirmed).
+    suspected: Option<(u32, Trigger)>,
+    /// Kind of the confirmed fault while the unit is out.
+    fault: Option<FaultKind>,
+    episode: Episode,
+    clean_run: u32,
+    stuck_run: u32,
+    last: Option<[f32; 3]>,
+    /// Fast and slow own white-noise variance (of first differences: 2 s^2).
+    noise_fast: f32,
+    noise_slow: f32,
+    /// Fast mean of the vector's length.
+    norm: f32,
+    /// Slow mean square of the change from one sample to the next, per axis: the unit's
+    /// motion and noise together.
+    step_spread: f32,
+    /// Slow mean of the unit's sample less the fused output: its bias relative to the fused
+    /// output, learned against it so that the healthy units' weighted offsets keep their sum
+    /// (a unit whose bias steps moves neither the others' offsets nor the fused output).
+    offset: [f32; 3],
+}
+
+impl Default for Unit {
+    fn default() -> Self {
+        Self {
+            healthy: true,
+            suspected: None,
+            fault: None,
+            episode: Episode::default(),
+            clean_run: 0,
+            stuck_run: 0,
+            last: None,
+            noise_fast: 0.0,
+            noise_slow: 0.0,
+            norm: 0.0,
+            step_spread: 0.0,
+            offset: [0.0; 3],
+        }
+    }
+}
+
+impl Unit {
+    /// Whether the unit's pairs keep learning their relative bias: while it is healthy, and
+    /// after a confirmed bias step (so that it returns with its new bias); not through
+    /// another fault, whose samples say nothing of its bias.
+    fn relearns(&self) -> bool {
+        self.healthy || self.fault == Some(FaultKind::BiasStep)
+    }
+}
+
+/// What one sample set changed.
+#[derive(Debug, Clone, Default)]
+pub struct Step {
+    /// Faults whose kind was decided at this sample set.
+    pub confirmed: heapless::Vec<FaultEvent, MAX_UNITS>,
+    /// Bit k set: unit k was readmitted at this sample set.
+    pub readmitted: u32,
+}
+
+/// The monitor of N units of one sensor type.
+#[derive(Debug, Clone)]
+pub struct FaultMonitor<const N: usize> {
+    config: FaultConfig,
+    pairs: [[[PairAxis; 3]; N]; N],
+    units: [Unit; N],
+    /// Previous sample set (for first differences and the signal's rate of change).
+    previous: [Option<[f32; 3]>; N],
+    sample: u32,
+    /// Sample sets seen with every pair present, for the start-up weights.
+    seen: u32,
+    /// When only two units are healthy, the last sample an unisolated alarm was raised at.
+    last_unisolated: Option<u32>,
+    /// No unit is suspected before this sample: the platform jolted.
+    hold_until: u32,
+}
+
+/// Pair statistics of one sample set: the z-score of every pair's difference per axis.
+type Scores<const N: usize> = [[[f32; 3]; N]; N];
+
+impl<const N: usize> FaultMonitor<N> {
+    pub fn new(config: FaultConfig) -> Self {
+        assert!((3..=MAX_UNITS).contains(&N), "3 to MAX_UNITS units");
+        Self {
+            config,
+            pairs: [[[PairAxis::default(); 3]; N]; N],
+            units: [Unit::default(); N],
+            previous: [None; N],
+            sample: 0,
+            seen: 0,
+            last_unisolated: None,
+            hold_until: 0,
+        }
+    }
+
+    /// Whether unit k is in the fused output.
+    pub fn healthy(&self, unit: usize) -> bool {
+        self.units[unit].healthy
+    }
+
+    /// Unit k's own white-noise variance per sample, sensor unit squared (slow level).
+    pub fn noise_variance(&self, unit: usize) -> f32 {
+        self.units[unit].noise_slow / 2.0
+    }
+
+    /// Unit k's bias relative to the fused output, per axis, sensor unit.
+    pub fn offset(&self, unit: usize) -> [f32; 3] {
+        self.units[unit].offset
+    }
+
+    fn pair_mean(&self, k: usize, l: usize, a: usize) -> f32 {
+        match k.cmp(&l) {
+            core::cmp::Ordering::Less => self.pairs[k][l][a].mean,
+            core::cmp::Ordering::Greater => -self.pairs[l][k][a].mean,
+            core::cmp::Ordering::Equal => 0.0,
+        }
+    }
+
+    /// One set of samples (None: the unit's sample did not arrive), in the common frame.
+    pub fn push(&mut self, samples: &[Option<[f32; 3]>; N]) -> Step {
+        let mut step = Step::default();
+        let sample = self.sample;
+        self.sample += 1;
+        let mut direct: [Option<(FaultKind, Option<u8>)>; N] = [None; N];
+        for (k, s) in samples.iter().enumerate() {
+            direct[k] = self.direct_fault(k, s, samples);
+        }
+        let scores = self.scores(samples);
+        let present: [bool; N] = core::array::from_fn(|k| samples[k].is_some());
+        let jumped = self.jumps(samples);
+        let mut triggers = self.statistical_triggers(&scores, &present, samples);
+        let in_use = (0..N).filter(|&k| self.units[k].healthy && present[k]);
+        let with = in_use.clone().filter(|&k| jumped[k]).count();
+        if with >= 2 && 2 * with >= in_use.count() {
+            self.hold_until = sample + self.config.samples(self.config.common_hold_s);
+        }
+        if sample < self.hold_until {
+            triggers = [None; N];
+        }
+        for k in 0..N {
+            if let Some((kind, axis)) = direct[k] {
+                self.confirm_now(k, kind, axis, sample, &mut step);
+            } else if let Some(trigger) = triggers[k] {
+                if self.units[k].healthy {
+                    self.units[k].healthy = false;
+                    self.units[k].suspected = Some((sample, trigger));
+                    self.units[k].episode = Episode::default();
+                }
+                self.units[k].clean_run = 0;
+            }
+        }
+        self.unisolated_alarm(&scores, &present, sample, &mut step);
+        self.gather_evidence(samples, &scores, &mut step, sample);
+        self.readmit(&scores, &present, &direct, &mut step);
+        self.learn(samples, &scores);
+        self.previous = *samples;
+        step
+    }
+
+    /// Dropout, saturation or stuck output of unit k, from its own samples.
+    fn direct_fault(
+        &mut self,
+        k: usize,
+        sample: &Option<[f32; 3]>,
+        all: &[Option<[f32; 3]>; N],
+    ) -> Option<(FaultKind, Option<u8>)> {
+        let Some(s) = sample else {
+            return Some((FaultKind::Dropout, None));
+        };
+        if let Some(a) = (0..3).find(|&a| s[a].abs() >= self.config.range[k]) {
+            return Some((FaultKind::Saturation, Some(a as u8)));
+        }
+        let unchanged = |now: &[f32; 3], before: &Option<[f32; 3]>| {
+            before.is_some_and(|b| (0..3).all(|a| now[a] == b[a]))
+        };
+        let others_moved = (0..N).any(|l| {
+            l != k
+                && self.units[l].healthy
+                && all[l].is_some_and(|x| !unchanged(&x, &self.previous[l]))
+        });
+        let unit = &mut self.units[k];
+        if unchanged(s, &unit.last) && others_moved {
+            unit.stuck_run += 1;
+        } else if !unchanged(s, &unit.last) {
+            unit.stuck_run = 0;
+        }
+        unit.last = Some(*s);
+        (unit.stuck_run >= self.config.samples(self.config.stuck_s).max(4))
+            .then_some((FaultKind::Stuck, None))
+    }
+
+    /// Which units' samples jumped from their previous ones (see `common_sigma`).
+    fn jumps(&self, samples: &[Option<[f32; 3]>; N]) -> [bool; N] {
+        core::array::from_fn(|k| match (samples[k], self.previous[k]) {
+            (Some(now), Some(before)) if self.units[k].step_spread > 0.0 => {
+                let limit = self.config.common_sigma * self.units[k].step_spread.sqrt();
+                (0..3).any(|a| (now[a] - before[a]).abs() > limit)
+            }
+            _ => false,
+        })
+    }
+
+    /// z-score of every present pair's difference on every axis against what the pair learned.
+    fn scores(&self, samples: &[Option<[f32; 3]>; N]) -> Scores<N> {
+        let mut z = [[[0.0; 3]; N]; N];
+        if self.seen < self.config.samples(1.0).max(8) {
+            return z;
+        }
+        for k in 0..N {
+            for l in k + 1..N {
+                let (Some(a), Some(b)) = (samples[k], samples[l]) else {
+                    continue;
+                };
+                for axis in 0..3 {
+                    let p = &self.pairs[k][l][axis];
+                    let s = (a[axis] - b[axis] - p.mean) / p.spread.max(f32::MIN_POSITIVE).sqrt();
+                    z[k][l][axis] = s;
+                    z[l][k][axis] = -s;
+                }
+            }
+        }
+        z
+    }
+}
+
+/// Largest |value| over a triad.
+fn largest(v: &[f32; 3]) -> f32 {
+    v.iter().fold(0.0f32, |m, x| m.max(x.abs()))
+}
+
+impl<const N: usize> FaultMonitor<N> {
+    /// The statistical test that suspects each unit, where one does: a test isolates unit k
+    /// when every pair of k with a present healthy unit fails it and no pair of two present
+    /// healthy units without k fails half of it.
+    fn statistical_triggers(
+        &self,
+        z: &Scores<N>,
+        present: &[bool; N],
+        samples: &[Option<[f32; 3]>; N],
+    ) -> [Option<Trigger>; N] {
+        let spike = |k: usize, l: usize| largest(&z[k][l]);
+        let shift = |k: usize, l: usize| self.shift_score(k, l, z);
+        let mut out = [None; N];
+        for (k, o) in out.iter_mut().enumerate() {
+            if !present[k] {
+                continue;
+            }
+            let isolates = |score: &dyn Fn(usize, usize) -> f32, threshold: f32| {
+                self.isolated(k, present, score, threshold)
+            };
+            *o = if isolates(&spike, self.config.spike_sigma) {
+                Some(Trigger::Spike)
+            } else if isolates(&shift, self.config.shift_sigma) {
+                Some(Trigger::Shift)
+            } else if self.burst(k) {
+                Some(Trigger::Burst)
+            } else if self.norm_off(k, samples) {
+                Some(Trigger::Norm)
+            } else {
+                None
+            };
+        }
+        out
+    }
+
+    /// The shift test's statistic of pair (k, l) after this sample: the updated fast mean of
+    /// the z-score over its learned spread, largest over the axes.
+    fn shift_score(&self, k: usize, l: usize, z: &Scores<N>) -> f32 {
+        let (i, j) = if k < l { (k, l) } else { (l, k) };
+        let alpha = self.config.alpha(self.config.fast_time_constant_s);
+        let floor = alpha / (2.0 - alpha);
+        (0..3)
+            .map(|a| {
+                let p = &self.pairs[i][j][a];
+                let shift = p.shift + alpha * (z[i][j][a] - p.shift);
+                shift.abs() / p.shift_spread.max(floor).sqrt()
+            })
+            .fold(0.0, f32::max)
+    }
+
+    /// Whether unit k alone fails `score` against `threshold` among the present healthy units.
+    fn isolated(
+        &self,
+        k: usize,
+        present: &[bool; N],
+        score: impl Fn(usize, usize) -> f32,
+        threshold: f32,
+    ) -> bool {
+        let usable = |l: usize| present[l] && self.units[l].healthy;
+        let others: heapless::Vec<usize, MAX_UNITS> =
+            (0..N).filter(|&l| l != k && usable(l)).collect();
+        if others.len() < 2 {
+            return false;
+        }
+        let all_fail = others.iter().all(|&l| score(k, l) >= threshold);
+        let clean_elsewhere = others.iter().all(|&l| {
+            others
+                .iter()
+                .filter(|&&m| m > l)
+                .all(|&m| score(l, m) < threshold / 2.0)
+        });
+        all_fail && clean_elsewhere
+    }
+
+    /// Whether unit k's own noise rose `burst_ratio` times above its slow level, more than
+    /// every other healthy unit's did. A level is floored at a quarter of the quietest other
+    /// unit's: a much quieter unit's own level is a small difference of the others' (it may
+    /// even read negative), and its noise rising to the others' level harms no fusion.
+    fn burst(&self, k: usize) -> bool {
+        if self.seen < self.config.samples(self.config.spread_time_constant_s) {
+            return false;
+        }
+        let ratio = |i: usize| {
+            let floor = (0..N)
+                .filter(|&l| l != i)
+                .map(|l| self.units[l].noise_slow)
+                .fold(f32::INFINITY, f32::min);
+            let u = &self.units[i];
+            u.noise_fast / u.noise_slow.max(0.25 * floor).max(f32::MIN_POSITIVE)
+        };
+        let others = (0..N)
+            .filter(|&l| l != k && self.units[l].healthy)
+            .map(ratio)
+            .fold(1.0f32, f32::max);
+        ratio(k) / others >= self.config.burst_ratio
+    }
+
+    /// Whether unit k's vector length is off the median of the healthy others' by more than
+    /// the norm tolerance.
+    fn norm_off(&self, k: usize, samples: &[Option<[f32; 3]>; N]) -> bool {
+        let Some(tolerance) = self.config.norm_tolerance else {
+            return false;
+        };
+        if self.seen < self.config.samples(1.0).max(8) || samples[k].is_none() {
+            return false;
+        }
+        let mut others: heapless::Vec<f32, MAX_UNITS> = (0..N)
+            .filter(|&l| l != k && self.units[l].healthy && samples[l].is_some())
+            .map(|l| self.units[l].norm)
+            .collect();
+        if others.len() < 2 {
+            return false;
+        }
+        others.sort_unstable_by(f32::total_cmp);
+        let median = others[others.len() / 2];
+        (self.units[k].norm - median).abs() > tolerance * median
+    }
+}
+
+impl<const N: usize> FaultMonitor<N> {
+    /// A fault seen in the unit's own samples: confirmed at once, reported when the unit was
+    /// healthy or only suspected.
+    fn confirm_now(
+        &mut self,
+        k: usize,
+        kind: FaultKind,
+        axis: Option<u8>,
+        sample: u32,
+        step: &mut Step,
+    ) {
+        let unit = &mut self.units[k];
+        unit.clean_run = 0;
+        let detected_sample = match unit.suspected {
+            Some((detected, _)) => detected,
+            None if unit.healthy => sample,
+            None => return,
+        };
+        unit.healthy = false;
+        unit.suspected = None;
+        unit.fault = Some(kind);
+        let _ = step.confirmed.push(FaultEvent {
+            unit: Some(k as u8),
+            axis,
+            kind,
+            detected_sample,
+            confirmed_sample: sample,
+        });
+    }
+
+    /// With only two healthy units present, a failed spike or shift test is reported without
+    /// a unit (once per clean period): which of the two is wrong cannot be told.
+    fn unisolated_alarm(
+        &mut self,
+        z: &Scores<N>,
+        present: &[bool; N],
+        sample: u32,
+        step: &mut Step,
+    ) {
+        let mut healthy = (0..N).filter(|&k| present[k] && self.units[k].healthy);
+        let (Some(k), Some(l), None) = (healthy.next(), healthy.next(), healthy.next()) else {
+            return;
+        };
+        let kind = if largest(&z[k][l]) >= self.config.spike_sigma {
+            FaultKind::Spike
+        } else if self.shift_score(k, l, z) >= self.config.shift_sigma {
+            FaultKind::BiasStep
+        } else {
+            return;
+        };
+        let quiet = self.config.samples(self.config.clean_s);
+        if self
+            .last_unisolated
+            .is_some_and(|last| sample - last < quiet)
+        {
+            return;
+        }
+        self.last_unisolated = Some(sample);
+        let _ = step.confirmed.push(FaultEvent {
+            unit: None,
+            axis: None,
+            kind,
+            detected_sample: sample,
+            confirmed_sample: sample,
+        });
+    }
+
+    /// The healthy present units other than k: their mean signal per axis, and unit k's bias
+    /// relative to them.
+    fn reference(&self, k: usize, samples: &[Option<[f32; 3]>; N]) -> Option<([f32; 3], [f32; 3])> {
+        let others: heapless::Vec<usize, MAX_UNITS> = (0..N)
+            .filter(|&l| l != k && self.units[l].healthy && samples[l].is_some())
+            .collect();
+        if others.is_empty() {
+            return None;
+        }
+        let n = others.len() as f32;
+        let signal = core::array::from_fn(|a| {
+            others
+                .iter()
+                .map(|&l| samples[l].map_or(0.0, |s| s[a]))
+                .sum::<f32>()
+                / n
+        });
+        let bias = core::array::from_fn(|a| {
+            others.iter().map(|&l| self.pair_mean(k, l, a)).sum::<f32>() / n
+        });
+        Some((signal, bias))
+    }
+
+    /// Adds this sample set to every suspected unit's evidence, and decides the kind of those
+    /// whose confirmation window is full.
+    fn gather_evidence(
+        &mut self,
+        samples: &[Option<[f32; 3]>; N],
+        z: &Scores<N>,
+        step: &mut Step,
+        sample: u32,
+    ) {
+        let window = self.config.samples(self.config.confirm_s).max(1);
+        for k in 0..N {
+            let Some((detected, trigger)) = self.units[k].suspected else {
+                continue;
+            };
+            let (Some(s), Some((x, bias))) = (samples[k], self.reference(k, samples)) else {
+                continue;
+            };
+            let before = self
+                .reference(k, &self.previous)
+                .map(|(x, _)| x)
+                .unwrap_or(x);
+            let excursion = (0..N)
+                .filter(|&l| l != k && self.units[l].healthy)
+                .any(|l| largest(&z[k][l]) >= self.config.spike_sigma);
+            let e = &mut self.units[k].episode;
+            e.add(
+                core::array::from_fn(|a| s[a] - x[a] - bias[a]),
+                x,
+                core::array::from_fn(|a| x[a] - before[a]),
+            );
+            e.excursions += excursion as u32;
+            if e.count >= window {
+                let (kind, axis) = classify(e, trigger);
+                self.units[k].suspected = None;
+                self.units[k].fault = Some(kind);
+                let _ = step.confirmed.push(FaultEvent {
+                    unit: Some(k as u8),
+                    axis,
+                    kind,
+                    detected_sample: detected,
+                    confirmed_sample: sample,
+                });
+            }
+        }
+    }
+
+    /// Readmits confirmed faulty units after a clean period: present, no direct fault, and
+    /// every pair with a healthy unit within half the spike and shift thresholds.
+    fn readmit(
+        &mut self,
+        z: &Scores<N>,
+        present: &[bool; N],
+        direct: &[Option<(FaultKind, Option<u8>)>; N],
+        step: &mut Step,
+    ) {
+        let needed = self.config.samples(self.config.clean_s);
+        for k in 0..N {
+            let unit = &self.units[k];
+            if unit.healthy || unit.suspected.is_some() {
+                continue;
+            }
+            let clean = present[k]
+                && direct[k].is_none()
+                && !self.burst(k)
+                && (0..N)
+                    .filter(|&l| l != k && present[l] && self.units[l].healthy)
+                    .all(|l| {
+                        largest(&z[k][l]) < self.config.spike_sigma / 2.0
+                            && self.shift_score(k, l, z) < self.config.shift_sigma / 2.0
+                    });
+            let unit = &mut self.units[k];
+            unit.clean_run = if clean { unit.clean_run + 1 } else { 0 };
+            if unit.clean_run >= needed {
+                unit.healthy = true;
+                unit.fault = None;
+                unit.clean_run = 0;
+                step.readmitted |= 1 << k;
+            }
+        }
+    }
+}
+
+/// t-statistic beyond which a term of the confirmation window's least squares is there.
+const TERM_T: f32 = 5.0;
+
+/// The kind of a statistically suspected fault from its confirmation window, and the axis
+/// that showed it. A spike shows in a few samples only; otherwise each axis's residual is
+/// fitted on a constant, the signal and the signal's change per sample, and the kind is the
+/// strongest term that stands out on any axis: the change (a time slip: x(t - d) - x(t) is
+/// about -d v), else the signal (a scale change, which also shifts the constant), else the
+/// constant (a bias step), else none (a noise burst). Over a window where the signal hardly
+/// changes, a scale change cannot be told from a bias step (an accelerometer's gravity at
+/// rest) and is reported as one.
+fn classify(e: &Episode, trigger: Trigger) -> (FaultKind, Option<u8>) {
+    if trigger == Trigger::Norm {
+        return (FaultKind::ScaleFactor, None);
+    }
+    let loudest = (0..3).fold(0, |best, a| if e.rr[a] > e.rr[best] { a } else { best });
+    if trigger == Trigger::Spike && e.excursions <= 2 {
+        return (FaultKind::Spike, Some(loudest as u8));
+    }
+    let t: [[f32; 3]; 3] = core::array::from_fn(|a| term_t_statistics(e, a));
+    let find = |term: usize, beats: &dyn Fn(&[f32; 3]) -> bool| {
+        (0..3)
+            .filter(|&a| t[a][term] >= TERM_T && beats(&t[a]))
+            .fold(None, |best: Option<usize>, a| match best {
+                Some(b) if t[b][term] >= t[a][term] => Some(b),
+                _ => Some(a),
+            })
+    };
+    if let Some(a) = find(2, &|t| t[2] >= t[1]) {
+        (FaultKind::TimeSlip, Some(a as u8))
+    } else if let Some(a) = find(1, &|_| true) {
+        (FaultKind::ScaleFactor, Some(a as u8))
+    } else if let Some(a) = find(0, &|_| true) {
+        (FaultKind::BiasStep, Some(a as u8))
+    } else {
+        (FaultKind::NoiseBurst, Some(loudest as u8))
+    }
+}
+
+/// |t| of the constant, the signal and its change in axis a's least squares; only the
+/// constant's where the signal did not change over the window.
+fn term_t_statistics(e: &Episode, a: usize) -> [f32; 3] {
+    let normal = nalgebra::Matrix3::from_fn(|i, j| e.normal[a][i][j]);
+    let cross = nalgebra::Vector3::from(e.cross[a]);
+    match normal.try_inverse() {
+        Some(inverse) if e.count > 3 => {
+            let beta = inverse * cross;
+            let residual = (e.rr[a] - beta.dot(&cross)).max(0.0) / (e.count - 3) as f32;
+            core::array::from_fn(|j| {
+                let se = (residual * inverse[(j, j)]).max(f32::MIN_POSITIVE).sqrt();
+                (beta[j] / se).abs()
+            })
+        }
+        _ => {
+            let n = e.count.max(1) as f32;
+            let mean = e.cross[a][0] / n;
+            let variance = (e.rr[a] / n - mean * mean).max(f32::MIN_POSITIVE);
+            [mean.abs() / (variance / n).sqrt(), 0.0, 0.0]
+        }
+    }
+}
+
+impl<const N: usize> FaultMonitor<N> {
+    /// Updates what the pairs and units have learned from a sample set: the pairs' means (see
+    /// [`Unit::relearns`]) and, from pairs of healthy units only, the spreads the tests
+    /// divide by.
+    fn learn(&mut self, samples: &[Option<[f32; 3]>; N], z: &Scores<N>) {
+        self.seen = self.seen.saturating_add(1);
+        let c = self.config;
+        let startup = 1.0 / self.seen as f32;
+        let alpha_mean = c.alpha(c.mean_time_constant_s).max(startup);
+        let alpha_spread = c.alpha(c.spread_time_constant_s).max(startup);
+        let alpha_fast = c.alpha(c.fast_time_constant_s);
+        let floor = alpha_fast / (2.0 - alpha_fast);
+        for k in 0..N {
+            for l in k + 1..N {
+                let (Some(a), Some(b)) = (samples[k], samples[l]) else {
+                    continue;
+                };
+                let healthy = self.units[k].healthy && self.units[l].healthy;
+                let relearn = self.units[k].relearns() && self.units[l].relearns();
+                for axis in 0..3 {
+                    let p = &mut self.pairs[k][l][axis];
+                    let u = a[axis] - b[axis] - p.mean;
+                    if relearn {
+                        p.mean += alpha_mean * u;
+                    }
+                    p.shift += alpha_fast * (z[k][l][axis] - p.shift);
+                    if healthy {
+                        // Clipped at 25 spreads: one outlier moves the spread little.
+                        let limit = if p.spread > 0.0 {
+                            25.0 * p.spread
+                        } else {
+                            f32::INFINITY
+                        };
+                        p.spread += alpha_spread * ((u * u).min(limit) - p.spread);
+                        let s2 = (p.shift * p.shift).min(9.0 * p.shift_spread.max(floor));
+                        p.shift_spread += alpha_spread * (s2 - p.shift_spread);
+                    }
+                }
+            }
+        }
+        self.learn_noise(samples, alpha_spread);
+        self.learn_offsets(samples, alpha_mean);
+    }
+
+    /// Moves every present unit's offset toward its sample less the fused output.
+    fn learn_offsets(&mut self, samples: &[Option<[f32; 3]>; N], alpha: f32) {
+        let Some(fused) = self.fused(samples) else {
+            return;
+        };
+        for (unit, s) in self.units.iter_mut().zip(samples) {
+            if let Some(s) = s {
+                for a in 0..3 {
+                    unit.offset[a] += alpha * (s[a] - fused[a] - unit.offset[a]);
+                }
+            }
+        }
+    }
+
+    /// Each unit's own white-noise variance of first differences, fast and slow, from
+    /// products with two healthy others, and the fast mean of its vector's length.
+    fn learn_noise(&mut self, samples: &[Option<[f32; 3]>; N], alpha_slow: f32) {
+        let alpha_fast = self.config.alpha(4.0 * self.config.fast_time_constant_s);
+        let delta: [Option<[f32; 3]>; N] =
+            core::array::from_fn(|k| match (samples[k], self.previous[k]) {
+                (Some(now), Some(before)) => Some(core::array::from_fn(|a| now[a] - before[a])),
+                _ => None,
+            });
+        for k in 0..N {
+            if let Some(s) = samples[k] {
+                let length = s.iter().map(|v| v * v).sum::<f32>().sqrt();
+                let unit = &mut self.units[k];
+                let weight = if unit.norm == 0.0 { 1.0 } else { alpha_fast };
+                unit.norm += weight * (length - unit.norm);
+                if let Some(before) = self.previous[k] {
+                    let step2 = (0..3).map(|a| (s[a] - before[a]).powi(2)).sum::<f32>() / 3.0;
+                    let limit = if unit.step_spread > 0.0 {
+                        25.0 * unit.step_spread
+                    } else {
+                        f32::INFINITY
+                    };
+                    unit.step_spread += alpha_slow.max(1.0 / self.seen as f32)
+                        * (step2.min(limit) - unit.step_spread);
+                }
+            }
+            let Some(dk) = delta[k] else { continue };
+            let mut sum = 0.0;
+            let mut count = 0;
+            for l in 0..N {
+                for m in l + 1..N {
+                    let usable = |i: usize| i != k && self.units[i].healthy && delta[i].is_some();
+                    if !(usable(l) && usable(m)) {
+                        continue;
+                    }
+                    let (dl, dm) = (delta[l].unwrap_or_default(), delta[m].unwrap_or_default());
+                    sum += (0..3)
+                        .map(|a| (dk[a] - dl[a]) * (dk[a] - dm[a]))
+                        .sum::<f32>()
+                        / 3.0;
+                    count += 1;
+                }
+            }
+            if count == 0 {
+                continue;
+            }
+            let product = sum / count as f32;
+            let unit = &mut self.units[k];
+            unit.noise_fast += alpha_fast.max(alpha_slow) * (product - unit.noise_fast);
+            if unit.healthy {
+                let limit = if unit.noise_slow > 0.0 {
+                    25.0 * unit.noise_slow
+                } else {
+                    f32::INFINITY
+                };
+                unit.noise_slow += alpha_slow * (product.min(limit) - unit.noise_slow);
+            }
+        }
+    }
+
+    /// The fused sample: the mean of the healthy present units, each less its bias relative
+    /// to the set, weighted by the inverse of its own noise variance; None when no healthy
+    /// unit is present.
+    pub fn fused(&self, samples: &[Option<[f32; 3]>; N]) -> Option<[f32; 3]> {
+        let mut sum = [0.0f32; 3];
+        let mut weights = 0.0;
+        let in_use = |k: usize| self.units[k].healthy && samples[k].is_some();
+        // Equal weights until every unit in use has a noise level.
+        let levels_known = (0..N).all(|k| !in_use(k) || self.noise_variance(k) > 0.0);
+        for (k, s) in samples.iter().enumerate() {
+            let Some(s) = s.filter(|_| self.units[k].healthy) else {
+                continue;
+            };
+            let w = if levels_known {
+                1.0 / self.noise_variance(k)
+            } else {
+                1.0
+            };
+            let offset = self.offset(k);
+            for a in 0..3 {
+                sum[a] += w * (s[a] - offset[a]);
+            }
+            weights += w;
+        }
+        (weights > 0.0).then(|| sum.map(|v| v / weights))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, StandardNormal};
+
+    const RATE_HZ: f32 = 100.0;
+    const NOISE: [f32; 3] = [0.002, 0.004, 0.003];
+    const BIAS: [f32; 3] = [0.01, -0.005, 0.002];
+    /// The fault starts at 60 s.
+    const ONSET: u32 = 6000;
+
+    /// The platform's angular rate at sample i: slow turns of up to 0.3 rad/s and a 26 Hz
+    /// vibration line, rad/s.
+    fn motion(i: u32) -> [f32; 3] {
+        let t = i as f32 / RATE_HZ;
+        let vibration = 0.05 * (2.0 * core::f32::consts::PI * 26.0 * t).sin();
+        [
+            0.1 * (0.7 * t).sin() + vibration,
+            0.15 * (0.4 * t + 1.0).sin() + 0.5 * vibration,
+            0.3 * (0.25 * t).sin() + 0.3 * vibration,
+        ]
+    }
+
+    /// What unit 1 reads at sample i under `fault`, from the true rate and its noise.
+    type Fault = fn(u32, [f32; 3], &mut ChaCha8Rng) -> Option<[f32; 3]>;
+
+    /// Runs three units for `seconds` with unit 1 read through `fault`: the confirmed events,
+    /// the samples unit 1 was readmitted at, and the largest error of the fused output over
+    /// 0.1 s means from 10 s before the onset, less its mean error over 10-50 s (the fused
+    /// output's own bias, a weighted mean of the units').
+    fn run(
+        seed: u64,
+        seconds: u32,
+        fault: Fault,
+        config: FaultConfig,
+    ) -> (Vec<FaultEvent>, Vec<u32>, f32) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut monitor = FaultMonitor::<3>::new(config);
+        let (mut events, mut readmitted, mut worst) = (Vec::new(), Vec::new(), 0.0f32);
+        let mut window = ([0.0f32; 3], 0);
+        let mut fused_bias = [0.0f32; 3];
+        for i in 0..(seconds * RATE_HZ as u32) {
+            let truth = motion(i);
+            let mut samples: [Option<[f32; 3]>; 3] = core::array::from_fn(|k| {
+                Some(core::array::from_fn(|a| {
+                    let z: f32 = StandardNormal.sample(&mut rng);
+                    truth[a] + BIAS[k] + NOISE[k] * z
+                }))
+            });
+            samples[1] = fault(i, samples[1].unwrap(), &mut rng);
+            let step = monitor.push(&samples);
+            events.extend(step.confirmed.iter().copied());
+            if step.readmitted & 2 != 0 {
+                readmitted.push(i);
+            }
+            let fused = monitor.fused(&samples);
+            if let Some(f) = fused.filter(|_| (1000..ONSET - 1000).contains(&i)) {
+                for a in 0..3 {
+                    fused_bias[a] += (f[a] - truth[a]) / (ONSET - 2000) as f32;
+                }
+            }
+            if let Some(f) = fused.filter(|_| i >= ONSET - 1000) {
+                for a in 0..3 {
+                    window.0[a] += f[a] - truth[a] - fused_bias[a];
+                }
+                window.1 += 1;
+            }
+            if window.1 == 10 {
+                worst = worst.max(largest(&window.0.map(|e| e / 10.0)));
+                window = ([0.0; 3], 0);
+            }
+        }
+        (events, readmitted, worst)
+    }
+
+    fn config() -> FaultConfig {
+        FaultConfig::new(1.0 / RATE_HZ)
+    }
+
+    /// The first event is unit 1's, of `kind`, detected within `latency` samples of the onset;
+    /// no event names another unit.
+    fn assert_isolated(events: &[FaultEvent], kind: FaultKind, latency: u32) {
+        let first = events
+            .first()
+            .unwrap_or_else(|| panic!("no event; wanted {kind:?}"));
+        assert_eq!(first.unit, Some(1), "{events:?}");
+        assert_eq!(first.kind, kind, "{events:?}");
+        assert!(
+            (ONSET..=ONSET + latency).contains(&first.detected_sample),
+            "{events:?}"
+        );
+        assert!(events.iter().all(|e| e.unit == Some(1)), "{events:?}");
+    }
+
+    fn healthy(_: u32, s: [f32; 3], _: &mut ChaCha8Rng) -> Option<[f32; 3]> {
+        Some(s)
+    }
+
+    #[test]
+    fn a_fault_free_run_raises_nothing_and_the_fused_output_is_near_the_truth() {
+        for seed in 0..3 {
+            let (events, _, worst) = run(seed, 600, healthy, config());
+            assert!(events.is_empty(), "seed {seed}: {events:?}");
+            // Fused noise about 0.0017 rad/s per sample, 0.0005 over 0.1 s.
+            assert!(worst < 0.004, "seed {seed}: {worst}");
+        }
+    }
+
+    #[test]
+    fn each_fault_kind_is_isolated_to_its_unit_and_kept_out_of_the_fused_output() {
+        let dropout: Fault = |i, s, _| (!(ONSET..ONSET + 100).contains(&i)).then_some(s);
+        let stuck: Fault = |i, s, _| {
+            if (ONSET..ONSET + 200).contains(&i) {
+                Some(motion(ONSET))
+            } else {
+                Some(s)
+            }
+        };
+        let spike: Fault = |i, s, _| Some(if i == ONSET { s.map(|v| v + 0.2) } else { s });
+        let step: Fault = |i, s, _| Some(if i >= ONSET { s.map(|v| v + 0.03) } else { s });
+        let scale: Fault = |i, s, _| {
+            let truth = motion(i);
+            Some(if i >= ONSET {
+                core::array::from_fn(|a| s[a] + 0.08 * truth[a])
+            } else {
+                s
+            })
+        };
+        let burst: Fault = |i, s, rng| {
+            Some(if (ONSET..ONSET + 300).contains(&i) {
+                s.map(|v| {
+                    v + 0.03
+                        * <StandardNormal as Distribution<f32>>::sample(&StandardNormal, &mut *rng)
+                })
+            } else {
+                s
+            })
+        };
+        let slip: Fault = |i, s, _| {
+            let (now, before) = (motion(i), motion(i.saturating_sub(1)));
+            Some(if i >= ONSET {
+                core::array::from_fn(|a| s[a] - now[a] + before[a])
+            } else {
+                s
+            })
+        };
+        let cases: [(&str, Fault, FaultKind, u32); 7] = [
+            ("dropout", dropout, FaultKind::Dropout, 0),
+            ("stuck", stuck, FaultKind::Stuck, 12),
+            ("spike", spike, FaultKind::Spike, 0),
+            ("bias step", step, FaultKind::BiasStep, 20),
+            ("scale", scale, FaultKind::ScaleFactor, 300),
+            ("noise burst", burst, FaultKind::NoiseBurst, 100),
+            ("time slip", slip, FaultKind::TimeSlip, 10),
+        ];
+        for (name, fault, kind, latency) in cases {
+            let (events, readmitted, worst) = run(11, 120, fault, config());
+            eprintln!("{name}: {events:?} readmitted {readmitted:?} worst {worst}");
+            assert_isolated(&events, kind, latency);
+            assert!(worst < 0.01, "{name}: fused error {worst}");
+        }
+    }
+
+    #[test]
+    fn a_saturated_unit_is_isolated_at_its_range() {
+        let mut c = config();
+        c.range[1] = 0.28;
+        let clip: Fault = |_, s, _| Some(s.map(|v| v.clamp(-0.28, 0.28)));
+        let (events, _, _) = run(5, 60, clip, c);
+        let first = events.first().expect("saturation");
+        assert_eq!((first.unit, first.kind), (Some(1), FaultKind::Saturation));
+        // z reaches 0.3 + 0.3 x 0.05 rad/s near t = 6.3 s.
+        assert!((400..900).contains(&first.detected_sample), "{events:?}");
+    }
+
+    #[test]
+    fn transient_faults_are_readmitted_and_a_bias_step_returns_with_its_new_bias() {
+        let spike: Fault = |i, s, _| Some(if i == ONSET { s.map(|v| v + 0.2) } else { s });
+        let (_, readmitted, _) = run(3, 90, spike, config());
+        // Confirmed after 1 s, then clean for 5 s.
+        assert!(
+            matches!(readmitted.first(), Some(&i) if (ONSET + 600..ONSET + 700).contains(&i)),
+            "{readmitted:?}"
+        );
+        let step: Fault = |i, s, _| Some(if i >= ONSET { s.map(|v| v + 0.03) } else { s });
+        let (events, readmitted, _) = run(3, 150, step, config());
+        assert_eq!(events.len(), 1, "{events:?}");
+        assert!(!readmitted.is_empty(), "the stepped unit never returned");
+    }
+
+    #[test]
+    fn a_jolt_every_unit_feels_differently_is_no_fault() {
+        // Units at different places see a knock of the platform with different sizes: two
+        // alike, the third much larger (it would be isolated as a spike without the hold).
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let mut monitor = FaultMonitor::<3>::new(config());
+        let mut events = Vec::new();
+        for i in 0..9000u32 {
+            let truth = motion(i);
+            // A sharp knock of 0.2 rad/s over three samples every 15 s.
+            let knock = if (i % 1500) < 3 && i > 1500 { 0.2 } else { 0.0 };
+            let s: [Option<[f32; 3]>; 3] = core::array::from_fn(|k| {
+                let size = [1.0, 1.1, 2.5][k];
+                Some(core::array::from_fn(|a| {
+                    let z: f32 = StandardNormal.sample(&mut rng);
+                    truth[a] + size * knock + NOISE[k] * z
+                }))
+            });
+            events.extend(monitor.push(&s).confirmed.iter().copied());
+        }
+        assert!(events.is_empty(), "{events:?}");
+    }
+
+    #[test]
+    fn with_two_units_left_a_disagreement_is_detected_but_not_isolated() {
+        // Unit 1 drops out for good at 60 s; a spike on unit 0 then cannot be placed.
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let mut monitor = FaultMonitor::<3>::new(config());
+        let mut events = Vec::new();
+        for i in 0..9000u32 {
+            let truth = motion(i);
+            let mut s: [Option<[f32; 3]>; 3] = core::array::from_fn(|k| {
+                Some(core::array::from_fn(|a| {
+                    truth[a]
+                        + NOISE[k]
+                            * <StandardNormal as Distribution<f32>>::sample(
+                                &StandardNormal,
+                                &mut rng,
+                            )
+                }))
+            });
+            if i >= ONSET {
+                s[1] = None;
+            }
+            if i == 8000 {
+                s[0] = s[0].map(|v| v.map(|x| x + 0.2));
+            }
+            events.extend(monitor.push(&s).confirmed.iter().copied());
+        }
+        assert_eq!(events.len(), 2, "{events:?}");
+        assert_eq!(
+            (events[0].unit, events[0].kind),
+            (Some(1), FaultKind::Dropout)
+        );
+        assert_eq!((events[1].unit, events[1].detected_sample), (None, 8000));
+        assert!(monitor.healthy(0) && monitor.healthy(2));
+    }
+}
