@@ -43,7 +43,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let units = args
         .units
         .iter()
-        .map(|p| Ok((p.display().to_string(), load_recording(p, true)?)))
+        .map(|p| Ok((p.display().to_string(), load_recording(p, false)?)))
         .collect::<anyhow::Result<Vec<_>>>()?;
     for (name, range) in [
         ("--gyro-range-rad-s", args.gyro_range_rad_s),

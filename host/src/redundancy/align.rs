@@ -14,11 +14,28 @@ fn at(triad: &[Vec<f64>; 3], k: usize) -> Vector3<f64> {
     Vector3::new(triad[0][k], triad[1][k], triad[2][k])
 }
 
-/// Deviations of a triad from its mean, per sample (a bias does not rotate with the motion).
-fn centred(triad: &[Vec<f64>; 3]) -> Vec<Vector3<f64>> {
+/// Length of the moving mean the gyros are detrended by before the rotation is solved, s.
+const DETREND_S: f64 = 10.0;
+
+/// Deviations of a triad from its centred moving mean over [`DETREND_S`] (`window`
+/// samples), per sample: a bias does not rotate with the motion, and a unit's bias that
+/// steps or drifts would otherwise weigh on the rotation for the whole run (and a faulty
+/// unit must not be misaligned by its fault).
+fn detrended(triad: &[Vec<f64>; 3], window: usize) -> Vec<Vector3<f64>> {
     let n = triad[0].len();
-    let mean = (0..n).map(|k| at(triad, k)).sum::<Vector3<f64>>() / n as f64;
-    (0..n).map(|k| at(triad, k) - mean).collect()
+    let half = (window / 2).max(1);
+    let prefix: Vec<Vector3<f64>> = std::iter::once(Vector3::zeros())
+        .chain((0..n).scan(Vector3::zeros(), |sum, k| {
+            *sum += at(triad, k);
+            Some(*sum)
+        }))
+        .collect();
+    (0..n)
+        .map(|k| {
+            let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(n));
+            at(triad, k) - (prefix[hi] - prefix[lo]) / (hi - lo) as f64
+        })
+        .collect()
 }
 
 /// Largest 1-sigma of the rotation about the least-turned axis for which a unit's rotation
@@ -28,34 +45,56 @@ fn centred(triad: &[Vec<f64>; 3]) -> Vec<Vector3<f64>> {
 /// about it still aligns the gyros; on static data the sigma is far above this.
 const ROTATION_SIGMA_MAX_RAD: f64 = 1e-2;
 
-/// Rotation C with w_k = C w_0 from the gyros (Wahba's problem, Markley's SVD solution) on
-/// the centred rates, its 1-sigma and whether the motion determines it: the rotation about
-/// the least-turned direction has a 1-sigma of sqrt(s^2 / L2), s^2 the per-sample residual
-/// variance of an axis and L2 the second-largest eigenvalue of the first unit's rate scatter
-/// (summed over samples) less the noise's share; a motion about one axis leaves the
-/// rotation about it free (infinite sigma).
-fn rotation_from_gyros(first: &[Vector3<f64>], unit: &[Vector3<f64>]) -> (Matrix3<f64>, f64, bool) {
+/// Wahba's problem on the sample pairs `keep` selects: the rotation C with w_k = C w_0
+/// (Markley's SVD solution).
+fn wahba(first: &[Vector3<f64>], unit: &[Vector3<f64>], keep: &[bool]) -> Matrix3<f64> {
     let b: Matrix3<f64> = first
         .iter()
         .zip(unit)
-        .map(|(w0, wk)| wk * w0.transpose())
+        .zip(keep)
+        .filter(|(_, k)| **k)
+        .map(|((w0, wk), _)| wk * w0.transpose())
         .sum();
     let svd = b.svd(true, true);
     let (u, v_t) = (svd.u.expect("u"), svd.v_t.expect("v_t"));
     let d = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, (u * v_t).determinant().signum()));
-    let c = u * d * v_t;
-    let scatter: Matrix3<f64> = first.iter().map(|w| w * w.transpose()).sum();
-    let mut eig: Vec<f64> = scatter.symmetric_eigenvalues().iter().copied().collect();
-    eig.sort_by(f64::total_cmp);
-    let residual_per_sample = first
+    u * d * v_t
+}
+
+/// Rotation C with w_k = C w_0 from the gyros on the detrended rates, its 1-sigma and
+/// whether the motion determines it. Solved twice: the second time without the samples
+/// whose residual is beyond 5 times the median's (a unit's fault, a clipped peak, a crash
+/// must not turn the whole run's rotation). The rotation about the least-turned direction
+/// has a 1-sigma of sqrt(s^2 / L2), s^2 the per-sample residual variance of an axis and L2
+/// the second-largest eigenvalue of the first unit's rate scatter (summed over the kept
+/// samples) less the noise's share; a motion about one axis leaves the rotation about it
+/// free (infinite sigma).
+fn rotation_from_gyros(first: &[Vector3<f64>], unit: &[Vector3<f64>]) -> (Matrix3<f64>, f64, bool) {
+    let all = vec![true; first.len()];
+    let rough = wahba(first, unit, &all);
+    let residual: Vec<f64> = first
         .iter()
         .zip(unit)
-        .map(|(w0, wk)| (wk - c * w0).norm_squared())
+        .map(|(w0, wk)| (wk - rough * w0).norm())
+        .collect();
+    let mut sorted = residual.clone();
+    let median = *sorted
+        .select_nth_unstable_by(residual.len() / 2, f64::total_cmp)
+        .1;
+    let keep: Vec<bool> = residual.iter().map(|r| *r <= 5.0 * median).collect();
+    let c = wahba(first, unit, &keep);
+    let kept = || first.iter().zip(unit).zip(&keep).filter(|(_, k)| **k);
+    let n = kept().count().max(1) as f64;
+    let scatter: Matrix3<f64> = kept().map(|((w, _), _)| w * w.transpose()).sum();
+    let mut eig: Vec<f64> = scatter.symmetric_eigenvalues().iter().copied().collect();
+    eig.sort_by(f64::total_cmp);
+    let residual_per_sample = kept()
+        .map(|((w0, wk), _)| (wk - c * w0).norm_squared())
         .sum::<f64>()
-        / (3 * first.len().max(1)) as f64;
+        / (3.0 * n);
     // The scatter holds the first unit's noise too (about n s0^2 on every axis, s0^2 below
     // the residual variance, which is s0^2 + sk^2): only what stands above it is motion.
-    let motion = eig[1] - first.len() as f64 * residual_per_sample;
+    let motion = eig[1] - n * residual_per_sample;
     let sigma = if motion > 0.0 {
         (residual_per_sample / motion).sqrt()
     } else {
@@ -221,7 +260,8 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
     let first = &units[0].1;
     let dt_s = 1.0 / first.rate_hz();
     let n = first.len();
-    let first_centred = centred(&gyro(first));
+    let window = (DETREND_S / dt_s).round() as usize;
+    let first_centred = detrended(&gyro(first), window);
     let rotations: Vec<Rotation> = units
         .iter()
         .enumerate()
@@ -229,7 +269,7 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
             let (c, sigma_rad, determined) = if k == 0 {
                 (Matrix3::identity(), 0.0, true)
             } else {
-                rotation_from_gyros(&first_centred, &centred(&gyro(r)))
+                rotation_from_gyros(&first_centred, &detrended(&gyro(r), window))
             };
             Rotation {
                 c,

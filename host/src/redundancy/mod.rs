@@ -255,6 +255,7 @@ pub fn redundancy(
             .to_string(),
     ];
     note_dropouts(units, &grid.present, &mut notes);
+    note_spacing(&grid.t_s, &mut notes);
     let first = &grid.filled[0].1;
     let dt_s = first.median_dt_s();
     let aligned = align::align(&grid.filled, &mut notes);
@@ -303,6 +304,7 @@ pub fn redundancy(
         .any(|a| a.basis == RotationBasis::Undetermined);
     let monitoring = faults::monitor(&faults::MonitorInput {
         signals: &aligned.signals,
+        raw: &grid.filled,
         present: &grid.present,
         t_s: &grid.t_s,
         dt_s,
@@ -318,6 +320,29 @@ pub fn redundancy(
         notes,
         fused: monitoring.fused,
     })
+}
+
+/// What the output must say of a grid whose times are not evenly spaced (a logger's pauses
+/// and late samples): the analysis takes the samples as evenly spaced.
+fn note_spacing(t_s: &[f64], notes: &mut Vec<String>) {
+    let Some(dt) = crate::interchange::median_step_s(t_s) else {
+        return;
+    };
+    let steps = t_s.windows(2).map(|w| w[1] - w[0]);
+    let gaps: Vec<f64> = steps.clone().filter(|s| *s > 1.5 * dt).collect();
+    let uneven = steps.filter(|s| (s / dt - 1.0).abs() > 0.1).count();
+    if uneven > 0 {
+        notes.push(format!(
+            "the shared times are not evenly spaced: {uneven} of {} steps differ from the median \
+             {dt} s by more than 10%, {} of them gaps (the longest {:.3} s), at the same times \
+             in every unit; the samples are analysed as evenly spaced (the units' differences \
+             do not depend on the motion's timing, but a wavelet scale's time and the angular \
+             acceleration across a gap do)",
+            t_s.len() - 1,
+            gaps.len(),
+            gaps.iter().copied().fold(0.0, f64::max)
+        ));
+    }
 }
 
 /// What the output must say of units that missed samples.

@@ -82,9 +82,11 @@ pub struct FaultConfig {
     pub norm_tolerance: Option<f32>,
     pub spike_sigma: f32,
     pub shift_sigma: f32,
-    /// Ratio of a unit's fast to slow own-noise variance, over the largest such ratio of the
-    /// other units, that is a noise burst.
+    /// Ratio of a pair's variance over the last second to its learned spread that is a noise
+    /// burst (of the unit every failing pair shares).
     pub burst_ratio: f32,
+    /// Time-slip statistic (a correlation, in its standard deviations) that is a slip.
+    pub slip_sigma: f32,
     pub stuck_s: f32,
     /// Change of a unit's sample from the previous one, in its own learned spread of such
     /// changes, beyond which the unit jumped; when two or more and at least half of the
@@ -114,6 +116,7 @@ impl FaultConfig {
             spike_sigma: 9.0,
             shift_sigma: 7.0,
             burst_ratio: 9.0,
+            slip_sigma: 8.0,
             stuck_s: 0.1,
             common_sigma: 5.0,
             common_hold_s: 1.0,
@@ -145,6 +148,25 @@ struct PairAxis {
     shift: f32,
     /// Learned variance of `shift`.
     shift_spread: f32,
+    /// Fast mean square of the difference about its mean: its variance over the last second.
+    fast_spread: f32,
+    /// Fast means of the difference about its mean times the pair's signal change per
+    /// sample, and of that change squared: their correlation is a time slip's signature.
+    slip_cross: f32,
+    slip_signal: f32,
+    /// Learned variance of that correlation (the series are coloured: a vibration line
+    /// makes a second's correlation vary far more than white noise would).
+    slip_spread: f32,
+}
+
+impl PairAxis {
+    /// Correlation of the difference about its mean with the signal change, last second.
+    fn slip_correlation(&self) -> f32 {
+        self.slip_cross
+            / (self.fast_spread * self.slip_signal)
+                .max(f32::MIN_POSITIVE)
+                .sqrt()
+    }
 }
 
 /// Which test suspected a unit.
@@ -153,6 +175,7 @@ enum Trigger {
     Spike,
     Shift,
     Burst,
+    Slip,
     Norm,
 }
 
@@ -170,7 +193,14 @@ struct Episode {
     count: u32,
     /// Samples whose largest z-score was beyond the spike threshold.
     excursions: u32,
+    /// Sums of the squared residual (over the axes) if the unit were d + 1 samples late
+    /// ([0]) or early ([1]), and as it is, over the samples where every lag could be tried.
+    lagged: [[f32; 2]; SLIP_LAGS],
+    unlagged: f32,
 }
+
+/// Most samples a unit's time slip is sought over, each way.
+const SLIP_LAGS: usize = 8;
 
 impl Episode {
     fn add(&mut self, r: [f32; 3], x: [f32; 3], v: [f32; 3]) {
@@ -195,20 +225,20 @@ struct Unit {
     healthy: bool,
     /// Sample the current fault was detected at, and what triggered it (None: confirmed).
     suspected: Option<(u32, Trigger)>,
-    /// Kind of the confirmed fault while the unit is out.
-    fault: Option<FaultKind>,
     episode: Episode,
     clean_run: u32,
     stuck_run: u32,
-    last: Option<[f32; 3]>,
-    /// Fast and slow own white-noise variance (of first differences: 2 s^2).
-    noise_fast: f32,
+    /// Own white-noise variance of first differences (2 s^2), slow.
     noise_slow: f32,
     /// Fast mean of the vector's length.
     norm: f32,
     /// Slow mean square of the change from one sample to the next, per axis: the unit's
     /// motion and noise together.
     step_spread: f32,
+    /// While the unit is out, its pairs' spreads are not learned; the healthy units' mean
+    /// pair spread when it left scales them as the dynamics change (a copter taking off
+    /// raises every spread tenfold).
+    spread_at_exclusion: Option<f32>,
     /// Slow mean of the unit's sample less the fused output: its bias relative to the fused
     /// output, learned against it so that the healthy units' weighted offsets keep their sum
     /// (a unit whose bias steps moves neither the others' offsets nor the fused output).
@@ -220,26 +250,15 @@ impl Default for Unit {
         Self {
             healthy: true,
             suspected: None,
-            fault: None,
             episode: Episode::default(),
             clean_run: 0,
             stuck_run: 0,
-            last: None,
-            noise_fast: 0.0,
             noise_slow: 0.0,
             norm: 0.0,
             step_spread: 0.0,
+            spread_at_exclusion: None,
             offset: [0.0; 3],
         }
-    }
-}
-
-impl Unit {
-    /// Whether the unit's pairs keep learning their relative bias: while it is healthy, and
-    /// after a confirmed bias step (so that it returns with its new bias); not through
-    /// another fault, whose samples say nothing of its bias.
-    fn relearns(&self) -> bool {
-        self.healthy || self.fault == Some(FaultKind::BiasStep)
     }
 }
 
@@ -265,6 +284,10 @@ pub struct FaultMonitor<const N: usize> {
     seen: u32,
     /// When only two units are healthy, the last sample an unisolated alarm was raised at.
     last_unisolated: Option<u32>,
+    /// The last SLIP_LAGS sample sets, `history[(cursor + SLIP_LAGS - d) % SLIP_LAGS]`
+    /// d + 1 sets ago.
+    history: [[Option<[f32; 3]>; N]; SLIP_LAGS],
+    cursor: usize,
     /// No unit is suspected before this sample: the platform jolted.
     hold_until: u32,
 }
@@ -283,6 +306,8 @@ impl<const N: usize> FaultMonitor<N> {
             sample: 0,
             seen: 0,
             last_unisolated: None,
+            history: [[None; N]; SLIP_LAGS],
+            cursor: 0,
             hold_until: 0,
         }
     }
@@ -312,15 +337,26 @@ impl<const N: usize> FaultMonitor<N> {
 
     /// One set of samples (None: the unit's sample did not arrive), in the common frame.
     pub fn push(&mut self, samples: &[Option<[f32; 3]>; N]) -> Step {
+        let repeated = core::array::from_fn(
+            |k| matches!((samples[k], self.previous[k]), (Some(now), Some(before)) if now == before),
+        );
+        self.push_marked(samples, &repeated)
+    }
+
+    /// As [`Self::push`], where the samples were transformed (a lever-arm correction moves
+    /// with the motion) and `repeated[k]` says whether unit k's raw output equals its
+    /// previous raw output: a stuck unit is seen in what it put out, not in what was made
+    /// of it.
+    pub fn push_marked(&mut self, samples: &[Option<[f32; 3]>; N], repeated: &[bool; N]) -> Step {
         let mut step = Step::default();
         let sample = self.sample;
         self.sample += 1;
+        let present: [bool; N] = core::array::from_fn(|k| samples[k].is_some());
         let mut direct: [Option<(FaultKind, Option<u8>)>; N] = [None; N];
         for (k, s) in samples.iter().enumerate() {
-            direct[k] = self.direct_fault(k, s, samples);
+            direct[k] = self.direct_fault(k, s, repeated, &present);
         }
         let scores = self.scores(samples);
-        let present: [bool; N] = core::array::from_fn(|k| samples[k].is_some());
         let jumped = self.jumps(samples);
         let mut triggers = self.statistical_triggers(&scores, &present, samples);
         let in_use = (0..N).filter(|&k| self.units[k].healthy && present[k]);
@@ -336,6 +372,7 @@ impl<const N: usize> FaultMonitor<N> {
                 self.confirm_now(k, kind, axis, sample, &mut step);
             } else if let Some(trigger) = triggers[k] {
                 if self.units[k].healthy {
+                    self.units[k].spread_at_exclusion = Some(self.healthy_spread(k));
                     self.units[k].healthy = false;
                     self.units[k].suspected = Some((sample, trigger));
                     self.units[k].episode = Episode::default();
@@ -346,17 +383,22 @@ impl<const N: usize> FaultMonitor<N> {
         self.unisolated_alarm(&scores, &present, sample, &mut step);
         self.gather_evidence(samples, &scores, &mut step, sample);
         self.readmit(&scores, &present, &direct, &mut step);
-        self.learn(samples, &scores);
+        let direct_now: [bool; N] = core::array::from_fn(|k| direct[k].is_some());
+        self.learn(samples, &scores, &direct_now);
         self.previous = *samples;
+        self.history[self.cursor] = *samples;
+        self.cursor = (self.cursor + 1) % SLIP_LAGS;
         step
     }
 
-    /// Dropout, saturation or stuck output of unit k, from its own samples.
+    /// Dropout, saturation or stuck output of unit k, from its own samples; `repeated[l]`:
+    /// unit l's output equals its previous one.
     fn direct_fault(
         &mut self,
         k: usize,
         sample: &Option<[f32; 3]>,
-        all: &[Option<[f32; 3]>; N],
+        repeated: &[bool; N],
+        present: &[bool; N],
     ) -> Option<(FaultKind, Option<u8>)> {
         let Some(s) = sample else {
             return Some((FaultKind::Dropout, None));
@@ -364,21 +406,14 @@ impl<const N: usize> FaultMonitor<N> {
         if let Some(a) = (0..3).find(|&a| s[a].abs() >= self.config.range[k]) {
             return Some((FaultKind::Saturation, Some(a as u8)));
         }
-        let unchanged = |now: &[f32; 3], before: &Option<[f32; 3]>| {
-            before.is_some_and(|b| (0..3).all(|a| now[a] == b[a]))
-        };
-        let others_moved = (0..N).any(|l| {
-            l != k
-                && self.units[l].healthy
-                && all[l].is_some_and(|x| !unchanged(&x, &self.previous[l]))
-        });
+        let others_moved =
+            (0..N).any(|l| l != k && self.units[l].healthy && present[l] && !repeated[l]);
         let unit = &mut self.units[k];
-        if unchanged(s, &unit.last) && others_moved {
-            unit.stuck_run += 1;
-        } else if !unchanged(s, &unit.last) {
+        if !repeated[k] {
             unit.stuck_run = 0;
+        } else if others_moved {
+            unit.stuck_run += 1;
         }
-        unit.last = Some(*s);
         (unit.stuck_run >= self.config.samples(self.config.stuck_s).max(4))
             .then_some((FaultKind::Stuck, None))
     }
@@ -394,6 +429,44 @@ impl<const N: usize> FaultMonitor<N> {
         })
     }
 
+    /// The mean spread over the pairs and axes of healthy units other than `excluding`.
+    fn healthy_spread(&self, excluding: usize) -> f32 {
+        let usable = |i: usize| i != excluding && self.units[i].healthy;
+        let (mut spread, mut pairs) = (0.0, 0);
+        for k in (0..N).filter(|&k| usable(k)) {
+            for l in (k + 1..N).filter(|&l| usable(l)) {
+                spread += self.pairs[k][l].iter().map(|p| p.spread).sum::<f32>() / 3.0;
+                pairs += 1;
+            }
+        }
+        spread / pairs.max(1) as f32
+    }
+
+    /// For a unit that is out, how much the healthy units' pair spread has changed since it
+    /// left (1 for a healthy unit, or where nothing was learned).
+    fn dynamics_factor(&self, k: usize) -> f32 {
+        let unit = &self.units[k];
+        match unit.spread_at_exclusion {
+            Some(then) if !unit.healthy && then > 0.0 => {
+                let now = self.healthy_spread(k);
+                if now > 0.0 {
+                    now / then
+                } else {
+                    1.0
+                }
+            }
+            _ => 1.0,
+        }
+    }
+
+    /// Spread of pair (k, l) for its tests: learned, scaled by the dynamics' change for a
+    /// unit that is out.
+    fn test_spread(&self, k: usize, l: usize, axis: usize) -> f32 {
+        let (i, j) = if k < l { (k, l) } else { (l, k) };
+        let factor = self.dynamics_factor(i).max(self.dynamics_factor(j));
+        self.pairs[i][j][axis].spread * factor
+    }
+
     /// z-score of every present pair's difference on every axis against what the pair learned.
     fn scores(&self, samples: &[Option<[f32; 3]>; N]) -> Scores<N> {
         let mut z = [[[0.0; 3]; N]; N];
@@ -407,7 +480,8 @@ impl<const N: usize> FaultMonitor<N> {
                 };
                 for axis in 0..3 {
                     let p = &self.pairs[k][l][axis];
-                    let s = (a[axis] - b[axis] - p.mean) / p.spread.max(f32::MIN_POSITIVE).sqrt();
+                    let spread = self.test_spread(k, l, axis);
+                    let s = (a[axis] - b[axis] - p.mean) / spread.max(f32::MIN_POSITIVE).sqrt();
                     z[k][l][axis] = s;
                     z[l][k][axis] = -s;
                 }
@@ -446,8 +520,12 @@ impl<const N: usize> FaultMonitor<N> {
                 Some(Trigger::Spike)
             } else if isolates(&shift, self.config.shift_sigma) {
                 Some(Trigger::Shift)
-            } else if self.burst(k) {
+            } else if self.seen >= self.config.samples(self.config.spread_time_constant_s)
+                && isolates(&|a, b| self.burst_score(a, b), self.config.burst_ratio)
+            {
                 Some(Trigger::Burst)
+            } else if isolates(&|a, b| self.slip_score(a, b), self.config.slip_sigma) {
+                Some(Trigger::Slip)
             } else if self.norm_off(k, samples) {
                 Some(Trigger::Norm)
             } else {
@@ -496,27 +574,40 @@ impl<const N: usize> FaultMonitor<N> {
         all_fail && clean_elsewhere
     }
 
-    /// Whether unit k's own noise rose `burst_ratio` times above its slow level, more than
-    /// every other healthy unit's did. A level is floored at a quarter of the quietest other
-    /// unit's: a much quieter unit's own level is a small difference of the others' (it may
-    /// even read negative), and its noise rising to the others' level harms no fusion.
-    fn burst(&self, k: usize) -> bool {
+    /// The time-slip statistic of pair (k, l): the correlation over the last second of its
+    /// difference (about its mean) with the pair's signal change per sample, over the
+    /// correlation's learned spread, largest over the axes. A unit whose samples are d late
+    /// reads x(t - d) - x(t), about -d times the change: correlated near 1.
+    fn slip_score(&self, k: usize, l: usize) -> f32 {
         if self.seen < self.config.samples(self.config.spread_time_constant_s) {
-            return false;
+            return 0.0;
         }
-        let ratio = |i: usize| {
-            let floor = (0..N)
-                .filter(|&l| l != i)
-                .map(|l| self.units[l].noise_slow)
-                .fold(f32::INFINITY, f32::min);
-            let u = &self.units[i];
-            u.noise_fast / u.noise_slow.max(0.25 * floor).max(f32::MIN_POSITIVE)
-        };
-        let others = (0..N)
-            .filter(|&l| l != k && self.units[l].healthy)
-            .map(ratio)
-            .fold(1.0f32, f32::max);
-        ratio(k) / others >= self.config.burst_ratio
+        let (i, j) = if k < l { (k, l) } else { (l, k) };
+        let floor = self.slip_floor();
+        (0..3)
+            .map(|a| {
+                let p = &self.pairs[i][j][a];
+                p.slip_correlation().abs() / p.slip_spread.max(floor).sqrt()
+            })
+            .fold(0.0, f32::max)
+    }
+
+    /// Variance of a second's correlation of two independent white series.
+    fn slip_floor(&self) -> f32 {
+        let alpha = self.config.alpha(4.0 * self.config.fast_time_constant_s);
+        alpha / (2.0 - alpha)
+    }
+
+    /// The noise-burst statistic of pair (k, l): the variance of its difference over the
+    /// last second against its test spread, largest over the axes.
+    fn burst_score(&self, k: usize, l: usize) -> f32 {
+        let (i, j) = if k < l { (k, l) } else { (l, k) };
+        (0..3)
+            .map(|a| {
+                let spread = self.test_spread(i, j, a).max(f32::MIN_POSITIVE);
+                self.pairs[i][j][a].fast_spread / spread
+            })
+            .fold(0.0, f32::max)
     }
 
     /// Whether unit k's vector length is off the median of the healthy others' by more than
@@ -536,7 +627,12 @@ impl<const N: usize> FaultMonitor<N> {
             return false;
         }
         others.sort_unstable_by(f32::total_cmp);
-        let median = others[others.len() / 2];
+        let mid = others.len() / 2;
+        let median = if others.len().is_multiple_of(2) {
+            (others[mid - 1] + others[mid]) / 2.0
+        } else {
+            others[mid]
+        };
         (self.units[k].norm - median).abs() > tolerance * median
     }
 }
@@ -552,6 +648,9 @@ impl<const N: usize> FaultMonitor<N> {
         sample: u32,
         step: &mut Step,
     ) {
+        if self.units[k].healthy {
+            self.units[k].spread_at_exclusion = Some(self.healthy_spread(k));
+        }
         let unit = &mut self.units[k];
         unit.clean_run = 0;
         let detected_sample = match unit.suspected {
@@ -561,7 +660,6 @@ impl<const N: usize> FaultMonitor<N> {
         };
         unit.healthy = false;
         unit.suspected = None;
-        unit.fault = Some(kind);
         let _ = step.confirmed.push(FaultEvent {
             unit: Some(k as u8),
             axis,
@@ -662,10 +760,11 @@ impl<const N: usize> FaultMonitor<N> {
                 core::array::from_fn(|a| x[a] - before[a]),
             );
             e.excursions += excursion as u32;
+            self.add_lagged(k, s, x, bias);
+            let e = &mut self.units[k].episode;
             if e.count >= window {
                 let (kind, axis) = classify(e, trigger);
                 self.units[k].suspected = None;
-                self.units[k].fault = Some(kind);
                 let _ = step.confirmed.push(FaultEvent {
                     unit: Some(k as u8),
                     axis,
@@ -675,6 +774,43 @@ impl<const N: usize> FaultMonitor<N> {
                 });
             }
         }
+    }
+
+    /// Adds to unit k's episode its residual as it is and as if it were late or early by 1
+    /// to SLIP_LAGS samples against the same healthy units (`x` their mean now, `bias` unit
+    /// k's relative to them), where every lag can be tried.
+    fn add_lagged(&mut self, k: usize, now: [f32; 3], x: [f32; 3], bias: [f32; 3]) {
+        let others: heapless::Vec<usize, MAX_UNITS> = (0..N)
+            .filter(|&l| l != k && self.units[l].healthy)
+            .collect();
+        let mut lagged = [[0.0f32; 2]; SLIP_LAGS];
+        for (d, slot) in lagged.iter_mut().enumerate() {
+            let past = &self.history[(self.cursor + SLIP_LAGS - 1 - d) % SLIP_LAGS];
+            let (Some(unit_then), true) = (past[k], others.iter().all(|&l| past[l].is_some()))
+            else {
+                return;
+            };
+            let n = others.len() as f32;
+            let x_then: [f32; 3] = core::array::from_fn(|a| {
+                others
+                    .iter()
+                    .map(|&l| past[l].map_or(0.0, |p| p[a]))
+                    .sum::<f32>()
+                    / n
+            });
+            for a in 0..3 {
+                slot[0] += (now[a] - x_then[a] - bias[a]).powi(2);
+                slot[1] += (unit_then[a] - x[a] - bias[a]).powi(2);
+            }
+        }
+        let e = &mut self.units[k].episode;
+        for (sum, add) in e.lagged.iter_mut().zip(lagged) {
+            sum[0] += add[0];
+            sum[1] += add[1];
+        }
+        e.unlagged += (0..3)
+            .map(|a| (now[a] - x[a] - bias[a]).powi(2))
+            .sum::<f32>();
     }
 
     /// Readmits confirmed faulty units after a clean period: present, no direct fault, and
@@ -694,18 +830,18 @@ impl<const N: usize> FaultMonitor<N> {
             }
             let clean = present[k]
                 && direct[k].is_none()
-                && !self.burst(k)
                 && (0..N)
                     .filter(|&l| l != k && present[l] && self.units[l].healthy)
                     .all(|l| {
                         largest(&z[k][l]) < self.config.spike_sigma / 2.0
                             && self.shift_score(k, l, z) < self.config.shift_sigma / 2.0
+                            && self.burst_score(k, l) < self.config.burst_ratio / 2.0
+                            && self.slip_score(k, l) < self.config.slip_sigma / 2.0
                     });
             let unit = &mut self.units[k];
             unit.clean_run = if clean { unit.clean_run + 1 } else { 0 };
             if unit.clean_run >= needed {
                 unit.healthy = true;
-                unit.fault = None;
                 unit.clean_run = 0;
                 step.readmitted |= 1 << k;
             }
@@ -717,7 +853,10 @@ impl<const N: usize> FaultMonitor<N> {
 const TERM_T: f32 = 5.0;
 
 /// The kind of a statistically suspected fault from its confirmation window, and the axis
-/// that showed it. A spike shows in a few samples only; otherwise each axis's residual is
+/// that showed it. A spike shows in a few samples only; a time slip of up to SLIP_LAGS
+/// samples, as the unit's samples moved by a whole number of samples halving its residual
+/// (a slip of a vibration line is a phase shift, which no linear term explains); otherwise
+/// each axis's residual is
 /// fitted on a constant, the signal and the signal's change per sample, and the kind is the
 /// strongest term that stands out on any axis: the change (a time slip: x(t - d) - x(t) is
 /// about -d v), else the signal (a scale change, which also shifts the constant), else the
@@ -731,6 +870,18 @@ fn classify(e: &Episode, trigger: Trigger) -> (FaultKind, Option<u8>) {
     let loudest = (0..3).fold(0, |best, a| if e.rr[a] > e.rr[best] { a } else { best });
     if trigger == Trigger::Spike && e.excursions <= 2 {
         return (FaultKind::Spike, Some(loudest as u8));
+    }
+    // A scale error on a ramp is a lead of the unit (x (1 + s) = x(t + s x / x')): a slip
+    // must also fit better than the linear terms do.
+    let best_lag = e
+        .lagged
+        .iter()
+        .flatten()
+        .copied()
+        .fold(f32::INFINITY, f32::min);
+    let linear: f32 = (0..3).map(|a| linear_residual(e, a)).sum();
+    if e.unlagged > 0.0 && best_lag < 0.5 * e.unlagged && best_lag < linear {
+        return (FaultKind::TimeSlip, Some(loudest as u8));
     }
     let t: [[f32; 3]; 3] = core::array::from_fn(|a| term_t_statistics(e, a));
     let find = |term: usize, beats: &dyn Fn(&[f32; 3]) -> bool| {
@@ -749,6 +900,17 @@ fn classify(e: &Episode, trigger: Trigger) -> (FaultKind, Option<u8>) {
         (FaultKind::BiasStep, Some(a as u8))
     } else {
         (FaultKind::NoiseBurst, Some(loudest as u8))
+    }
+}
+
+/// What the least squares of axis a on the constant, the signal and its change leaves of the
+/// residual's sum of squares.
+fn linear_residual(e: &Episode, a: usize) -> f32 {
+    let normal = nalgebra::Matrix3::from_fn(|i, j| e.normal[a][i][j]);
+    let cross = nalgebra::Vector3::from(e.cross[a]);
+    match normal.try_inverse() {
+        Some(inverse) => (e.rr[a] - (inverse * cross).dot(&cross)).max(0.0),
+        None => e.rr[a],
     }
 }
 
@@ -776,31 +938,49 @@ fn term_t_statistics(e: &Episode, a: usize) -> [f32; 3] {
 }
 
 impl<const N: usize> FaultMonitor<N> {
-    /// Updates what the pairs and units have learned from a sample set: the pairs' means (see
-    /// [`Unit::relearns`]) and, from pairs of healthy units only, the spreads the tests
-    /// divide by.
-    fn learn(&mut self, samples: &[Option<[f32; 3]>; N], z: &Scores<N>) {
+    /// Updates what the pairs and units have learned from a sample set. The pairs' means
+    /// learn from every sample not under a direct fault (dropout, saturation, stuck), also a
+    /// unit's that is out: the units' relative biases drift (with temperature), and an
+    /// excluded unit must be judged against where they are now, not where they were when it
+    /// left; a unit whose bias stepped returns with its new bias. Only pairs of healthy units
+    /// teach the spreads the tests divide by.
+    fn learn(&mut self, samples: &[Option<[f32; 3]>; N], z: &Scores<N>, direct: &[bool; N]) {
         self.seen = self.seen.saturating_add(1);
         let c = self.config;
         let startup = 1.0 / self.seen as f32;
         let alpha_mean = c.alpha(c.mean_time_constant_s).max(startup);
         let alpha_spread = c.alpha(c.spread_time_constant_s).max(startup);
         let alpha_fast = c.alpha(c.fast_time_constant_s);
+        let alpha_burst = c.alpha(4.0 * c.fast_time_constant_s).max(startup);
         let floor = alpha_fast / (2.0 - alpha_fast);
+        let slip_floor = self.slip_floor();
         for k in 0..N {
             for l in k + 1..N {
                 let (Some(a), Some(b)) = (samples[k], samples[l]) else {
                     continue;
                 };
-                let healthy = self.units[k].healthy && self.units[l].healthy;
-                let relearn = self.units[k].relearns() && self.units[l].relearns();
+                // A jolt's samples teach the fast statistics nothing of the units: they would
+                // hold its energy for seconds after the hold ends.
+                let jolt = self.sample <= self.hold_until;
+                let healthy = self.units[k].healthy && self.units[l].healthy && !jolt;
+                let relearn = !direct[k] && !direct[l];
                 for axis in 0..3 {
                     let p = &mut self.pairs[k][l][axis];
                     let u = a[axis] - b[axis] - p.mean;
                     if relearn {
                         p.mean += alpha_mean * u;
                     }
-                    p.shift += alpha_fast * (z[k][l][axis] - p.shift);
+                    if !jolt {
+                        p.shift += alpha_fast * (z[k][l][axis] - p.shift);
+                    }
+                    if relearn && !jolt {
+                        p.fast_spread += alpha_burst * (u * u - p.fast_spread);
+                        if let (Some(pa), Some(pb)) = (self.previous[k], self.previous[l]) {
+                            let v = (a[axis] + b[axis] - pa[axis] - pb[axis]) / 2.0;
+                            p.slip_cross += alpha_burst * (u * v - p.slip_cross);
+                            p.slip_signal += alpha_burst * (v * v - p.slip_signal);
+                        }
+                    }
                     if healthy {
                         // Clipped at 25 spreads: one outlier moves the spread little.
                         let limit = if p.spread > 0.0 {
@@ -811,11 +991,16 @@ impl<const N: usize> FaultMonitor<N> {
                         p.spread += alpha_spread * ((u * u).min(limit) - p.spread);
                         let s2 = (p.shift * p.shift).min(9.0 * p.shift_spread.max(floor));
                         p.shift_spread += alpha_spread * (s2 - p.shift_spread);
+                        let r2 = p
+                            .slip_correlation()
+                            .powi(2)
+                            .min(9.0 * p.slip_spread.max(slip_floor));
+                        p.slip_spread += alpha_spread * (r2 - p.slip_spread);
                     }
                 }
             }
         }
-        self.learn_noise(samples, alpha_spread);
+        self.learn_noise(samples, alpha_spread, direct);
         self.learn_offsets(samples, alpha_mean);
     }
 
@@ -834,8 +1019,15 @@ impl<const N: usize> FaultMonitor<N> {
     }
 
     /// Each unit's own white-noise variance of first differences, fast and slow, from
-    /// products with two healthy others, and the fast mean of its vector's length.
-    fn learn_noise(&mut self, samples: &[Option<[f32; 3]>; N], alpha_slow: f32) {
+    /// products with two others (an excluded unit's noise, if independent, leaves the
+    /// products' mean alone; one under a direct fault is left out), and the fast mean of its
+    /// vector's length.
+    fn learn_noise(
+        &mut self,
+        samples: &[Option<[f32; 3]>; N],
+        alpha_slow: f32,
+        direct: &[bool; N],
+    ) {
         let alpha_fast = self.config.alpha(4.0 * self.config.fast_time_constant_s);
         let delta: [Option<[f32; 3]>; N] =
             core::array::from_fn(|k| match (samples[k], self.previous[k]) {
@@ -864,7 +1056,7 @@ impl<const N: usize> FaultMonitor<N> {
             let mut count = 0;
             for l in 0..N {
                 for m in l + 1..N {
-                    let usable = |i: usize| i != k && self.units[i].healthy && delta[i].is_some();
+                    let usable = |i: usize| i != k && !direct[i] && delta[i].is_some();
                     if !(usable(l) && usable(m)) {
                         continue;
                     }
@@ -881,7 +1073,6 @@ impl<const N: usize> FaultMonitor<N> {
             }
             let product = sum / count as f32;
             let unit = &mut self.units[k];
-            unit.noise_fast += alpha_fast.max(alpha_slow) * (product - unit.noise_fast);
             if unit.healthy {
                 let limit = if unit.noise_slow > 0.0 {
                     25.0 * unit.noise_slow
