@@ -63,6 +63,32 @@ impl SysTickClock {
         SysTickClock { _syst: syst }
     }
 
+    /// Starts SysTick as [`Self::start`], lets it reload once and calibrates it: what a cost
+    /// bench does first. Right after `start` SysTick's current value reads 0 until its first
+    /// reload, which [`TickClock::now_ticks`] counts as a full period: a calibration that
+    /// began there would come out negative.
+    #[allow(dead_code)] // the cost benches' (src/bin/*_cost.rs), not the application's
+    pub fn start_calibrated(syst: SYST) -> (Self, Calibration) {
+        let mut clock = Self::start(syst);
+        let first = clock.now_ticks();
+        while clock.now_ticks() == first {}
+        let calibration = clock.calibrate();
+        (clock, calibration)
+    }
+
+    /// Instructions of one back-to-back pair of clock reads, the mean over `repetitions`:
+    /// what every measured span holds besides its work.
+    #[allow(dead_code)] // the cost benches' (src/bin/*_cost.rs), not the application's
+    pub fn read_overhead(&mut self, calibration: &Calibration, repetitions: u32) -> u64 {
+        let mut total = 0;
+        for _ in 0..repetitions {
+            let a = self.now_ticks();
+            let b = self.now_ticks();
+            total += b - a;
+        }
+        calibration.instructions(total) / u64::from(repetitions.max(1))
+    }
+
     /// Measures ticks per instruction on a loop of exactly known length.
     pub fn calibrate(&mut self) -> Calibration {
         let start = self.now_ticks();

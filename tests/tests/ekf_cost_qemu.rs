@@ -7,9 +7,6 @@
 //! `DYNACAL_REQUIRE_QEMU` set), where that fails the test.
 
 use std::collections::HashMap;
-use std::process::Command;
-
-use dynacal::replay::{qemu_available, workspace_root};
 
 /// Measured at this commit (rustc 1.95, release profile): 15 states, one GNSS epoch
 /// (linearisation + predict + position and velocity fusion + reset) 48 176 instructions.
@@ -21,10 +18,6 @@ const MAX_FULL_EPOCH_27: u64 = 245_000;
 /// 27-state block-sparse prediction alone (measured 17 709; a dense Φ P Φᵀ costs several
 /// times more).
 const MAX_PREDICT_27: u64 = 22_000;
-
-fn required() -> bool {
-    std::env::var_os("CI").is_some() || std::env::var_os("DYNACAL_REQUIRE_QEMU").is_some()
-}
 
 /// Parses `ekf-cost states=N key=value ...` lines into one map per state count.
 fn parse(stderr: &str) -> HashMap<u64, HashMap<String, u64>> {
@@ -47,56 +40,9 @@ fn parse(stderr: &str) -> HashMap<u64, HashMap<String, u64>> {
 
 #[test]
 fn navigation_filter_epoch_cost_on_cortex_m4f_stays_within_bounds() {
-    if !qemu_available() {
-        assert!(
-            !required(),
-            "qemu-system-arm is missing but CI/DYNACAL_REQUIRE_QEMU requires it: run scripts/setup"
-        );
-        eprintln!("SKIPPED: qemu-system-arm not found (run scripts/setup to install it)");
+    let Some(stderr) = dynacal_tests::run_cost_bench("ekf_cost") else {
         return;
-    }
-    let root = workspace_root();
-    let target_dir = root.join("target/firmware-e2e");
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let build = Command::new(cargo)
-        .current_dir(&root)
-        .args([
-            "build",
-            "-p",
-            "dynacal-firmware",
-            "--release",
-            "--target",
-            "thumbv7em-none-eabihf",
-            "--features",
-            "board-replay",
-            "--bin",
-            "ekf_cost",
-            "--target-dir",
-        ])
-        .arg(&target_dir)
-        .output()
-        .expect("run cargo");
-    assert!(
-        build.status.success(),
-        "building ekf_cost failed (thumbv7em-none-eabihf installed? run scripts/setup):\n{}",
-        String::from_utf8_lossy(&build.stderr)
-    );
-    let elf = target_dir.join("thumbv7em-none-eabihf/release/ekf_cost");
-    let run = Command::new("timeout")
-        .arg("300")
-        .arg("qemu-system-arm")
-        .args(dynacal::replay::QEMU_BOARD_ARGS)
-        .args([
-            "-semihosting-config",
-            "enable=on,target=native,arg=ekf_cost",
-            "-kernel",
-        ])
-        .arg(&elf)
-        .output()
-        .expect("run qemu-system-arm");
-    let stderr = String::from_utf8_lossy(&run.stderr);
-    assert!(run.status.success(), "ekf_cost failed under QEMU: {stderr}");
-    eprintln!("{stderr}");
+    };
     let costs = parse(&stderr);
     let get = |states: u64, key: &str| -> u64 {
         *costs

@@ -126,8 +126,8 @@ mod bare_metal {
         }
         black_box(ekf.covariance());
         let mean = |t: u64| calibration.instructions(t) / u64::from(REPETITIONS);
-        // The SysTick read itself is inside each span; subtract its cost, measured below.
-        let overhead = read_overhead(clock, calibration);
+        // The SysTick read itself is inside each span; subtract its cost.
+        let overhead = clock.read_overhead(calibration, REPETITIONS);
         let net = |t: u64| mean(t).saturating_sub(overhead);
         Stages {
             dense_predict: net(dense_ticks),
@@ -137,17 +137,6 @@ mod bare_metal {
             inter_imu: net(ticks[3]),
             reset: net(ticks[4]),
         }
-    }
-
-    /// Instructions of one back-to-back pair of clock reads.
-    fn read_overhead(clock: &mut SysTickClock, calibration: &Calibration) -> u64 {
-        let mut total = 0;
-        for _ in 0..REPETITIONS {
-            let a = clock.now_ticks();
-            let b = clock.now_ticks();
-            total += b - a;
-        }
-        calibration.instructions(total) / u64::from(REPETITIONS)
     }
 
     fn report(states: usize, stages: &Stages) {
@@ -170,13 +159,7 @@ mod bare_metal {
             semihosting::eprintln!("ekf-cost: fatal: core peripherals taken twice");
             semihosting::process::exit(1)
         };
-        let mut clock = SysTickClock::start(core.SYST);
-        // Right after `start` SysTick's current value reads 0 until its first reload, which
-        // SysTickClock counts as a full period: let it reload before the calibration's first
-        // read, or the calibration comes out negative.
-        let first = clock.now_ticks();
-        while clock.now_ticks() == first {}
-        let calibration = clock.calibrate();
+        let (mut clock, calibration) = SysTickClock::start_calibrated(core.SYST);
         semihosting::eprintln!(
             "ekf-cost calibration_instructions={} calibration_ticks={} repetitions={}",
             calibration.instructions,
