@@ -14,27 +14,18 @@ fn at(triad: &[Vec<f64>; 3], k: usize) -> Vector3<f64> {
     Vector3::new(triad[0][k], triad[1][k], triad[2][k])
 }
 
-/// Length of the moving mean the gyros are detrended by before the rotation is solved, s.
-const DETREND_S: f64 = 10.0;
+/// Lag of the differences the rotation is solved on, s.
+const LAG_S: f64 = 0.5;
 
-/// Deviations of a triad from its centred moving mean over [`DETREND_S`] (`window`
-/// samples), per sample: a bias does not rotate with the motion, and a unit's bias that
-/// steps or drifts would otherwise weigh on the rotation for the whole run (and a faulty
-/// unit must not be misaligned by its fault).
-fn detrended(triad: &[Vec<f64>; 3], window: usize) -> Vec<Vector3<f64>> {
+/// Changes of a triad over `lag` samples, per sample (the first `lag` samples give none):
+/// a bias does not rotate with the motion, and differences remove it; a unit's bias that
+/// steps weighs on `lag` samples only, which the second solution of
+/// [`rotation_from_gyros`] drops (a faulty unit must not be misaligned by its fault).
+fn lagged_changes(triad: &[Vec<f64>; 3], lag: usize) -> Vec<Vector3<f64>> {
     let n = triad[0].len();
-    let half = (window / 2).max(1);
-    let prefix: Vec<Vector3<f64>> = std::iter::once(Vector3::zeros())
-        .chain((0..n).scan(Vector3::zeros(), |sum, k| {
-            *sum += at(triad, k);
-            Some(*sum)
-        }))
-        .collect();
-    (0..n)
-        .map(|k| {
-            let (lo, hi) = (k.saturating_sub(half), (k + half + 1).min(n));
-            at(triad, k) - (prefix[hi] - prefix[lo]) / (hi - lo) as f64
-        })
+    let lag = lag.clamp(1, n.saturating_sub(1).max(1));
+    (lag..n)
+        .map(|k| at(triad, k) - at(triad, k - lag))
         .collect()
 }
 
@@ -61,7 +52,7 @@ fn wahba(first: &[Vector3<f64>], unit: &[Vector3<f64>], keep: &[bool]) -> Matrix
     u * d * v_t
 }
 
-/// Rotation C with w_k = C w_0 from the gyros on the detrended rates, its 1-sigma and
+/// Rotation C with w_k = C w_0 from the gyros' changes over [`LAG_S`], its 1-sigma and
 /// whether the motion determines it. Solved twice: the second time without the samples
 /// whose residual is beyond 5 times the median's (a unit's fault, a clipped peak, a crash
 /// must not turn the whole run's rotation). The rotation about the least-turned direction
@@ -260,8 +251,8 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
     let first = &units[0].1;
     let dt_s = 1.0 / first.rate_hz();
     let n = first.len();
-    let window = (DETREND_S / dt_s).round() as usize;
-    let first_centred = detrended(&gyro(first), window);
+    let lag = (LAG_S / dt_s).round() as usize;
+    let first_changes = lagged_changes(&gyro(first), lag);
     let rotations: Vec<Rotation> = units
         .iter()
         .enumerate()
@@ -269,7 +260,7 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
             let (c, sigma_rad, determined) = if k == 0 {
                 (Matrix3::identity(), 0.0, true)
             } else {
-                rotation_from_gyros(&first_centred, &detrended(&gyro(r), window))
+                rotation_from_gyros(&first_changes, &lagged_changes(&gyro(r), lag))
             };
             Rotation {
                 c,

@@ -43,22 +43,26 @@ pub fn kind_name(kind: FaultKind) -> &'static str {
 /// A sensor's per-axis range for every unit, or where none is given, the one its data show.
 pub type Ranges = [Option<f64>; 2];
 
-/// The magnitude at which a unit's triad clips, if its data show one: the largest |value| of
-/// the triad, reached by two samples or more (a clipped signal piles up at its limit) and at
-/// least three times the 99th percentile of |value| (so a quantised signal at rest, whose
-/// largest value recurs too, is not taken for clipped).
+/// The magnitude at which a unit's triad clips, if its data show one: the largest |value|
+/// of the triad, held by two consecutive samples of one axis (a clipped signal sits at its
+/// limit), and standing more than ten robust standard deviations above the median |value|
+/// (a quantised signal at rest repeats its largest value too, but a few counts from the
+/// rest).
 pub fn clipping_level(triad: &[Vec<f64>; 3]) -> Option<f64> {
     let mut magnitudes: Vec<f64> = triad.iter().flatten().map(|v| v.abs()).collect();
     if magnitudes.is_empty() {
         return None;
     }
     let largest = magnitudes.iter().copied().fold(0.0, f64::max);
-    let at_limit = magnitudes.iter().filter(|m| **m == largest).count();
-    let p99_index = ((magnitudes.len() as f64 * 0.99) as usize).min(magnitudes.len() - 1);
-    let p99 = *magnitudes
-        .select_nth_unstable_by(p99_index, f64::total_cmp)
-        .1;
-    (at_limit >= 2 && largest > 0.0 && largest >= 3.0 * p99).then_some(largest)
+    let held = triad.iter().any(|axis| {
+        axis.windows(2)
+            .any(|w| w[0].abs() == largest && w[1].abs() == largest)
+    });
+    let mid = magnitudes.len() / 2;
+    let median = *magnitudes.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let mut deviations: Vec<f64> = magnitudes.iter().map(|m| (m - median).abs()).collect();
+    let mad = *deviations.select_nth_unstable_by(mid, f64::total_cmp).1;
+    (held && largest > 0.0 && largest - median > 10.0 * 1.4826 * mad).then_some(largest)
 }
 
 /// What the monitors found, and the fused virtual IMU on the grid.

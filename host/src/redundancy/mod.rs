@@ -82,6 +82,9 @@ pub struct OwnWv {
     pub variance: Vec<f64>,
     /// Where the least squares gave a negative variance, held at 0.
     pub clamped: Vec<bool>,
+    /// 95% interval of the own wavelet variance per scale ([`own_interval`]).
+    pub ci_low: Vec<f64>,
+    pub ci_high: Vec<f64>,
 }
 
 /// What the set says of one unit.
@@ -170,6 +173,7 @@ fn check_units(units: &[(String, ImuRecording)]) -> Result<(), RedundancyError> 
 fn own_wv(signals: &[[Vec<f64>; 6]], c: usize, dt_s: f64) -> Vec<OwnWv> {
     let units = signals.len();
     let mut scales_s = Vec::new();
+    let mut eta: Vec<f64> = Vec::new();
     let mut pair_wv: Vec<Vec<f64>> = vec![Vec::new(); pairs(units)];
     for k in 0..units {
         for l in k + 1..units {
@@ -180,6 +184,12 @@ fn own_wv(signals: &[[Vec<f64>; 6]], c: usize, dt_s: f64) -> Vec<OwnWv> {
                 .collect();
             let wv = haar_wv(&d, dt_s, &WvOptions::default()).expect("at least 64 samples");
             scales_s = wv.scales_s.clone();
+            eta = wv
+                .n_coefficients
+                .iter()
+                .zip(&wv.levels)
+                .map(|(m, j)| crate::wv::eta3(*m, *j))
+                .collect();
             pair_wv[pair_index(units, k, l)] = wv.variance;
         }
     }
@@ -188,17 +198,59 @@ fn own_wv(signals: &[[Vec<f64>; 6]], c: usize, dt_s: f64) -> Vec<OwnWv> {
             scales_s: scales_s.clone(),
             variance: Vec::new(),
             clamped: Vec::new(),
+            ci_low: Vec::new(),
+            ci_high: Vec::new(),
         })
         .collect();
     for level in 0..scales_s.len() {
         let at_level: Vec<f64> = pair_wv.iter().map(|p| p[level]).collect();
         let own = own_variances(units, &at_level).expect("3..=MAX_UNITS units, variances");
         for (k, o) in out.iter_mut().enumerate() {
+            let (lo, hi) = own_interval(k, &at_level, &own.value[..units], eta[level]);
             o.variance.push(own.value[k]);
             o.clamped.push(own.clamped[k]);
+            o.ci_low.push(lo);
+            o.ci_high.push(hi);
         }
     }
     out
+}
+
+/// 95% interval of unit k's own wavelet variance at one scale, from the pairs' variances
+/// `pair` (eta equivalent degrees of freedom each) and the units' own `own`. The least
+/// squares gives x_k = sum_p a_p nu_p with a_p = ([k in p] - 1 / (N - 1)) / (N - 2); for
+/// Gaussian errors Var(nu_p) = 2 nu_p^2 / eta and two pairs sharing unit u covary by
+/// 2 x_u^2 / eta (their wavelet coefficients share u's), so the chi-square law of one
+/// wavelet variance does not carry over: the estimate gets the equivalent degrees of freedom
+/// 2 x_k^2 / Var(x_k) of its own. A unit held at 0 gets [0, 1.96 sd].
+pub fn own_interval(k: usize, pair: &[f64], own: &[f64], eta: f64) -> (f64, f64) {
+    let n = own.len();
+    let members: Vec<(usize, usize)> = (0..n)
+        .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+        .collect();
+    let coefficient = |(i, j): (usize, usize)| {
+        let inside = if i == k || j == k { 1.0 } else { 0.0 };
+        (inside - 1.0 / (n as f64 - 1.0)) / (n as f64 - 2.0)
+    };
+    let mut variance = 0.0;
+    for (p, &a) in members.iter().enumerate() {
+        for (q, &b) in members.iter().enumerate() {
+            let shared = if p == q {
+                pair[pair_index(n, a.0, a.1)].powi(2)
+            } else {
+                [a.0, a.1]
+                    .iter()
+                    .find(|u| **u == b.0 || **u == b.1)
+                    .map_or(0.0, |&u| own[u].max(0.0).powi(2))
+            };
+            variance += coefficient(a) * coefficient(b) * 2.0 * shared / eta;
+        }
+    }
+    let x = own[k];
+    if x <= 0.0 || variance <= 0.0 {
+        return (0.0, 1.96 * variance.max(0.0).sqrt());
+    }
+    crate::wv::chi2_interval(x, (2.0 * x * x / variance).max(1.0))
 }
 
 /// Each unit's live gyro and accelerometer white-noise level (the core's [`LiveNoise`]) and
@@ -390,5 +442,53 @@ fn note_faults(monitoring: &faults::Monitoring, units: usize, notes: &mut Vec<St
              only detect"
                 .into(),
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// The own wavelet variances' 95% intervals cover the truth at least 93% of the time,
+    /// per unit and scale, on three units of white noise of very different levels (where
+    /// one unit's own variance is a small difference of the others' large ones), 300 seeds,
+    /// levels 1 to 4. Measured 97% to 100%: the intervals are conservative, as the eta3
+    /// degrees of freedom of the pairs' wavelet variances are (an interval that ignored the
+    /// pairs' covariance, or took one pair's chi-square law, would fall below).
+    #[test]
+    fn the_own_wavelet_variance_intervals_cover_the_truth() {
+        let sd = [0.5, 1.0, 2.0];
+        let n = 2048;
+        let levels = 4;
+        let mut covered = [[0u32; 4]; 3];
+        let seeds = 300;
+        for seed in 0..seeds {
+            let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+            let signals: Vec<[Vec<f64>; 6]> = sd
+                .iter()
+                .map(|s| {
+                    let d = Normal::new(0.0, *s).unwrap();
+                    let mut six: [Vec<f64>; 6] = Default::default();
+                    six[0] = (0..n).map(|_| d.sample(&mut rng)).collect();
+                    six
+                })
+                .collect();
+            let own = own_wv(&signals, 0, 0.01);
+            for (k, o) in own.iter().enumerate() {
+                for (j, c) in covered[k].iter_mut().enumerate().take(levels) {
+                    // Haar WV of white noise at level j + 1: s^2 / 2^(j + 1).
+                    let truth = sd[k].powi(2) / f64::from(1u32 << (j + 1));
+                    *c += u32::from(o.ci_low[j] <= truth && truth <= o.ci_high[j]);
+                }
+            }
+        }
+        for (k, unit) in covered.iter().enumerate() {
+            for (j, c) in unit.iter().enumerate() {
+                let rate = f64::from(*c) / seeds as f64;
+                assert!(rate >= 0.93, "unit {k} level {}: {rate}", j + 1);
+            }
+        }
     }
 }

@@ -470,7 +470,12 @@ impl<const N: usize> FaultMonitor<N> {
     /// z-score of every present pair's difference on every axis against what the pair learned.
     fn scores(&self, samples: &[Option<[f32; 3]>; N]) -> Scores<N> {
         let mut z = [[[0.0; 3]; N]; N];
-        if self.seen < self.config.samples(1.0).max(8) {
+        if self.seen
+            < self
+                .config
+                .samples(self.config.spread_time_constant_s)
+                .max(8)
+        {
             return z;
         }
         for k in 0..N {
