@@ -118,7 +118,7 @@ impl FaultConfig {
             burst_ratio: 9.0,
             slip_sigma: 8.0,
             stuck_s: 0.1,
-            common_sigma: 5.0,
+            common_sigma: 4.0,
             common_hold_s: 1.0,
             confirm_s: 1.0,
             clean_s: 5.0,
