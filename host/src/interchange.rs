@@ -375,6 +375,39 @@ impl ImuRecording {
     pub fn is_empty(&self) -> bool {
         self.t_s.is_empty()
     }
+    /// The samples with `from_s <= t < to_s`, every column alike.
+    pub fn between(&self, from_s: f64, to_s: f64) -> ImuRecording {
+        let keep: Vec<bool> = self.t_s.iter().map(|t| *t >= from_s && *t < to_s).collect();
+        let column = |c: &Vec<f64>| -> Vec<f64> {
+            c.iter()
+                .zip(&keep)
+                .filter(|(_, k)| **k)
+                .map(|(v, _)| *v)
+                .collect()
+        };
+        let triplet = |t: &Option<Triplet>| {
+            t.as_ref()
+                .map(|t| [column(&t[0]), column(&t[1]), column(&t[2])])
+        };
+        ImuRecording {
+            t_s: column(&self.t_s),
+            gyro_rad_s: triplet(&self.gyro_rad_s),
+            accel_m_s2: triplet(&self.accel_m_s2),
+            attitude_rad: triplet(&self.attitude_rad),
+            position: triplet(&self.position),
+            velocity_ned_m_s: triplet(&self.velocity_ned_m_s),
+            single_axis: self
+                .single_axis
+                .iter()
+                .map(|s| SingleAxis {
+                    channel: s.channel,
+                    values: column(&s.values),
+                })
+                .collect(),
+            sample_rate_hz: self.sample_rate_hz,
+        }
+    }
+
     /// Median sampling interval, seconds (0 for fewer than two samples).
     pub fn median_dt_s(&self) -> f64 {
         median_step_s(&self.t_s).unwrap_or(0.0)

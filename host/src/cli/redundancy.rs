@@ -32,6 +32,13 @@ pub struct Args {
     /// Per-axis range of every unit's accelerometers, m/s^2 (default as for the gyros).
     #[arg(long)]
     pub accel_range_m_s2: Option<f64>,
+    /// Analyse only the samples from this time on (the files' time base), s: a phase of
+    /// the run (at rest, in flight) without the rest.
+    #[arg(long)]
+    pub from_s: Option<f64>,
+    /// Analyse only the samples before this time, s.
+    #[arg(long)]
+    pub to_s: Option<f64>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -40,10 +47,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "--live-time-constant-s must be a positive number of seconds, got {}",
         args.live_time_constant_s
     );
+    let (from, to) = (
+        args.from_s.unwrap_or(f64::NEG_INFINITY),
+        args.to_s.unwrap_or(f64::INFINITY),
+    );
+    anyhow::ensure!(
+        from < to && !from.is_nan() && !to.is_nan(),
+        "--from-s {from} must come before --to-s {to}"
+    );
     let units = args
         .units
         .iter()
-        .map(|p| Ok((p.display().to_string(), load_recording(p, false)?)))
+        .map(|p| {
+            let recording = load_recording(p, false)?.between(from, to);
+            anyhow::ensure!(
+                !recording.is_empty(),
+                "{}: no samples between {from} s and {to} s",
+                p.display()
+            );
+            Ok((p.display().to_string(), recording))
+        })
         .collect::<anyhow::Result<Vec<_>>>()?;
     for (name, range) in [
         ("--gyro-range-rad-s", args.gyro_range_rad_s),

@@ -36,6 +36,12 @@ fn lagged_changes(triad: &[Vec<f64>; 3], lag: usize) -> Vec<Vector3<f64>> {
 /// about it still aligns the gyros; on static data the sigma is far above this.
 const ROTATION_SIGMA_MAX_RAD: f64 = 1e-2;
 
+/// Largest 1-sigma of a rotation applied because it stands clear of none, rad (1 deg):
+/// beyond it the estimate's own error leaves more in the differences (17 mrad/s at 1 rad/s)
+/// than a MEMS gyro's noise, and on a static rig known from a few bumps (1-5 deg) it would
+/// only mix the units' axes.
+const ROTATION_SIGMA_LOOSE_RAD: f64 = 0.0175;
+
 /// Wahba's problem on the sample pairs `keep` selects: the rotation C with w_k = C w_0
 /// (Markley's SVD solution).
 fn wahba(first: &[Vector3<f64>], unit: &[Vector3<f64>], keep: &[bool]) -> Matrix3<f64> {
@@ -83,15 +89,21 @@ fn rotation_from_gyros(first: &[Vector3<f64>], unit: &[Vector3<f64>]) -> (Matrix
         .map(|((w0, wk), _)| (wk - c * w0).norm_squared())
         .sum::<f64>()
         / (3.0 * n);
-    // The scatter holds the first unit's noise too (about n s0^2 on every axis, s0^2 below
-    // the residual variance, which is s0^2 + sk^2): only what stands above it is motion.
-    let motion = eig[1] - n * residual_per_sample;
+    // The scatter holds the first unit's noise too (about n s0^2 on every axis; the
+    // residual variance is s0^2 + sk^2, taken as half each): only what stands above it is
+    // motion.
+    let motion = eig[1] - n * residual_per_sample / 2.0;
     let sigma = if motion > 0.0 {
         (residual_per_sample / motion).sqrt()
     } else {
         f64::INFINITY
     };
-    (c, sigma, sigma < ROTATION_SIGMA_MAX_RAD)
+    // Determined when known to ROTATION_SIGMA_MAX_RAD, or when the rotation stands two
+    // sigmas clear of none and is known to ROTATION_SIGMA_LOOSE_RAD (units on a vibrating
+    // frame: 1-2 deg apart, known to 0.5-0.7 deg); otherwise none is as good an estimate.
+    let angle = nalgebra::Rotation3::from_matrix_unchecked(c).angle();
+    let clear = angle > 2.0 * sigma && sigma < ROTATION_SIGMA_LOOSE_RAD;
+    (c, sigma, sigma < ROTATION_SIGMA_MAX_RAD || clear)
 }
 
 /// Roll, pitch, yaw (Z-Y-X) of a rotation matrix, deg.
@@ -229,6 +241,9 @@ fn lever_arm(
 pub(super) struct Aligned {
     pub signals: Vec<[Vec<f64>; 6]>,
     pub alignments: Vec<Alignment>,
+    /// Some unit's rotation is not applied though its axes may be far from the first
+    /// unit's ([`Rotation::apart`]).
+    pub unobservable: bool,
 }
 
 /// A triad's samples as vectors.
@@ -240,6 +255,15 @@ struct Rotation {
     c: Matrix3<f64>,
     sigma_rad: f64,
     determined: bool,
+}
+
+impl Rotation {
+    /// Not applied, though the unit's axes may be far from the first unit's: nothing shows
+    /// the rotation (static data), or it stands clear of none but is known too loosely.
+    fn apart(&self) -> bool {
+        let angle = nalgebra::Rotation3::from_matrix_unchecked(self.c).angle();
+        !self.determined && (self.sigma_rad.is_infinite() || angle > 2.0 * self.sigma_rad)
+    }
 }
 
 /// Every unit in the first unit's frame: the rotations from the gyros, then the platform's
@@ -303,7 +327,7 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
             .then(|| lever_arm(&motion, &rotated[0].1, f))
             .flatten();
         if k > 0 {
-            note_alignment(notes, name, &units[0].0, rot.determined, lever.is_some());
+            note_alignment(notes, name, &units[0].0, rot, lever.is_some());
         }
         let mut six: [Vec<f64>; 6] = Default::default();
         for i in 0..n {
@@ -330,15 +354,33 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
             lever_arm_sigma_m: lever.map(|(_, s)| s),
         });
     }
+    let unobservable = rotations.iter().any(Rotation::apart);
     Aligned {
         signals,
         alignments,
+        unobservable,
     }
 }
 
 /// What the output must say of a unit's alignment when the motion did not determine it.
-fn note_alignment(notes: &mut Vec<String>, name: &str, first: &str, rotation: bool, lever: bool) {
-    if !rotation {
+fn note_alignment(notes: &mut Vec<String>, name: &str, first: &str, rot: &Rotation, lever: bool) {
+    let angle_deg = nalgebra::Rotation3::from_matrix_unchecked(rot.c)
+        .angle()
+        .to_degrees();
+    if !rot.determined && rot.sigma_rad.is_finite() && !rot.apart() {
+        notes.push(format!(
+            "{name}: its rotation to {first} is within two sigmas ({:.2} deg) of none, so its \
+             axes are compared as they are; what misalignment there is stays in its error",
+            2.0 * rot.sigma_rad.to_degrees()
+        ));
+    } else if !rot.determined && rot.sigma_rad.is_finite() {
+        notes.push(format!(
+            "{name}: its rotation to {first} (about {angle_deg:.0} deg) is known only to {:.1} \
+             deg (the motion barely turns it, as a static rig's few bumps), so it is not \
+             applied: its axes are compared as they are",
+            rot.sigma_rad.to_degrees()
+        ));
+    } else if !rot.determined {
         notes.push(format!(
             "{name}: the motion does not turn about two axes, so its rotation to {first} is not \
              determined (static data see only gravity: no rotation about it); its axes are \

@@ -1,7 +1,8 @@
 //! The units' common time grid. Units sampled together share their time stamps, but a unit
 //! may miss samples (a dropout: its file has no row at that time). The grid is every time
-//! at least two units share (to a quarter of the sample interval); a unit with more than 1%
-//! of its samples at times no other unit has is on another clock, and refused. For the
+//! at least two units share (to a quarter of the sample interval) within the span all units
+//! cover; a unit with more than 1% of its samples at times no other unit has is on another
+//! clock, and refused. For the
 //! run-long analyses (alignment, wavelet variances) a missing sample is filled by linear
 //! interpolation of the unit's own neighbours; the fault monitor sees it as missing.
 
@@ -29,10 +30,22 @@ pub(super) fn common_grid(units: &[(String, ImuRecording)]) -> Result<Grid, Redu
         .iter()
         .map(|(_, r)| r.median_dt_s())
         .fold(f64::INFINITY, f64::min);
+    // The span every unit covers: a unit that starts late or stops early has no dropouts
+    // outside it.
+    let start_s = units
+        .iter()
+        .map(|(_, r)| r.t_s[0])
+        .fold(f64::NEG_INFINITY, f64::max);
+    let end_s = units
+        .iter()
+        .map(|(_, r)| r.t_s[r.len() - 1])
+        .fold(f64::INFINITY, f64::min);
+    let tolerance = 0.25 * dt_s;
     let mut stamps: Vec<(f64, usize, usize)> = units
         .iter()
         .enumerate()
         .flat_map(|(k, (_, r))| r.t_s.iter().enumerate().map(move |(i, t)| (*t, k, i)))
+        .filter(|(t, _, _)| *t >= start_s - tolerance && *t <= end_s + tolerance)
         .collect();
     stamps.sort_by(|a, b| a.0.total_cmp(&b.0));
     let n_units = units.len();
@@ -42,7 +55,7 @@ pub(super) fn common_grid(units: &[(String, ImuRecording)]) -> Result<Grid, Redu
     let mut start = 0;
     while start < stamps.len() {
         let mut end = start + 1;
-        while end < stamps.len() && stamps[end].0 - stamps[start].0 <= 0.25 * dt_s {
+        while end < stamps.len() && stamps[end].0 - stamps[start].0 <= tolerance {
             end += 1;
         }
         let cluster = &stamps[start..end];
@@ -65,7 +78,12 @@ pub(super) fn common_grid(units: &[(String, ImuRecording)]) -> Result<Grid, Redu
             name: name.clone(),
             message,
         };
-        if lonely[k] as f64 > LONELY_MAX * r.len() as f64 {
+        let in_span = r
+            .t_s
+            .iter()
+            .filter(|t| **t >= start_s - tolerance && **t <= end_s + tolerance)
+            .count();
+        if lonely[k] as f64 > LONELY_MAX * in_span as f64 {
             return Err(fail(format!(
                 "{} of its {} samples are at times no other unit has (first times {} s and {} s): \
                  the units must be sampled together, on one clock",

@@ -350,10 +350,7 @@ pub fn redundancy(
             [own(0, &r.gyro_rad_s), own(1, &r.accel_m_s2)]
         })
         .collect();
-    let lengths_only = aligned
-        .alignments
-        .iter()
-        .any(|a| a.basis == RotationBasis::Undetermined);
+    let lengths_only = aligned.unobservable;
     let monitoring = faults::monitor(&faults::MonitorInput {
         signals: &aligned.signals,
         raw: &grid.filled,
@@ -429,8 +426,8 @@ fn note_faults(monitoring: &faults::Monitoring, units: usize, notes: &mut Vec<St
     }
     if monitoring.fused.is_none() {
         notes.push(
-            "the motion does not determine every unit's rotation, so the units' axes are not \
-             in one frame: faults are sought in the rotation-invariant lengths of the gyro and \
+            "the motion does not show every unit's rotation (static data see only gravity), so \
+             the units' axes are not in one frame: faults are sought in the rotation-invariant lengths of the gyro and \
              accelerometer vectors only (a fault along one axis shows little in a length), \
              and there is no fused output"
                 .into(),
