@@ -817,3 +817,61 @@ fn four_xsens_dots_in_flight_characterise_themselves() {
         );
     }
 }
+
+/// `--report DIR` on a drive where u1's bias steps: the plots are well-formed SVG with a
+/// curve per unit, report.md names the fault and links every plot; a report directory that
+/// cannot be created leaves no JSON behind and fails naming it.
+#[test]
+fn the_report_plots_each_units_error_levels_and_faults() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let run = d.join("run");
+    simulate_drive(d, THREE_UNITS, 200, 5, &run);
+    let case = d.join("case");
+    let (faults, _) = analyse_case(&run, &case, Some(("bias_step", bias_step)));
+    assert_eq!(faults[0]["kind"], "bias_step");
+    let units: Vec<String> = ["u0", "u1", "u2"]
+        .iter()
+        .map(|u| case.join(format!("{u}.csv")).display().to_string())
+        .collect();
+    let mut args: Vec<&str> = vec!["redundancy"];
+    args.extend(units.iter().map(String::as_str));
+    let (json, report) = (d.join("r.json"), d.join("report"));
+    args.extend(["--json", path(&json), "--report", path(&report)]);
+    ok(&args);
+    let md = std::fs::read_to_string(report.join("report.md")).unwrap();
+    assert!(md.contains("| u1.csv | gy | bias_step |"), "{md}");
+    for svg in [
+        "own-wv-gyro.svg",
+        "own-wv-accel.svg",
+        "noise-levels.svg",
+        "faults.svg",
+    ] {
+        assert!(md.contains(&format!("]({svg})")), "{svg} not linked");
+        let text = std::fs::read_to_string(report.join(svg)).unwrap();
+        let doc = roxmltree::Document::parse(&text).unwrap();
+        let curves = doc
+            .descendants()
+            .filter(|n| {
+                n.has_tag_name("polyline") || n.has_tag_name("path") || n.has_tag_name("rect")
+            })
+            .count();
+        assert!(curves >= 3, "{svg}: {curves} drawn elements");
+    }
+    // A report folder under a file cannot be made: non-zero exit naming it, no JSON.
+    let blocker = d.join("file");
+    std::fs::write(&blocker, "x").unwrap();
+    let bad_json = d.join("bad.json");
+    let bad_report = blocker.join("report");
+    let mut args: Vec<&str> = vec!["redundancy"];
+    args.extend(units.iter().map(String::as_str));
+    args.extend(["--json", path(&bad_json), "--report", path(&bad_report)]);
+    let out = dynacal(&args);
+    assert!(!out.status.success());
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("report"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(!bad_json.exists());
+}

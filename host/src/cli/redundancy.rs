@@ -32,6 +32,11 @@ pub struct Args {
     /// Per-axis range of every unit's accelerometers, m/s^2 (default as for the gyros).
     #[arg(long)]
     pub accel_range_m_s2: Option<f64>,
+    /// Write plots of each unit's own wavelet variance, the live noise levels and the
+    /// faults over time, with report.md, into this folder (created; written whole or not
+    /// at all).
+    #[arg(long)]
+    pub report: Option<PathBuf>,
     /// Analyse only the samples from this time on (the files' time base), s: a phase of
     /// the run (at rest, in flight) without the rest.
     #[arg(long)]
@@ -126,6 +131,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         fused
             .write(path)
             .with_context(|| format!("writing {}", path.display()))?;
+    }
+    if let Some(dir) = &args.report {
+        dynacal::redundancy::report::write_report(dir, &report)
+            .with_context(|| format!("writing the report into {}", dir.display()))?;
     }
     dynacal::output::write_json_atomic(&args.json, &report)
         .with_context(|| format!("writing {}", args.json.display()))

@@ -17,6 +17,7 @@
 mod align;
 mod faults;
 mod grid;
+pub mod report;
 
 use std::collections::BTreeMap;
 
