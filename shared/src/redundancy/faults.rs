@@ -889,9 +889,12 @@ fn classify(e: &Episode, trigger: Trigger) -> (FaultKind, Option<u8>) {
         return (FaultKind::TimeSlip, Some(loudest as u8));
     }
     let t: [[f32; 3]; 3] = core::array::from_fn(|a| term_t_statistics(e, a));
+    // Only axes that carry a good part of the residual: another axis's misalignment leak in
+    // a turn must not name the kind of a step on this one.
+    let carries = |a: usize| e.rr[a] >= 0.25 * e.rr[loudest];
     let find = |term: usize, beats: &dyn Fn(&[f32; 3]) -> bool| {
         (0..3)
-            .filter(|&a| t[a][term] >= TERM_T && beats(&t[a]))
+            .filter(|&a| carries(a) && t[a][term] >= TERM_T && beats(&t[a]))
             .fold(None, |best: Option<usize>, a| match best {
                 Some(b) if t[b][term] >= t[a][term] => Some(b),
                 _ => Some(a),
@@ -1239,10 +1242,12 @@ mod tests {
         };
         let spike: Fault = |i, s, _| Some(if i == ONSET { s.map(|v| v + 0.2) } else { s });
         let step: Fault = |i, s, _| Some(if i >= ONSET { s.map(|v| v + 0.03) } else { s });
+        // A scale change of the x gyro, whose signal varies (its vibration line); over the
+        // 1 s window a scale change on a slowly varying signal is a bias step.
         let scale: Fault = |i, s, _| {
             let truth = motion(i);
             Some(if i >= ONSET {
-                core::array::from_fn(|a| s[a] + 0.08 * truth[a])
+                [s[0] + 0.2 * truth[0], s[1], s[2]]
             } else {
                 s
             })
