@@ -361,6 +361,18 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
         &self.config
     }
 
+    /// Sets the accelerometer and gyroscope white-noise PSDs ((m/s²)²/Hz, (rad/s)²/Hz) the
+    /// next predictions use: an adaptive filter drives them from the units' live noise level
+    /// (a level s per sample at interval dt is a PSD of s² dt). Non-finite or negative
+    /// values are ignored.
+    pub fn set_sensor_noise_psd(&mut self, accel_noise_psd: T, gyro_noise_psd: T) {
+        let usable = |x: T| x.is_finite() && x >= T::zero();
+        if usable(accel_noise_psd) && usable(gyro_noise_psd) {
+            self.config.accel_noise_psd = accel_noise_psd;
+            self.config.gyro_noise_psd = gyro_noise_psd;
+        }
+    }
+
     /// The error-state covariance (symmetric, units of the module table).
     pub fn covariance(&self) -> &SMatrix<T, N, N> {
         &self.p
