@@ -37,6 +37,25 @@ fn read_json(p: &Path) -> serde_json::Value {
     serde_json::from_slice(&std::fs::read(p).unwrap()).unwrap()
 }
 
+/// The dataset `input` (under the data folder) imported with `dynacal import` into a
+/// temporary folder, and the imported files `names` there; None (after saying so) when the
+/// data folder does not hold it.
+fn imported(input: &str, names: &[String]) -> Option<(tempfile::TempDir, Vec<String>)> {
+    let input = dynacal::data_dir().join(input);
+    if !input.exists() {
+        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", input.display());
+        return None;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("in");
+    ok(&["import", path(&input), "--out", path(&out)]);
+    let files = names
+        .iter()
+        .map(|n| out.join(n).display().to_string())
+        .collect();
+    Some((dir, files))
+}
+
 /// Three 100 Hz units of white noise only, gyro variances 1, 4 and 2.25 x 1e-6 (rad/s)^2,
 /// accelerometer 1, 4 and 9 x 1e-4 (m/s^2)^2, with boresights of about half a degree and
 /// lever arms of about 5 cm.
@@ -191,21 +210,11 @@ fn two_units_or_units_on_different_clocks_are_refused() {
 /// correlate, the third unit's share grows), and the rotations are undetermined at rest.
 #[test]
 fn the_mpu9250_rig_characterises_its_gyros_against_each_units_own_fit() {
-    let input = dynacal::data_dir().join("mpu9250x4-tetra-static");
-    if !input.exists() {
-        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", input.display());
+    let names: Vec<String> = (0..4).map(|k| format!("mpu9250-imu{k}.csv.gz")).collect();
+    let Some((dir, units)) = imported("mpu9250x4-tetra-static", &names) else {
         return;
-    }
-    let dir = tempfile::tempdir().unwrap();
+    };
     let d = dir.path();
-    ok(&["import", path(&input), "--out", path(&d.join("in"))]);
-    let units: Vec<String> = (0..4)
-        .map(|k| {
-            d.join(format!("in/mpu9250-imu{k}.csv.gz"))
-                .display()
-                .to_string()
-        })
-        .collect();
     let json = d.join("r.json");
     redundancy(&units, &json);
     let r = read_json(&json);
@@ -702,20 +711,13 @@ fn median_level(r: &serde_json::Value, unit: usize, key: &str, t0: f64, span: (f
 /// own white noise from the set at rest is under 5 mrad/s and 0.05 m/s^2.
 #[test]
 fn the_ardupilot_copters_imus_see_their_noise_rise_in_flight_and_the_crash() {
-    let input = dynacal::data_dir().join("ardupilot-3imu-copter/log171.bin");
-    if !input.exists() {
-        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", input.display());
-        return;
-    }
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    ok(&["import", path(&input), "--out", path(&d.join("in"))]);
-    let units: Vec<String> = (0..3)
-        .map(|k| {
-            let f = d.join(format!("in/ardupilot-log171-imu{k}.csv.gz"));
-            f.display().to_string()
-        })
+    let names: Vec<String> = (0..3)
+        .map(|k| format!("ardupilot-log171-imu{k}.csv.gz"))
         .collect();
+    let Some((dir, units)) = imported("ardupilot-3imu-copter/log171.bin", &names) else {
+        return;
+    };
+    let d = dir.path();
     let t0 = dynacal::interchange::ImuRecording::read(Path::new(&units[0]))
         .unwrap()
         .t_s[0];
@@ -770,22 +772,14 @@ fn the_ardupilot_copters_imus_see_their_noise_rise_in_flight_and_the_crash() {
 /// two missing samples (a row the importer dropped for its NaN values).
 #[test]
 fn four_xsens_dots_in_flight_characterise_themselves() {
-    let input = dynacal::data_dir().join("xsens-dot4-quadrotor");
-    if !input.exists() {
-        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", input.display());
-        return;
-    }
-    let dir = tempfile::tempdir().unwrap();
-    let d = dir.path();
-    ok(&["import", path(&input), "--out", path(&d.join("in"))]);
-    let units: Vec<String> = [1, 2, 4, 7]
+    let names: Vec<String> = [1, 2, 4, 7]
         .iter()
-        .map(|n| {
-            d.join(format!("in/xsens-dot{n}-imu.csv.gz"))
-                .display()
-                .to_string()
-        })
+        .map(|n| format!("xsens-dot{n}-imu.csv.gz"))
         .collect();
+    let Some((dir, units)) = imported("xsens-dot4-quadrotor", &names) else {
+        return;
+    };
+    let d = dir.path();
     let json = d.join("r.json");
     redundancy(&units, &json);
     let r = read_json(&json);
