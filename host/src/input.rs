@@ -262,7 +262,12 @@ pub fn load_recording(path: &Path, evenly_sampled: bool) -> Result<ImuRecording,
 /// Every wanted channel of a series file (not a WV JSON), in file order or the order of
 /// `--columns`.
 pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputError> {
-    let header = csv_header(path)?;
+    // A binary dataset (an ArduPilot log) has no CSV header: it is recognised first.
+    let header = match csv_header(path) {
+        Ok(header) => header,
+        Err(e) if args.raw || crate::import::detect(path)?.is_none() => return Err(e),
+        Err(_) => Vec::new(),
+    };
     let has_time = header.iter().any(|h| h == "t_s");
     let interchange = has_time
         && header

@@ -284,3 +284,25 @@ fn known_dataset_is_imported_in_si_units() {
         );
     }
 }
+
+/// A binary dataset (the ArduPilot log) is recognised before its bytes are read as CSV: its
+/// uneven logger timing is then refused for the wavelet variance, naming the file and the
+/// sample, instead of a CSV encoding error.
+#[test]
+fn a_binary_log_is_recognised_and_its_uneven_timing_named() {
+    let log = dynacal::data_dir().join("ardupilot-3imu-copter/log171.bin");
+    if !log.exists() {
+        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", log.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("wv.json");
+    let out = dynacal(&[log.to_str().unwrap(), "--json", json.to_str().unwrap()]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("log171.bin") && err.contains("evenly spaced"),
+        "{err}"
+    );
+    assert!(!json.exists());
+}
