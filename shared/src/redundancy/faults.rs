@@ -819,7 +819,7 @@ impl<const N: usize> FaultMonitor<N> {
     }
 
     /// Readmits confirmed faulty units after a clean period: present, no direct fault, and
-    /// every pair with a healthy unit within half the spike and shift thresholds.
+    /// its pairs with at least half the healthy units within half of every test's threshold.
     fn readmit(
         &mut self,
         z: &Scores<N>,
@@ -833,22 +833,37 @@ impl<const N: usize> FaultMonitor<N> {
             if unit.healthy || unit.suspected.is_some() {
                 continue;
             }
+            let others = (0..N).filter(|&l| l != k && present[l] && self.units[l].healthy);
+            let agreeing = others
+                .clone()
+                .filter(|&l| {
+                    largest(&z[k][l]) < self.config.spike_sigma / 2.0
+                        && self.shift_score(k, l, z) < self.config.shift_sigma / 2.0
+                        && self.burst_score(k, l) < self.config.burst_ratio / 2.0
+                        && self.slip_score(k, l) < self.config.slip_sigma / 2.0
+                })
+                .count();
+            // Clean with at least half the healthy units: where two healthy units disagree
+            // (one noisier in flight), agreeing with one of them is what a sound unit can do.
             let clean = present[k]
                 && direct[k].is_none()
-                && (0..N)
-                    .filter(|&l| l != k && present[l] && self.units[l].healthy)
-                    .all(|l| {
-                        largest(&z[k][l]) < self.config.spike_sigma / 2.0
-                            && self.shift_score(k, l, z) < self.config.shift_sigma / 2.0
-                            && self.burst_score(k, l) < self.config.burst_ratio / 2.0
-                            && self.slip_score(k, l) < self.config.slip_sigma / 2.0
-                    });
+                && agreeing >= 1
+                && 2 * agreeing >= others.count();
+            let factor = self.dynamics_factor(k);
             let unit = &mut self.units[k];
             unit.clean_run = if clean { unit.clean_run + 1 } else { 0 };
             if unit.clean_run >= needed {
                 unit.healthy = true;
                 unit.clean_run = 0;
                 step.readmitted |= 1 << k;
+                // Its pairs' spreads were not learned while it was out: they return as
+                // the dynamics have scaled the healthy ones.
+                for l in (0..N).filter(|&l| l != k) {
+                    let (i, j) = if k < l { (k, l) } else { (l, k) };
+                    for p in &mut self.pairs[i][j] {
+                        p.spread *= factor;
+                    }
+                }
             }
         }
     }
