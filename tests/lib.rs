@@ -8,6 +8,23 @@ pub fn data_dir() -> PathBuf {
     dynacal::data_dir()
 }
 
+/// Whether qemu-system-arm can run the firmware here. When it cannot, says so and answers
+/// false, except in CI (`CI` or `DYNACAL_REQUIRE_QEMU` set), where it panics: a test that
+/// needs QEMU skips on a developer's machine and fails where QEMU must be.
+pub fn qemu_or_skip() -> bool {
+    if dynacal::replay::qemu_available() {
+        return true;
+    }
+    let required =
+        std::env::var_os("CI").is_some() || std::env::var_os("DYNACAL_REQUIRE_QEMU").is_some();
+    assert!(
+        !required,
+        "qemu-system-arm is missing but CI/DYNACAL_REQUIRE_QEMU requires it: run scripts/setup"
+    );
+    eprintln!("SKIPPED: qemu-system-arm not found (run scripts/setup to install it)");
+    false
+}
+
 /// Builds the firmware cost bench `firmware/src/bin/{bin}.rs` for thumbv7em-none-eabihf
 /// (release, `board-replay`, into `target/firmware-e2e`), runs it in QEMU's netduinoplus2
 /// with `-icount shift=0` (deterministic instruction counts) and returns what it printed on
@@ -15,17 +32,10 @@ pub fn data_dir() -> PathBuf {
 /// qemu-system-arm is absent, except in CI (`CI` or `DYNACAL_REQUIRE_QEMU` set), where that
 /// panics.
 pub fn run_cost_bench(bin: &str) -> Option<String> {
-    use dynacal::replay::{qemu_available, workspace_root, QEMU_BOARD_ARGS};
+    use dynacal::replay::{workspace_root, QEMU_BOARD_ARGS};
     use std::process::Command;
 
-    if !qemu_available() {
-        let required =
-            std::env::var_os("CI").is_some() || std::env::var_os("DYNACAL_REQUIRE_QEMU").is_some();
-        assert!(
-            !required,
-            "qemu-system-arm is missing but CI/DYNACAL_REQUIRE_QEMU requires it: run scripts/setup"
-        );
-        eprintln!("SKIPPED: qemu-system-arm not found (run scripts/setup to install it)");
+    if !qemu_or_skip() {
         return None;
     }
     let root = workspace_root();

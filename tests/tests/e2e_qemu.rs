@@ -12,7 +12,7 @@ use dynacal::decode::decode_file;
 use dynacal::interchange::ImuRecording;
 use dynacal::replay::{
     adis16405_replay, adis16405_session_path, build_replay_firmware, check_log_against_replay,
-    qemu_available, run_replay_in_qemu, workspace_root, ADIS16405_ACCEL_SCALE_M_S2_PER_COUNT,
+    run_replay_in_qemu, workspace_root, ADIS16405_ACCEL_SCALE_M_S2_PER_COUNT,
     ADIS16405_GYRO_SCALE_RAD_S_PER_COUNT, FIRMWARE_TARGET_DIR,
 };
 use dynacal::wv::{haar_wv_counts, WvOptions};
@@ -26,10 +26,6 @@ const MAX_RECORD_INSTRUCTIONS_PER_SAMPLE: f64 = 3500.0;
 /// Instructions per sample set for the whole loop, replay decoding included (measured 3130).
 const MAX_TOTAL_INSTRUCTIONS_PER_SAMPLE: f64 = 3750.0;
 
-fn required() -> bool {
-    std::env::var_os("CI").is_some() || std::env::var_os("DYNACAL_REQUIRE_QEMU").is_some()
-}
-
 #[test]
 fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
     let session = adis16405_session_path(&tests_data_dir(), 1);
@@ -40,12 +36,7 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
         );
         return;
     }
-    if !qemu_available() {
-        assert!(
-            !required(),
-            "qemu-system-arm is missing but CI/DYNACAL_REQUIRE_QEMU requires it: run scripts/setup"
-        );
-        eprintln!("SKIPPED: qemu-system-arm not found (run scripts/setup to install it)");
+    if !dynacal_tests::qemu_or_skip() {
         return;
     }
 
@@ -223,9 +214,7 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
 
 #[test]
 fn a_truncated_replay_input_fails_the_run_and_leaves_no_log() {
-    if !qemu_available() {
-        assert!(!required(), "qemu-system-arm is missing: run scripts/setup");
-        eprintln!("SKIPPED: qemu-system-arm not found (run scripts/setup to install it)");
+    if !dynacal_tests::qemu_or_skip() {
         return;
     }
     let imus = [dynacal::replay::adis16405_imu()];

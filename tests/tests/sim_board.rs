@@ -256,17 +256,10 @@ fn models_the_board_cannot_log_are_refused_with_the_reason() {
 #[test]
 fn a_simulated_replay_passes_through_the_firmware_under_qemu_bit_exact() {
     use dynacal::replay::{
-        build_replay_firmware, check_log_against_replay, qemu_available, run_replay_in_qemu,
-        workspace_root, FIRMWARE_TARGET_DIR,
+        build_replay_firmware, check_log_against_replay, run_replay_in_qemu, workspace_root,
+        FIRMWARE_TARGET_DIR,
     };
-    if !qemu_available() {
-        let required =
-            std::env::var_os("CI").is_some() || std::env::var_os("DYNACAL_REQUIRE_QEMU").is_some();
-        assert!(
-            !required,
-            "qemu-system-arm is missing but CI/DYNACAL_REQUIRE_QEMU requires it: run scripts/setup"
-        );
-        eprintln!("SKIPPED: qemu-system-arm not found (run scripts/setup to install it)");
+    if !dynacal_tests::qemu_or_skip() {
         return;
     }
     let model = example("three-mems-1khz.json");

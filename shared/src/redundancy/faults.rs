@@ -279,9 +279,8 @@ pub struct FaultMonitor<const N: usize> {
     units: [Unit; N],
     /// Previous sample set (for first differences and the signal's rate of change).
     previous: [Option<[f32; 3]>; N],
+    /// Sample sets pushed before the current one (its index while it is handled).
     sample: u32,
-    /// Sample sets seen with every pair present, for the start-up weights.
-    seen: u32,
     /// When only two units are healthy, the last sample an unisolated alarm was raised at.
     last_unisolated: Option<u32>,
     /// The last SLIP_LAGS sample sets, `history[(cursor + SLIP_LAGS - d) % SLIP_LAGS]`
@@ -304,7 +303,6 @@ impl<const N: usize> FaultMonitor<N> {
             units: [Unit::default(); N],
             previous: [None; N],
             sample: 0,
-            seen: 0,
             last_unisolated: None,
             history: [[None; N]; SLIP_LAGS],
             cursor: 0,
@@ -350,7 +348,6 @@ impl<const N: usize> FaultMonitor<N> {
     pub fn push_marked(&mut self, samples: &[Option<[f32; 3]>; N], repeated: &[bool; N]) -> Step {
         let mut step = Step::default();
         let sample = self.sample;
-        self.sample += 1;
         let present: [bool; N] = core::array::from_fn(|k| samples[k].is_some());
         let mut direct: [Option<(FaultKind, Option<u8>)>; N] = [None; N];
         for (k, s) in samples.iter().enumerate() {
@@ -388,6 +385,7 @@ impl<const N: usize> FaultMonitor<N> {
         self.previous = *samples;
         self.history[self.cursor] = *samples;
         self.cursor = (self.cursor + 1) % SLIP_LAGS;
+        self.sample += 1;
         step
     }
 
@@ -470,7 +468,7 @@ impl<const N: usize> FaultMonitor<N> {
     /// z-score of every present pair's difference on every axis against what the pair learned.
     fn scores(&self, samples: &[Option<[f32; 3]>; N]) -> Scores<N> {
         let mut z = [[[0.0; 3]; N]; N];
-        if self.seen
+        if self.sample
             < self
                 .config
                 .samples(self.config.spread_time_constant_s)
@@ -525,7 +523,7 @@ impl<const N: usize> FaultMonitor<N> {
                 Some(Trigger::Spike)
             } else if isolates(&shift, self.config.shift_sigma) {
                 Some(Trigger::Shift)
-            } else if self.seen >= self.config.samples(self.config.spread_time_constant_s)
+            } else if self.sample >= self.config.samples(self.config.spread_time_constant_s)
                 && isolates(&|a, b| self.burst_score(a, b), self.config.burst_ratio)
             {
                 Some(Trigger::Burst)
@@ -584,7 +582,7 @@ impl<const N: usize> FaultMonitor<N> {
     /// correlation's learned spread, largest over the axes. A unit whose samples are d late
     /// reads x(t - d) - x(t), about -d times the change: correlated near 1.
     fn slip_score(&self, k: usize, l: usize) -> f32 {
-        if self.seen < self.config.samples(self.config.spread_time_constant_s) {
+        if self.sample < self.config.samples(self.config.spread_time_constant_s) {
             return 0.0;
         }
         let (i, j) = if k < l { (k, l) } else { (l, k) };
@@ -621,7 +619,7 @@ impl<const N: usize> FaultMonitor<N> {
         let Some(tolerance) = self.config.norm_tolerance else {
             return false;
         };
-        if self.seen < self.config.samples(1.0).max(8) || samples[k].is_none() {
+        if self.sample < self.config.samples(1.0).max(8) || samples[k].is_none() {
             return false;
         }
         let mut others: heapless::Vec<f32, MAX_UNITS> = (0..N)
@@ -968,9 +966,10 @@ impl<const N: usize> FaultMonitor<N> {
     /// left; a unit whose bias stepped returns with its new bias. Only pairs of healthy units
     /// teach the spreads the tests divide by.
     fn learn(&mut self, samples: &[Option<[f32; 3]>; N], z: &Scores<N>, direct: &[bool; N]) {
-        self.seen = self.seen.saturating_add(1);
+        // This set counted in: a plain mean until the exponential weight is the smaller.
+        let seen = self.sample + 1;
         let c = self.config;
-        let startup = 1.0 / self.seen as f32;
+        let startup = 1.0 / seen as f32;
         let alpha_mean = c.alpha(c.mean_time_constant_s).max(startup);
         let alpha_spread = c.alpha(c.spread_time_constant_s).max(startup);
         let alpha_fast = c.alpha(c.fast_time_constant_s);
@@ -984,7 +983,7 @@ impl<const N: usize> FaultMonitor<N> {
                 };
                 // A jolt's samples teach the fast statistics nothing of the units: they would
                 // hold its energy for seconds after the hold ends.
-                let jolt = self.sample <= self.hold_until;
+                let jolt = self.sample < self.hold_until;
                 let healthy = self.units[k].healthy && self.units[l].healthy && !jolt;
                 let relearn = !direct[k] && !direct[l];
                 for axis in 0..3 {
@@ -1070,7 +1069,7 @@ impl<const N: usize> FaultMonitor<N> {
                     } else {
                         f32::INFINITY
                     };
-                    unit.step_spread += alpha_slow.max(1.0 / self.seen as f32)
+                    unit.step_spread += alpha_slow.max(1.0 / (self.sample + 1) as f32)
                         * (step2.min(limit) - unit.step_spread);
                 }
             }
