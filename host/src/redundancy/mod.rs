@@ -384,7 +384,7 @@ fn note_spacing(t_s: &[f64], notes: &mut Vec<String>) {
     if uneven > 0 {
         notes.push(format!(
             "the shared times are not evenly spaced: {uneven} of {} steps differ from the median \
-             {dt} s by more than 10%, {} of them gaps (the longest {:.3} s), at the same times \
+             {dt:.4} s by more than 10%, {} of them gaps (the longest {:.3} s), at the same times \
              in every unit; the samples are analysed as evenly spaced (the units' differences \
              do not depend on the motion's timing, but a wavelet scale's time and the angular \
              acceleration across a gap do)",

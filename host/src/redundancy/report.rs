@@ -366,9 +366,12 @@ fn markdown(r: &RedundancyReport, figures: &[String]) -> String {
             let unit = f
                 .imu
                 .map_or("not placed".to_string(), |k| r.imus[k].name_short());
-            let back = f
-                .t_readmitted_s
-                .map_or("never".to_string(), |t| format!("{t:.2}"));
+            // An alarm no unit could be given excluded nothing, so nothing is readmitted.
+            let back = match (f.imu, f.t_readmitted_s) {
+                (None, _) => "-".to_string(),
+                (Some(_), Some(t)) => format!("{t:.2}"),
+                (Some(_), None) => "never".to_string(),
+            };
             let _ = writeln!(
                 s,
                 "| {unit} | {} | {} | {:.2} | {back} |",
