@@ -6,8 +6,10 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use super::derivative::SpectralDerivative;
 use super::{Alignment, RotationBasis};
 use crate::interchange::ImuRecording;
+use crate::wv::{haar_wv, WvOptions};
 
 /// Sample k of a triad as a vector.
 fn at(triad: &[Vec<f64>; 3], k: usize) -> Vector3<f64> {
@@ -113,74 +115,66 @@ fn rpy_deg(c: &Matrix3<f64>) -> [f64; 3] {
     [roll.to_degrees(), pitch.to_degrees(), yaw.to_degrees()]
 }
 
-/// Rate of change of `x` (sampled every `dt_s`) by a spectral derivative of its Wiener-
-/// filtered spectrum: each bin kept in proportion to how far its power stands above the
-/// white noise floor (the median bin power over ln 2, the mean of an exponential law), then
-/// multiplied by i 2 pi f. Why not differences: a car's or a copter's vibration puts
-/// angular acceleration at 10-30 Hz, which central differences at 100 Hz lose up to 40% of,
-/// and an exact derivative of the raw rate amplifies the gyro noise at every frequency;
-/// the filter keeps the vibration lines and the manoeuvres, which stand above the noise,
-/// and little of the noise.
-fn spectral_derivative(x: &[f64], dt_s: f64) -> Vec<f64> {
-    use realfft::RealFftPlanner;
-    let n = x.len();
-    let mean = x.iter().sum::<f64>() / n as f64;
-    let mut planner = RealFftPlanner::<f64>::new();
-    let forward = planner.plan_fft_forward(n);
-    let inverse = planner.plan_fft_inverse(n);
-    let mut input: Vec<f64> = x.iter().map(|v| v - mean).collect();
-    let mut spectrum = forward.make_output_vec();
-    if forward.process(&mut input, &mut spectrum).is_err() {
-        return vec![0.0; n];
-    }
-    let mut power: Vec<f64> = spectrum.iter().map(|c| c.norm_sqr()).collect();
-    let mid = power.len() / 2;
-    let floor = *power.select_nth_unstable_by(mid, f64::total_cmp).1 / std::f64::consts::LN_2;
-    let last = spectrum.len() - 1;
-    for (k, c) in spectrum.iter_mut().enumerate() {
-        let p = c.norm_sqr();
-        let keep = if p > 0.0 {
-            (1.0 - floor / p).max(0.0)
-        } else {
-            0.0
-        };
-        let omega = 2.0 * std::f64::consts::PI * k as f64 / (n as f64 * dt_s);
-        *c = if k == 0 || (n.is_multiple_of(2) && k == last) {
-            realfft::num_complex::Complex::new(0.0, 0.0)
-        } else {
-            *c * realfft::num_complex::Complex::new(0.0, omega * keep)
-        };
-    }
-    let mut out = inverse.make_output_vec();
-    if inverse.process(&mut spectrum, &mut out).is_err() {
-        return vec![0.0; n];
-    }
-    out.iter().map(|v| v / n as f64).collect()
+/// The platform's motion from the aligned gyros of the units whose rotation is known.
+struct Motion {
+    /// Per sample, the angular rate (the units' mean, rad/s) and its rate of change
+    /// ([`SpectralDerivative`], rad/s^2).
+    rate_and_acceleration: Vec<(Vector3<f64>, Vector3<f64>)>,
+    /// Variance of the gyro noise the derivative lets through, per axis, (rad/s^2)^2.
+    noise_variance: [f64; 3],
+    /// Its Haar wavelet variance per axis and level (from 1), (rad/s^2)^2.
+    noise_wv: [Vec<f64>; 3],
 }
 
-/// The platform's angular rate (the mean of the aligned units' gyros, rad/s) and its rate
-/// of change ([`spectral_derivative`], rad/s^2), per sample.
-fn rate_and_acceleration(
-    aligned_gyros: &[Vec<Vector3<f64>>],
-    dt_s: f64,
-) -> Vec<(Vector3<f64>, Vector3<f64>)> {
+/// The platform's [`Motion`]. The noise the derivative lets through is measured on the
+/// gyros' pairwise differences, which hold no motion: each difference through the same
+/// filter has the variance V_j + V_k (V_k unit k's noise through the filter), the sum over
+/// the pairs is (M - 1) times the sum of the V_k, and the mean of M units lets through
+/// their sum over M^2; the same holds of the wavelet variances per level.
+fn motion(aligned_gyros: &[Vec<Vector3<f64>>], dt_s: f64) -> Motion {
     let n = aligned_gyros[0].len();
-    let units = aligned_gyros.len() as f64;
+    let units = aligned_gyros.len();
+    let axis = |g: &[Vector3<f64>], a: usize| -> Vec<f64> { g.iter().map(|w| w[a]).collect() };
     let mean: Vec<Vector3<f64>> = (0..n)
-        .map(|i| aligned_gyros.iter().map(|g| g[i]).sum::<Vector3<f64>>() / units)
+        .map(|i| aligned_gyros.iter().map(|g| g[i]).sum::<Vector3<f64>>() / units as f64)
         .collect();
-    let derivative: Vec<Vec<f64>> = (0..3)
-        .map(|a| {
-            let axis: Vec<f64> = mean.iter().map(|w| w[a]).collect();
-            spectral_derivative(&axis, dt_s)
-        })
-        .collect();
-    (0..n)
-        .map(|i| {
-            let w_dot = Vector3::new(derivative[0][i], derivative[1][i], derivative[2][i]);
-            (mean[i], w_dot)
-        })
-        .collect()
+    let mut derivatives: [Vec<f64>; 3] = Default::default();
+    let mut noise_variance = [0.0; 3];
+    let mut noise_wv: [Vec<f64>; 3] = Default::default();
+    let share = 1.0 / (units.saturating_sub(1) * units * units).max(1) as f64;
+    for a in 0..3 {
+        let Some(filter) = SpectralDerivative::fit(&axis(&mean, a), dt_s) else {
+            derivatives[a] = vec![0.0; n];
+            continue;
+        };
+        derivatives[a] = filter.apply(&axis(&mean, a));
+        let mut pairs_sum = 0.0;
+        for j in 0..units {
+            for k in j + 1..units {
+                let difference: Vec<f64> = (0..n)
+                    .map(|i| aligned_gyros[j][i][a] - aligned_gyros[k][i][a])
+                    .collect();
+                let through = filter.apply(&difference);
+                pairs_sum += through.iter().map(|v| v * v).sum::<f64>() / n as f64;
+                let wv = haar_wv(&through, dt_s, &WvOptions::default()).expect(">= 64 samples");
+                noise_wv[a].resize(wv.variance.len(), 0.0);
+                for (sum, v) in noise_wv[a].iter_mut().zip(&wv.variance) {
+                    *sum += v * share;
+                }
+            }
+        }
+        noise_variance[a] = pairs_sum * share;
+    }
+    Motion {
+        rate_and_acceleration: (0..n)
+            .map(|i| {
+                let d = |a: usize| derivatives[a][i];
+                (mean[i], Vector3::new(d(0), d(1), d(2)))
+            })
+            .collect(),
+        noise_variance,
+        noise_wv,
+    }
 }
 
 /// The lever-arm matrix of eq. (9): f_k - f_0 = (Omega_dot + Omega^2) r, Omega the cross
@@ -194,45 +188,149 @@ fn lever_matrix(w: &Vector3<f64>, w_dot: &Vector3<f64>) -> Matrix3<f64> {
 /// determine the lever arm, and correcting with it would add noise.
 const LEVER_ARM_SIGMA_MAX_M: f64 = 0.01;
 
-/// Lever arm of a unit from the first, in the first unit's axes (least squares of eq. (9)
-/// with a bias per axis), with its 1-sigma; None when the motion does not determine it.
-fn lever_arm(
-    motion: &[(Vector3<f64>, Vector3<f64>)],
-    first_accel: &[Vector3<f64>],
-    aligned_accel: &[Vector3<f64>],
-) -> Option<([f64; 3], [f64; 3])> {
-    let n = motion.len();
-    let mut normal = nalgebra::Matrix6::<f64>::zeros();
-    let mut rhs = nalgebra::Vector6::<f64>::zeros();
-    let rows = |k: usize| {
-        let m = lever_matrix(&motion[k].0, &motion[k].1);
-        let y = aligned_accel[k] - first_accel[k];
-        (m, y)
-    };
-    for k in 0..n {
-        let (m, y) = rows(k);
+/// Blocks of the lever arm's jackknife: enough for its variance to have 19 degrees of
+/// freedom, few enough that each block holds several manoeuvres of a drive.
+const JACKKNIFE_BLOCKS: usize = 20;
+
+/// Normal equations of eq. (9) with a bias per axis over some samples: unknowns r (m) then
+/// the bias (m/s^2).
+#[derive(Clone, Copy)]
+struct Normal {
+    matrix: nalgebra::Matrix6<f64>,
+    rhs: nalgebra::Vector6<f64>,
+    samples: f64,
+}
+
+impl Normal {
+    fn zero() -> Self {
+        Self {
+            matrix: nalgebra::Matrix6::zeros(),
+            rhs: nalgebra::Vector6::zeros(),
+            samples: 0.0,
+        }
+    }
+
+    fn add(&mut self, m: &Matrix3<f64>, y: &Vector3<f64>) {
         for a in 0..3 {
             let row = nalgebra::Vector6::new(m[(a, 0)], m[(a, 1)], m[(a, 2)], 0.0, 0.0, 0.0)
                 + nalgebra::Vector6::ith(3 + a, 1.0);
-            normal += row * row.transpose();
-            rhs += row * y[a];
+            self.matrix += row * row.transpose();
+            self.rhs += row * y[a];
+        }
+        self.samples += 1.0;
+    }
+
+    fn less(&self, other: &Self) -> Self {
+        Self {
+            matrix: self.matrix - other.matrix,
+            rhs: self.rhs - other.rhs,
+            samples: self.samples - other.samples,
         }
     }
-    let inverse = normal.try_inverse()?;
-    let x = inverse * rhs;
+
+    /// The solution and the corrected normal matrix's inverse; None where the motion
+    /// leaves the lever arm undetermined. The correction is for errors in the variables:
+    /// the derivative's noise e in the measured [w_dot]x adds E[[e]x^T [e]x] = diag(Vy + Vz,
+    /// Vx + Vz, Vx + Vy) per sample to the normal matrix (V the noise's variance per axis,
+    /// `noise_variance`), which would shrink the lever arm toward zero.
+    fn solve(
+        &self,
+        noise_variance: &[f64; 3],
+    ) -> Option<(nalgebra::Vector6<f64>, nalgebra::Matrix6<f64>)> {
+        let [vx, vy, vz] = *noise_variance;
+        let mut matrix = self.matrix;
+        for (i, v) in [vy + vz, vx + vz, vx + vy].iter().enumerate() {
+            matrix[(i, i)] -= self.samples * v;
+        }
+        let inverse = matrix.try_inverse()?;
+        (0..3)
+            .all(|i| inverse[(i, i)] > 0.0)
+            .then(|| (inverse * self.rhs, inverse))
+    }
+
+    /// Whether correcting for the derivative's noise (variance `noise_variance`) leaves at
+    /// least half of every lever-arm component's information. Where it does not (units
+    /// whose gyros disagree far beyond white noise, as on a flexible copter frame), the
+    /// correction would rest on a small difference of large numbers, and the uncorrected
+    /// least squares is kept: it shrinks the lever arm, it never enlarges it.
+    fn correctable(&self, noise_variance: &[f64; 3]) -> bool {
+        let [vx, vy, vz] = *noise_variance;
+        [vy + vz, vx + vz, vx + vy]
+            .iter()
+            .enumerate()
+            .all(|(i, v)| self.samples * v <= 0.5 * self.matrix[(i, i)])
+    }
+}
+
+/// Lever arm of a unit from the first, in the first unit's axes (least squares of eq. (9)
+/// with a bias per axis, corrected for the derivative's noise: [`Normal::solve`]), with its
+/// 1-sigma;
+/// None when the motion does not determine it. The sigma is the larger of the least
+/// squares' (white residuals) and a delete-one-block jackknife's over
+/// [`JACKKNIFE_BLOCKS`] stretches of the run, which also covers what the least squares
+/// takes as white and is not: the angular acceleration's error, coloured and multiplying
+/// the lever arm, and manoeuvres that differ along the run.
+fn lever_arm(
+    motion: &Motion,
+    first_accel: &[Vector3<f64>],
+    aligned_accel: &[Vector3<f64>],
+) -> Option<([f64; 3], [f64; 3])> {
+    let rows = &motion.rate_and_acceleration;
+    let n = rows.len();
+    let row = |k: usize| {
+        let m = lever_matrix(&rows[k].0, &rows[k].1);
+        (m, aligned_accel[k] - first_accel[k])
+    };
+    let blocks: Vec<Normal> = (0..JACKKNIFE_BLOCKS)
+        .map(|b| {
+            let mut normal = Normal::zero();
+            for k in b * n / JACKKNIFE_BLOCKS..(b + 1) * n / JACKKNIFE_BLOCKS {
+                let (m, y) = row(k);
+                normal.add(&m, &y);
+            }
+            normal
+        })
+        .collect();
+    let mut all = Normal::zero();
+    for b in &blocks {
+        all.matrix += b.matrix;
+        all.rhs += b.rhs;
+        all.samples += b.samples;
+    }
+    let noise = if all.correctable(&motion.noise_variance) {
+        motion.noise_variance
+    } else {
+        [0.0; 3]
+    };
+    let (x, inverse) = all.solve(&noise)?;
     let r = Vector3::new(x[0], x[1], x[2]);
-    let b = Vector3::new(x[3], x[4], x[5]);
+    let bias = Vector3::new(x[3], x[4], x[5]);
     let rss: f64 = (0..n)
         .map(|k| {
-            let (m, y) = rows(k);
-            (y - m * r - b).norm_squared()
+            let (m, y) = row(k);
+            (y - m * r - bias).norm_squared()
         })
         .sum();
     let s2 = rss / (3 * n).saturating_sub(6).max(1) as f64;
-    let sigma = [0, 1, 2].map(|i| (inverse[(i, i)] * s2).max(0.0).sqrt());
-    sigma
+    let deleted: Vec<Vector3<f64>> = blocks
         .iter()
-        .all(|s| *s < LEVER_ARM_SIGMA_MAX_M)
+        .filter_map(|b| all.less(b).solve(&noise))
+        .map(|(x, _)| Vector3::new(x[0], x[1], x[2]))
+        .collect();
+    let g = deleted.len() as f64;
+    let centre = deleted.iter().sum::<Vector3<f64>>() / g.max(1.0);
+    let jackknife = |i: usize| {
+        (g - 1.0) / g
+            * deleted
+                .iter()
+                .map(|d| (d[i] - centre[i]).powi(2))
+                .sum::<f64>()
+    };
+    let sigma = [0, 1, 2].map(|i| {
+        let least_squares = (inverse[(i, i)] * s2).max(0.0);
+        least_squares.max(jackknife(i)).sqrt()
+    });
+    (deleted.len() == JACKKNIFE_BLOCKS && sigma.iter().all(|s| *s < LEVER_ARM_SIGMA_MAX_M))
         .then_some(([r.x, r.y, r.z], sigma))
 }
 
@@ -244,6 +342,42 @@ pub(super) struct Aligned {
     /// Some unit's rotation is not applied though its axes may be far from the first
     /// unit's ([`Rotation::apart`]).
     pub unobservable: bool,
+    /// The lever-arm correction's error, common to the units; None where no lever arm is
+    /// applied.
+    pub correction_error: Option<CorrectionError>,
+}
+
+/// The lever-arm correction's error: the angular acceleration's noise e (rad/s^2) times each
+/// unit's applied lever arm. Unit k's corrected accelerometers carry -e x r_k, so the
+/// difference of units k and l carries (r_k - r_l) x e, the same e in every pair.
+pub(super) struct CorrectionError {
+    /// Lever arm applied to each unit, m, in the first unit's axes (zero where none).
+    pub lever_arms_m: Vec<Vector3<f64>>,
+    /// Haar wavelet variance of e per axis and level (from 1), (rad/s^2)^2.
+    pub noise_wv: [Vec<f64>; 3],
+}
+
+impl CorrectionError {
+    /// Covariance, at Haar level index `level` (0 for level 1), of the correction's error in
+    /// the differences of the pairs `kl` and `mo` on accelerometer axis `axis` (0 = x),
+    /// (m/s^2)^2; the axes of e taken as independent (each comes from its own gyro axis).
+    pub fn pair_covariance(
+        &self,
+        axis: usize,
+        level: usize,
+        kl: (usize, usize),
+        mo: (usize, usize),
+    ) -> f64 {
+        let arm =
+            |(a, b): (usize, usize)| (self.lever_arms_m[a] - self.lever_arms_m[b]).cross_matrix();
+        let (p, q) = (arm(kl), arm(mo));
+        (0..3)
+            .map(|b| {
+                let wv = self.noise_wv[b].get(level).copied().unwrap_or(0.0);
+                p[(axis, b)] * q[(axis, b)] * wv
+            })
+            .sum()
+    }
 }
 
 /// A triad's samples as vectors.
@@ -317,7 +451,8 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
         .filter(|(_, rot)| rot.determined)
         .map(|((g, _), _)| g.clone())
         .collect();
-    let motion = rate_and_acceleration(&determined_gyros, dt_s);
+    let motion = motion(&determined_gyros, dt_s);
+    let mut lever_arms_m = Vec::new();
     let mut signals = Vec::new();
     let mut alignments = Vec::new();
     for (k, ((name, _), (rot, (g, f)))) in
@@ -331,8 +466,9 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
         }
         let mut six: [Vec<f64>; 6] = Default::default();
         for i in 0..n {
+            let (w, w_dot) = &motion.rate_and_acceleration[i];
             let correction = match &lever {
-                Some((r, _)) => lever_matrix(&motion[i].0, &motion[i].1) * Vector3::from(*r),
+                Some((r, _)) => lever_matrix(w, w_dot) * Vector3::from(*r),
                 None => Vector3::zeros(),
             };
             let corrected = f[i] - correction;
@@ -342,6 +478,7 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
             }
         }
         signals.push(six);
+        lever_arms_m.push(lever.map_or(Vector3::zeros(), |(r, _)| Vector3::from(r)));
         alignments.push(Alignment {
             basis: match (k, rot.determined) {
                 (0, _) => RotationBasis::Reference,
@@ -355,10 +492,15 @@ pub(super) fn align(units: &[(String, ImuRecording)], notes: &mut Vec<String>) -
         });
     }
     let unobservable = rotations.iter().any(Rotation::apart);
+    let corrected = lever_arms_m.iter().any(|r| r.norm() > 0.0);
     Aligned {
         signals,
         alignments,
         unobservable,
+        correction_error: corrected.then_some(CorrectionError {
+            lever_arms_m,
+            noise_wv: motion.noise_wv,
+        }),
     }
 }
 

@@ -6,7 +6,9 @@
 //! difference of the aligned signals, which cancels the motion, gives its Haar wavelet
 //! variance per scale, and the units' own wavelet variances follow per scale by
 //! non-negative least squares over the pairs ([`dynacal_core::redundancy::own_variances`]),
-//! with each unit's white-noise variance from the finest scale. The live white-noise level of
+//! with each unit's white-noise variance from the finest scale. On the accelerometers the
+//! lever-arm correction's own error (the angular acceleration's gyro noise times the lever
+//! arms, common to the units) is taken out of the pairs first. The live white-noise level of
 //! each unit over time comes from the core's [`LiveNoise`], the same code the board runs.
 //!
 //! What the units share cancels in every difference (a common temperature drift, the same
@@ -15,6 +17,7 @@
 //! arm can be determined; the output says so.
 
 mod align;
+mod derivative;
 mod faults;
 mod grid;
 pub mod report;
@@ -68,9 +71,9 @@ pub struct Alignment {
     pub rotation_sigma_deg: Option<f64>,
     /// Lever arm from the first unit to this one, in the first unit's axes, m, with its
     /// 1-sigma; None where it cannot be determined (no angular acceleration to see it). The
-    /// sigma covers the accelerometers' noise only, not the error of the angular
-    /// acceleration the lever arm multiplies: on a simulated drive the errors were 1-3 mm
-    /// against a sigma of 0.2 mm (BENCHMARKS.md).
+    /// sigma is the larger of the least squares' and a block jackknife's, which covers the
+    /// angular acceleration's error too: over 40 simulated drives, 96.7% of the errors were
+    /// within 1.96 sigma (BENCHMARKS.md).
     pub lever_arm_m: Option<[f64; 3]>,
     pub lever_arm_sigma_m: Option<[f64; 3]>,
 }
@@ -169,30 +172,42 @@ fn check_units(units: &[(String, ImuRecording)]) -> Result<(), RedundancyError> 
     Ok(())
 }
 
+/// The pairs of `units` units, (k, l) with k < l, in [`pair_index`] order.
+fn members(units: usize) -> Vec<(usize, usize)> {
+    (0..units)
+        .flat_map(|k| (k + 1..units).map(move |l| (k, l)))
+        .collect()
+}
+
 /// Each unit's own wavelet variance on channel `c`, from the wavelet variances of every
-/// pairwise difference, per scale.
-fn own_wv(signals: &[[Vec<f64>; 6]], c: usize, dt_s: f64) -> Vec<OwnWv> {
+/// pairwise difference, per scale. On the accelerometers, the lever-arm correction's error
+/// (`correction`), common to the units, is taken out of each pair first: it is not a unit's.
+fn own_wv(
+    signals: &[[Vec<f64>; 6]],
+    c: usize,
+    dt_s: f64,
+    correction: Option<&align::CorrectionError>,
+) -> Vec<OwnWv> {
     let units = signals.len();
+    let members = members(units);
     let mut scales_s = Vec::new();
     let mut eta: Vec<f64> = Vec::new();
     let mut pair_wv: Vec<Vec<f64>> = vec![Vec::new(); pairs(units)];
-    for k in 0..units {
-        for l in k + 1..units {
-            let d: Vec<f64> = signals[k][c]
-                .iter()
-                .zip(&signals[l][c])
-                .map(|(a, b)| a - b)
-                .collect();
-            let wv = haar_wv(&d, dt_s, &WvOptions::default()).expect("at least 64 samples");
-            scales_s = wv.scales_s.clone();
-            eta = wv
-                .n_coefficients
-                .iter()
-                .zip(&wv.levels)
-                .map(|(m, j)| crate::wv::eta3(*m, *j))
-                .collect();
-            pair_wv[pair_index(units, k, l)] = wv.variance;
-        }
+    for &(k, l) in &members {
+        let d: Vec<f64> = signals[k][c]
+            .iter()
+            .zip(&signals[l][c])
+            .map(|(a, b)| a - b)
+            .collect();
+        let wv = haar_wv(&d, dt_s, &WvOptions::default()).expect("at least 64 samples");
+        scales_s = wv.scales_s.clone();
+        eta = wv
+            .n_coefficients
+            .iter()
+            .zip(&wv.levels)
+            .map(|(m, j)| crate::wv::eta3(*m, *j))
+            .collect();
+        pair_wv[pair_index(units, k, l)] = wv.variance;
     }
     let mut out: Vec<OwnWv> = (0..units)
         .map(|_| OwnWv {
@@ -204,10 +219,29 @@ fn own_wv(signals: &[[Vec<f64>; 6]], c: usize, dt_s: f64) -> Vec<OwnWv> {
         })
         .collect();
     for level in 0..scales_s.len() {
-        let at_level: Vec<f64> = pair_wv.iter().map(|p| p[level]).collect();
+        let common = |p: usize, q: usize| match (correction, c >= 3) {
+            (Some(e), true) => e.pair_covariance(c - 3, level, members[p], members[q]),
+            _ => 0.0,
+        };
+        let at_level: Vec<f64> = (0..members.len())
+            .map(|p| pair_wv[p][level] - common(p, p))
+            .collect();
         let own = own_variances(units, &at_level).expect("3..=MAX_UNITS units, variances");
+        let covariance: Vec<Vec<f64>> = (0..members.len())
+            .map(|p| {
+                (0..members.len())
+                    .map(|q| {
+                        if p == q {
+                            pair_wv[p][level]
+                        } else {
+                            shared(members[p], members[q], &own.value[..units]) + common(p, q)
+                        }
+                    })
+                    .collect()
+            })
+            .collect();
         for (k, o) in out.iter_mut().enumerate() {
-            let (lo, hi) = own_interval(k, &at_level, &own.value[..units], eta[level]);
+            let (lo, hi) = own_interval(k, &covariance, &own.value[..units], eta[level]);
             o.variance.push(own.value[k]);
             o.clamped.push(own.clamped[k]);
             o.ci_low.push(lo);
@@ -217,18 +251,36 @@ fn own_wv(signals: &[[Vec<f64>; 6]], c: usize, dt_s: f64) -> Vec<OwnWv> {
     out
 }
 
-/// 95% interval of unit k's own wavelet variance at one scale, from the pairs' variances
-/// `pair` (eta equivalent degrees of freedom each) and the units' own `own`. The least
-/// squares gives x_k = sum_p a_p nu_p with a_p = ([k in p] - 1 / (N - 1)) / (N - 2); for
-/// Gaussian errors Var(nu_p) = 2 nu_p^2 / eta and two pairs sharing unit u covary by
-/// 2 x_u^2 / eta (their wavelet coefficients share u's), so the chi-square law of one
-/// wavelet variance does not carry over: the estimate gets the equivalent degrees of freedom
-/// 2 x_k^2 / Var(x_k) of its own. A unit held at 0 gets [0, 1.96 sd].
-pub fn own_interval(k: usize, pair: &[f64], own: &[f64], eta: f64) -> (f64, f64) {
+/// Covariance of the differences k - l and m - o through the unit they share (its own
+/// variance `own`, signed by the side it is on), 0 for pairs that share none.
+fn shared((k, l): (usize, usize), (m, o): (usize, usize), own: &[f64]) -> f64 {
+    let side = |u: usize, (a, b): (usize, usize)| {
+        if u == a {
+            1.0
+        } else if u == b {
+            -1.0
+        } else {
+            0.0
+        }
+    };
+    [k, l]
+        .iter()
+        .map(|&u| side(u, (k, l)) * side(u, (m, o)) * own[u].max(0.0))
+        .sum()
+}
+
+/// 95% interval of unit k's own wavelet variance at one scale, from the covariance of the
+/// pairs' wavelet coefficients (`covariance[p][q]`, p and q in [`pair_index`] order: on the
+/// diagonal each pair's wavelet variance, of eta equivalent degrees of freedom; off it, the
+/// shared unit's own variance and any error common to the pairs) and the units' own
+/// variances `own`. The least squares gives x_k = sum_p a_p nu_p with a_p = ([k in p] -
+/// 1 / (N - 1)) / (N - 2); for Gaussian errors Cov(nu_p, nu_q) = 2 c_pq^2 / eta, so the
+/// chi-square law of one wavelet variance does not carry over: the estimate gets the
+/// equivalent degrees of freedom 2 x_k^2 / Var(x_k) of its own. A unit held at 0 gets
+/// [0, 1.96 sd].
+pub fn own_interval(k: usize, covariance: &[Vec<f64>], own: &[f64], eta: f64) -> (f64, f64) {
     let n = own.len();
-    let members: Vec<(usize, usize)> = (0..n)
-        .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
-        .collect();
+    let members = members(n);
     let coefficient = |(i, j): (usize, usize)| {
         let inside = if i == k || j == k { 1.0 } else { 0.0 };
         (inside - 1.0 / (n as f64 - 1.0)) / (n as f64 - 2.0)
@@ -236,15 +288,7 @@ pub fn own_interval(k: usize, pair: &[f64], own: &[f64], eta: f64) -> (f64, f64)
     let mut variance = 0.0;
     for (p, &a) in members.iter().enumerate() {
         for (q, &b) in members.iter().enumerate() {
-            let shared = if p == q {
-                pair[pair_index(n, a.0, a.1)].powi(2)
-            } else {
-                [a.0, a.1]
-                    .iter()
-                    .find(|u| **u == b.0 || **u == b.1)
-                    .map_or(0.0, |&u| own[u].max(0.0).powi(2))
-            };
-            variance += coefficient(a) * coefficient(b) * 2.0 * shared / eta;
+            variance += coefficient(a) * coefficient(b) * 2.0 * covariance[p][q].powi(2) / eta;
         }
     }
     let x = own[k];
@@ -312,7 +356,9 @@ pub fn redundancy(
     let first = &grid.filled[0].1;
     let dt_s = first.median_dt_s();
     let aligned = align::align(&grid.filled, &mut notes);
-    let per_channel: Vec<Vec<OwnWv>> = (0..6).map(|c| own_wv(&aligned.signals, c, dt_s)).collect();
+    let per_channel: Vec<Vec<OwnWv>> = (0..6)
+        .map(|c| own_wv(&aligned.signals, c, dt_s, aligned.correction_error.as_ref()))
+        .collect();
     let imus = units
         .iter()
         .zip(aligned.alignments.clone())
@@ -473,7 +519,7 @@ mod tests {
                     six
                 })
                 .collect();
-            let own = own_wv(&signals, 0, 0.01);
+            let own = own_wv(&signals, 0, 0.01, None);
             for (k, o) in own.iter().enumerate() {
                 for (j, c) in covered[k].iter_mut().enumerate().take(levels) {
                     // Haar WV of white noise at level j + 1: s^2 / 2^(j + 1).
