@@ -12,13 +12,18 @@
 //!   (4 s_k^2 + s_l^2 + s_m^2) / 9), from products of differences that share the unit, with a
 //!   moving / not-moving state.
 //!
+//! - [`align`]: one unit brought into another's frame (the rotation from the gyros, the lever
+//!   arm from the specific-force differences) from accumulated sums.
+//!
 //! What the units share (a common temperature drift, the same vibration on one board) cancels
 //! in every difference: these are the independent parts of the errors only.
 
 use nalgebra::ComplexField;
 
+pub mod align;
 pub mod faults;
 
+pub use align::{lever_matrix, LeverArmNormal, RotationAccumulator};
 pub use faults::{FaultConfig, FaultEvent, FaultKind, FaultMonitor};
 
 /// Most units a set may hold.

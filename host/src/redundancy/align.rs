@@ -6,6 +6,8 @@
 
 use nalgebra::{Matrix3, Vector3};
 
+use dynacal_core::redundancy::{lever_matrix, LeverArmNormal, RotationAccumulator};
+
 use super::derivative::SpectralDerivative;
 use super::{Alignment, RotationBasis};
 use crate::interchange::ImuRecording;
@@ -44,33 +46,26 @@ const ROTATION_SIGMA_MAX_RAD: f64 = 1e-2;
 /// only mix the units' axes.
 const ROTATION_SIGMA_LOOSE_RAD: f64 = 0.0175;
 
-/// Wahba's problem on the sample pairs `keep` selects: the rotation C with w_k = C w_0
-/// (Markley's SVD solution).
-fn wahba(first: &[Vector3<f64>], unit: &[Vector3<f64>], keep: &[bool]) -> Matrix3<f64> {
-    let b: Matrix3<f64> = first
-        .iter()
-        .zip(unit)
-        .zip(keep)
-        .filter(|(_, k)| **k)
-        .map(|((w0, wk), _)| wk * w0.transpose())
-        .sum();
-    let svd = b.svd(true, true);
-    let (u, v_t) = (svd.u.expect("u"), svd.v_t.expect("v_t"));
-    let d = Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, (u * v_t).determinant().signum()));
-    u * d * v_t
+/// Wahba's problem on the sample pairs `keep` selects (the core's
+/// [`RotationAccumulator`]).
+fn wahba(first: &[Vector3<f64>], unit: &[Vector3<f64>], keep: &[bool]) -> RotationAccumulator<f64> {
+    let mut sums = RotationAccumulator::default();
+    for ((w0, wk), _) in first.iter().zip(unit).zip(keep).filter(|(_, k)| **k) {
+        sums.push(w0, wk);
+    }
+    sums
 }
 
-/// Rotation C with w_k = C w_0 from the gyros' changes over [`LAG_S`], its 1-sigma and
-/// whether the motion determines it. Solved twice: the second time without the samples
-/// whose residual is beyond 5 times the median's (a unit's fault, a clipped peak, a crash
-/// must not turn the whole run's rotation). The rotation about the least-turned direction
-/// has a 1-sigma of sqrt(s^2 / L2), s^2 the per-sample residual variance of an axis and L2
-/// the second-largest eigenvalue of the first unit's rate scatter (summed over the kept
-/// samples) less the noise's share; a motion about one axis leaves the rotation about it
-/// free (infinite sigma).
+/// Rotation C with w_k = C w_0 from the gyros' changes over [`LAG_S`], its 1-sigma
+/// ([`RotationAccumulator::sigma_rad`]) and whether the motion determines it. Solved
+/// twice: the second time without the samples whose residual is beyond 5 times the
+/// median's (a unit's fault, a clipped peak, a crash must not turn the whole run's
+/// rotation).
 fn rotation_from_gyros(first: &[Vector3<f64>], unit: &[Vector3<f64>]) -> (Matrix3<f64>, f64, bool) {
     let all = vec![true; first.len()];
-    let rough = wahba(first, unit, &all);
+    let Some(rough) = wahba(first, unit, &all).rotation() else {
+        return (Matrix3::identity(), f64::INFINITY, false);
+    };
     let residual: Vec<f64> = first
         .iter()
         .zip(unit)
@@ -81,25 +76,9 @@ fn rotation_from_gyros(first: &[Vector3<f64>], unit: &[Vector3<f64>]) -> (Matrix
         .select_nth_unstable_by(residual.len() / 2, f64::total_cmp)
         .1;
     let keep: Vec<bool> = residual.iter().map(|r| *r <= 5.0 * median).collect();
-    let c = wahba(first, unit, &keep);
-    let kept = || first.iter().zip(unit).zip(&keep).filter(|(_, k)| **k);
-    let n = kept().count().max(1) as f64;
-    let scatter: Matrix3<f64> = kept().map(|((w, _), _)| w * w.transpose()).sum();
-    let mut eig: Vec<f64> = scatter.symmetric_eigenvalues().iter().copied().collect();
-    eig.sort_by(f64::total_cmp);
-    let residual_per_sample = kept()
-        .map(|((w0, wk), _)| (wk - c * w0).norm_squared())
-        .sum::<f64>()
-        / (3.0 * n);
-    // The scatter holds the first unit's noise too (about n s0^2 on every axis; the
-    // residual variance is s0^2 + sk^2, taken as half each): only what stands above it is
-    // motion.
-    let motion = eig[1] - n * residual_per_sample / 2.0;
-    let sigma = if motion > 0.0 {
-        (residual_per_sample / motion).sqrt()
-    } else {
-        f64::INFINITY
-    };
+    let sums = wahba(first, unit, &keep);
+    let c = sums.rotation().unwrap_or(rough);
+    let sigma = sums.sigma_rad(&c).unwrap_or(f64::INFINITY);
     // Determined when known to ROTATION_SIGMA_MAX_RAD, or when the rotation stands two
     // sigmas clear of none and is known to ROTATION_SIGMA_LOOSE_RAD (units on a vibrating
     // frame: 1-2 deg apart, known to 0.5-0.7 deg); otherwise none is as good an estimate.
@@ -177,13 +156,6 @@ fn motion(aligned_gyros: &[Vec<Vector3<f64>>], dt_s: f64) -> Motion {
     }
 }
 
-/// The lever-arm matrix of eq. (9): f_k - f_0 = (Omega_dot + Omega^2) r, Omega the cross
-/// product matrix of the angular rate.
-fn lever_matrix(w: &Vector3<f64>, w_dot: &Vector3<f64>) -> Matrix3<f64> {
-    let o = w.cross_matrix();
-    w_dot.cross_matrix() + o * o
-}
-
 /// Largest 1-sigma of a lever-arm component still applied, m: beyond it the motion does not
 /// determine the lever arm, and correcting with it would add noise.
 const LEVER_ARM_SIGMA_MAX_M: f64 = 0.01;
@@ -192,80 +164,10 @@ const LEVER_ARM_SIGMA_MAX_M: f64 = 0.01;
 /// freedom, few enough that each block holds several manoeuvres of a drive.
 const JACKKNIFE_BLOCKS: usize = 20;
 
-/// Normal equations of eq. (9) with a bias per axis over some samples: unknowns r (m) then
-/// the bias (m/s^2).
-#[derive(Clone, Copy)]
-struct Normal {
-    matrix: nalgebra::Matrix6<f64>,
-    rhs: nalgebra::Vector6<f64>,
-    samples: f64,
-}
-
-impl Normal {
-    fn zero() -> Self {
-        Self {
-            matrix: nalgebra::Matrix6::zeros(),
-            rhs: nalgebra::Vector6::zeros(),
-            samples: 0.0,
-        }
-    }
-
-    fn add(&mut self, m: &Matrix3<f64>, y: &Vector3<f64>) {
-        for a in 0..3 {
-            let row = nalgebra::Vector6::new(m[(a, 0)], m[(a, 1)], m[(a, 2)], 0.0, 0.0, 0.0)
-                + nalgebra::Vector6::ith(3 + a, 1.0);
-            self.matrix += row * row.transpose();
-            self.rhs += row * y[a];
-        }
-        self.samples += 1.0;
-    }
-
-    fn less(&self, other: &Self) -> Self {
-        Self {
-            matrix: self.matrix - other.matrix,
-            rhs: self.rhs - other.rhs,
-            samples: self.samples - other.samples,
-        }
-    }
-
-    /// The solution and the corrected normal matrix's inverse; None where the motion
-    /// leaves the lever arm undetermined. The correction is for errors in the variables:
-    /// the derivative's noise e in the measured [w_dot]x adds E[[e]x^T [e]x] = diag(Vy + Vz,
-    /// Vx + Vz, Vx + Vy) per sample to the normal matrix (V the noise's variance per axis,
-    /// `noise_variance`), which would shrink the lever arm toward zero.
-    fn solve(
-        &self,
-        noise_variance: &[f64; 3],
-    ) -> Option<(nalgebra::Vector6<f64>, nalgebra::Matrix6<f64>)> {
-        let [vx, vy, vz] = *noise_variance;
-        let mut matrix = self.matrix;
-        for (i, v) in [vy + vz, vx + vz, vx + vy].iter().enumerate() {
-            matrix[(i, i)] -= self.samples * v;
-        }
-        let inverse = matrix.try_inverse()?;
-        (0..3)
-            .all(|i| inverse[(i, i)] > 0.0)
-            .then(|| (inverse * self.rhs, inverse))
-    }
-
-    /// Whether correcting for the derivative's noise (variance `noise_variance`) leaves at
-    /// least half of every lever-arm component's information. Where it does not (units
-    /// whose gyros disagree far beyond white noise, as on a flexible copter frame), the
-    /// correction would rest on a small difference of large numbers, and the uncorrected
-    /// least squares is kept: it shrinks the lever arm, it never enlarges it.
-    fn correctable(&self, noise_variance: &[f64; 3]) -> bool {
-        let [vx, vy, vz] = *noise_variance;
-        [vy + vz, vx + vz, vx + vy]
-            .iter()
-            .enumerate()
-            .all(|(i, v)| self.samples * v <= 0.5 * self.matrix[(i, i)])
-    }
-}
-
 /// Lever arm of a unit from the first, in the first unit's axes (least squares of eq. (9)
-/// with a bias per axis, corrected for the derivative's noise: [`Normal::solve`]), with its
-/// 1-sigma;
-/// None when the motion does not determine it. The sigma is the larger of the least
+/// with a bias per axis, corrected for the derivative's noise where that leaves half the
+/// information: the core's [`LeverArmNormal`]), with its 1-sigma; None when the motion
+/// does not determine it. The sigma is the larger of the least
 /// squares' (white residuals) and a delete-one-block jackknife's over
 /// [`JACKKNIFE_BLOCKS`] stretches of the run, which also covers what the least squares
 /// takes as white and is not: the angular acceleration's error, coloured and multiplying
@@ -281,22 +183,18 @@ fn lever_arm(
         let m = lever_matrix(&rows[k].0, &rows[k].1);
         (m, aligned_accel[k] - first_accel[k])
     };
-    let blocks: Vec<Normal> = (0..JACKKNIFE_BLOCKS)
+    let blocks: Vec<LeverArmNormal<f64>> = (0..JACKKNIFE_BLOCKS)
         .map(|b| {
-            let mut normal = Normal::zero();
+            let mut normal = LeverArmNormal::default();
             for k in b * n / JACKKNIFE_BLOCKS..(b + 1) * n / JACKKNIFE_BLOCKS {
-                let (m, y) = row(k);
-                normal.add(&m, &y);
+                normal.push(&rows[k].0, &rows[k].1, &(aligned_accel[k] - first_accel[k]));
             }
             normal
         })
         .collect();
-    let mut all = Normal::zero();
-    for b in &blocks {
-        all.matrix += b.matrix;
-        all.rhs += b.rhs;
-        all.samples += b.samples;
-    }
+    let all = blocks
+        .iter()
+        .fold(LeverArmNormal::default(), |sum, b| sum.plus(b));
     let noise = if all.correctable(&motion.noise_variance) {
         motion.noise_variance
     } else {
