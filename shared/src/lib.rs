@@ -6,6 +6,7 @@
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
 pub mod channel;
+pub mod clock;
 pub mod log;
 pub mod nav;
 pub mod recorder;

@@ -1,0 +1,341 @@
+//! GPS time on the board from a free-running timer and the receiver's PPS. Every event is
+//! time-tagged by a capture of one 32-bit timer (PPS edges and IMU data-ready alike; the
+//! capture register holds the count, so interrupt latency adds no jitter), and this clock
+//! turns captures into GPS time: a two-state Kalman filter on the timer count at each PPS
+//! (the count at the second's edge and the counts per second), propagated each second with
+//! the oscillator's noise (white frequency noise from its Allan deviation at 1 s, and a
+//! random walk of the frequency for its temperature wander) and updated with each edge's
+//! capture (the receiver's jitter plus the timer's quantisation). An edge far from where
+//! the filter expects one is a glitch and is rejected; a missing pulse is bridged by the
+//! prediction; without pulses the clock holds over, and the time's stated uncertainty grows
+//! with the filter's covariance, so a holdover says how far it may be off.
+//!
+//! Counts are unwrapped to 64 bits against the latest capture seen, which needs a capture
+//! at least every 2^31 ticks (25 s at 84 MHz; the IMUs give one every millisecond). The
+//! filter works in f64: at 1 Hz that is cheap on a Cortex-M4F, and counts of 84 MHz stay
+//! exact in f64 for three years of uptime.
+
+// Float methods (sqrt, round) without std come from nalgebra's ComplexField.
+#[allow(unused_imports)]
+use nalgebra::ComplexField;
+use nalgebra::{Matrix2, Vector2};
+
+/// The oscillator and the pulses, as the clock is told them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ClockConfig {
+    /// Nominal timer frequency, Hz (84 MHz for TIM2/TIM5 of an STM32F4 at 168 MHz).
+    pub nominal_hz: f64,
+    /// 1-sigma jitter of a PPS edge, s (u-blox receivers: tens of nanoseconds).
+    pub pps_jitter_s: f64,
+    /// The oscillator's Allan deviation at 1 s (white frequency noise), dimensionless.
+    pub allan_deviation_1s: f64,
+    /// Random walk of the oscillator's fractional frequency, per square-root second: how
+    /// fast temperature moves it (a crystal at 0.5 ppm per degree warming by 1 degree a
+    /// minute drifts 8e-9 per second).
+    pub frequency_walk_per_sqrt_s: f64,
+    /// Largest fractional frequency error of the oscillator before any pulse (a crystal:
+    /// tens of ppm).
+    pub initial_frequency_error: f64,
+    /// An edge whose capture is further than this many sigmas from where the filter
+    /// expects the next second's edge is rejected as a glitch.
+    pub gate_sigmas: f64,
+}
+
+impl ClockConfig {
+    /// An STM32F4 timer at 84 MHz on a crystal of up to 50 ppm that warms by up to a degree
+    /// a minute, disciplined by a u-blox PPS of 30 ns jitter.
+    pub fn stm32f4_crystal() -> Self {
+        Self {
+            nominal_hz: 84e6,
+            pps_jitter_s: 30e-9,
+            allan_deviation_1s: 1e-9,
+            frequency_walk_per_sqrt_s: 2e-8,
+            initial_frequency_error: 50e-6,
+            gate_sigmas: 6.0,
+        }
+    }
+}
+
+/// How far the clock can be trusted.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ClockStatus {
+    /// Fewer than two pulses: no frequency yet, times count from the first pulse (or from
+    /// boot, before any).
+    Unlocked,
+    /// The last pulse is at most 2.5 s before the time asked for (one missing pulse is
+    /// bridged without leaving lock).
+    Locked,
+    /// Pulses have stopped: the time is the last estimate's prediction, its sigma growing.
+    Holdover,
+}
+
+/// What the clock made of a PPS edge.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum PpsOutcome {
+    /// Accepted; `missed` pulses before it were bridged by the prediction.
+    Accepted { missed: u32 },
+    /// Too far from where the next second's edge belongs: a glitch, ignored.
+    Rejected,
+}
+
+/// A capture's GPS time.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GpsTime {
+    /// Whole GPS second of the last pulse before (or the prediction of it), s.
+    pub second: u64,
+    /// Time since that second's edge, s (negative for a capture just before it).
+    pub offset_s: f64,
+    /// 1-sigma of the time, s.
+    pub sigma_s: f64,
+    pub status: ClockStatus,
+}
+
+impl GpsTime {
+    /// The time in microseconds (the log's timescale), rounded to the nearest.
+    pub fn t_us(&self) -> u64 {
+        let us = self.second as f64 * 1e6 + self.offset_s * 1e6;
+        if us <= 0.0 {
+            0
+        } else {
+            us.round() as u64
+        }
+    }
+}
+
+/// The PPS-disciplined clock (see the module's note).
+#[derive(Debug, Clone)]
+pub struct PpsClock {
+    config: ClockConfig,
+    /// The latest capture seen, unwrapped to 64 bits.
+    latest: Option<u64>,
+    /// Timer count at the edge of `second` (x[0], counts) and counts per second (x[1]).
+    state: Vector2<f64>,
+    covariance: Matrix2<f64>,
+    second: u64,
+    pulses: u32,
+}
+
+impl PpsClock {
+    pub fn new(config: ClockConfig) -> Self {
+        Self {
+            config,
+            latest: None,
+            state: Vector2::new(0.0, config.nominal_hz),
+            covariance: Matrix2::zeros(),
+            second: 0,
+            pulses: 0,
+        }
+    }
+
+    /// `capture` unwrapped to 64 bits against the latest capture (forward up to 2^31
+    /// ticks, backward as far for a capture read late).
+    fn unwrap(&mut self, capture: u32) -> u64 {
+        let Some(latest) = self.latest else {
+            self.latest = Some(u64::from(capture));
+            return u64::from(capture);
+        };
+        let ahead = capture.wrapping_sub(latest as u32);
+        let full = if ahead < 1 << 31 {
+            latest + u64::from(ahead)
+        } else {
+            latest.saturating_sub(u64::from(ahead.wrapping_neg()))
+        };
+        self.latest = Some(latest.max(full));
+        full
+    }
+
+    /// Oscillator noise over `seconds`, counts^2: white frequency noise on the phase, and
+    /// the frequency's random walk integrated into it.
+    fn process_noise(&self, seconds: f64) -> Matrix2<f64> {
+        let f = self.config.nominal_hz;
+        let white = (self.config.allan_deviation_1s * f).powi(2) * seconds;
+        let walk = (self.config.frequency_walk_per_sqrt_s * f).powi(2);
+        let (t2, t3) = (seconds * seconds, seconds * seconds * seconds);
+        Matrix2::new(
+            white + walk * t3 / 3.0,
+            walk * t2 / 2.0,
+            walk * t2 / 2.0,
+            walk * seconds,
+        )
+    }
+
+    /// The state and covariance carried `seconds` forward.
+    fn predicted(&self, seconds: f64) -> (Vector2<f64>, Matrix2<f64>) {
+        let transition = Matrix2::new(1.0, seconds, 0.0, 1.0);
+        let state = transition * self.state;
+        let covariance =
+            transition * self.covariance * transition.transpose() + self.process_noise(seconds);
+        (state, covariance)
+    }
+
+    /// Variance of one edge's capture, counts^2: the receiver's jitter and the timer's
+    /// quantisation (uniform over one tick).
+    fn edge_variance(&self) -> f64 {
+        (self.config.pps_jitter_s * self.config.nominal_hz).powi(2) + 1.0 / 12.0
+    }
+
+    /// A PPS edge captured at `capture`, beginning GPS second `second` where the receiver
+    /// said which (its NAV-PVT time of week); None counts on from the last pulse.
+    pub fn on_pps(&mut self, capture: u32, second: Option<u64>) -> PpsOutcome {
+        let count = self.unwrap(capture) as f64;
+        if self.pulses == 0 {
+            let f = self.config.nominal_hz;
+            self.state = Vector2::new(count, f);
+            self.covariance = Matrix2::new(
+                self.edge_variance(),
+                0.0,
+                0.0,
+                (self.config.initial_frequency_error * f).powi(2),
+            );
+            self.second = second.unwrap_or(0);
+            self.pulses = 1;
+            return PpsOutcome::Accepted { missed: 0 };
+        }
+        let elapsed = ((count - self.state[0]) / self.state[1]).round();
+        if elapsed < 1.0 || elapsed > f64::from(u32::MAX) {
+            return PpsOutcome::Rejected;
+        }
+        let (state, covariance) = self.predicted(elapsed);
+        let innovation = count - state[0];
+        let variance = covariance[(0, 0)] + self.edge_variance();
+        if innovation.abs() > self.config.gate_sigmas * variance.sqrt() {
+            return PpsOutcome::Rejected;
+        }
+        let gain = covariance.column(0) / variance;
+        self.state = state + gain * innovation;
+        let kh = Matrix2::new(gain[0], 0.0, gain[1], 0.0);
+        // Joseph form: the covariance stays symmetric and positive for years of pulses.
+        let keep = Matrix2::identity() - kh;
+        self.covariance =
+            keep * covariance * keep.transpose() + gain * gain.transpose() * self.edge_variance();
+        self.second = second.unwrap_or(self.second + elapsed as u64);
+        self.pulses = self.pulses.saturating_add(1);
+        PpsOutcome::Accepted {
+            missed: elapsed as u32 - 1,
+        }
+    }
+
+    /// GPS time of a capture, with its 1-sigma and the clock's status.
+    pub fn time_of(&mut self, capture: u32) -> GpsTime {
+        let count = self.unwrap(capture) as f64;
+        if self.pulses == 0 {
+            return GpsTime {
+                second: 0,
+                offset_s: count / self.config.nominal_hz,
+                sigma_s: f64::INFINITY,
+                status: ClockStatus::Unlocked,
+            };
+        }
+        let rate = self.state[1];
+        let offset_s = (count - self.state[0]) / rate;
+        let (_, covariance) = self.predicted(offset_s.abs());
+        let status = if self.pulses < 2 {
+            ClockStatus::Unlocked
+        } else if offset_s <= 2.5 {
+            ClockStatus::Locked
+        } else {
+            ClockStatus::Holdover
+        };
+        GpsTime {
+            second: self.second,
+            offset_s,
+            sigma_s: covariance[(0, 0)].max(0.0).sqrt() / rate,
+            status,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// A crystal 30 ppm fast that warms at 0.5 ppm per degree by 0.5 degree a minute (a
+    /// frequency ramp of 4.2e-9 per second), counted by an 84 MHz timer that wraps every
+    /// 51 s: the timer count at true time t, s.
+    fn count_at(t_s: f64) -> f64 {
+        let ramp = 0.5e-6 * 0.5 / 60.0;
+        84e6 * (t_s + 30e-6 * t_s + 0.5 * ramp * t_s * t_s)
+    }
+
+    /// Runs `seconds` of PPS (30 ns jitter) with the pulses `lost` says are missing and a
+    /// glitch edge every 7 s, time-tagging a 1 kHz data-ready between them: the largest
+    /// time-tag error while locked, and (time, error, stated sigma) of every sample in
+    /// holdover.
+    fn run(seconds: u32, lost: impl Fn(u32) -> bool) -> (f64, Vec<(f64, f64, f64)>) {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(12);
+        let jitter = Normal::new(0.0, 30e-9).unwrap();
+        let mut clock = PpsClock::new(ClockConfig::stm32f4_crystal());
+        let capture = |t: f64| count_at(t).floor() as u64 as u32;
+        let (mut worst_locked, mut holdover) = (0.0f64, Vec::new());
+        for s in 1..seconds {
+            if !lost(s) {
+                let edge = f64::from(s) + jitter.sample(&mut rng);
+                let outcome = clock.on_pps(capture(edge), Some(u64::from(s)));
+                assert!(matches!(outcome, PpsOutcome::Accepted { .. }), "second {s}");
+            }
+            if s % 7 == 0 {
+                let glitch = f64::from(s) + 0.37;
+                assert_eq!(clock.on_pps(capture(glitch), None), PpsOutcome::Rejected);
+            }
+            for ms in 0..1000 {
+                let t = f64::from(s) + f64::from(ms) * 1e-3 + 0.25e-3;
+                let time = clock.time_of(capture(t));
+                let error = time.second as f64 + time.offset_s - t;
+                match time.status {
+                    ClockStatus::Locked if s > 10 => worst_locked = worst_locked.max(error.abs()),
+                    ClockStatus::Holdover => holdover.push((t, error, time.sigma_s)),
+                    _ => {}
+                }
+            }
+        }
+        (worst_locked, holdover)
+    }
+
+    /// With pulses (one missing now and then, a glitch every 7 s rejected), every 1 kHz
+    /// time tag is within 10 us of the truth; measured within 0.11 us, held under 1 us.
+    #[test]
+    fn pps_disciplined_time_tags_are_within_10_us() {
+        let (worst, holdover) = run(300, |s| s % 50 == 0);
+        assert!(worst < 1e-6, "{worst}");
+        assert!(holdover.is_empty());
+    }
+
+    /// After 60 s without pulses the clock says it holds over, its error within three of
+    /// its stated sigmas all along, and the stated sigma after 60 s under 60 us; the next
+    /// pulse is accepted and the time is back within 1 us.
+    #[test]
+    fn holdover_states_an_uncertainty_that_covers_its_error() {
+        let (worst, holdover) = run(240, |s| (120..180).contains(&s));
+        let (_, last_error, last_sigma) = *holdover.last().unwrap();
+        assert!(holdover.len() > 58_000);
+        for (t, error, sigma) in &holdover {
+            assert!(error.abs() < 3.0 * sigma, "t {t}: {error} vs {sigma}");
+        }
+        eprintln!(
+            "after 60 s of holdover: error {last_error:.3e} s, stated sigma {last_sigma:.3e} s"
+        );
+        assert!(last_sigma < 60e-6, "{last_error} {last_sigma}");
+        assert!(worst < 1e-6, "{worst}");
+    }
+
+    proptest::proptest! {
+        /// Whatever captures arrive, in whatever order, the clock neither panics nor
+        /// returns a time without a sigma.
+        #[test]
+        fn arbitrary_captures_never_panic(
+            events in proptest::collection::vec((proptest::bool::ANY, proptest::num::u32::ANY, proptest::option::of(0u64..1 << 40)), 0..200)
+        ) {
+            let mut clock = PpsClock::new(ClockConfig::stm32f4_crystal());
+            for (pulse, capture, second) in events {
+                if pulse {
+                    clock.on_pps(capture, second);
+                } else {
+                    let time = clock.time_of(capture);
+                    proptest::prop_assert!(!time.sigma_s.is_nan());
+                }
+            }
+        }
+    }
+}
