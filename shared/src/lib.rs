@@ -7,6 +7,7 @@
 #![forbid(unsafe_code)]
 pub mod channel;
 pub mod clock;
+pub mod gnss;
 pub mod log;
 pub mod nav;
 pub mod recorder;

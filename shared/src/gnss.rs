@@ -1,0 +1,319 @@
+//! The GNSS receiver on the board: u-blox UBX bytes, as a UART delivers them in pieces of
+//! any size, to the log's [`GnssFix`]. The framing, checksum and field decoding are the
+//! `ublox` crate's (no_std, a fixed buffer, no allocation; 4.4 KB of flash for the parser
+//! with NAV-PVT at opt-level "s"), fuzzed here: arbitrary bytes never panic it. NAV-PVT
+//! carries the time of week but not the week; the week comes from its UTC date and time,
+//! which are GPS time less the leap seconds, and the time of week must agree with them
+//! (a solution whose date or time is not valid, or disagrees, gives no fix: the log's
+//! timescale needs the week).
+
+use ublox::nav_pvt::common::NavPvtValidFlags;
+use ublox::proto23::{PacketRef, Proto23};
+use ublox::{FixedBuffer, GnssFixType, Parser, UbxPacket};
+
+use crate::log::GnssFix;
+
+/// Bytes the parser holds: a NAV-PVT frame is 100; longer messages are skipped whole.
+const PARSER_BYTES: usize = 256;
+
+/// GPS time less UTC since the start of 2017, s (the receiver's NAV-TIMELS says when it
+/// changes).
+pub const LEAP_SECONDS_2017: u32 = 18;
+
+/// Seconds in a GPS week.
+const WEEK_S: u64 = 604_800;
+
+/// What the receiver's bytes gave so far.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct ReceiverCounts {
+    /// NAV-PVT solutions turned into fixes.
+    pub fixes: u32,
+    /// NAV-PVT solutions without a valid date and time (or whose time of week disagrees
+    /// with them): no fix.
+    pub untimed: u32,
+    /// Frames the parser refused (bad checksum, bad length, an unknown or malformed
+    /// message).
+    pub malformed: u32,
+}
+
+/// u-blox bytes in, fixes out (see the module's note).
+pub struct UbxReceiver {
+    parser: Parser<FixedBuffer<PARSER_BYTES>, Proto23>,
+    leap_seconds: u32,
+    counts: ReceiverCounts,
+}
+
+impl UbxReceiver {
+    /// A receiver whose UTC is GPS time less `leap_seconds`.
+    pub fn new(leap_seconds: u32) -> Self {
+        Self {
+            parser: Parser::with_fixed_buffer(),
+            leap_seconds,
+            counts: ReceiverCounts::default(),
+        }
+    }
+
+    /// What the bytes gave so far.
+    pub fn counts(&self) -> ReceiverCounts {
+        self.counts
+    }
+
+    /// Feeds `bytes` as read from the UART; `on_fix` gets every NAV-PVT solution with a
+    /// valid time, in order.
+    pub fn push(&mut self, bytes: &[u8], mut on_fix: impl FnMut(GnssFix)) {
+        let leap = self.leap_seconds;
+        let mut counts = self.counts;
+        let mut packets = self.parser.consume_ubx(bytes);
+        while let Some(packet) = packets.next() {
+            match packet {
+                Ok(UbxPacket::Proto23(PacketRef::NavPvt(pvt))) => {
+                    let valid = pvt.valid();
+                    let timed = valid.contains(NavPvtValidFlags::VALID_DATE)
+                        && valid.contains(NavPvtValidFlags::VALID_TIME);
+                    let t_us = gps_time_us(
+                        (pvt.year(), pvt.month(), pvt.day()),
+                        (pvt.hour(), pvt.min(), pvt.sec()),
+                        pvt.itow(),
+                        leap,
+                    )
+                    .filter(|_| timed);
+                    let Some(t_us) = t_us else {
+                        counts.untimed += 1;
+                        continue;
+                    };
+                    counts.fixes += 1;
+                    on_fix(GnssFix {
+                        t_us,
+                        lat_rad: pvt.latitude().to_radians(),
+                        lon_rad: pvt.longitude().to_radians(),
+                        h_m: pvt.height_above_ellipsoid() as f32,
+                        vel_ned_m_s: [
+                            pvt.vel_north() as f32,
+                            pvt.vel_east() as f32,
+                            pvt.vel_down() as f32,
+                        ],
+                        pos_sigma_m: pvt.horizontal_accuracy() as f32,
+                        vel_sigma_m_s: pvt.speed_accuracy() as f32,
+                        num_sats: pvt.num_satellites(),
+                        fix_type: fix_code(pvt.fix_type()),
+                    });
+                }
+                Ok(_) => {}
+                Err(_) => counts.malformed += 1,
+            }
+        }
+        self.counts = counts;
+    }
+}
+
+/// The log's fix-type code of a NAV-PVT fix type.
+fn fix_code(fix: GnssFixType) -> u8 {
+    match fix {
+        GnssFixType::NoFix => 0,
+        GnssFixType::DeadReckoningOnly => 1,
+        GnssFixType::Fix2D => 2,
+        GnssFixType::Fix3D => 3,
+        GnssFixType::GPSPlusDeadReckoning => 4,
+        GnssFixType::TimeOnlyFix => 5,
+        // Codes the protocol reserves: a solution of no known kind is none.
+        _ => 0,
+    }
+}
+
+/// Days from 1970-01-01 to a civil (proleptic Gregorian) date; None for a date that is not
+/// one (Howard Hinnant's days_from_civil).
+fn days_since_1970(year: u16, month: u8, day: u8) -> Option<i64> {
+    if !(1..=12).contains(&month) || !(1..=31).contains(&day) {
+        return None;
+    }
+    let y = i64::from(year) - i64::from(month <= 2);
+    let era = y.div_euclid(400);
+    let year_of_era = y - era * 400;
+    let m = i64::from(month);
+    let day_of_year = (153 * (m + if m > 2 { -3 } else { 9 }) + 2) / 5 + i64::from(day) - 1;
+    let day_of_era = year_of_era * 365 + year_of_era / 4 - year_of_era / 100 + day_of_year;
+    Some(era * 146_097 + day_of_era - 719_468)
+}
+
+/// GPS time in microseconds since 1980-01-06 of a NAV-PVT solution: the week from its UTC
+/// date and time plus the leap seconds, the time within the week from its time of week
+/// (`itow_ms`, to the millisecond); None for an invalid date or a time of week more than
+/// a second from the date's.
+fn gps_time_us(
+    (year, month, day): (u16, u8, u8),
+    (hour, minute, second): (u8, u8, u8),
+    itow_ms: u32,
+    leap_seconds: u32,
+) -> Option<u64> {
+    const GPS_EPOCH_DAYS_SINCE_1970: i64 = 3657;
+    let days = days_since_1970(year, month, day)? - GPS_EPOCH_DAYS_SINCE_1970;
+    if days < 0 || hour > 23 || minute > 59 || second > 60 {
+        return None;
+    }
+    let utc_s =
+        days as u64 * 86_400 + u64::from(hour) * 3600 + u64::from(minute) * 60 + u64::from(second);
+    let gps_s = utc_s + u64::from(leap_seconds);
+    let tow_s = u64::from(itow_ms) / 1000;
+    if tow_s >= WEEK_S {
+        return None;
+    }
+    // The week whose time of week lies nearest the date's (a solution near midnight on
+    // Saturday may round either side of the week's start).
+    let week = (gps_s + WEEK_S / 2 - tow_s) / WEEK_S;
+    let from_tow_ms = week * WEEK_S * 1000 + u64::from(itow_ms);
+    let apart_ms = from_tow_ms.abs_diff(gps_s * 1000);
+    (apart_ms <= 1000).then_some(from_tow_ms * 1000)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A NAV-PVT frame (UBX protocol 23 layout, 92-byte payload) with its checksum.
+    fn nav_pvt_frame(fields: &Pvt) -> Vec<u8> {
+        let mut p = vec![0u8; 92];
+        let put = |p: &mut Vec<u8>, at: usize, bytes: &[u8]| {
+            p[at..at + bytes.len()].copy_from_slice(bytes)
+        };
+        put(&mut p, 0, &fields.itow_ms.to_le_bytes());
+        put(&mut p, 4, &fields.date.0.to_le_bytes());
+        p[6] = fields.date.1;
+        p[7] = fields.date.2;
+        p[8] = fields.time.0;
+        p[9] = fields.time.1;
+        p[10] = fields.time.2;
+        p[11] = fields.valid;
+        p[20] = 3;
+        p[23] = 14;
+        put(&mut p, 24, &fields.lon_e7.to_le_bytes());
+        put(&mut p, 28, &fields.lat_e7.to_le_bytes());
+        put(&mut p, 32, &fields.height_mm.to_le_bytes());
+        put(&mut p, 40, &1500u32.to_le_bytes());
+        put(&mut p, 48, &1234i32.to_le_bytes());
+        put(&mut p, 52, &(-567i32).to_le_bytes());
+        put(&mut p, 56, &89i32.to_le_bytes());
+        put(&mut p, 68, &120u32.to_le_bytes());
+        let mut frame = vec![0xB5, 0x62, 0x01, 0x07, 92, 0];
+        frame.extend_from_slice(&p);
+        let (mut a, mut b) = (0u8, 0u8);
+        for byte in &frame[2..] {
+            a = a.wrapping_add(*byte);
+            b = b.wrapping_add(a);
+        }
+        frame.extend_from_slice(&[a, b]);
+        frame
+    }
+
+    struct Pvt {
+        itow_ms: u32,
+        date: (u16, u8, u8),
+        time: (u8, u8, u8),
+        valid: u8,
+        lat_e7: i32,
+        lon_e7: i32,
+        height_mm: i32,
+    }
+
+    /// 2026-11-25 12:34:56 UTC: GPS week 2446, Wednesday, 12:35:14 GPS.
+    fn example() -> Pvt {
+        Pvt {
+            itow_ms: (3 * 86_400 + 12 * 3600 + 35 * 60 + 14) * 1000 + 200,
+            date: (2026, 11, 25),
+            time: (12, 34, 56),
+            valid: 0x03,
+            lat_e7: 465_191_234,
+            lon_e7: 66_323_456,
+            height_mm: 412_345,
+        }
+    }
+
+    fn fixes(receiver: &mut UbxReceiver, bytes: &[u8], chunk: usize) -> Vec<GnssFix> {
+        let mut out = Vec::new();
+        for piece in bytes.chunks(chunk.max(1)) {
+            receiver.push(piece, |f| out.push(f));
+        }
+        out
+    }
+
+    /// A solution read in pieces of any size gives the fix its fields say, at the GPS time
+    /// of its week and time of week.
+    #[test]
+    fn a_nav_pvt_solution_becomes_a_fix_at_its_gps_time() {
+        let frame = nav_pvt_frame(&example());
+        for chunk in [1, 3, 7, 100, 1000] {
+            let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
+            let got = fixes(&mut receiver, &frame, chunk);
+            assert_eq!(got.len(), 1, "chunk {chunk}");
+            let fix = got[0];
+            let week = 2446u64;
+            let tow_ms = u64::from(example().itow_ms);
+            assert_eq!(fix.t_us, (week * WEEK_S * 1000 + tow_ms) * 1000);
+            assert!((fix.lat_rad - 46.519_123_4f64.to_radians()).abs() < 1e-12);
+            assert!((fix.lon_rad - 6.632_345_6f64.to_radians()).abs() < 1e-12);
+            assert!((fix.h_m - 412.345).abs() < 1e-3);
+            assert_eq!(fix.vel_ned_m_s, [1.234, -0.567, 0.089]);
+            assert_eq!((fix.pos_sigma_m, fix.vel_sigma_m_s), (1.5, 0.12));
+            assert_eq!((fix.num_sats, fix.fix_type), (14, 3));
+        }
+    }
+
+    /// A damaged checksum gives no fix and is counted; a solution without a valid date, or
+    /// whose time of week disagrees with its date, gives none either.
+    #[test]
+    fn damaged_or_untimed_solutions_give_no_fix() {
+        let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
+        let mut frame = nav_pvt_frame(&example());
+        let last = frame.len() - 1;
+        frame[last] ^= 0xFF;
+        assert!(fixes(&mut receiver, &frame, 16).is_empty());
+        assert_eq!(receiver.counts().malformed, 1);
+        let undated = nav_pvt_frame(&Pvt {
+            valid: 0x02,
+            ..example()
+        });
+        let disagreeing = nav_pvt_frame(&Pvt {
+            itow_ms: 1000,
+            ..example()
+        });
+        let mut bytes = undated;
+        bytes.extend(disagreeing);
+        assert!(fixes(&mut receiver, &bytes, 50).is_empty());
+        assert_eq!(receiver.counts().untimed, 2);
+    }
+
+    proptest::proptest! {
+        /// Arbitrary bytes, in arbitrary pieces, never panic the receiver; a solution that
+        /// follows them whole is still found.
+        #[test]
+        fn arbitrary_bytes_never_panic_and_do_not_hide_a_following_fix(
+            noise in proptest::collection::vec(proptest::num::u8::ANY, 0..2000),
+            chunk in 1usize..300,
+        ) {
+            let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
+            let mut bytes = noise;
+            let frame = nav_pvt_frame(&example());
+            bytes.extend_from_slice(&frame);
+            bytes.extend_from_slice(&frame);
+            let got = fixes(&mut receiver, &bytes, chunk);
+            proptest::prop_assert!(!got.is_empty());
+        }
+
+        /// Frames damaged anywhere (a byte changed, as line noise does) never panic the
+        /// receiver, whatever the damage makes of a length or a class.
+        #[test]
+        fn damaged_frames_never_panic(
+            damage in proptest::collection::vec((0usize..500, proptest::num::u8::ANY), 1..20),
+            chunk in 1usize..120,
+        ) {
+            let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
+            let mut bytes: Vec<u8> = (0..5).flat_map(|_| nav_pvt_frame(&example())).collect();
+            for (at, value) in damage {
+                let at = at % bytes.len();
+                bytes[at] = value;
+            }
+            let got = fixes(&mut receiver, &bytes, chunk);
+            let counts = receiver.counts();
+            proptest::prop_assert_eq!(got.len() as u32, counts.fixes);
+        }
+    }
+}
