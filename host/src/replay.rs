@@ -102,7 +102,8 @@ pub enum ReplayFileError {
 #[derive(Debug, Clone, PartialEq)]
 pub struct ReplayInput {
     pub header: ReplayHeader,
-    /// IMU and PPS records in time order (no end record: [`ReplayInput::encode`] adds it).
+    /// IMU, PPS and GNSS records in time order (no end record: [`ReplayInput::encode`] adds
+    /// it).
     pub records: Vec<ReplayRecord>,
 }
 
@@ -161,7 +162,7 @@ impl ReplayInput {
                     }
                     t_us
                 }
-                ReplayRecord::Pps { t_us } => t_us,
+                ReplayRecord::Pps { t_us } | ReplayRecord::Gnss { t_us, .. } => t_us,
                 ReplayRecord::End { .. } => return Err(ReplayFileError::EndRecordGiven { index }),
             };
             if t_us < previous_t_us {
@@ -784,7 +785,7 @@ mod tests {
                             sequence: sequence - 1,
                         })
                     }
-                    ReplayRecord::End { .. } => unreachable!(),
+                    ReplayRecord::End { .. } | ReplayRecord::Gnss { .. } => unreachable!(),
                 });
             }
             frames

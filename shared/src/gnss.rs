@@ -7,6 +7,9 @@
 //! (a solution whose date or time is not valid, or disagrees, gives no fix: the log's
 //! timescale needs the week).
 
+// Float methods (round, sqrt) without std come from nalgebra's ComplexField.
+#[allow(unused_imports)]
+use nalgebra::ComplexField;
 use ublox::nav_pvt::common::NavPvtValidFlags;
 use ublox::proto23::{PacketRef, Proto23};
 use ublox::{FixedBuffer, GnssFixType, Parser, UbxPacket};
@@ -145,14 +148,13 @@ fn gps_time_us(
     itow_ms: u32,
     leap_seconds: u32,
 ) -> Option<u64> {
-    const GPS_EPOCH_DAYS_SINCE_1970: i64 = 3657;
+    // UTC may lie up to the leap seconds before GPS time's start (the day before).
     let days = days_since_1970(year, month, day)? - GPS_EPOCH_DAYS_SINCE_1970;
-    if days < 0 || hour > 23 || minute > 59 || second > 60 {
+    if hour > 23 || minute > 59 || second > 60 {
         return None;
     }
-    let utc_s =
-        days as u64 * 86_400 + u64::from(hour) * 3600 + u64::from(minute) * 60 + u64::from(second);
-    let gps_s = utc_s + u64::from(leap_seconds);
+    let utc_s = days * 86_400 + i64::from(hour) * 3600 + i64::from(minute) * 60 + i64::from(second);
+    let gps_s = u64::try_from(utc_s + i64::from(leap_seconds)).ok()?;
     let tow_s = u64::from(itow_ms) / 1000;
     if tow_s >= WEEK_S {
         return None;
@@ -163,6 +165,86 @@ fn gps_time_us(
     let from_tow_ms = week * WEEK_S * 1000 + u64::from(itow_ms);
     let apart_ms = from_tow_ms.abs_diff(gps_s * 1000);
     (apart_ms <= 1000).then_some(from_tow_ms * 1000)
+}
+
+/// Bytes of a NAV-PVT frame: sync, class, id, length, the 92-byte payload, checksum.
+pub const NAV_PVT_FRAME_LEN: usize = 100;
+
+/// Days from 1970-01-01 to 1980-01-06, the start of GPS time.
+const GPS_EPOCH_DAYS_SINCE_1970: i64 = 3657;
+
+/// The civil date of a day count from 1970-01-01 (Howard Hinnant's civil_from_days).
+fn civil_from_days(days: i64) -> (u16, u8, u8) {
+    let z = days + 719_468;
+    let era = z.div_euclid(146_097);
+    let day_of_era = z - era * 146_097;
+    let year_of_era =
+        (day_of_era - day_of_era / 1460 + day_of_era / 36_524 - day_of_era / 146_096) / 365;
+    let day_of_year = day_of_era - (365 * year_of_era + year_of_era / 4 - year_of_era / 100);
+    let mp = (5 * day_of_year + 2) / 153;
+    let day = day_of_year - (153 * mp + 2) / 5 + 1;
+    let month = if mp < 10 { mp + 3 } else { mp - 9 };
+    let year = year_of_era + era * 400 + i64::from(month <= 2);
+    (year as u16, month as u8, day as u8)
+}
+
+/// The NAV-PVT frame a u-blox receiver sends for `fix` (what the simulator's replay input
+/// carries, so the board reads the receiver's own bytes): its time of week to the
+/// millisecond, its UTC date and time (GPS time less `leap_seconds`, the fraction in the
+/// nanosecond field), position to 1e-7 deg and 1 mm, velocity and accuracies to 1 mm and
+/// 1 mm/s, date and time flagged valid.
+pub fn encode_nav_pvt(fix: &GnssFix, leap_seconds: u32) -> [u8; NAV_PVT_FRAME_LEN] {
+    let mut frame = [0u8; NAV_PVT_FRAME_LEN];
+    frame[..6].copy_from_slice(&[0xB5, 0x62, 0x01, 0x07, 92, 0]);
+    let p = &mut frame[6..98];
+    let mut put = |at: usize, bytes: &[u8]| p[at..at + bytes.len()].copy_from_slice(bytes);
+    let itow_ms = (fix.t_us / 1000) % (WEEK_S * 1000);
+    put(0, &(itow_ms as u32).to_le_bytes());
+    // UTC since GPS time's start, which is negative for the first leap seconds of it.
+    let utc_us = fix.t_us as i64 - i64::from(leap_seconds) * 1_000_000;
+    let utc_s = utc_us.div_euclid(1_000_000);
+    let (year, month, day) = civil_from_days(utc_s.div_euclid(86_400) + GPS_EPOCH_DAYS_SINCE_1970);
+    put(4, &year.to_le_bytes());
+    let of_day = utc_s.rem_euclid(86_400);
+    put(
+        6,
+        &[
+            month,
+            day,
+            (of_day / 3600) as u8,
+            (of_day / 60 % 60) as u8,
+            (of_day % 60) as u8,
+        ],
+    );
+    put(11, &[0x07]);
+    put(
+        16,
+        &((utc_us.rem_euclid(1_000_000) * 1000) as i32).to_le_bytes(),
+    );
+    put(20, &[fix.fix_type, 0x01, 0, fix.num_sats]);
+    let e7 = |rad: f64| (rad.to_degrees() * 1e7).round() as i32;
+    let milli = |x: f32| (f64::from(x) * 1e3).round() as i32;
+    put(24, &e7(fix.lon_rad).to_le_bytes());
+    put(28, &e7(fix.lat_rad).to_le_bytes());
+    put(32, &milli(fix.h_m).to_le_bytes());
+    put(36, &milli(fix.h_m).to_le_bytes());
+    put(40, &(milli(fix.pos_sigma_m).max(0) as u32).to_le_bytes());
+    put(44, &(milli(fix.pos_sigma_m).max(0) as u32).to_le_bytes());
+    for (k, v) in fix.vel_ned_m_s.iter().enumerate() {
+        put(48 + 4 * k, &milli(*v).to_le_bytes());
+    }
+    let ground =
+        (fix.vel_ned_m_s[0] * fix.vel_ned_m_s[0] + fix.vel_ned_m_s[1] * fix.vel_ned_m_s[1]).sqrt();
+    put(60, &milli(ground).to_le_bytes());
+    put(68, &(milli(fix.vel_sigma_m_s).max(0) as u32).to_le_bytes());
+    let (mut a, mut b) = (0u8, 0u8);
+    for byte in &frame[2..98] {
+        a = a.wrapping_add(*byte);
+        b = b.wrapping_add(a);
+    }
+    frame[98] = a;
+    frame[99] = b;
+    frame
 }
 
 #[cfg(test)]
@@ -279,6 +361,54 @@ mod tests {
         bytes.extend(disagreeing);
         assert!(fixes(&mut receiver, &bytes, 50).is_empty());
         assert_eq!(receiver.counts().untimed, 2);
+    }
+
+    /// A fix encoded as a receiver would send it comes back from the receiver as it was,
+    /// to the frame's resolution (1e-7 deg, 1 mm, 1 mm/s, 1 ms), across a week's start,
+    /// a year's end and GPS time's first seconds.
+    #[test]
+    fn an_encoded_fix_comes_back_as_it_was() {
+        let start_of_2027 =
+            ((days_since_1970(2027, 1, 1).unwrap() - 3657) as u64 * 86_400 + 18) * 1_000_000;
+        for t_us in [
+            1_479_645_314_200_000u64,
+            start_of_2027 - 100_000,
+            start_of_2027 + 300_000,
+        ] {
+            let fix = GnssFix {
+                t_us,
+                lat_rad: 0.811_911_46,
+                lon_rad: -0.114_612_28,
+                h_m: 400.123,
+                vel_ned_m_s: [12.345, -3.21, 0.05],
+                pos_sigma_m: 0.3,
+                vel_sigma_m_s: 0.05,
+                num_sats: 11,
+                fix_type: 3,
+            };
+            let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
+            let got = fixes(&mut receiver, &encode_nav_pvt(&fix, LEAP_SECONDS_2017), 13);
+            assert_eq!(got.len(), 1, "{t_us}");
+            let back = got[0];
+            assert_eq!(back.t_us, t_us);
+            assert!(
+                (back.lat_rad - fix.lat_rad).abs() < 1e-9
+                    && (back.lon_rad - fix.lon_rad).abs() < 1e-9
+            );
+            assert!((back.h_m - fix.h_m).abs() < 1e-3);
+            for k in 0..3 {
+                assert!((back.vel_ned_m_s[k] - fix.vel_ned_m_s[k]).abs() < 1e-3);
+            }
+            assert_eq!(
+                (
+                    back.pos_sigma_m,
+                    back.vel_sigma_m_s,
+                    back.num_sats,
+                    back.fix_type
+                ),
+                (0.3, 0.05, 11, 3)
+            );
+        }
     }
 
     proptest::proptest! {

@@ -1,5 +1,7 @@
-//! The board application: turns a stream of timestamped raw IMU sample sets and PPS edges
-//! into the log (`crate::log`), with periodic health reports.
+//! The board application: turns a stream of timestamped raw IMU sample sets, PPS edges and
+//! GNSS receiver bytes into the log (`crate::log`), with periodic health reports. The
+//! receiver's bytes go through [`crate::gnss::UbxReceiver`], and each solution it finds is
+//! logged as a `Gnss` frame at its own (GPS) time of validity.
 //!
 //! It knows no hardware. A board supplies a [`SampleSource`] (SPI IMUs and timer captures on
 //! the STM32F405, a recording read through semihosting under QEMU), a [`LogSink`] (UART, SD
@@ -14,10 +16,13 @@
 //! `WaveletVariance` frame per declared IMU and channel each time log time crosses a whole
 //! [`Recorder::wv_period_us`] after the first event, and once more when the source ends.
 
+use crate::gnss::{UbxReceiver, LEAP_SECONDS_2017};
+use crate::log::GnssFix;
 use crate::log::{
     encode_frame, Frame, Header, Health, ImuSampleSet, LogError, PpsEvent, WvFrame, MAX_FRAME_LEN,
     MAX_IMUS,
 };
+use crate::replay::GNSS_CHUNK_MAX;
 use crate::wavelet::HaarStream;
 
 /// The recorder's wavelet-variance accumulator of one channel: 4 full (overlapping) levels
@@ -29,11 +34,27 @@ pub type RecorderWv = HaarStream<4, 16, 16>;
 /// Channels accumulated per IMU, in [`crate::Channel::ALL`] order.
 const WV_CHANNELS: usize = 6;
 
+/// Bytes from the GNSS receiver's UART, as they arrived: `data[..len]`, the last at `t_us`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct GnssChunk {
+    pub t_us: u64,
+    pub len: u8,
+    pub data: [u8; GNSS_CHUNK_MAX],
+}
+
+impl GnssChunk {
+    /// The bytes.
+    pub fn bytes(&self) -> &[u8] {
+        &self.data[..usize::from(self.len).min(GNSS_CHUNK_MAX)]
+    }
+}
+
 /// One event from the sensors, stamped on the log timescale.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum SourceEvent {
     Imu(ImuSampleSet),
     Pps(PpsEvent),
+    Gnss(GnssChunk),
 }
 
 impl SourceEvent {
@@ -42,6 +63,7 @@ impl SourceEvent {
         match self {
             SourceEvent::Imu(s) => s.t_us,
             SourceEvent::Pps(p) => p.t_us,
+            SourceEvent::Gnss(g) => g.t_us,
         }
     }
 }
@@ -97,6 +119,8 @@ pub struct RecorderStats {
     pub imu_sample_sets: [u64; MAX_IMUS],
     /// PPS edges received.
     pub pps_edges: u64,
+    /// GNSS solutions found in the receiver's bytes and logged.
+    pub gnss_fixes: u64,
     /// Health frames produced (written or dropped).
     pub health_reports: u64,
     /// WaveletVariance frames produced (written or dropped).
@@ -142,7 +166,8 @@ pub struct Recorder {
     header: Header,
     /// Log time between two periodic health reports, microseconds.
     pub health_period_us: u64,
-    /// A PPS edge seen within this long before a health report sets `FLAG_PPS_LOCKED`.
+    /// A PPS edge seen within this long before a health report sets `FLAG_PPS_LOCKED`, and a
+    /// 3-D GNSS fix `FLAG_GNSS_FIX`.
     pub pps_lock_window_us: u64,
     /// Log time between two periodic rounds of WaveletVariance frames, microseconds (a live
     /// board never reaches the end-of-run round).
@@ -188,6 +213,8 @@ impl Recorder {
         let mut next_health_t_us: Option<u64> = None;
         let mut next_wv_t_us: Option<u64> = None;
         let mut last_pps_t_us: Option<u64> = None;
+        let mut last_fix_t_us: Option<u64> = None;
+        let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
         let mut dropped_at_last_health = 0u32;
         let mut ticks_at_last_health = start;
         let mut record_ticks_at_last_health = 0u64;
@@ -215,7 +242,7 @@ impl Recorder {
                     t_us,
                     source,
                     &run.stats,
-                    last_pps_t_us,
+                    (last_pps_t_us, last_fix_t_us),
                     dropped_at_last_health,
                     load_permille(
                         run.stats
@@ -272,6 +299,21 @@ impl Recorder {
                     run.stats.pps_edges += 1;
                     last_pps_t_us = Some(pps.t_us);
                 }
+                SourceEvent::Gnss(chunk) => {
+                    // A chunk of at most GNSS_CHUNK_MAX (100) bytes completes at most one
+                    // 100-byte solution; room is kept for two.
+                    let mut fixes: heapless::Vec<GnssFix, 2> = heapless::Vec::new();
+                    receiver.push(chunk.bytes(), |fix| {
+                        let _ = fixes.push(fix);
+                    });
+                    for fix in fixes {
+                        run.emit(&Frame::Gnss(fix))?;
+                        run.stats.gnss_fixes += 1;
+                        if fix.fix_type == 3 || fix.fix_type == 4 {
+                            last_fix_t_us = Some(t_us);
+                        }
+                    }
+                }
             }
             run.stats.record_ticks += clock.now_ticks().saturating_sub(fetched);
         }
@@ -282,7 +324,7 @@ impl Recorder {
             previous_t_us.unwrap_or(0),
             source,
             &run.stats,
-            last_pps_t_us,
+            (last_pps_t_us, last_fix_t_us),
             dropped_at_last_health,
             load_permille(
                 run.stats
@@ -305,13 +347,18 @@ impl Recorder {
         t_us: u64,
         source: &mut Src,
         stats: &RecorderStats,
-        last_pps_t_us: Option<u64>,
+        (last_pps_t_us, last_fix_t_us): (Option<u64>, Option<u64>),
         dropped_at_last_health: u32,
         cpu_load_permille: u16,
     ) -> Health {
         let mut flags = 0;
-        if last_pps_t_us.is_some_and(|pps| t_us.saturating_sub(pps) <= self.pps_lock_window_us) {
+        let recent =
+            |t: Option<u64>| t.is_some_and(|t| t_us.saturating_sub(t) <= self.pps_lock_window_us);
+        if recent(last_pps_t_us) {
             flags |= Health::FLAG_PPS_LOCKED;
+        }
+        if recent(last_fix_t_us) {
+            flags |= Health::FLAG_GNSS_FIX;
         }
         if source.imu_fault() {
             flags |= Health::FLAG_IMU_FAULT;
@@ -467,6 +514,70 @@ mod tests {
         let frames: std::vec::Vec<_> = acc.feed(bytes).map(|f| f.unwrap()).collect();
         assert_eq!(acc.stats().frames_dropped, 0);
         frames
+    }
+
+    /// Receiver bytes split across chunks anywhere are logged as the fixes they hold, and
+    /// health reports the 3-D fix while it is recent.
+    #[test]
+    fn logs_the_fixes_in_the_receivers_bytes_and_reports_the_fix() {
+        let fix = |k: u64| GnssFix {
+            t_us: k * 100_000,
+            lat_rad: 0.8,
+            lon_rad: 0.1 + k as f64 * 1e-7,
+            h_m: 400.0,
+            vel_ned_m_s: [10.0, 0.0, 0.0],
+            pos_sigma_m: 0.3,
+            vel_sigma_m_s: 0.05,
+            num_sats: 12,
+            fix_type: 3,
+        };
+        let bytes: std::vec::Vec<u8> = (0..15)
+            .flat_map(|k| crate::gnss::encode_nav_pvt(&fix(k), LEAP_SECONDS_2017))
+            .collect();
+        let mut events = std::vec::Vec::new();
+        for (k, piece) in bytes.chunks(37).enumerate() {
+            let mut data = [0u8; GNSS_CHUNK_MAX];
+            data[..piece.len()].copy_from_slice(piece);
+            let t_us = k as u64 * 37_000;
+            events.push(imu(t_us, 4, k as i32));
+            events.push(SourceEvent::Gnss(GnssChunk {
+                t_us,
+                len: piece.len() as u8,
+                data,
+            }));
+        }
+        let recorder = Recorder::new(header(&[4]));
+        let mut sink = BoundedSink {
+            bytes: std::vec::Vec::new(),
+            capacity: usize::MAX,
+            flushed: false,
+        };
+        let stats = recorder
+            .run(
+                &mut VecSource(events.into_iter()),
+                &mut sink,
+                &mut StepClock(0),
+            )
+            .unwrap();
+        assert_eq!(stats.gnss_fixes, 15);
+        let frames = decode(&sink.bytes);
+        let logged: std::vec::Vec<&GnssFix> = frames
+            .iter()
+            .filter_map(|f| match f {
+                Frame::Gnss(g) => Some(g),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(logged.len(), 15);
+        for (k, g) in logged.iter().enumerate() {
+            assert_eq!(g.t_us, k as u64 * 100_000);
+            assert!((g.lon_rad - fix(k as u64).lon_rad).abs() < 2e-9);
+        }
+        let last_health = frames.iter().rev().find_map(|f| match f {
+            Frame::Health(h) => Some(h),
+            _ => None,
+        });
+        assert!(last_health.is_some_and(|h| h.flags & Health::FLAG_GNSS_FIX != 0));
     }
 
     #[test]

@@ -8,13 +8,16 @@
 //! Layout, all integers and floats little-endian (see `firmware/README.md`):
 //!
 //! ```text
-//! header   magic "DCREPLAY" (8 bytes), format version u16 (= 1), IMU count u16 (1..=8),
+//! header   magic "DCREPLAY" (8 bytes), format version u16 (= 2; 1 is read too: it has no
+//!          GNSS records), IMU count u16 (1..=8),
 //!          then per IMU (40 bytes): imu_id u8, 3 reserved zero bytes,
 //!          model [u8; 16] ASCII NUL-padded, sample_rate_hz f32,
 //!          gyro_scale_rad_s_per_count f64, accel_scale_m_s2_per_count f64
 //! records  tag u8, then
 //!          0x01 IMU sample set: t_us u64, imu_id u8, gyro counts [i32; 3], accel counts [i32; 3]
 //!          0x02 PPS edge:       t_us u64
+//!          0x03 GNSS bytes:     t_us u64, length u8 (1..=100), the receiver's bytes as its
+//!                               UART delivered them (u-blox UBX), t_us when the last arrived
 //!          0xFF end:            IMU sample-set count u64, PPS count u64 (must be the last bytes)
 //! ```
 //!
@@ -27,7 +30,7 @@ use heapless::Vec;
 /// First bytes of every replay file.
 pub const REPLAY_MAGIC: [u8; 8] = *b"DCREPLAY";
 /// Version of the layout described in the module documentation.
-pub const REPLAY_FORMAT_VERSION: u16 = 1;
+pub const REPLAY_FORMAT_VERSION: u16 = 2;
 /// Most IMUs one replay file may describe.
 pub const MAX_REPLAY_IMUS: usize = 8;
 /// Bytes of the fixed part of the header (magic, version, IMU count).
@@ -42,11 +45,16 @@ pub const IMU_RECORD_LEN: usize = 34;
 pub const PPS_RECORD_LEN: usize = 9;
 /// Bytes of the end record, tag included.
 pub const END_RECORD_LEN: usize = 17;
+/// Most receiver bytes one GNSS record carries (a whole NAV-PVT frame).
+pub const GNSS_CHUNK_MAX: usize = 100;
+/// Bytes of a GNSS record before its data: tag, t_us, length.
+pub const GNSS_RECORD_HEAD_LEN: usize = 10;
 /// Bytes of the longest record.
-pub const MAX_RECORD_LEN: usize = IMU_RECORD_LEN;
+pub const MAX_RECORD_LEN: usize = GNSS_RECORD_HEAD_LEN + GNSS_CHUNK_MAX;
 
 const TAG_IMU: u8 = 0x01;
 const TAG_PPS: u8 = 0x02;
+const TAG_GNSS: u8 = 0x03;
 const TAG_END: u8 = 0xFF;
 
 /// One IMU as the replay file describes it: identity, rate and the scale factors that turn
@@ -127,6 +135,12 @@ pub enum ReplayRecord {
     },
     /// A PPS edge captured at `t_us`.
     Pps { t_us: u64 },
+    /// Bytes from the GNSS receiver's UART, the last received at `t_us`: `data[..len]`.
+    Gnss {
+        t_us: u64,
+        len: u8,
+        data: [u8; GNSS_CHUNK_MAX],
+    },
     /// End of the stream, with the totals of the records before it.
     End {
         imu_sample_sets: u64,
@@ -140,8 +154,23 @@ impl ReplayRecord {
         match self {
             ReplayRecord::Imu { .. } => IMU_RECORD_LEN,
             ReplayRecord::Pps { .. } => PPS_RECORD_LEN,
+            ReplayRecord::Gnss { len, .. } => GNSS_RECORD_HEAD_LEN + usize::from(*len),
             ReplayRecord::End { .. } => END_RECORD_LEN,
         }
+    }
+
+    /// A GNSS record of `bytes` (1 to [`GNSS_CHUNK_MAX`]) received by `t_us`.
+    pub fn gnss(t_us: u64, bytes: &[u8]) -> Result<Self, ReplayError> {
+        if bytes.is_empty() || bytes.len() > GNSS_CHUNK_MAX {
+            return Err(ReplayError::BadGnssLength(bytes.len().min(255) as u8));
+        }
+        let mut data = [0u8; GNSS_CHUNK_MAX];
+        data[..bytes.len()].copy_from_slice(bytes);
+        Ok(ReplayRecord::Gnss {
+            t_us,
+            len: bytes.len() as u8,
+            data,
+        })
     }
 }
 
@@ -164,6 +193,8 @@ pub enum ReplayError {
     BadImuConfig(u8),
     /// A record starts with an unknown tag byte.
     UnknownTag(u8),
+    /// A GNSS record's length is 0 or more than [`GNSS_CHUNK_MAX`].
+    BadGnssLength(u8),
 }
 
 impl core::fmt::Display for ReplayError {
@@ -188,6 +219,12 @@ impl core::fmt::Display for ReplayError {
                 )
             }
             ReplayError::UnknownTag(tag) => write!(f, "unknown record tag 0x{tag:02x}"),
+            ReplayError::BadGnssLength(n) => {
+                write!(
+                    f,
+                    "GNSS record of {n} bytes: 1 to {GNSS_CHUNK_MAX} are allowed"
+                )
+            }
         }
     }
 }
@@ -273,7 +310,7 @@ pub fn decode_header(bytes: &[u8]) -> Result<(ReplayHeader, usize), ReplayError>
         return Err(ReplayError::BadMagic);
     }
     let version = le_u16(bytes, 8);
-    if version != REPLAY_FORMAT_VERSION {
+    if !(1..=REPLAY_FORMAT_VERSION).contains(&version) {
         return Err(ReplayError::UnsupportedVersion(version));
     }
     let count = le_u16(bytes, 10);
@@ -327,6 +364,16 @@ pub fn encode_record(record: &ReplayRecord, out: &mut [u8]) -> Result<usize, Rep
             out[0] = TAG_PPS;
             put(out, 1, &t_us.to_le_bytes());
         }
+        ReplayRecord::Gnss { t_us, len, data } => {
+            let n = usize::from(*len);
+            if n == 0 || n > GNSS_CHUNK_MAX {
+                return Err(ReplayError::BadGnssLength(*len));
+            }
+            out[0] = TAG_GNSS;
+            put(out, 1, &t_us.to_le_bytes());
+            out[9] = *len;
+            put(out, GNSS_RECORD_HEAD_LEN, &data[..n]);
+        }
         ReplayRecord::End {
             imu_sample_sets,
             pps_edges,
@@ -349,6 +396,17 @@ pub fn decode_record(bytes: &[u8]) -> Result<(ReplayRecord, usize), ReplayError>
         TAG_IMU => IMU_RECORD_LEN,
         TAG_PPS => PPS_RECORD_LEN,
         TAG_END => END_RECORD_LEN,
+        TAG_GNSS => {
+            let Some(&n) = bytes.get(GNSS_RECORD_HEAD_LEN - 1) else {
+                return Err(ReplayError::Incomplete {
+                    needed: GNSS_RECORD_HEAD_LEN,
+                });
+            };
+            if n == 0 || usize::from(n) > GNSS_CHUNK_MAX {
+                return Err(ReplayError::BadGnssLength(n));
+            }
+            GNSS_RECORD_HEAD_LEN + usize::from(n)
+        }
         other => return Err(ReplayError::UnknownTag(other)),
     };
     if bytes.len() < len {
@@ -364,6 +422,7 @@ pub fn decode_record(bytes: &[u8]) -> Result<(ReplayRecord, usize), ReplayError>
         TAG_PPS => ReplayRecord::Pps {
             t_us: le_u64(bytes, 1),
         },
+        TAG_GNSS => ReplayRecord::gnss(le_u64(bytes, 1), &bytes[GNSS_RECORD_HEAD_LEN..len])?,
         _ => ReplayRecord::End {
             imu_sample_sets: le_u64(bytes, 1),
             pps_edges: le_u64(bytes, 9),

@@ -246,6 +246,48 @@ fn a_truncated_replay_input_fails_the_run_and_leaves_no_log() {
     assert!(!log_path.exists());
 }
 
+/// A simulated car run's receiver bytes (each GNSS fix as the NAV-PVT frame a u-blox
+/// receiver sends, in the replay input as its UART delivers them) go through the firmware's
+/// receiver: the board logs every fix, equal to the simulation's to the frame's resolution,
+/// and its health reports a 3-D fix.
+#[test]
+fn the_board_logs_the_receivers_fixes_from_its_ubx_bytes() {
+    if !dynacal_tests::qemu_or_skip() {
+        return;
+    }
+    let model = dynacal::sim::SimModel::load(
+        &workspace_root().join("examples/models/three-mems-1khz.json"),
+    )
+    .unwrap();
+    let opts = dynacal::sim::SimOptions {
+        scenario: dynacal::sim::Scenario::Car,
+        seconds: 3.0,
+        seed: 4,
+        disabled: Vec::new(),
+        keep_ideal: false,
+    };
+    let out = dynacal::sim::simulate(&model, &opts, &|_| {}).unwrap();
+    let board = dynacal::sim::board::board_recording(&out, &model).unwrap();
+    assert!(board.gnss.len() >= 20, "{} fixes", board.gnss.len());
+    let dir = tempfile::tempdir().unwrap();
+    let input_path = dir.path().join("car.replay");
+    std::fs::write(&input_path, board.replay_bytes().unwrap()).unwrap();
+    let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
+    let log_path = dir.path().join("board.log");
+    run_replay_in_qemu(&elf, &input_path, &log_path).unwrap();
+    let log = decode_file(&log_path).unwrap();
+    assert_eq!(log.gnss.len(), board.gnss.len());
+    for (logged, simulated) in log.gnss.iter().zip(&board.gnss) {
+        assert_eq!(logged.t_us, simulated.t_us);
+        assert!((logged.lat_rad - simulated.lat_rad).abs() < 2e-9);
+        assert!((logged.lon_rad - simulated.lon_rad).abs() < 2e-9);
+        assert!((logged.h_m - simulated.h_m).abs() < 1e-3);
+        assert_eq!(logged.fix_type, simulated.fix_type);
+    }
+    let fix_flag = dynacal_core::log::Health::FLAG_GNSS_FIX;
+    assert!(log.health.iter().skip(1).all(|h| h.flags & fix_flag != 0));
+}
+
 fn tests_data_dir() -> PathBuf {
     dynacal_tests::data_dir()
 }

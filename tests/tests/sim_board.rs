@@ -12,6 +12,8 @@ use dynacal::sim::board::{
 };
 use dynacal::sim::output::{write_outputs_with_board, LOG_FILE, REPLAY_FILE};
 use dynacal::sim::{simulate, Scenario, SimModel, SimOptions, SimOutput};
+use dynacal_core::gnss::{UbxReceiver, LEAP_SECONDS_2017};
+use dynacal_core::log::GnssFix;
 use dynacal_core::replay::{decode_header, decode_record, ReplayRecord};
 
 fn example(name: &str) -> SimModel {
@@ -35,7 +37,11 @@ fn run(model: &SimModel, seconds: f64) -> SimOutput {
 /// Per IMU id: (t_us, gyro counts, accel counts) of every sample; and the PPS stamps.
 type Samples = BTreeMap<u8, Vec<(u64, [i32; 3], [i32; 3])>>;
 
-fn read_replay(bytes: &[u8]) -> (Vec<(u8, f64, f64)>, Samples, Vec<u64>) {
+/// The replay's header scales, samples, PPS stamps, and the fixes its GNSS records give
+/// through the board's receiver.
+type ReplayContents = (Vec<(u8, f64, f64)>, Samples, Vec<u64>, Vec<GnssFix>);
+
+fn read_replay(bytes: &[u8]) -> ReplayContents {
     let (header, mut at) = decode_header(bytes).unwrap();
     let scales = header
         .imus
@@ -50,6 +56,8 @@ fn read_replay(bytes: &[u8]) -> (Vec<(u8, f64, f64)>, Samples, Vec<u64>) {
         .collect();
     let mut samples = Samples::new();
     let mut pps = Vec::new();
+    let mut fixes = Vec::new();
+    let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
     loop {
         let (record, n) = decode_record(&bytes[at..]).unwrap();
         at += n;
@@ -64,6 +72,9 @@ fn read_replay(bytes: &[u8]) -> (Vec<(u8, f64, f64)>, Samples, Vec<u64>) {
                 .or_default()
                 .push((t_us, gyro_counts, accel_counts)),
             ReplayRecord::Pps { t_us } => pps.push(t_us),
+            ReplayRecord::Gnss { len, data, .. } => {
+                receiver.push(&data[..usize::from(len)], |fix| fixes.push(fix))
+            }
             ReplayRecord::End {
                 imu_sample_sets,
                 pps_edges,
@@ -76,12 +87,24 @@ fn read_replay(bytes: &[u8]) -> (Vec<(u8, f64, f64)>, Samples, Vec<u64>) {
         }
     }
     assert_eq!(at, bytes.len(), "bytes after the end record");
-    (scales, samples, pps)
+    (scales, samples, pps, fixes)
 }
 
 fn check_log_against_replay(log: &[u8], replay: &[u8], out: &SimOutput) {
-    let (scales, replay_samples, replay_pps) = read_replay(replay);
+    let (scales, replay_samples, replay_pps, replay_fixes) = read_replay(replay);
     let decoded = decode_bytes(log);
+    // The replay carries each fix as the receiver's NAV-PVT bytes: the same fixes to the
+    // frame's resolution (1e-7 deg, 1 mm, 1 mm/s).
+    assert_eq!(replay_fixes.len(), decoded.gnss.len());
+    for (sent, logged) in replay_fixes.iter().zip(&decoded.gnss) {
+        assert_eq!(sent.t_us, logged.t_us);
+        assert!((sent.lat_rad - logged.lat_rad).abs() < 2e-9);
+        assert!((sent.lon_rad - logged.lon_rad).abs() < 2e-9);
+        assert!((sent.h_m - logged.h_m).abs() < 1e-3);
+        for k in 0..3 {
+            assert!((sent.vel_ned_m_s[k] - logged.vel_ned_m_s[k]).abs() < 1e-3);
+        }
+    }
     assert!(
         decoded.dropped_by_error.is_empty(),
         "{:?}",

@@ -20,7 +20,7 @@ use core::fmt::Write as _;
 use dynacal_core::log::ImuSampleSet;
 use dynacal_core::log::{Header, ImuConfig, PpsEvent, IMU_MODEL_LEN, MAX_IMUS, PROTOCOL_VERSION};
 use dynacal_core::recorder::{
-    Accepted, LogSink, RecorderError, RecorderStats, SampleSource, SourceEvent,
+    Accepted, GnssChunk, LogSink, RecorderError, RecorderStats, SampleSource, SourceEvent,
 };
 use dynacal_core::replay::{
     decode_header, decode_record, ReplayError, ReplayHeader, ReplayRecord, MAX_HEADER_LEN,
@@ -302,6 +302,9 @@ impl SampleSource for ReplaySource {
                     let sequence = self.pps_records as u32;
                     self.pps_records += 1;
                     Ok(Some(SourceEvent::Pps(PpsEvent { t_us, sequence })))
+                }
+                ReplayRecord::Gnss { t_us, len, data } => {
+                    Ok(Some(SourceEvent::Gnss(GnssChunk { t_us, len, data })))
                 }
                 ReplayRecord::End {
                     imu_sample_sets,

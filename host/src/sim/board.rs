@@ -243,9 +243,9 @@ enum Event {
 
 impl BoardRecording {
     /// All events in time order; on equal stamps PPS first, then GNSS, then IMUs in id order.
-    fn events(&self, with_gnss: bool) -> impl Iterator<Item = Event> + '_ {
+    fn events(&self) -> impl Iterator<Item = Event> + '_ {
         let mut next_pps = 0usize;
-        let mut next_gnss = if with_gnss { 0 } else { self.gnss.len() };
+        let mut next_gnss = 0usize;
         let mut next_imu = vec![0usize; self.imus.len()];
         std::iter::from_fn(move || {
             let mut best: Option<(u64, Event)> = None;
@@ -291,7 +291,16 @@ impl BoardRecording {
         }
     }
 
-    /// Writes the firmware replay input: header, IMU and PPS records in time order, end record.
+    /// The GNSS record of fix `k`: the NAV-PVT frame a u-blox receiver sends for it, as
+    /// received at its time of validity.
+    fn gnss_record(&self, k: usize) -> Result<ReplayRecord, BoardError> {
+        let fix = &self.gnss[k];
+        let frame = dynacal_core::gnss::encode_nav_pvt(fix, dynacal_core::gnss::LEAP_SECONDS_2017);
+        ReplayRecord::gnss(fix.t_us, &frame).map_err(BoardError::Replay)
+    }
+
+    /// Writes the firmware replay input: header, IMU, PPS and GNSS records in time order,
+    /// end record.
     pub fn write_replay(&self, w: &mut dyn Write) -> Result<(), BoardError> {
         let configs: Vec<ReplayImu> = self.imus.iter().map(|i| i.config).collect();
         let header = ReplayHeader::new(&configs).map_err(BoardError::Replay)?;
@@ -300,7 +309,7 @@ impl BoardRecording {
         w.write_all(&buf[..n])?;
         let mut rec = [0u8; MAX_RECORD_LEN];
         let (mut samples, mut edges) = (0u64, 0u64);
-        for e in self.events(false) {
+        for e in self.events() {
             let record = match e {
                 Event::Pps(k) => {
                     edges += 1;
@@ -318,7 +327,7 @@ impl BoardRecording {
                         accel_counts: s.accel_counts,
                     }
                 }
-                Event::Gnss(_) => continue,
+                Event::Gnss(k) => self.gnss_record(k)?,
             };
             let n = encode_record(&record, &mut rec).map_err(BoardError::Replay)?;
             w.write_all(&rec[..n])?;
@@ -365,7 +374,7 @@ impl BoardRecording {
             Ok(())
         };
         put(&Frame::Header(self.log_header()), w)?;
-        for e in self.events(true) {
+        for e in self.events() {
             let frame = match e {
                 Event::Pps(k) => Frame::Pps(PpsEvent {
                     t_us: self.pps_t_us[k],
@@ -385,23 +394,23 @@ impl BoardRecording {
         let configs: Vec<ReplayImu> = self.imus.iter().map(|i| i.config).collect();
         let header = ReplayHeader::new(&configs).map_err(BoardError::Replay)?;
         let records = self
-            .events(false)
-            .filter_map(|e| match e {
-                Event::Pps(k) => Some(ReplayRecord::Pps {
+            .events()
+            .map(|e| match e {
+                Event::Pps(k) => Ok(ReplayRecord::Pps {
                     t_us: self.pps_t_us[k],
                 }),
                 Event::Imu { imu, sample } => {
                     let s = self.imu_sample(imu, sample);
-                    Some(ReplayRecord::Imu {
+                    Ok(ReplayRecord::Imu {
                         t_us: s.t_us,
                         imu_id: s.imu_id,
                         gyro_counts: s.gyro_counts,
                         accel_counts: s.accel_counts,
                     })
                 }
-                Event::Gnss(_) => None,
+                Event::Gnss(k) => self.gnss_record(k),
             })
-            .collect();
+            .collect::<Result<_, _>>()?;
         Ok(crate::replay::ReplayInput { header, records })
     }
 
