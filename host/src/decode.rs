@@ -33,6 +33,13 @@ use crate::interchange::ImuRecording;
 use crate::wv::WaveletVariance;
 use dynacal_core::Channel;
 
+/// Seconds of a log time in microseconds: one correctly rounded division (exact below 2^53
+/// us, 285 years), where `t_us as f64 * 1e-6` rounds twice (1e-6 has no exact double) and
+/// turns 50 000 us into 0.049999999999999996 s.
+pub fn seconds_of_us(t_us: u64) -> f64 {
+    t_us as f64 / 1e6
+}
+
 /// Why a log cannot be read or used.
 #[derive(Debug, thiserror::Error)]
 pub enum DecodeError {
@@ -99,7 +106,7 @@ impl ImuStream {
         self.t_us.is_empty()
     }
 
-    /// The samples in SI units: `t_s = t_us as f64 * 1e-6`, `gyro_rad_s = counts as f64 *
+    /// The samples in SI units: `t_s` by [`seconds_of_us`], `gyro_rad_s = counts as f64 *
     /// gyro_scale_rad_s_per_count`, `accel_m_s2 = counts as f64 * accel_scale_m_s2_per_count`
     /// (one rounding each, so the values are reproducible bit for bit from the raw counts).
     pub fn to_recording(&self) -> ImuRecording {
@@ -107,7 +114,7 @@ impl ImuStream {
             [0, 1, 2].map(|axis| counts.iter().map(|c| c[axis] as f64 * per_count).collect())
         };
         ImuRecording {
-            t_s: self.t_us.iter().map(|&t| t as f64 * 1e-6).collect(),
+            t_s: self.t_us.iter().map(|&t| seconds_of_us(t)).collect(),
             gyro_rad_s: Some(scale(
                 &self.gyro_counts,
                 self.config.gyro_scale_rad_s_per_count,
@@ -613,7 +620,9 @@ mod tests {
         let rec = imu0.to_recording();
         let g = &rec.gyro_rad_s.as_ref().unwrap();
         let a = &rec.accel_m_s2.as_ref().unwrap();
-        assert_eq!(rec.t_s[2].to_bits(), (50_000.0f64 * 1e-6).to_bits());
+        // One rounding: 50 000 us is the double nearest 0.05 s (times 1e-6, it is not).
+        assert_eq!(rec.t_s[2].to_bits(), 0.05f64.to_bits());
+        assert_ne!((50_000.0f64 * 1e-6).to_bits(), 0.05f64.to_bits());
         assert_eq!(g[0][1].to_bits(), (-6.0f64 * (1.0 / 3.0e4)).to_bits());
         assert_eq!(a[2][0], i32::MIN as f64 * (9.80665 / 1365.0));
         let gaps = imu0.gaps();

@@ -81,7 +81,7 @@ fn decode_writes_bit_exact_csvs_and_summary() {
         let accel = rec.accel_m_s2.as_ref().unwrap();
         let mut k = 0;
         for (row, &t_s) in rec.t_s.iter().enumerate() {
-            while (sent[k].t_us as f64 * 1e-6).to_bits() != t_s.to_bits() {
+            while dynacal::decode::seconds_of_us(sent[k].t_us).to_bits() != t_s.to_bits() {
                 k += 1;
             }
             for axis in 0..3 {

@@ -107,7 +107,7 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
     for (i, want) in source.iter().enumerate() {
         assert_eq!(
             recording.t_s[i].to_bits(),
-            (want.t_us as f64 * 1e-6).to_bits()
+            dynacal::decode::seconds_of_us(want.t_us).to_bits()
         );
         for axis in 0..3 {
             let gyro_si = want.gyro_counts[axis] as f64 * ADIS16405_GYRO_SCALE_RAD_S_PER_COUNT;

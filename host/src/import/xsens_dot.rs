@@ -278,7 +278,7 @@ pub fn read(path: &Path) -> Result<DotFile, ImportError> {
         }
         t_us += u64::from(step);
         previous = row.stamp_us;
-        t_s.push(t_us as f64 / 1e6);
+        t_s.push(crate::decode::seconds_of_us(t_us));
         let v = row.values.unwrap_or_default();
         for k in 0..3 {
             gyro[k].push(v[k].to_radians());
