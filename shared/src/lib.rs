@@ -5,6 +5,7 @@
 //! hardware: pins, buses and clocks live in the firmware's board layer.
 #![cfg_attr(not(any(test, feature = "std")), no_std)]
 #![forbid(unsafe_code)]
+pub mod board_model;
 pub mod channel;
 pub mod clock;
 pub mod gnss;

@@ -1,0 +1,318 @@
+//! The error model the host refits and the board runs: per IMU and channel the noise its
+//! filter needs (white noise, a Gauss-Markov bias, a bias random walk), and each unit's
+//! alignment to the first. It travels as `board-model.bin`: the magic `DCBM`, a format
+//! version (u16, little-endian), then the model in postcard with a CRC-32 over it (the log's
+//! CRC, [`crate::log::LOG_CRC`]). A blob that is damaged, truncated, of another version or
+//! of values no filter can run (not finite, negative variances, a correlation time that is
+//! not positive) is refused with the reason, and the board keeps its built-in model
+//! ([`BoardModel::load_or_built_in`]).
+
+use serde::{Deserialize, Serialize};
+
+use crate::log::{LOG_CRC, MAX_IMUS};
+use crate::Channel;
+
+/// First bytes of every board-model blob.
+pub const BOARD_MODEL_MAGIC: [u8; 4] = *b"DCBM";
+/// Version of the layout this build writes and reads.
+pub const BOARD_MODEL_VERSION: u16 = 1;
+/// Bytes before the postcard payload: magic and version.
+const PREFIX_LEN: usize = 6;
+/// Postcard bytes of one unit: its id, six channels of four f32, two triads of f32.
+const UNIT_LEN: usize = 1 + 6 * 4 * 4 + 2 * 3 * 4;
+/// Bytes of the largest blob: prefix, unit count, every unit, CRC-32.
+pub const MAX_BOARD_MODEL_LEN: usize = PREFIX_LEN + 1 + MAX_IMUS * UNIT_LEN + 4;
+
+/// One channel's noise, in the channel's SI unit (rad/s or m/s^2).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ChannelNoise {
+    /// White-noise power spectral density, unit^2 s (the variance per sample times the
+    /// sample interval).
+    pub white_psd: f32,
+    /// Stationary variance of a first-order Gauss-Markov bias, unit^2 (0: none).
+    pub gauss_markov_sigma2: f32,
+    /// Its correlation time, s.
+    pub gauss_markov_tau_s: f32,
+    /// Power spectral density of a bias random walk, unit^2 / s (0: none).
+    pub random_walk_psd: f32,
+}
+
+/// One IMU of the board.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct UnitModel {
+    pub imu_id: u8,
+    /// Noise per channel, in [`Channel::ALL`] order (gx, gy, gz, ax, ay, az).
+    pub channels: [ChannelNoise; 6],
+    /// Rotation from the first unit's axes to this unit's (y_k = C y_0), roll, pitch, yaw
+    /// (Z-Y-X), rad.
+    pub rotation_rpy_rad: [f32; 3],
+    /// Lever arm from the first unit to this one, in the first unit's axes, m.
+    pub lever_arm_m: [f32; 3],
+}
+
+/// The board's error model.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct BoardModel {
+    pub units: heapless::Vec<UnitModel, MAX_IMUS>,
+}
+
+/// Why a blob was refused.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum BoardModelError {
+    /// Ends before its model and CRC do.
+    Truncated,
+    /// Not a board-model blob.
+    BadMagic,
+    /// Written in a version this build does not read.
+    UnsupportedVersion(u16),
+    /// The CRC-32 does not match: the blob is damaged.
+    BadCrc,
+    /// The CRC matches but the payload is not a model of this layout.
+    Malformed,
+    /// The output buffer is too small.
+    BufferTooSmall,
+    /// A value no filter can run, in unit `unit` (its index), channel `channel` (None: the
+    /// alignment).
+    Invalid { unit: u8, channel: Option<Channel> },
+}
+
+impl core::fmt::Display for BoardModelError {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Self::Truncated => write!(f, "truncated: it ends before its model and CRC do"),
+            Self::BadMagic => write!(f, "not a board model (bad magic)"),
+            Self::UnsupportedVersion(v) => write!(
+                f,
+                "board model version {v}; this build reads {BOARD_MODEL_VERSION}"
+            ),
+            Self::BadCrc => write!(f, "damaged: its CRC-32 does not match"),
+            Self::Malformed => write!(f, "the payload is not a board model of this layout"),
+            Self::BufferTooSmall => write!(f, "output buffer too small"),
+            Self::Invalid { unit, channel } => match channel {
+                Some(c) => write!(f, "unit {unit} channel {c:?}: a value no filter can run"),
+                None => write!(f, "unit {unit} alignment: a value that is not finite"),
+            },
+        }
+    }
+}
+
+impl ChannelNoise {
+    /// Finite, non-negative variances and a positive correlation time where a Gauss-Markov
+    /// bias is given.
+    fn is_valid(&self) -> bool {
+        let variances = [
+            self.white_psd,
+            self.gauss_markov_sigma2,
+            self.random_walk_psd,
+        ];
+        variances.iter().all(|v| v.is_finite() && *v >= 0.0)
+            && (self.gauss_markov_sigma2 == 0.0
+                || (self.gauss_markov_tau_s.is_finite() && self.gauss_markov_tau_s > 0.0))
+    }
+}
+
+impl BoardModel {
+    /// The model the board starts with: every unit a consumer MEMS IMU (0.005 deg/s and
+    /// 0.02 m/s^2 per square-root hertz of white noise, bias random walks of 1e-5 rad/s and
+    /// 1e-4 m/s^2 per square-root second, the automotive filter's values), in the first
+    /// unit's axes at its place.
+    pub fn built_in(imu_ids: &[u8]) -> Self {
+        let gyro = ChannelNoise {
+            white_psd: 0.005f32.to_radians() * 0.005f32.to_radians(),
+            gauss_markov_sigma2: 0.0,
+            gauss_markov_tau_s: 0.0,
+            random_walk_psd: 1e-10,
+        };
+        let accel = ChannelNoise {
+            white_psd: 0.02 * 0.02,
+            random_walk_psd: 1e-8,
+            ..gyro
+        };
+        let mut units = heapless::Vec::new();
+        for &imu_id in imu_ids.iter().take(MAX_IMUS) {
+            let _ = units.push(UnitModel {
+                imu_id,
+                channels: [gyro, gyro, gyro, accel, accel, accel],
+                rotation_rpy_rad: [0.0; 3],
+                lever_arm_m: [0.0; 3],
+            });
+        }
+        Self { units }
+    }
+
+    /// The first value no filter can run, if any.
+    pub fn validate(&self) -> Result<(), BoardModelError> {
+        for (k, unit) in self.units.iter().enumerate() {
+            let index = k as u8;
+            for (noise, channel) in unit.channels.iter().zip(Channel::ALL) {
+                if !noise.is_valid() {
+                    return Err(BoardModelError::Invalid {
+                        unit: index,
+                        channel: Some(channel),
+                    });
+                }
+            }
+            let alignment = unit.rotation_rpy_rad.iter().chain(&unit.lever_arm_m);
+            if !alignment.clone().all(|v| v.is_finite()) {
+                return Err(BoardModelError::Invalid {
+                    unit: index,
+                    channel: None,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Writes the blob into `out`; returns its length.
+    pub fn encode(&self, out: &mut [u8]) -> Result<usize, BoardModelError> {
+        self.validate()?;
+        if out.len() < PREFIX_LEN {
+            return Err(BoardModelError::BufferTooSmall);
+        }
+        out[..4].copy_from_slice(&BOARD_MODEL_MAGIC);
+        out[4..6].copy_from_slice(&BOARD_MODEL_VERSION.to_le_bytes());
+        let written = postcard::to_slice_crc32(self, &mut out[PREFIX_LEN..], LOG_CRC.digest())
+            .map_err(|_| BoardModelError::BufferTooSmall)?;
+        Ok(PREFIX_LEN + written.len())
+    }
+
+    /// Reads a blob, checked whole: magic, version, CRC, layout, values.
+    pub fn decode(bytes: &[u8]) -> Result<Self, BoardModelError> {
+        if bytes.len() < PREFIX_LEN {
+            return Err(BoardModelError::Truncated);
+        }
+        if bytes[..4] != BOARD_MODEL_MAGIC {
+            return Err(BoardModelError::BadMagic);
+        }
+        let version = u16::from_le_bytes([bytes[4], bytes[5]]);
+        if version != BOARD_MODEL_VERSION {
+            return Err(BoardModelError::UnsupportedVersion(version));
+        }
+        let model: Self = postcard::from_bytes_crc32(&bytes[PREFIX_LEN..], LOG_CRC.digest())
+            .map_err(|e| match e {
+                postcard::Error::DeserializeBadCrc => BoardModelError::BadCrc,
+                postcard::Error::DeserializeUnexpectedEnd => BoardModelError::Truncated,
+                _ => BoardModelError::Malformed,
+            })?;
+        model.validate()?;
+        Ok(model)
+    }
+
+    /// The model of `blob` where there is one and it reads, else the built-in model for
+    /// `imu_ids` with the reason the blob was refused (the board logs it).
+    pub fn load_or_built_in(
+        blob: Option<&[u8]>,
+        imu_ids: &[u8],
+    ) -> (Self, Option<BoardModelError>) {
+        match blob.map(Self::decode) {
+            Some(Ok(model)) => (model, None),
+            Some(Err(reason)) => (Self::built_in(imu_ids), Some(reason)),
+            None => (Self::built_in(imu_ids), None),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn refitted() -> BoardModel {
+        let mut model = BoardModel::built_in(&[0, 1, 2]);
+        model.units[1].channels[4] = ChannelNoise {
+            white_psd: 3.2e-4,
+            gauss_markov_sigma2: 1e-6,
+            gauss_markov_tau_s: 120.0,
+            random_walk_psd: 2e-9,
+        };
+        model.units[2].rotation_rpy_rad = [0.01, -0.005, 0.02];
+        model.units[2].lever_arm_m = [-0.04, 0.05, 0.03];
+        model
+    }
+
+    fn blob(model: &BoardModel) -> std::vec::Vec<u8> {
+        let mut buf = [0u8; MAX_BOARD_MODEL_LEN];
+        let n = model.encode(&mut buf).unwrap();
+        buf[..n].to_vec()
+    }
+
+    /// A refitted model comes back as it was, and three units fill the largest blob.
+    #[test]
+    fn a_model_comes_back_whole() {
+        let model = refitted();
+        let bytes = blob(&model);
+        assert_eq!(bytes.len(), MAX_BOARD_MODEL_LEN);
+        assert_eq!(BoardModel::decode(&bytes), Ok(model.clone()));
+        assert_eq!(
+            BoardModel::load_or_built_in(Some(&bytes), &[0, 1, 2]),
+            (model, None)
+        );
+    }
+
+    /// Every kind of bad blob is refused with its reason and the built-in model is kept.
+    #[test]
+    fn bad_blobs_are_refused_with_the_reason() {
+        let good = blob(&refitted());
+        let built_in = BoardModel::built_in(&[0, 1, 2]);
+        let mut damaged = good.clone();
+        damaged[40] ^= 0x10;
+        let mut newer = good.clone();
+        newer[4] = 2;
+        let mut foreign = good.clone();
+        foreign[0] = b'X';
+        let cases: [(&[u8], BoardModelError); 5] = [
+            (&damaged, BoardModelError::BadCrc),
+            (&newer, BoardModelError::UnsupportedVersion(2)),
+            (&foreign, BoardModelError::BadMagic),
+            (&good[..3], BoardModelError::Truncated),
+            (&good[..good.len() - 1], BoardModelError::Truncated),
+        ];
+        for (bytes, reason) in cases {
+            let (model, why) = BoardModel::load_or_built_in(Some(bytes), &[0, 1, 2]);
+            assert_eq!((model, why), (built_in.clone(), Some(reason)));
+        }
+    }
+
+    /// A model no filter can run is neither written nor read.
+    #[test]
+    fn values_no_filter_can_run_are_named() {
+        let mut model = refitted();
+        model.units[1].channels[2].gauss_markov_tau_s = 0.0;
+        model.units[1].channels[2].gauss_markov_sigma2 = 1e-6;
+        let mut buf = [0u8; MAX_BOARD_MODEL_LEN];
+        let want = BoardModelError::Invalid {
+            unit: 1,
+            channel: Some(Channel::Gz),
+        };
+        assert_eq!(model.encode(&mut buf), Err(want));
+        model.units[1].channels[2].gauss_markov_tau_s = 30.0;
+        model.units[0].lever_arm_m[1] = f32::NAN;
+        assert_eq!(
+            model.encode(&mut buf),
+            Err(BoardModelError::Invalid {
+                unit: 0,
+                channel: None
+            })
+        );
+    }
+
+    proptest::proptest! {
+        /// Arbitrary bytes, and a good blob with bytes changed, never panic the reader, and
+        /// a changed blob is never read as a different model.
+        #[test]
+        fn arbitrary_bytes_never_panic(
+            noise in proptest::collection::vec(proptest::num::u8::ANY, 0..600),
+            damage in proptest::collection::vec((0usize..MAX_BOARD_MODEL_LEN, 1u8..=255), 1..4),
+        ) {
+            let _ = BoardModel::decode(&noise);
+            let good = refitted();
+            let mut bytes = blob(&good);
+            for (at, flip) in damage {
+                let at = at % bytes.len();
+                bytes[at] ^= flip;
+            }
+            if let Ok(read) = BoardModel::decode(&bytes) {
+                proptest::prop_assert_eq!(read, good);
+            }
+        }
+    }
+}
