@@ -10,6 +10,7 @@
 use serde::{Deserialize, Serialize};
 
 use crate::log::{LOG_CRC, MAX_IMUS};
+use crate::nav::ekf::EkfConfig;
 use crate::Channel;
 
 /// First bytes of every board-model blob.
@@ -112,22 +113,19 @@ impl ChannelNoise {
 }
 
 impl BoardModel {
-    /// The model the board starts with: every unit a consumer MEMS IMU (0.005 deg/s and
-    /// 0.02 m/s^2 per square-root hertz of white noise, bias random walks of 1e-5 rad/s and
-    /// 1e-4 m/s^2 per square-root second, the automotive filter's values), in the first
-    /// unit's axes at its place.
+    /// The model the board starts with: every unit has the automotive filter's noise
+    /// ([`EkfConfig::automotive_mems`]: white noise and bias random walks, no Gauss-Markov
+    /// bias), in the first unit's axes at its place.
     pub fn built_in(imu_ids: &[u8]) -> Self {
-        let gyro = ChannelNoise {
-            white_psd: 0.005f32.to_radians() * 0.005f32.to_radians(),
+        let filter = EkfConfig::<f32>::automotive_mems();
+        let noise = |white_psd: f32, random_walk_psd: f32| ChannelNoise {
+            white_psd,
             gauss_markov_sigma2: 0.0,
             gauss_markov_tau_s: 0.0,
-            random_walk_psd: 1e-10,
+            random_walk_psd,
         };
-        let accel = ChannelNoise {
-            white_psd: 0.02 * 0.02,
-            random_walk_psd: 1e-8,
-            ..gyro
-        };
+        let gyro = noise(filter.gyro_noise_psd, filter.gyro_bias_psd);
+        let accel = noise(filter.accel_noise_psd, filter.accel_bias_psd);
         let mut units = heapless::Vec::new();
         for &imu_id in imu_ids.iter().take(MAX_IMUS) {
             let _ = units.push(UnitModel {

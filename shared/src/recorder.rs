@@ -476,6 +476,15 @@ mod tests {
         capacity: usize,
         flushed: bool,
     }
+    impl BoundedSink {
+        fn with_capacity(capacity: usize) -> Self {
+            Self {
+                bytes: std::vec::Vec::new(),
+                capacity,
+                flushed: false,
+            }
+        }
+    }
     impl LogSink for BoundedSink {
         type Error = ();
         fn write_frame(&mut self, frame: &[u8]) -> Result<Accepted, ()> {
@@ -547,11 +556,7 @@ mod tests {
             }));
         }
         let recorder = Recorder::new(header(&[4]));
-        let mut sink = BoundedSink {
-            bytes: std::vec::Vec::new(),
-            capacity: usize::MAX,
-            flushed: false,
-        };
+        let mut sink = BoundedSink::with_capacity(usize::MAX);
         let stats = recorder
             .run(
                 &mut VecSource(events.into_iter()),
@@ -595,11 +600,7 @@ mod tests {
             events.push(imu(k * 10_000 + 3, 7, -(k as i32)));
         }
         let recorder = Recorder::new(header(&[4, 7]));
-        let mut sink = BoundedSink {
-            bytes: std::vec::Vec::new(),
-            capacity: usize::MAX,
-            flushed: false,
-        };
+        let mut sink = BoundedSink::with_capacity(usize::MAX);
         let stats = recorder
             .run(
                 &mut VecSource(events.clone().into_iter()),
@@ -650,11 +651,7 @@ mod tests {
     fn a_full_sink_drops_whole_frames_counts_them_and_flags_backpressure() {
         let events: std::vec::Vec<_> = (0..300u64).map(|k| imu(k * 10_000, 1, k as i32)).collect();
         let recorder = Recorder::new(header(&[1]));
-        let mut sink = BoundedSink {
-            bytes: std::vec::Vec::new(),
-            capacity: 1000,
-            flushed: false,
-        };
+        let mut sink = BoundedSink::with_capacity(1000);
         let stats = recorder
             .run(
                 &mut VecSource(events.into_iter()),
@@ -686,11 +683,7 @@ mod tests {
             .collect();
         let mut recorder = Recorder::new(header(&[4, 7]));
         recorder.wv_period_us = 10_000_000;
-        let mut sink = BoundedSink {
-            bytes: std::vec::Vec::new(),
-            capacity: usize::MAX,
-            flushed: false,
-        };
+        let mut sink = BoundedSink::with_capacity(usize::MAX);
         let stats = recorder
             .run(
                 &mut VecSource(events.clone().into_iter()),
@@ -751,11 +744,7 @@ mod tests {
     #[test]
     fn undeclared_imus_and_time_going_backwards_stop_the_run() {
         let recorder = Recorder::new(header(&[1]));
-        let sink = || BoundedSink {
-            bytes: std::vec::Vec::new(),
-            capacity: usize::MAX,
-            flushed: false,
-        };
+        let sink = || BoundedSink::with_capacity(usize::MAX);
         let unknown = recorder.run(
             &mut VecSource(vec![imu(5, 1, 0), imu(6, 2, 0)].into_iter()),
             &mut sink(),

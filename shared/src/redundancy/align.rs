@@ -20,7 +20,8 @@ pub struct RotationAccumulator<T: RealField + Copy> {
     scatter: Matrix3<T>,
     /// sum |w_k|^2 + |w_0|^2.
     squares: T,
-    count: u32,
+    /// Pairs added.
+    pairs: T,
 }
 
 impl<T: RealField + Copy> Default for RotationAccumulator<T> {
@@ -29,7 +30,7 @@ impl<T: RealField + Copy> Default for RotationAccumulator<T> {
             profile: Matrix3::zeros(),
             scatter: Matrix3::zeros(),
             squares: T::zero(),
-            count: 0,
+            pairs: T::zero(),
         }
     }
 }
@@ -40,18 +41,18 @@ impl<T: RealField + Copy> RotationAccumulator<T> {
         self.profile += unit * first.transpose();
         self.scatter += first * first.transpose();
         self.squares += unit.norm_squared() + first.norm_squared();
-        self.count += 1;
+        self.pairs += T::one();
     }
 
     /// Pairs added.
-    pub fn count(&self) -> u32 {
-        self.count
+    pub fn pairs(&self) -> T {
+        self.pairs
     }
 
     /// The rotation C with w_k = C w_0 (a proper rotation: the SVD's smallest direction is
     /// flipped where U V^T would reflect); None before any pair or where the SVD fails.
     pub fn rotation(&self) -> Option<Matrix3<T>> {
-        if self.count == 0 {
+        if self.pairs == T::zero() {
             return None;
         }
         let svd = self.profile.svd(true, true);
@@ -68,9 +69,9 @@ impl<T: RealField + Copy> RotationAccumulator<T> {
     /// Residual variance per axis and pair of the fit with the rotation `c`: sum |w_k -
     /// C w_0|^2 / (3 n), from the sums alone (|C w_0| = |w_0| for a rotation).
     pub fn residual_variance(&self, c: &Matrix3<T>) -> T {
-        let n = T::from_u32(self.count.max(1)).expect("a count");
+        let n = self.pairs.max(T::one());
         let cross = (c.transpose() * self.profile).trace();
-        let three = T::from_u32(3).expect("3");
+        let three = T::one() + T::one() + T::one();
         ((self.squares - (cross + cross)) / (three * n)).max(T::zero())
     }
 
@@ -84,7 +85,7 @@ impl<T: RealField + Copy> RotationAccumulator<T> {
         let mut eig = self.scatter.symmetric_eigenvalues();
         eig.as_mut_slice()
             .sort_unstable_by(|a, b| a.partial_cmp(b).unwrap_or(core::cmp::Ordering::Equal));
-        let n = T::from_u32(self.count).expect("a count");
+        let n = self.pairs;
         let two = T::one() + T::one();
         let motion = eig[1] - n * s2 / two;
         (motion > T::zero()).then(|| (s2 / motion).sqrt())
