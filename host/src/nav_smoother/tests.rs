@@ -189,10 +189,11 @@ fn smoothed_weighted_mean_calibration_recovers_boresight_and_lever_arm() {
         let measured = diff.push(dt, w + noise(1e-4), (f + noise(2e-4), extra_omega, extra_f));
         filter.epoch(t, |ekf| {
             if let Some((w_mid, w_dot_mid, (f_mid, extra_omega_mid, extra_f_mid))) = measured {
+                // Bias-corrected with the filter's nominal biases, as a mechanization is.
                 let sample = InterImuSample {
-                    omega_ib_b_rad_s: w_mid,
+                    omega_ib_b_rad_s: w_mid - ekf.gyro_bias_b_rad_s(),
                     omega_dot_ib_b_rad_s2: w_dot_mid,
-                    f_b_m_s2: f_mid,
+                    f_b_m_s2: f_mid - ekf.accel_bias_b_m_s2(),
                     omega_is_s_rad_s: extra_omega_mid,
                     f_s_m_s2: extra_f_mid,
                 };

@@ -15,10 +15,17 @@
 //! (`(I − Ψ) f = f + [f×] ψ`), and the printed lever-arm terms `−Ω Ω [r×] ψ − Ω̇ [r×] ψ`
 //! are replaced by the exact `[(Ω Ω r + Ω̇ r)×] ψ`; both agree to first order when `r` is
 //! small but the exact form keeps the filter consistent at a 20 cm prior.
+//!
+//! The reference samples enter bias-corrected with the filter's nominal biases, so what is
+//! left of the biases (the bias-error states) is in them too, and the rows carry it: both
+//! predictions move by `−C_b^s` per unit of bias error. Left out is only the lever-arm term's
+//! change with the gyro bias (`2 |ω| |r|` per unit, 1e-4 m/s² at 1 rad/s, 35 cm, 0.01 deg/s of
+//! bias error). The extra IMU's own bias is not a state: a caller removes what it knows of
+//! it (e.g. the fault monitor's offset of that unit) before the update.
 
 use super::{
     boresight_index, lever_arm_index, skew, small_rotation_vector, tally, BatchOutcome,
-    ErrorStateEkf, SparseRow, ATT,
+    ErrorStateEkf, SparseRow, ACCEL_BIAS, ATT, GYRO_BIAS,
 };
 use nalgebra::{Matrix3, RealField, Rotation3, UnitQuaternion, Vector3};
 
@@ -68,21 +75,27 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
         let force_psi = skew(&predicted_force_s);
         let force_lever = c_b_s * arm_to_force;
 
+        // The reference samples are corrected with the nominal biases; the bias errors
+        // (true minus nominal) remain in them: the true rate is ω − δb_g, the true force
+        // f − δb_a, so both predictions move by −C_b^s per unit of bias error.
+        let bias_jacobian = -c_b_s;
         let (psi, arm) = (boresight_index(imu), lever_arm_index(imu));
         let mut batch = BatchOutcome::default();
         for axis in 0..3 {
-            let row = SparseRow::from_blocks(psi, row3(&rate_psi, axis), None);
+            let mut row = SparseRow::from_blocks(psi, row3(&rate_psi, axis), None);
+            row.push_block(GYRO_BIAS, row3(&bias_jacobian, axis));
             let innovation = sample.omega_is_s_rad_s[axis] - predicted_rate_s[axis];
             let r = sigma_rate_rad_s[axis] * sigma_rate_rad_s[axis];
             let outcome = self.fuse_scalar(&row, innovation, r);
             tally(outcome, &mut self.stats.inter_imu_rate, &mut batch);
         }
         for axis in 0..3 {
-            let row = SparseRow::from_blocks(
+            let mut row = SparseRow::from_blocks(
                 psi,
                 row3(&force_psi, axis),
                 Some((arm, row3(&force_lever, axis))),
             );
+            row.push_block(ACCEL_BIAS, row3(&bias_jacobian, axis));
             let innovation = sample.f_s_m_s2[axis] - predicted_force_s[axis];
             let r = sigma_force_m_s2[axis] * sigma_force_m_s2[axis];
             let outcome = self.fuse_scalar(&row, innovation, r);

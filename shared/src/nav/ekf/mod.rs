@@ -250,19 +250,22 @@ pub struct NavCorrection<T> {
     pub attitude_ned_rad: Vector3<T>,
 }
 
-/// A row of the measurement matrix with at most six non-zero entries.
+/// A row of the measurement matrix with at most nine non-zero entries (three 3-blocks).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct SparseRow<T> {
-    pub index: [usize; 6],
-    pub value: [T; 6],
+    pub index: [usize; SPARSE_ROW_MAX],
+    pub value: [T; SPARSE_ROW_MAX],
     pub len: usize,
 }
+
+/// Most non-zero entries of a [`SparseRow`].
+pub(crate) const SPARSE_ROW_MAX: usize = 9;
 
 impl<T: RealField + Copy> SparseRow<T> {
     pub fn unit(index: usize) -> Self {
         let mut row = Self {
-            index: [0; 6],
-            value: [T::zero(); 6],
+            index: [0; SPARSE_ROW_MAX],
+            value: [T::zero(); SPARSE_ROW_MAX],
             len: 1,
         };
         row.index[0] = index;
@@ -273,16 +276,28 @@ impl<T: RealField + Copy> SparseRow<T> {
     /// A row with three entries at `first..first + 3`, plus optionally three at `second`.
     pub fn from_blocks(first: usize, a: [T; 3], second: Option<(usize, [T; 3])>) -> Self {
         let mut row = Self {
-            index: [first, first + 1, first + 2, 0, 0, 0],
-            value: [a[0], a[1], a[2], T::zero(), T::zero(), T::zero()],
-            len: 3,
+            index: [0; SPARSE_ROW_MAX],
+            value: [T::zero(); SPARSE_ROW_MAX],
+            len: 0,
         };
+        row.push_block(first, a);
         if let Some((start, b)) = second {
-            row.index[3..6].copy_from_slice(&[start, start + 1, start + 2]);
-            row.value[3..6].copy_from_slice(&b);
-            row.len = 6;
+            row.push_block(start, b);
         }
         row
+    }
+
+    /// Appends three entries at `start..start + 3`; a row already full is left as it is
+    /// (three blocks are the most any measurement here needs).
+    pub fn push_block(&mut self, start: usize, values: [T; 3]) {
+        if self.len + 3 > SPARSE_ROW_MAX {
+            return;
+        }
+        for (m, v) in values.into_iter().enumerate() {
+            self.index[self.len + m] = start + m;
+            self.value[self.len + m] = v;
+        }
+        self.len += 3;
     }
 }
 
@@ -481,7 +496,7 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
         raw_innovation: T,
         r: T,
     ) -> ScalarOutcome<T> {
-        let len = h.len.min(6);
+        let len = h.len.min(SPARSE_ROW_MAX);
         let mut innovation = raw_innovation;
         for m in 0..len {
             innovation -= h.value[m] * self.dx[h.index[m]];

@@ -21,6 +21,17 @@ fn initial_sigmas<T: RealField + Copy>() -> InitialSigmas<T> {
     }
 }
 
+/// The priors of a paper II-B calibration: the reference is the tactical-grade IMU of the
+/// paper's Table I, so its biases are known far better than a MEMS unit's.
+fn reference_grade_sigmas<T: RealField + Copy>() -> InitialSigmas<T> {
+    let c = |x: f64| nalgebra::convert::<f64, T>(x);
+    InitialSigmas {
+        accel_bias_m_s2: Vector3::repeat(c(1e-3)),
+        gyro_bias_rad_s: Vector3::repeat(c(1e-5)),
+        ..initial_sigmas()
+    }
+}
+
 fn linearization(yaw: f64, v_n: f64) -> NavLinearization<f64> {
     let c_b_n = Rotation3::from_euler_angles(0.05, -0.03, yaw).into_inner();
     NavLinearization::from_geodetic(
@@ -147,45 +158,68 @@ fn perturbed(cal: &InterImuCalibration<f64>, delta: &[f64; 6]) -> InterImuCalibr
     }
 }
 
+/// The inter-IMU measurement of eqs. (8)-(9) with the reference's bias errors `db_g`,
+/// `db_a` (true minus nominal) left in its bias-corrected samples: the rate and force the
+/// extra IMU reads. The lever-arm term keeps the nominal rate (its change with the gyro bias,
+/// 2 |ω| |r| per unit of bias, is the one term the filter neglects).
+fn inter_imu_model(
+    c: &InterImuCalibration<f64>,
+    db_g: Vector3<f64>,
+    db_a: Vector3<f64>,
+    (omega, omega_dot, f_b): (Vector3<f64>, Vector3<f64>, Vector3<f64>),
+) -> [Vector3<f64>; 2] {
+    let c_b_s = c.c_b_s();
+    let r = c.lever_arm_b_m;
+    let rate = c_b_s * (omega - db_g);
+    let force = c_b_s * (f_b - db_a + omega_dot.cross(&r) + omega.cross(&omega.cross(&r)));
+    [rate, force]
+}
+
 #[test]
 fn inter_imu_jacobian_matches_finite_differences_of_eqs_8_and_9() {
     let cal = InterImuCalibration {
         q_b_to_s: UnitQuaternion::from_euler_angles(0.1, -0.2, 0.3),
         lever_arm_b_m: Vector3::new(0.3, -0.2, 0.1),
     };
-    let omega = Vector3::new(0.4, -0.7, 1.1);
-    let omega_dot = Vector3::new(2.0, 1.0, -1.5);
-    let f_b = Vector3::new(1.0, -0.5, -9.6);
-    let model = |c: &InterImuCalibration<f64>| {
-        let c_b_s = c.c_b_s();
-        let r = c.lever_arm_b_m;
-        let rate = c_b_s * omega;
-        let force = c_b_s * (f_b + omega_dot.cross(&r) + omega.cross(&omega.cross(&r)));
-        [rate, force]
+    let motion = (
+        Vector3::new(0.4, -0.7, 1.1),
+        Vector3::new(2.0, 1.0, -1.5),
+        Vector3::new(1.0, -0.5, -9.6),
+    );
+    // The states the measurement depends on: boresight, lever arm, then the reference's
+    // gyro and accelerometer biases.
+    let states: [usize; 12] = core::array::from_fn(|j| match j {
+        0..=5 => boresight_index(0) + j,
+        6..=8 => GYRO_BIAS + j - 6,
+        _ => ACCEL_BIAS + j - 9,
+    });
+    let model_at = |delta: &[f64; 12]| {
+        let v = |i: usize| Vector3::new(delta[i], delta[i + 1], delta[i + 2]);
+        let mut calibration = [0.0; 6];
+        calibration.copy_from_slice(&delta[..6]);
+        inter_imu_model(&perturbed(&cal, &calibration), v(6), v(9), motion)
     };
     // Read the filter's H rows through its gains: with P = I and a huge R for one scalar
     // (and effectively infinite R for the others), the update is δx = P h ν / S ≈ h ν / R.
-    let base = model(&cal);
+    let base = model_at(&[0.0; 12]);
     let p = SMatrix::<f64, 21, 21>::identity();
     for (kind, axis) in (0..2).flat_map(|k| (0..3).map(move |a| (k, a))) {
-        let mut fd = [0.0; 6];
+        let mut fd = [0.0; 12];
         for (j, slot) in fd.iter_mut().enumerate() {
             let eps = 1e-6;
-            let mut plus = [0.0; 6];
+            let mut plus = [0.0; 12];
             plus[j] = eps;
-            let mut minus = [0.0; 6];
+            let mut minus = [0.0; 12];
             minus[j] = -eps;
-            *slot = (model(&perturbed(&cal, &plus))[kind][axis]
-                - model(&perturbed(&cal, &minus))[kind][axis])
-                / (2.0 * eps);
+            *slot = (model_at(&plus)[kind][axis] - model_at(&minus)[kind][axis]) / (2.0 * eps);
         }
         let mut probe = NavEkf1::<f64>::new(EkfConfig::automotive_mems(), initial_sigmas());
         probe.set_calibration(0, cal);
         probe.set_covariance(&p);
         let mut sample = InterImuSample {
-            omega_ib_b_rad_s: omega,
-            omega_dot_ib_b_rad_s2: omega_dot,
-            f_b_m_s2: f_b,
+            omega_ib_b_rad_s: motion.0,
+            omega_dot_ib_b_rad_s2: motion.1,
+            f_b_m_s2: motion.2,
             omega_is_s_rad_s: base[0],
             f_s_m_s2: base[1],
         };
@@ -203,7 +237,7 @@ fn inter_imu_jacobian_matches_finite_differences_of_eqs_8_and_9() {
         // dx = P h ν / S with S ≈ R: h_j = dx_j R / ν.
         let r = 1e24;
         for (j, expected) in fd.iter().enumerate() {
-            let h_j = probe.error_estimate()[boresight_index(0) + j] * r / big;
+            let h_j = probe.error_estimate()[states[j]] * r / big;
             assert!(
                 (h_j - expected).abs() < 1e-5 * (1.0 + expected.abs()),
                 "kind {kind} axis {axis} state {j}: filter {h_j}, finite difference {expected}"
@@ -214,7 +248,7 @@ fn inter_imu_jacobian_matches_finite_differences_of_eqs_8_and_9() {
 
 #[test]
 fn reset_folds_calibration_error_into_nominal_with_the_documented_convention() {
-    let mut ekf = NavEkf1::<f64>::new(EkfConfig::automotive_mems(), initial_sigmas());
+    let mut ekf = NavEkf1::<f64>::new(EkfConfig::automotive_mems(), reference_grade_sigmas());
     let truth = InterImuCalibration {
         q_b_to_s: UnitQuaternion::from_scaled_axis(-Vector3::new(0.01, -0.02, 0.015)),
         lever_arm_b_m: Vector3::new(0.1, 0.0, -0.05),
@@ -231,10 +265,12 @@ fn reset_folds_calibration_error_into_nominal_with_the_documented_convention() {
         let f_b = Vector3::new(0.3 * t.sin(), -0.2, -9.8);
         let c = truth.c_b_s();
         let r = truth.lever_arm_b_m;
+        // The reference samples are corrected with the filter's nominal biases, as a
+        // mechanization does.
         let sample = InterImuSample {
-            omega_ib_b_rad_s: omega,
+            omega_ib_b_rad_s: omega - ekf.gyro_bias_b_rad_s(),
             omega_dot_ib_b_rad_s2: omega_dot,
-            f_b_m_s2: f_b,
+            f_b_m_s2: f_b - ekf.accel_bias_b_m_s2(),
             omega_is_s_rad_s: c * omega,
             f_s_m_s2: c * (f_b + omega_dot.cross(&r) + omega.cross(&omega.cross(&r))),
         };
@@ -243,7 +279,14 @@ fn reset_folds_calibration_error_into_nominal_with_the_documented_convention() {
     }
     let est = ekf.calibration(0).copied().unwrap();
     assert!((est.boresight_rad() - Vector3::new(0.01, -0.02, 0.015)).norm() < 1e-6);
-    assert!((est.lever_arm_b_m - truth.lever_arm_b_m).norm() < 1e-5);
+    // The reference's bias states take part of the force updates' information: 0.05 mm.
+    assert!(
+        (est.lever_arm_b_m - truth.lever_arm_b_m).norm() < 5e-5,
+        "{:?} {:?} {:?}",
+        est.lever_arm_b_m,
+        ekf.accel_bias_b_m_s2(),
+        ekf.gyro_bias_b_rad_s()
+    );
 }
 
 #[test]
@@ -424,7 +467,7 @@ fn run_calibration<T: RealField + Copy>(data: &[CalEpoch]) -> CalTrace {
             nalgebra::try_convert::<T, f64>(v.z).unwrap_or(f64::NAN),
         )
     };
-    let mut ekf = NavEkf1::<T>::new(EkfConfig::automotive_mems(), initial_sigmas());
+    let mut ekf = NavEkf1::<T>::new(EkfConfig::automotive_mems(), reference_grade_sigmas());
     let dt = c(1.0 / RATE_HZ);
     // Rate noise: both gyros; force noise: both accelerometers plus the differenced
     // reference rate noise (√2 σ / (2 dt)) times the lever arm (≤ 0.4 m).
@@ -456,9 +499,9 @@ fn run_calibration<T: RealField + Copy>(data: &[CalEpoch]) -> CalTrace {
         if let Some((omega, omega_dot, mid)) = diff.push(dt, v3(&epoch.ref_omega), i) {
             let m = &data[mid];
             let sample = InterImuSample {
-                omega_ib_b_rad_s: omega,
+                omega_ib_b_rad_s: omega - ekf.gyro_bias_b_rad_s(),
                 omega_dot_ib_b_rad_s2: omega_dot,
-                f_b_m_s2: v3(&m.ref_f),
+                f_b_m_s2: v3(&m.ref_f) - ekf.accel_bias_b_m_s2(),
                 omega_is_s_rad_s: v3(&m.extra_omega),
                 f_s_m_s2: v3(&m.extra_f),
             };
@@ -517,7 +560,9 @@ fn boresight_and_lever_arm_converge_within_three_sigma_from_20_deg_20_cm_priors(
         assert!(arm_err.abs() < 0.005);
     }
     // AND the sigmas shrink: after 1 s well below the priors, and monotonically over the run
-    // (no process noise on constant states).
+    // (no process noise on constant states). Slower than 1/sqrt(t) after 10 s: the
+    // reference's gyro bias walks, and the rate updates share what they say between it and
+    // the boresight.
     let one_second = RATE_HZ as usize;
     for j in 0..6 {
         let prior = if j < 3 { 20f64.to_radians() } else { 0.2 };
@@ -526,7 +571,12 @@ fn boresight_and_lever_arm_converge_within_three_sigma_from_20_deg_20_cm_priors(
             "state {j} after 1 s: {}",
             trace.sigma[one_second][j]
         );
-        assert!(trace.sigma[last][j] < 0.5 * trace.sigma[10 * one_second][j]);
+        assert!(
+            trace.sigma[last][j] < 0.8 * trace.sigma[10 * one_second][j],
+            "state {j}: {} after 10 s, {} at the end",
+            trace.sigma[10 * one_second][j],
+            trace.sigma[last][j]
+        );
         for w in trace.sigma.windows(2) {
             assert!(w[1][j] <= w[0][j] * (1.0 + 1e-12), "state {j} sigma grew");
         }
