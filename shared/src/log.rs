@@ -45,6 +45,8 @@ pub const MAX_POSTCARD_LEN: usize = 1 + max_of(&[
     FilterState::MAX_POSTCARD_LEN,
     Health::MAX_POSTCARD_LEN,
     WvFrame::MAX_POSTCARD_LEN,
+    NoiseFrame::MAX_POSTCARD_LEN,
+    FaultFrame::MAX_POSTCARD_LEN,
 ]);
 
 /// Largest COBS-decoded frame (postcard bytes + CRC), bytes.
@@ -70,6 +72,8 @@ pub const MAX_REGULAR_FRAME_LEN: usize = cobs::max_encoding_length(
         GnssFix::MAX_POSTCARD_LEN,
         FilterState::MAX_POSTCARD_LEN,
         Health::MAX_POSTCARD_LEN,
+        NoiseFrame::MAX_POSTCARD_LEN,
+        FaultFrame::MAX_POSTCARD_LEN,
     ]) + CRC_LEN,
 ) + 1;
 
@@ -104,11 +108,15 @@ pub enum Frame {
     Health(Health),
     /// Tag 6: the streaming Haar wavelet-variance sums of one IMU channel.
     WaveletVariance(WvFrame),
+    /// Tag 7: each unit's own noise level, as the on-board fusion measures it.
+    Noise(NoiseFrame),
+    /// Tag 8: a unit's fault confirmed, or a unit readmitted, by the on-board fusion.
+    Fault(FaultFrame),
 }
 
 /// Number of [`Frame`] variants this build knows; tags at or above it are reported as
 /// [`LogError::UnknownKind`].
-pub const FRAME_KINDS: u32 = 7;
+pub const FRAME_KINDS: u32 = 9;
 
 impl Frame {
     /// The postcard tag (variant index) of this frame.
@@ -121,6 +129,8 @@ impl Frame {
             Frame::Filter(_) => 4,
             Frame::Health(_) => 5,
             Frame::WaveletVariance(_) => 6,
+            Frame::Noise(_) => 7,
+            Frame::Fault(_) => 8,
         }
     }
 
@@ -134,6 +144,8 @@ impl Frame {
             Frame::Filter(_) => "filter",
             Frame::Health(_) => "health",
             Frame::WaveletVariance(_) => "wavelet_variance",
+            Frame::Noise(_) => "noise",
+            Frame::Fault(_) => "fault",
         }
     }
 
@@ -147,6 +159,8 @@ impl Frame {
             Frame::Filter(f) => Some(f.t_us),
             Frame::Health(f) => Some(f.t_us),
             Frame::WaveletVariance(f) => Some(f.t_us),
+            Frame::Noise(f) => Some(f.t_us),
+            Frame::Fault(f) => Some(f.t_us),
         }
     }
 }
@@ -302,6 +316,77 @@ pub struct WvFrame {
     pub snapshot: WvSnapshot,
 }
 
+/// Each unit's own white-noise level of one moment, from the units' differences (the
+/// fusion's `LiveNoise`), and which units the fused output uses.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct NoiseFrame {
+    /// Time of the last sample set included, log timescale, microseconds.
+    pub t_us: u64,
+    /// Each unit's own gyro white noise, standard deviation per sample, rad/s, header order
+    /// (NaN for a unit the header does not declare).
+    pub gyro_sigma_rad_s: [f32; MAX_IMUS],
+    /// Each unit's own accelerometer white noise, standard deviation per sample, m/s^2.
+    pub accel_sigma_m_s2: [f32; MAX_IMUS],
+    /// Bit k: unit k's gyros are in the fused output; bit 3 + k: its accelerometers.
+    pub in_use: u8,
+    /// The platform was still (zero-velocity updates were running).
+    pub still: bool,
+}
+
+/// A fault of one unit the fusion confirmed, or a unit it took back.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct FaultFrame {
+    /// When the kind was decided (or the unit readmitted), log timescale, microseconds.
+    pub t_us: u64,
+    /// When the unit was first suspected and left the fused output, microseconds.
+    pub detected_t_us: u64,
+    /// [`FaultFrame::SENSOR_GYRO`] or [`FaultFrame::SENSOR_ACCEL`].
+    pub sensor: u8,
+    /// The unit, by header index; None when only two units were left and which of them is
+    /// wrong cannot be told.
+    pub unit: Option<u8>,
+    /// The axis (0, 1, 2) that showed it most, where the kind has one.
+    pub axis: Option<u8>,
+    /// One of the `KIND_*` codes.
+    pub kind: u8,
+}
+
+impl FaultFrame {
+    pub const SENSOR_GYRO: u8 = 0;
+    pub const SENSOR_ACCEL: u8 = 1;
+    /// Kind codes, in the order of the fault monitor's kinds; then readmission.
+    pub const KIND_NAMES: [&'static str; 9] = [
+        "dropout",
+        "saturation",
+        "stuck",
+        "spike",
+        "bias_step",
+        "scale_factor",
+        "noise_burst",
+        "time_slip",
+        "readmitted",
+    ];
+    /// The code of a readmission.
+    pub const KIND_READMITTED: u8 = 8;
+
+    /// The kind's name ("unknown" for a code this build does not know).
+    pub fn kind_name(&self) -> &'static str {
+        Self::KIND_NAMES
+            .get(usize::from(self.kind))
+            .copied()
+            .unwrap_or("unknown")
+    }
+
+    /// The sensor's name.
+    pub fn sensor_name(&self) -> &'static str {
+        match self.sensor {
+            Self::SENSOR_GYRO => "gyro",
+            Self::SENSOR_ACCEL => "accel",
+            _ => "unknown",
+        }
+    }
+}
+
 impl WvFrame {
     /// The channel, if `channel` names one.
     pub fn channel(&self) -> Option<Channel> {
@@ -375,6 +460,14 @@ impl Health {
 impl WvFrame {
     /// Largest postcard encoding (without the frame tag), bytes.
     pub const MAX_POSTCARD_LEN: usize = VARINT_U64_MAX + 1 + 1 + SNAPSHOT_MAX_ENCODED_LEN;
+}
+impl NoiseFrame {
+    /// Largest postcard encoding (without the frame tag), bytes.
+    pub const MAX_POSTCARD_LEN: usize = VARINT_U64_MAX + 2 * MAX_IMUS * 4 + 1 + 1;
+}
+impl FaultFrame {
+    /// Largest postcard encoding (without the frame tag), bytes.
+    pub const MAX_POSTCARD_LEN: usize = 2 * VARINT_U64_MAX + 1 + 2 * 2 + 1;
 }
 
 /// Why a frame could not be encoded or decoded.
@@ -854,7 +947,30 @@ mod tests {
             filter_example(),
             health_example(),
             wv_example(),
+            noise_example(),
+            fault_example(),
         ]
+    }
+
+    fn noise_example() -> Frame {
+        Frame::Noise(NoiseFrame {
+            t_us: 6_000_000,
+            gyro_sigma_rad_s: [0.01, 0.02, 0.03],
+            accel_sigma_m_s2: [0.1, 0.2, f32::NAN],
+            in_use: 0b11_1011,
+            still: true,
+        })
+    }
+
+    fn fault_example() -> Frame {
+        Frame::Fault(FaultFrame {
+            t_us: 7_000_000,
+            detected_t_us: 6_500_000,
+            sensor: FaultFrame::SENSOR_ACCEL,
+            unit: Some(2),
+            axis: None,
+            kind: 4,
+        })
     }
 
     #[test]
@@ -1050,6 +1166,21 @@ mod tests {
                         .collect(),
                 },
             }),
+            Frame::Noise(NoiseFrame {
+                t_us: u64::MAX,
+                gyro_sigma_rad_s: [f; MAX_IMUS],
+                accel_sigma_m_s2: [f; MAX_IMUS],
+                in_use: 0xFF,
+                still: true,
+            }),
+            Frame::Fault(FaultFrame {
+                t_us: u64::MAX,
+                detected_t_us: u64::MAX,
+                sensor: 0xFF,
+                unit: Some(0xFF),
+                axis: Some(0xFF),
+                kind: 0xFF,
+            }),
         ]
     }
 
@@ -1063,6 +1194,8 @@ mod tests {
             FilterState::MAX_POSTCARD_LEN,
             Health::MAX_POSTCARD_LEN,
             WvFrame::MAX_POSTCARD_LEN,
+            NoiseFrame::MAX_POSTCARD_LEN,
+            FaultFrame::MAX_POSTCARD_LEN,
         ];
         let mut largest_wire = 0;
         let mut largest_regular_wire = 0;

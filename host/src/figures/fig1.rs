@@ -16,10 +16,10 @@ use nalgebra::{RealField, UnitQuaternion, Vector3};
 use serde::Serialize;
 
 use dynacal_core::nav::ekf::{
-    apply_correction, boresight_index, geodetic_difference_ned_m, lever_arm_index, EkfConfig,
+    apply_correction, boresight_index, lever_arm_index, position_innovation_ned_m, EkfConfig,
     ErrorStateEkf, InitialSigmas, InterImuSample, NavCorrection, NavEkf2, NavLinearization,
 };
-use dynacal_core::nav::{radii, NavState, Strapdown};
+use dynacal_core::nav::{NavState, Strapdown};
 
 use crate::gmwm::model::{ModelSpec, Process};
 use crate::interchange::Triplet;
@@ -583,16 +583,11 @@ impl GnssReader<'_> {
         gnss.and_then(|g| {
             let j = self.next_fix;
             (j < g.t_s.len() && (g.t_s[j] - t_s).abs() <= 0.5 * dt_s).then(|| {
-                let r = radii(nominal.lat_rad);
-                let position_innovation = geodetic_difference_ned_m(
-                    [
-                        c(g.position[0][j]),
-                        c(g.position[1][j]),
-                        c(g.position[2][j]),
-                    ],
-                    [nominal.lat_rad, nominal.lon_rad, nominal.h_m],
-                    r.meridian_m + nominal.h_m,
-                    r.transverse_m + nominal.h_m,
+                let position_innovation = position_innovation_ned_m(
+                    g.position[0][j],
+                    g.position[1][j],
+                    c(g.position[2][j]),
+                    nominal,
                 );
                 let velocity_innovation = v3::<T>(&g.velocity_ned_m_s, j) - nominal.v_ned_m_s;
                 (position_innovation, velocity_innovation)

@@ -24,7 +24,19 @@ fn c<T: RealField + Copy>(x: f64) -> T {
     nalgebra::convert(x)
 }
 
+/// `x` in f64 (exact for `f32` and `f64`; NaN for a scalar f64 cannot hold).
+#[inline]
+pub fn to_f64<T: RealField + Copy>(x: T) -> f64 {
+    nalgebra::try_convert::<T, f64>(x).unwrap_or(f64::NAN)
+}
+
 /// Navigation state: attitude, Earth-relative velocity and geodetic position.
+///
+/// Latitude and longitude are f64 whatever the scalar: in f32 one unit in the last place of
+/// a latitude near 0.8 rad is 6e-8 rad, 0.38 m, more than a car moves in one 200 Hz step, so
+/// an f32 position would stand still between steps (the remedy PX4 takes too: its f32 filter
+/// keeps its position against an f64 origin). Increments are computed in the scalar and
+/// added in f64, which costs the board a few software double additions per step.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct NavState<T: RealField + Copy> {
     /// Attitude of the body (forward-right-down) w.r.t. NED: rotates body-frame vectors into
@@ -33,9 +45,9 @@ pub struct NavState<T: RealField + Copy> {
     /// Velocity w.r.t. the Earth, resolved in NED, m/s.
     pub v_ned_m_s: Vector3<T>,
     /// Geodetic latitude (WGS84), rad.
-    pub lat_rad: T,
+    pub lat_rad: f64,
     /// Longitude, rad.
-    pub lon_rad: T,
+    pub lon_rad: f64,
     /// Ellipsoidal height, m.
     pub h_m: T,
 }
@@ -47,8 +59,8 @@ impl<T: RealField + Copy> NavState<T> {
         pitch_rad: T,
         yaw_rad: T,
         v_ned_m_s: Vector3<T>,
-        lat_rad: T,
-        lon_rad: T,
+        lat_rad: f64,
+        lon_rad: f64,
         h_m: T,
     ) -> Self {
         Self {
@@ -58,6 +70,11 @@ impl<T: RealField + Copy> NavState<T> {
             lon_rad,
             h_m,
         }
+    }
+
+    /// Latitude in the scalar of the filter, rad (for curvature, gravity, Earth rate).
+    pub fn lat(&self) -> T {
+        c(self.lat_rad)
     }
 
     /// C_b^n: the direction cosine matrix taking body-frame vectors into NED.
@@ -193,7 +210,8 @@ impl<T: RealField + Copy> Strapdown<T> {
 
         // Predictor: slow terms at the step start; corrector: at the predicted mid-step.
         let mut v_new = s.v_ned_m_s;
-        let mut mid = (s.lat_rad, s.h_m, s.v_ned_m_s);
+        let lat_start = s.lat();
+        let mut mid = (lat_start, s.h_m, s.v_ned_m_s);
         let mut zeta_n = Vector3::zeros();
         for _ in 0..2 {
             let (lat_mid, h_mid, v_mid) = mid;
@@ -206,9 +224,9 @@ impl<T: RealField + Copy> Strapdown<T> {
                 s.v_ned_m_s + delta_v_sf_n + (gravity_ned_m_s2(lat_mid, h_mid) - coriolis) * dt_s;
             let v_avg = (s.v_ned_m_s + v_new) * half;
             let (lat_rate, _, h_rate) =
-                position_rates(s.lat_rad, s.h_m, &v_avg).ok_or(NavFault::NearPole)?;
+                position_rates(lat_start, s.h_m, &v_avg).ok_or(NavFault::NearPole)?;
             mid = (
-                s.lat_rad + lat_rate * dt_s * half,
+                lat_start + lat_rate * dt_s * half,
                 s.h_m + h_rate * dt_s * half,
                 v_avg,
             );
@@ -223,8 +241,8 @@ impl<T: RealField + Copy> Strapdown<T> {
         let next = NavState {
             q_nb,
             v_ned_m_s: v_new,
-            lat_rad: s.lat_rad + lat_rate * dt_s,
-            lon_rad: s.lon_rad + lon_rate * dt_s,
+            lat_rad: s.lat_rad + to_f64(lat_rate * dt_s),
+            lon_rad: s.lon_rad + to_f64(lon_rate * dt_s),
             h_m: s.h_m + h_rate * dt_s,
         };
         if !all_finite(&next.v_ned_m_s)
@@ -262,8 +280,8 @@ mod tests {
     fn at_rest_measurements(state: &NavState<f64>) -> (Vector3<f64>, Vector3<f64>) {
         let c_nb = state.c_bn().transpose();
         (
-            c_nb * earth_rate_ned_rad_s(state.lat_rad),
-            -(c_nb * gravity_ned_m_s2(state.lat_rad, state.h_m)),
+            c_nb * earth_rate_ned_rad_s(state.lat()),
+            -(c_nb * gravity_ned_m_s2(state.lat(), state.h_m)),
         )
     }
 
@@ -291,7 +309,7 @@ mod tests {
         let start64 = level_at_rest(0.0);
         let (omega, f) = at_rest_measurements(&start64);
         let start =
-            NavState::<f32>::from_euler(0.0, 0.0, 0.0, Vector3::zeros(), LAT as f32, 0.1, H as f32);
+            NavState::<f32>::from_euler(0.0, 0.0, 0.0, Vector3::zeros(), LAT, 0.1, H as f32);
         let mut nav = Strapdown::new(start);
         let (omega, f) = (omega.cast::<f32>(), f.cast::<f32>());
         for _ in 0..6000 {
@@ -301,6 +319,34 @@ mod tests {
             nav.state().v_ned_m_s.norm() < 0.02,
             "{:?}",
             nav.state().v_ned_m_s
+        );
+    }
+
+    #[test]
+    fn f32_position_follows_f64_at_speed_where_f32_angles_would_stand_still() {
+        // GIVEN a car heading north-east at 30 m/s (0.1 m per 200 Hz step, below a third
+        // of an f32 latitude's last place), mechanized in f32 and in f64
+        let v = Vector3::new(21.2, 21.2, 0.0);
+        let start64 = NavState::<f64>::from_euler(0.0, 0.0, 0.785, v, LAT, 0.1, H);
+        let (omega, f) = at_rest_measurements(&start64);
+        let start32 = NavState::<f32>::from_euler(0.0, 0.0, 0.785, v.cast(), LAT, 0.1, H as f32);
+        let (mut nav64, mut nav32) = (Strapdown::new(start64), Strapdown::new(start32));
+        let dt = 0.005;
+        for _ in 0..12_000 {
+            nav64.step(omega * dt, f * dt, dt).unwrap();
+            let (w, a) = (omega.cast::<f32>(), f.cast::<f32>());
+            nav32.step(w * dt as f32, a * dt as f32, dt as f32).unwrap();
+        }
+        // WHEN 60 s have passed THEN both moved about 1.8 km and agree to 0.2 m (f32 angles
+        // would have lost up to 0.38 m at every step)
+        let (a, b) = (nav64.state(), nav32.state());
+        let north_m = (a.lat_rad - LAT) * 6.37e6;
+        assert!((north_m - 1272.0).abs() < 20.0, "{north_m}");
+        let gap_north_m = (a.lat_rad - b.lat_rad) * 6.37e6;
+        let gap_east_m = (a.lon_rad - b.lon_rad) * 6.37e6 * LAT.cos();
+        assert!(
+            gap_north_m.hypot(gap_east_m) < 0.2,
+            "{gap_north_m} {gap_east_m}"
         );
     }
 

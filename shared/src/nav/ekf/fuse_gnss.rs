@@ -2,7 +2,29 @@
 //! sequential scalar updates on the NED position or velocity error states.
 
 use super::{tally, BatchOutcome, ErrorStateEkf, SparseRow, POS, VEL};
+use crate::nav::earth::radii;
+use crate::nav::strapdown::NavState;
 use nalgebra::{RealField, Vector3};
+
+/// Position innovation `measured − nominal`, NED metres, of a measured geodetic position
+/// (latitude, longitude in rad, WGS84 height in m) against a navigation state: the formula
+/// of [`geodetic_difference_ned_m`] with the angles differenced in f64 before they are
+/// scaled in the filter's scalar (an f32 angle difference would lose the position).
+pub fn position_innovation_ned_m<T: RealField + Copy>(
+    measured_lat_rad: f64,
+    measured_lon_rad: f64,
+    measured_h_m: T,
+    nominal: &NavState<T>,
+) -> Vector3<T> {
+    let c = |x: f64| nalgebra::convert::<f64, T>(x);
+    let lat = nominal.lat();
+    let r = radii(lat);
+    Vector3::new(
+        c(measured_lat_rad - nominal.lat_rad) * (r.meridian_m + nominal.h_m),
+        c(measured_lon_rad - nominal.lon_rad) * (r.transverse_m + nominal.h_m) * lat.cos(),
+        nominal.h_m - measured_h_m,
+    )
+}
 
 /// Position innovation `measured − nominal` in NED metres from two geodetic positions
 /// (latitude, longitude in rad; WGS84 height in m), using the curvature radii plus height

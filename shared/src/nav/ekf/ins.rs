@@ -7,11 +7,11 @@
 //! `correct` after the updates of each epoch.
 
 use super::{
-    geodetic_difference_ned_m, small_rotation, BatchOutcome, ErrorStateEkf, InterImuSample,
+    position_innovation_ned_m, small_rotation, BatchOutcome, ErrorStateEkf, InterImuSample,
     NavCorrection, NavLinearization,
 };
 use crate::nav::earth::radii;
-use crate::nav::strapdown::{NavFault, NavState, Strapdown};
+use crate::nav::strapdown::{to_f64, NavFault, NavState, Strapdown};
 use nalgebra::{RealField, Vector3};
 
 impl<T: RealField + Copy> NavLinearization<T> {
@@ -19,7 +19,7 @@ impl<T: RealField + Copy> NavLinearization<T> {
     /// `f_b_m_s2` (body, m/s²).
     pub fn from_state(state: &NavState<T>, f_b_m_s2: Vector3<T>) -> Self {
         Self::from_geodetic(
-            state.lat_rad,
+            state.lat(),
             state.h_m,
             state.v_ned_m_s,
             state.c_bn(),
@@ -34,12 +34,12 @@ pub fn apply_correction<T: RealField + Copy>(
     state: &mut NavState<T>,
     correction: &NavCorrection<T>,
 ) {
-    let r = radii(state.lat_rad);
+    let r = radii(state.lat());
     let d = correction.position_ned_m;
-    let cos_lat = state.lat_rad.cos();
-    state.lat_rad += d.x / (r.meridian_m + state.h_m);
+    let cos_lat = state.lat().cos();
+    state.lat_rad += to_f64(d.x / (r.meridian_m + state.h_m));
     if cos_lat.abs() > nalgebra::convert(1e-9) {
-        state.lon_rad += d.y / ((r.transverse_m + state.h_m) * cos_lat);
+        state.lon_rad += to_f64(d.y / ((r.transverse_m + state.h_m) * cos_lat));
     }
     state.h_m -= d.z;
     state.v_ned_m_s += correction.velocity_ned_m_s;
@@ -88,22 +88,16 @@ impl<T: RealField + Copy, const K: usize, const N: usize> InsEkf<T, K, N> {
     }
 
     /// Fuses a GNSS position (WGS84 latitude, longitude in rad, height in m) with one-sigma
-    /// noise `sigma_ned_m` (NED, m).
+    /// noise `sigma_ned_m` (NED, m). The angles are differenced in f64 before the
+    /// difference is scaled in the filter's scalar.
     pub fn fuse_gnss_position(
         &mut self,
-        lat_rad: T,
-        lon_rad: T,
+        lat_rad: f64,
+        lon_rad: f64,
         h_m: T,
         sigma_ned_m: &Vector3<T>,
     ) -> BatchOutcome {
-        let s = *self.strapdown.state();
-        let r = radii(s.lat_rad);
-        let innovation = geodetic_difference_ned_m(
-            [lat_rad, lon_rad, h_m],
-            [s.lat_rad, s.lon_rad, s.h_m],
-            r.meridian_m + s.h_m,
-            r.transverse_m + s.h_m,
-        );
+        let innovation = position_innovation_ned_m(lat_rad, lon_rad, h_m, self.strapdown.state());
         self.ekf.fuse_gnss_position(&innovation, sigma_ned_m)
     }
 

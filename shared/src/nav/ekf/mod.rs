@@ -35,7 +35,7 @@ mod fuse_inter_imu;
 mod ins;
 mod predict;
 
-pub use fuse_gnss::geodetic_difference_ned_m;
+pub use fuse_gnss::{geodetic_difference_ned_m, position_innovation_ned_m};
 pub use fuse_inter_imu::{InterImuSample, RateDifferentiator};
 pub use ins::{apply_correction, InsEkf};
 pub use predict::NavLinearization;
