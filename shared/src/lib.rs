@@ -8,6 +8,7 @@
 pub mod board_model;
 pub mod channel;
 pub mod clock;
+pub mod fusion;
 pub mod gnss;
 pub mod log;
 pub mod nav;

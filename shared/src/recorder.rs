@@ -11,16 +11,23 @@
 //! whole [`Recorder::health_period_us`] after the first event, and a last `Health` frame when
 //! the source ends.
 //!
+//! With exactly three IMUs and a board model ([`Recorder::with_fusion`]) it also runs the
+//! on-board fusion ([`crate::fusion`]): each sample set of the three units and each GNSS
+//! solution go to it, and what it reports is logged as `Filter`, `Noise` and `Fault` frames.
+//!
 //! Each IMU's six channels (gyro x y z, accelerometer x y z, raw counts) also feed a streaming
 //! Haar wavelet-variance accumulator ([`RecorderWv`]); their snapshots go out as one
 //! `WaveletVariance` frame per declared IMU and channel each time log time crosses a whole
 //! [`Recorder::wv_period_us`] after the first event, and once more when the source ends.
 
+use crate::board_model::BoardModel;
+use crate::fusion::sets::SetAssembler;
+use crate::fusion::{BoardFusion, FusionConfig, FusionOutput, UnitReading, UNITS};
 use crate::gnss::{UbxReceiver, LEAP_SECONDS_2017};
 use crate::log::GnssFix;
 use crate::log::{
-    encode_frame, Frame, Header, Health, ImuSampleSet, LogError, PpsEvent, WvFrame, MAX_FRAME_LEN,
-    MAX_IMUS,
+    encode_frame, Frame, Header, Health, ImuConfig, ImuSampleSet, LogError, PpsEvent, WvFrame,
+    MAX_FRAME_LEN, MAX_IMUS,
 };
 use crate::replay::GNSS_CHUNK_MAX;
 use crate::wavelet::HaarStream;
@@ -125,6 +132,10 @@ pub struct RecorderStats {
     pub health_reports: u64,
     /// WaveletVariance frames produced (written or dropped).
     pub wv_frames: u64,
+    /// Filter, Noise and Fault frames of the fusion produced (written or dropped).
+    pub filter_states: u64,
+    pub noise_reports: u64,
+    pub fault_reports: u64,
     /// Frames the sink took.
     pub frames_written: u64,
     /// Bytes of the frames the sink took.
@@ -172,6 +183,8 @@ pub struct Recorder {
     /// Log time between two periodic rounds of WaveletVariance frames, microseconds (a live
     /// board never reaches the end-of-run round).
     pub wv_period_us: u64,
+    /// The model the fusion runs, when it runs.
+    fusion_model: Option<BoardModel>,
 }
 
 impl Recorder {
@@ -182,7 +195,30 @@ impl Recorder {
             health_period_us: 1_000_000,
             pps_lock_window_us: 2_000_000,
             wv_period_us: 60_000_000,
+            fusion_model: None,
         }
+    }
+
+    /// Runs the on-board fusion with `model` when the header declares exactly three IMUs
+    /// (with another count the recorder only records).
+    pub fn with_fusion(mut self, model: BoardModel) -> Self {
+        self.fusion_model = Some(model);
+        self
+    }
+
+    /// The fusion and its set assembler for this header, if it runs.
+    fn fusion(&self) -> Option<Fusion> {
+        let model = self.fusion_model.as_ref()?;
+        if self.header.imus.len() != UNITS {
+            return None;
+        }
+        let rate_hz = self.header.imus.first()?.sample_rate_hz;
+        let config = FusionConfig::at_rate(rate_hz);
+        let interval_us = (f64::from(config.sample_interval_s) * 1e6) as u64;
+        Some(Fusion {
+            fusion: BoardFusion::new(config, model),
+            sets: SetAssembler::new(interval_us),
+        })
     }
 
     /// The header this recorder writes.
@@ -204,6 +240,7 @@ impl Recorder {
             sink,
             wv: [const { [const { RecorderWv::new() }; WV_CHANNELS] }; MAX_IMUS],
             wv_last_t_us: [0; MAX_IMUS],
+            fusion: self.fusion(),
         };
         let start = clock.now_ticks();
         run.emit(&Frame::Header(self.header.clone()))?;
@@ -293,6 +330,9 @@ impl Recorder {
                     if let Some(last) = run.wv_last_t_us.get_mut(index) {
                         *last = sample.t_us;
                     }
+                    if let Some(imu) = self.header.imus.get(index) {
+                        run.fuse_sample(index, &sample, imu)?;
+                    }
                 }
                 SourceEvent::Pps(pps) => {
                     run.emit(&Frame::Pps(pps))?;
@@ -309,6 +349,9 @@ impl Recorder {
                     for fix in fixes {
                         run.emit(&Frame::Gnss(fix))?;
                         run.stats.gnss_fixes += 1;
+                        if let Some(f) = &mut run.fusion {
+                            f.fusion.push_gnss(t_us, &fix);
+                        }
                         if fix.fix_type == 3 || fix.fix_type == 4 {
                             last_fix_t_us = Some(t_us);
                         }
@@ -319,6 +362,9 @@ impl Recorder {
         }
 
         let final_start = clock.now_ticks();
+        if let Some(set) = run.fusion.as_mut().and_then(|f| f.sets.finish()) {
+            run.fuse_set(set)?;
+        }
         run.emit_wv(&self.header)?;
         let health = self.health(
             previous_t_us.unwrap_or(0),
@@ -393,9 +439,75 @@ struct Run<'a, K> {
     wv: [[RecorderWv; WV_CHANNELS]; MAX_IMUS],
     /// Time of the last sample accumulated per IMU, microseconds.
     wv_last_t_us: [u64; MAX_IMUS],
+    fusion: Option<Fusion>,
+}
+
+/// The on-board fusion and the sets it is fed.
+struct Fusion {
+    fusion: BoardFusion,
+    sets: SetAssembler,
+}
+
+/// A sample's counts in SI units, by its IMU's scale factors.
+fn reading_of(sample: &ImuSampleSet, imu: &ImuConfig) -> UnitReading {
+    let si = |counts: &[i32; 3], scale: f64| counts.map(|c| (f64::from(c) * scale) as f32);
+    UnitReading {
+        gyro_rad_s: si(&sample.gyro_counts, imu.gyro_scale_rad_s_per_count),
+        accel_m_s2: si(&sample.accel_counts, imu.accel_scale_m_s2_per_count),
+    }
 }
 
 impl<K: LogSink> Run<'_, K> {
+    /// Gives unit `index`'s sample to the fusion, and fuses the set it completes.
+    fn fuse_sample<S>(
+        &mut self,
+        index: usize,
+        sample: &ImuSampleSet,
+        imu: &ImuConfig,
+    ) -> Result<(), RecorderError<S, K::Error>> {
+        let Some(f) = &mut self.fusion else {
+            return Ok(());
+        };
+        match f.sets.push(index, sample.t_us, reading_of(sample, imu)) {
+            Some(set) => self.fuse_set(set),
+            None => Ok(()),
+        }
+    }
+
+    /// Fuses one sample set and logs what the fusion reports.
+    fn fuse_set<S>(
+        &mut self,
+        (t_us, readings): crate::fusion::sets::SampleSet,
+    ) -> Result<(), RecorderError<S, K::Error>> {
+        let Some(f) = &mut self.fusion else {
+            return Ok(());
+        };
+        // At most a state, a noise report and, per sensor type, a confirmation and a
+        // readmission of each unit.
+        let mut outputs: heapless::Vec<FusionOutput, 16> = heapless::Vec::new();
+        f.fusion.push_set(t_us, &readings, &mut |o| {
+            let _ = outputs.push(o);
+        });
+        for output in outputs {
+            let frame = match output {
+                FusionOutput::State(s) => {
+                    self.stats.filter_states += 1;
+                    Frame::Filter(s)
+                }
+                FusionOutput::Noise(n) => {
+                    self.stats.noise_reports += 1;
+                    Frame::Noise(n)
+                }
+                FusionOutput::Fault(fault) => {
+                    self.stats.fault_reports += 1;
+                    Frame::Fault(fault)
+                }
+            };
+            self.emit(&frame)?;
+        }
+        Ok(())
+    }
+
     /// One WaveletVariance frame per declared IMU and channel.
     fn emit_wv<S>(&mut self, header: &Header) -> Result<(), RecorderError<S, K::Error>> {
         for (index, imu) in header.imus.iter().enumerate() {

@@ -63,6 +63,7 @@ mod bare_metal {
             f_b_m_s2: Vector3::new(0.4, -0.2, -9.8),
             omega_is_s_rad_s: Vector3::new(0.1 + s, -0.19, 0.31),
             f_s_m_s2: Vector3::new(0.45, -0.25, -9.79),
+            shares_reference_bias: false,
         }
     }
 

@@ -613,6 +613,7 @@ fn fuse_updates<T: RealField + Copy>(
                 f_b_m_s2: f_mid,
                 omega_is_s_rad_s: omega_s[imu],
                 f_s_m_s2: f_s[imu],
+                shares_reference_bias: false,
             };
             if let Some(batch) =
                 ekf.fuse_inter_imu(imu, &sample, &sigmas.rate[imu], &sigmas.force[imu])

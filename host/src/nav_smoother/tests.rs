@@ -196,6 +196,7 @@ fn smoothed_weighted_mean_calibration_recovers_boresight_and_lever_arm() {
                     f_b_m_s2: f_mid - ekf.accel_bias_b_m_s2(),
                     omega_is_s_rad_s: extra_omega_mid,
                     f_s_m_s2: extra_f_mid,
+                    shares_reference_bias: false,
                 };
                 ekf.fuse_inter_imu(0, &sample, &sigma_rate, &sigma_force);
             }

@@ -44,6 +44,12 @@ pub struct InterImuSample<T> {
     pub omega_is_s_rad_s: Vector3<T>,
     /// Extra IMU's specific force `f^s`, m/s², in its own axes.
     pub f_s_m_s2: Vector3<T>,
+    /// The extra IMU's readings were de-biased against the reference (its bias relative to
+    /// the reference and the filter's nominal biases taken out, as the board's fusion does
+    /// with the fault monitor's offsets): the reference's bias error is then on both sides
+    /// and cancels, and the rows get no bias columns. False for independent IMUs (the
+    /// paper's setting).
+    pub shares_reference_bias: bool,
 }
 
 impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
@@ -83,7 +89,9 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
         let mut batch = BatchOutcome::default();
         for axis in 0..3 {
             let mut row = SparseRow::from_blocks(psi, row3(&rate_psi, axis), None);
-            row.push_block(GYRO_BIAS, row3(&bias_jacobian, axis));
+            if !sample.shares_reference_bias {
+                row.push_block(GYRO_BIAS, row3(&bias_jacobian, axis));
+            }
             let innovation = sample.omega_is_s_rad_s[axis] - predicted_rate_s[axis];
             let r = sigma_rate_rad_s[axis] * sigma_rate_rad_s[axis];
             let outcome = self.fuse_scalar(&row, innovation, r);
@@ -95,7 +103,9 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
                 row3(&force_psi, axis),
                 Some((arm, row3(&force_lever, axis))),
             );
-            row.push_block(ACCEL_BIAS, row3(&bias_jacobian, axis));
+            if !sample.shares_reference_bias {
+                row.push_block(ACCEL_BIAS, row3(&bias_jacobian, axis));
+            }
             let innovation = sample.f_s_m_s2[axis] - predicted_force_s[axis];
             let r = sigma_force_m_s2[axis] * sigma_force_m_s2[axis];
             let outcome = self.fuse_scalar(&row, innovation, r);

@@ -130,6 +130,26 @@ impl<T: RealField + Copy, const K: usize, const N: usize> InsEkf<T, K, N> {
             .fuse_inter_imu(imu, sample, sigma_rate_rad_s, sigma_force_m_s2)
     }
 
+    /// Puts the position and velocity at a measurement's (WGS84 latitude, longitude in rad,
+    /// height in m; NED velocity in m/s) with its sigmas, forgetting what the filter knew of
+    /// them (see [`ErrorStateEkf::forget_block`]); attitude, biases and calibrations stay.
+    pub fn reset_position_velocity(
+        &mut self,
+        (lat_rad, lon_rad, h_m): (f64, f64, T),
+        v_ned_m_s: Vector3<T>,
+        sigma_ned_m: &Vector3<T>,
+        sigma_ned_m_s: &Vector3<T>,
+    ) {
+        let mut state = *self.strapdown.state();
+        state.lat_rad = lat_rad;
+        state.lon_rad = lon_rad;
+        state.h_m = h_m;
+        state.v_ned_m_s = v_ned_m_s;
+        self.strapdown.set_state(state);
+        self.ekf.forget_block(super::POS, sigma_ned_m);
+        self.ekf.forget_block(super::VEL, sigma_ned_m_s);
+    }
+
     /// Folds the error estimate into the mechanization and the filter's nominal values.
     pub fn correct(&mut self) -> NavCorrection<T> {
         let correction = self.ekf.reset();

@@ -406,6 +406,27 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
         self.apply_variance_floors();
     }
 
+    /// Forgets what the filter knew of the three states at `first..first + 3` (and their
+    /// correlations with the rest): their error estimate is zeroed and their covariance
+    /// becomes `diag(sigma²)`. For a reset of those states to an outside measurement, as
+    /// after GNSS returns to a position far from the filter's (PX4 EKF2 and ArduPilot EKF3
+    /// reset to GNSS in the same case).
+    pub fn forget_block(&mut self, first: usize, sigma: &Vector3<T>) {
+        for a in 0..3 {
+            let i = first + a;
+            if i >= N {
+                return;
+            }
+            for j in 0..N {
+                self.p[(i, j)] = T::zero();
+                self.p[(j, i)] = T::zero();
+            }
+            self.p[(i, i)] = sigma[a] * sigma[a];
+            self.dx[i] = T::zero();
+        }
+        self.apply_variance_floors();
+    }
+
     /// The error estimate accumulated since the last [`reset`](Self::reset).
     pub fn error_estimate(&self) -> &SVector<T, N> {
         &self.dx

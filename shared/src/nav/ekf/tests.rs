@@ -59,6 +59,7 @@ fn block_sparse_prediction_equals_dense_phi_p_phi_transpose_plus_q() {
                 f_b_m_s2: Vector3::new(0.5, 0.2, -9.8),
                 omega_is_s_rad_s: Vector3::new(0.21, -0.28, 0.49),
                 f_s_m_s2: Vector3::new(0.6, 0.1, -9.7),
+                shares_reference_bias: false,
             };
             ekf.fuse_inter_imu(0, &sample, &Vector3::repeat(0.01), &Vector3::repeat(0.05));
             ekf.fuse_inter_imu(1, &sample, &Vector3::repeat(0.01), &Vector3::repeat(0.05));
@@ -222,6 +223,7 @@ fn inter_imu_jacobian_matches_finite_differences_of_eqs_8_and_9() {
             f_b_m_s2: motion.2,
             omega_is_s_rad_s: base[0],
             f_s_m_s2: base[1],
+            shares_reference_bias: false,
         };
         let big = 1e9;
         let mut sig_rate = Vector3::repeat(1e30);
@@ -244,6 +246,27 @@ fn inter_imu_jacobian_matches_finite_differences_of_eqs_8_and_9() {
             );
         }
     }
+}
+
+#[test]
+fn an_extra_imu_debiased_against_the_reference_leaves_the_bias_states_alone() {
+    // The reference's bias error is then in both readings, so the update must not learn it.
+    let mut ekf = NavEkf1::<f64>::new(EkfConfig::automotive_mems(), initial_sigmas());
+    let sample = InterImuSample {
+        omega_ib_b_rad_s: Vector3::new(0.3, -0.2, 0.5),
+        omega_dot_ib_b_rad_s2: Vector3::new(1.0, 0.0, -1.0),
+        f_b_m_s2: Vector3::new(0.5, 0.2, -9.8),
+        omega_is_s_rad_s: Vector3::new(0.31, -0.2, 0.49),
+        f_s_m_s2: Vector3::new(0.6, 0.1, -9.7),
+        shares_reference_bias: true,
+    };
+    let batch = ekf
+        .fuse_inter_imu(0, &sample, &Vector3::repeat(0.01), &Vector3::repeat(0.1))
+        .unwrap();
+    assert_eq!(batch.accepted, 6);
+    let dx = ekf.error_estimate();
+    assert!((0..6).all(|i| dx[ACCEL_BIAS + i] == 0.0), "{dx:?}");
+    assert!(dx[boresight_index(0)].abs() > 0.0);
 }
 
 #[test]
@@ -273,6 +296,7 @@ fn reset_folds_calibration_error_into_nominal_with_the_documented_convention() {
             f_b_m_s2: f_b - ekf.accel_bias_b_m_s2(),
             omega_is_s_rad_s: c * omega,
             f_s_m_s2: c * (f_b + omega_dot.cross(&r) + omega.cross(&omega.cross(&r))),
+            shares_reference_bias: false,
         };
         ekf.fuse_inter_imu(0, &sample, &Vector3::repeat(1e-4), &Vector3::repeat(1e-3));
         ekf.reset();
@@ -504,6 +528,7 @@ fn run_calibration<T: RealField + Copy>(data: &[CalEpoch]) -> CalTrace {
                 f_b_m_s2: v3(&m.ref_f) - ekf.accel_bias_b_m_s2(),
                 omega_is_s_rad_s: v3(&m.extra_omega),
                 f_s_m_s2: v3(&m.extra_f),
+                shares_reference_bias: false,
             };
             if let Some(batch) = ekf.fuse_inter_imu(0, &sample, &sigma_rate, &sigma_force) {
                 trace.accepted += u32::from(batch.accepted);
@@ -800,6 +825,7 @@ fn apply(ekf: &mut NavEkf2<f32>, op: &Op) {
                 f_b_m_s2: v(f),
                 omega_is_s_rad_s: c * w + Vector3::new(dz[0], dz[1], dz[2]) * *sigma_rate,
                 f_s_m_s2: c * v(f) + Vector3::new(dz[3], dz[4], dz[5]) * *sigma_force,
+                shares_reference_bias: false,
             };
             ekf.fuse_inter_imu(
                 *imu,

@@ -1,0 +1,808 @@
+//! On-board fusion of three IMUs sampled together: one virtual IMU from the healthy units,
+//! an INS/GNSS error-state filter on it with the units' inter-IMU calibration as states,
+//! process noise from the units' live noise level, zero-velocity updates at standstill, and
+//! what it finds (states, noise levels, faults) as log frames.
+//!
+//! The body frame is the first unit's axes at its place. Per sample set:
+//! 1. each unit's rate and specific force are brought into the body frame with its
+//!    alignment (the board model's at first, the filter's estimate once it runs); the
+//!    specific force is also moved to the body origin by the centripetal term `Ω Ω r`
+//!    (the `Ω̇ r` term is left: differencing a 1 kHz MEMS rate would add more noise than it
+//!    removes, and it averages out);
+//! 2. the fault monitors (`crate::redundancy::FaultMonitor`, gyros and accelerometers) test
+//!    the units and give the fused virtual IMU, each unit less its bias relative to the set
+//!    and weighted by its own noise; `LiveNoise` measures each unit's own noise level;
+//! 3. every `filter_every` sets the fused increments drive the strapdown and the filter's
+//!    prediction, with the white-noise PSD of the fused output from the live levels and
+//!    the bias noise from the board model ([`process_noise`]).
+//!
+//! The filter runs at the filter rate; the inter-IMU update (the paper's II-B, eqs. 8-12) of
+//! units 2 and 3 against the fused output runs on means over `calibration_every` filter
+//! steps, where the angular acceleration it needs is a usable central difference. GNSS
+//! fixes are fused when they arrive, moved forward to the filter's time by their velocity.
+//! Before the filter can start it aligns ([`alignment`]) from a standstill and a drive-off.
+//!
+//! Nothing here allocates or panics; the outputs go to a caller's closure.
+
+pub mod alignment;
+pub mod process_noise;
+pub mod sets;
+
+// Float methods without std.
+#[allow(unused_imports)]
+use nalgebra::ComplexField;
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+use crate::board_model::BoardModel;
+use crate::log::{FaultFrame, FilterState, GnssFix, NoiseFrame, MAX_IMUS};
+use crate::nav::earth::radii;
+use crate::nav::ekf::{
+    EkfConfig, ErrorStateEkf, InitialSigmas, InsEkf, InterImuCalibration, InterImuSample,
+    RateDifferentiator, ACCEL_BIAS, ATT, GYRO_BIAS, POS, VEL,
+};
+use crate::nav::strapdown::{NavState, Strapdown};
+use crate::redundancy::faults::Step;
+use crate::redundancy::{FaultConfig, FaultEvent, FaultMonitor, LiveNoise, MotionThresholds};
+
+use alignment::{Alignment, Start};
+use process_noise::{fused_noise, FusedNoise};
+
+/// Units the board fuses.
+pub const UNITS: usize = 3;
+/// The `imu_id` of the fused virtual IMU's filter lane in [`FilterState`].
+pub const FUSED_LANE_ID: u8 = 0xFF;
+/// The board's filter: two extra units' calibrations, 27 states.
+pub type BoardFilter = InsEkf<f32, { UNITS - 1 }, 27>;
+
+/// One unit's sample, in its own axes.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct UnitReading {
+    /// Angular rate, rad/s.
+    pub gyro_rad_s: [f32; 3],
+    /// Specific force, m/s^2.
+    pub accel_m_s2: [f32; 3],
+}
+
+/// What the fusion reports.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum FusionOutput {
+    State(FilterState),
+    Noise(NoiseFrame),
+    Fault(FaultFrame),
+}
+
+/// Settings. Rates as counts of the step below them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FusionConfig {
+    /// Time between sample sets, s.
+    pub sample_interval_s: f32,
+    /// Sample sets per filter step.
+    pub filter_every: u32,
+    /// Filter steps per inter-IMU update.
+    pub calibration_every: u32,
+    /// Filter steps per [`FilterState`] output.
+    pub state_every: u32,
+    /// Filter steps per [`NoiseFrame`] output.
+    pub noise_every: u32,
+    /// Time constant of the live noise levels, s.
+    pub live_time_constant_s: f32,
+    /// One-sigma residual motion of a zero-velocity update, m/s.
+    pub zupt_sigma_m_s: f32,
+    /// Standstill: the filter's speed below this, m/s ...
+    pub still_speed_m_s: f32,
+    /// ... the rate's deviation from its slow mean below this, rad/s ...
+    pub still_rate_rad_s: f32,
+    /// ... and the specific force's below this, m/s^2 (both beyond their noise).
+    pub still_force_m_s2: f32,
+    /// GNSS velocity change from a standstill that gives the heading, m/s.
+    pub heading_speed_change_m_s: f32,
+    /// Fixes older than this at arrival are not fused, s.
+    pub gnss_max_age_s: f32,
+    /// Vertical position and velocity sigmas as multiples of the horizontal ones (NAV-PVT's
+    /// speed accuracy is one number; receivers' vertical errors are about twice).
+    pub gnss_vertical_factor: f32,
+    /// Consecutive fixes with a position component the gate refused, after which the filter's position
+    /// and velocity are reset to the fix (the filter was wrong and too sure of itself, as
+    /// after a long outage; without the reset it would refuse GNSS for ever).
+    pub gnss_reset_after: u32,
+    /// Floor of the rate-difference sigma of the inter-IMU update (timing between units,
+    /// unmodelled scale), rad/s.
+    pub calibration_rate_floor_rad_s: f32,
+    /// Floor of its force-difference sigma (the `Ω̇ r` left in the fused force), m/s^2.
+    pub calibration_force_floor_m_s2: f32,
+    pub ekf: EkfConfig<f32>,
+    pub initial: InitialSigmas<f32>,
+    pub gyro_monitor: FaultConfig,
+    pub accel_monitor: FaultConfig,
+}
+
+impl FusionConfig {
+    /// Settings for sample sets at `sample_rate_hz`: the filter near 200 Hz, calibration
+    /// near 20 Hz, states at 10 Hz, noise at 1 Hz; the automotive filter's settings.
+    pub fn at_rate(sample_rate_hz: f32) -> Self {
+        let rate = if sample_rate_hz.is_finite() && sample_rate_hz > 0.0 {
+            sample_rate_hz
+        } else {
+            200.0
+        };
+        let filter_every = ((rate / 200.0).round() as u32).max(1);
+        let filter_hz = rate / filter_every as f32;
+        let every = |hz: f32| ((filter_hz / hz).round() as u32).max(1);
+        let sample_interval_s = 1.0 / rate;
+        let mut accel_monitor = FaultConfig::new(sample_interval_s);
+        accel_monitor.norm_tolerance = Some(0.1);
+        let mut gyro_monitor = FaultConfig::new(sample_interval_s);
+        gyro_monitor.common_hold_s = 0.0;
+        Self {
+            sample_interval_s,
+            filter_every,
+            calibration_every: every(20.0),
+            state_every: every(10.0),
+            noise_every: every(1.0),
+            live_time_constant_s: 2.0,
+            zupt_sigma_m_s: 0.02,
+            still_speed_m_s: 0.3,
+            still_rate_rad_s: 0.01,
+            still_force_m_s2: 0.05,
+            heading_speed_change_m_s: 3.0,
+            gnss_max_age_s: 0.5,
+            gnss_vertical_factor: 2.0,
+            gnss_reset_after: 10,
+            calibration_rate_floor_rad_s: 2e-3,
+            calibration_force_floor_m_s2: 0.05,
+            ekf: EkfConfig::automotive_mems(),
+            initial: InitialSigmas {
+                position_m: Vector3::repeat(1.0),
+                velocity_m_s: Vector3::repeat(0.1),
+                attitude_rad: Vector3::new(0.01, 0.01, 0.05),
+                accel_bias_m_s2: Vector3::repeat(0.1),
+                gyro_bias_rad_s: Vector3::repeat(2e-3),
+                boresight_rad: Vector3::repeat(0.01),
+                lever_arm_m: Vector3::repeat(0.02),
+            },
+            gyro_monitor,
+            accel_monitor,
+        }
+    }
+}
+
+/// Counters of what the fusion did.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct FusionCounts {
+    pub sample_sets: u64,
+    /// Filter intervals (aligning or navigating).
+    pub intervals: u64,
+    /// Sets without a fused output (no healthy unit present).
+    pub sets_without_output: u64,
+    pub filter_steps: u64,
+    pub gnss_fused: u32,
+    /// Fixes not fused: too old, no 3-D solution, or before the filter started.
+    pub gnss_skipped: u32,
+    pub zero_velocity_updates: u32,
+    pub calibration_updates: u32,
+    /// The mechanization refused a step, and the filter started over.
+    pub restarts: u32,
+    /// Position and velocity reset to GNSS after the gate refused it too long.
+    pub gnss_resets: u32,
+}
+
+/// Sums over one filter interval.
+#[derive(Debug, Clone, Copy, Default)]
+struct Interval {
+    rate_sum: Vector3<f32>,
+    force_sum: Vector3<f32>,
+    sets: u32,
+}
+
+/// Sums over one calibration interval: the fused reference and each extra unit in its
+/// own axes, de-biased against the set.
+#[derive(Debug, Clone, Copy, Default)]
+struct CalibrationWindow {
+    rate_sum: Vector3<f32>,
+    force_sum: Vector3<f32>,
+    unit_rate_sum: [Vector3<f32>; UNITS - 1],
+    unit_force_sum: [Vector3<f32>; UNITS - 1],
+    /// Sets in the sums that had every unit.
+    sets: u32,
+    filter_steps: u32,
+}
+
+/// A calibration window's means, carried through the differentiator.
+#[derive(Debug, Clone, Copy)]
+struct WindowMeans {
+    force: Vector3<f32>,
+    unit_rate: [Vector3<f32>; UNITS - 1],
+    unit_force: [Vector3<f32>; UNITS - 1],
+    sets: u32,
+}
+
+/// Standstill test on the filter interval's means.
+#[derive(Debug, Clone, Copy, Default)]
+struct Stillness {
+    slow_rate: Vector3<f32>,
+    slow_force: Vector3<f32>,
+    rate_deviation2: f32,
+    force_deviation2: f32,
+    started: bool,
+}
+
+/// The fusion (see the module's note).
+pub struct BoardFusion {
+    config: FusionConfig,
+    /// Board-model alignment of each unit: C_b^k and lever arm (body axes, m).
+    model_alignment: [(Matrix3<f32>, Vector3<f32>); UNITS],
+    gyro_noise_model: FusedNoise,
+    accel_noise_model: FusedNoise,
+    gyro_monitor: FaultMonitor<UNITS>,
+    accel_monitor: FaultMonitor<UNITS>,
+    gyro_live: LiveNoise<UNITS>,
+    accel_live: LiveNoise<UNITS>,
+    previous_raw: [Option<UnitReading>; UNITS],
+    alignment: Alignment,
+    filter: Option<BoardFilter>,
+    interval: Interval,
+    window: CalibrationWindow,
+    differentiator: RateDifferentiator<f32, WindowMeans>,
+    stillness: Stillness,
+    still: bool,
+    /// Consecutive fixes whose position was refused.
+    gnss_refused: u32,
+    counts: FusionCounts,
+}
+
+impl BoardFusion {
+    /// A fusion of the units of `model` (its first three, in order: the header's IMUs).
+    pub fn new(config: FusionConfig, model: &BoardModel) -> Self {
+        let alignment_of = |k: usize| {
+            model
+                .units
+                .get(k)
+                .map_or((Matrix3::identity(), Vector3::zeros()), |u| {
+                    let [r, p, y] = u.rotation_rpy_rad;
+                    let c = UnitQuaternion::from_euler_angles(r, p, y)
+                        .to_rotation_matrix()
+                        .into_inner();
+                    (c, Vector3::from(u.lever_arm_m))
+                })
+        };
+        let thresholds = MotionThresholds::default();
+        let units = &model.units[..model.units.len().min(UNITS)];
+        Self {
+            model_alignment: core::array::from_fn(alignment_of),
+            gyro_noise_model: fused_noise(units, false),
+            accel_noise_model: fused_noise(units, true),
+            gyro_monitor: FaultMonitor::new(config.gyro_monitor),
+            accel_monitor: FaultMonitor::new(config.accel_monitor),
+            gyro_live: LiveNoise::new(
+                config.sample_interval_s,
+                config.live_time_constant_s,
+                thresholds,
+            ),
+            accel_live: LiveNoise::new(
+                config.sample_interval_s,
+                config.live_time_constant_s,
+                thresholds,
+            ),
+            previous_raw: [None; UNITS],
+            alignment: Alignment::new(config.heading_speed_change_m_s),
+            filter: None,
+            interval: Interval::default(),
+            window: CalibrationWindow::default(),
+            differentiator: RateDifferentiator::new(),
+            stillness: Stillness::default(),
+            still: false,
+            gnss_refused: 0,
+            counts: FusionCounts::default(),
+            config,
+        }
+    }
+
+    /// What the fusion did so far.
+    pub fn counts(&self) -> &FusionCounts {
+        &self.counts
+    }
+
+    /// The running filter, once aligned.
+    pub fn filter(&self) -> Option<&BoardFilter> {
+        self.filter.as_ref()
+    }
+
+    /// Whether the platform is taken to be at rest.
+    pub fn still(&self) -> bool {
+        self.still
+    }
+
+    /// Unit k's alignment: C_b^k (body to unit axes) and lever arm (body axes, m).
+    fn alignment_of(&self, k: usize) -> (Matrix3<f32>, Vector3<f32>) {
+        match (k, &self.filter) {
+            (1.., Some(filter)) => filter
+                .ekf
+                .calibration(k - 1)
+                .map_or(self.model_alignment[k], |c| (c.c_b_s(), c.lever_arm_b_m)),
+            _ => self.model_alignment[k],
+        }
+    }
+
+    /// One sample set taken at `t_us` (None: the unit's sample is missing).
+    pub fn push_set(
+        &mut self,
+        t_us: u64,
+        readings: &[Option<UnitReading>; UNITS],
+        out: &mut impl FnMut(FusionOutput),
+    ) {
+        self.counts.sample_sets += 1;
+        let alignment: [(Matrix3<f32>, Vector3<f32>); UNITS] =
+            core::array::from_fn(|k| self.alignment_of(k));
+        // A stuck unit is seen in what it put out, per sensor.
+        let previous = self.previous_raw;
+        let repeated = |same: fn(&UnitReading, &UnitReading) -> bool| -> [bool; UNITS] {
+            core::array::from_fn(
+                |k| matches!((&readings[k], &previous[k]), (Some(a), Some(b)) if same(a, b)),
+            )
+        };
+        let gyro_repeated = repeated(|a, b| a.gyro_rad_s == b.gyro_rad_s);
+        let accel_repeated = repeated(|a, b| a.accel_m_s2 == b.accel_m_s2);
+        self.previous_raw = *readings;
+
+        let gyro_body: [Option<[f32; 3]>; UNITS] = core::array::from_fn(|k| {
+            readings[k].map(|u| (alignment[k].0.transpose() * Vector3::from(u.gyro_rad_s)).into())
+        });
+        let gyro_step = self.gyro_monitor.push_marked(&gyro_body, &gyro_repeated);
+        let fused_rate = self.gyro_monitor.fused(&gyro_body).map(Vector3::from);
+        let omega = fused_rate.unwrap_or_else(Vector3::zeros);
+        let accel_body: [Option<[f32; 3]>; UNITS] = core::array::from_fn(|k| {
+            readings[k].map(|u| {
+                let (c, r) = alignment[k];
+                let at_origin =
+                    c.transpose() * Vector3::from(u.accel_m_s2) - omega.cross(&omega.cross(&r));
+                at_origin.into()
+            })
+        });
+        let accel_step = self.accel_monitor.push_marked(&accel_body, &accel_repeated);
+        let fused_force = self.accel_monitor.fused(&accel_body).map(Vector3::from);
+        self.report_faults(t_us, FaultFrame::SENSOR_GYRO, &gyro_step, out);
+        self.report_faults(t_us, FaultFrame::SENSOR_ACCEL, &accel_step, out);
+        if let (Some(g), Some(a)) = (all_present(&gyro_body), all_present(&accel_body)) {
+            self.gyro_live.push(&g, omega.into());
+            self.accel_live.push(&a, omega.into());
+        }
+
+        let (Some(rate), Some(force)) = (fused_rate, fused_force) else {
+            self.counts.sets_without_output += 1;
+            return;
+        };
+        self.interval.rate_sum += rate;
+        self.interval.force_sum += force;
+        self.interval.sets += 1;
+        self.add_to_window(readings, &alignment, rate, force);
+        if self.interval.sets >= self.config.filter_every {
+            let interval = core::mem::take(&mut self.interval);
+            self.filter_step(t_us, &interval, out);
+        }
+    }
+
+    /// Adds a set to the calibration window: the fused output and each extra unit in its
+    /// own axes less its bias relative to the set (see `InterImuSample::shares_reference_bias`).
+    fn add_to_window(
+        &mut self,
+        readings: &[Option<UnitReading>; UNITS],
+        alignment: &[(Matrix3<f32>, Vector3<f32>); UNITS],
+        rate: Vector3<f32>,
+        force: Vector3<f32>,
+    ) {
+        let Some(filter) = &self.filter else { return };
+        let all_in = (0..UNITS).all(|k| {
+            readings[k].is_some() && self.gyro_monitor.healthy(k) && self.accel_monitor.healthy(k)
+        });
+        if !all_in {
+            return;
+        }
+        let (gyro_bias, accel_bias) = (
+            filter.ekf.gyro_bias_b_rad_s(),
+            filter.ekf.accel_bias_b_m_s2(),
+        );
+        let w = &mut self.window;
+        w.rate_sum += rate;
+        w.force_sum += force;
+        for k in 1..UNITS {
+            let Some(u) = readings[k] else { continue };
+            let c = alignment[k].0;
+            let gyro_offset = Vector3::from(self.gyro_monitor.offset(k)) + gyro_bias;
+            let accel_offset = Vector3::from(self.accel_monitor.offset(k)) + accel_bias;
+            w.unit_rate_sum[k - 1] += Vector3::from(u.gyro_rad_s) - c * gyro_offset;
+            w.unit_force_sum[k - 1] += Vector3::from(u.accel_m_s2) - c * accel_offset;
+        }
+        w.sets += 1;
+    }
+
+    /// One filter interval, which ended at `t_us`: the alignment until the filter runs, then
+    /// the filter's step; noise levels on their own cadence either way.
+    fn filter_step(&mut self, t_us: u64, interval: &Interval, out: &mut impl FnMut(FusionOutput)) {
+        let sets = interval.sets.max(1) as f32;
+        let dt_s = self.config.sample_interval_s * sets;
+        let mean_rate = interval.rate_sum / sets;
+        let mean_force = interval.force_sum / sets;
+        self.update_stillness(mean_rate, mean_force, dt_s);
+        self.counts.intervals += 1;
+        if self.filter.is_some() {
+            self.navigate(t_us, interval, dt_s, out);
+        } else {
+            self.alignment.push(mean_rate, mean_force, dt_s, self.still);
+        }
+        if self
+            .counts
+            .intervals
+            .is_multiple_of(u64::from(self.config.noise_every))
+        {
+            out(FusionOutput::Noise(self.noise_frame(t_us)));
+        }
+    }
+
+    /// The running filter's step over `interval` (`dt_s` long, ended at `t_us`).
+    fn navigate(
+        &mut self,
+        t_us: u64,
+        interval: &Interval,
+        dt_s: f32,
+        out: &mut impl FnMut(FusionOutput),
+    ) {
+        let (gyro_psd, accel_psd) = live_psds(
+            (&self.gyro_live, &self.gyro_monitor, &self.gyro_noise_model),
+            (
+                &self.accel_live,
+                &self.accel_monitor,
+                &self.accel_noise_model,
+            ),
+            self.config.sample_interval_s,
+        );
+        let Some(filter) = &mut self.filter else {
+            return;
+        };
+        self.counts.filter_steps += 1;
+        filter.ekf.set_sensor_noise_psd(accel_psd, gyro_psd);
+        let interval_s = self.config.sample_interval_s;
+        if filter
+            .propagate(
+                interval.rate_sum * interval_s,
+                interval.force_sum * interval_s,
+                dt_s,
+            )
+            .is_err()
+        {
+            self.counts.restarts += 1;
+            self.filter = None;
+            return;
+        }
+        let steps = self.counts.filter_steps;
+        if self.still && steps.is_multiple_of(u64::from(self.config.calibration_every)) {
+            filter.fuse_zero_velocity(self.config.zupt_sigma_m_s);
+            filter.correct();
+            self.counts.zero_velocity_updates += 1;
+        }
+        self.window.filter_steps += 1;
+        if self.window.filter_steps >= self.config.calibration_every {
+            self.calibrate(dt_s * self.window.filter_steps as f32);
+        }
+        if steps.is_multiple_of(u64::from(self.config.state_every)) {
+            if let Some(state) = self.filter_state(t_us) {
+                out(FusionOutput::State(state));
+            }
+        }
+    }
+
+    /// The inter-IMU update on the window just closed, `window_s` long.
+    fn calibrate(&mut self, window_s: f32) {
+        let w = core::mem::take(&mut self.window);
+        let Some(filter) = &mut self.filter else {
+            return;
+        };
+        if w.sets == 0 {
+            // A gap: the differentiator starts over.
+            self.differentiator
+                .push(0.0, Vector3::zeros(), empty_means());
+            return;
+        }
+        let n = w.sets as f32;
+        let means = WindowMeans {
+            force: w.force_sum / n - filter.ekf.accel_bias_b_m_s2(),
+            unit_rate: w.unit_rate_sum.map(|s| s / n),
+            unit_force: w.unit_force_sum.map(|s| s / n),
+            sets: w.sets,
+        };
+        let rate = w.rate_sum / n - filter.ekf.gyro_bias_b_rad_s();
+        let Some((omega, omega_dot, m)) = self.differentiator.push(window_s, rate, means) else {
+            return;
+        };
+        let per_set = |live: &LiveNoise<UNITS>, k: usize| live.sigma(k) * live.sigma(k);
+        let m_sets = m.sets.max(1) as f32;
+        for k in 1..UNITS {
+            let rate_var = (per_set(&self.gyro_live, k) + per_set(&self.gyro_live, 0)) / m_sets;
+            let force_var = (per_set(&self.accel_live, k) + per_set(&self.accel_live, 0)) / m_sets;
+            let sigma_rate = rate_var
+                .sqrt()
+                .max(self.config.calibration_rate_floor_rad_s);
+            let sigma_force = force_var
+                .sqrt()
+                .max(self.config.calibration_force_floor_m_s2);
+            let sample = InterImuSample {
+                omega_ib_b_rad_s: omega,
+                omega_dot_ib_b_rad_s2: omega_dot,
+                f_b_m_s2: m.force,
+                omega_is_s_rad_s: m.unit_rate[k - 1],
+                f_s_m_s2: m.unit_force[k - 1],
+                shares_reference_bias: true,
+            };
+            filter.fuse_inter_imu(
+                k - 1,
+                &sample,
+                &Vector3::repeat(sigma_rate),
+                &Vector3::repeat(sigma_force),
+            );
+        }
+        filter.correct();
+        self.counts.calibration_updates += 1;
+    }
+
+    /// Updates the standstill test with one filter interval's means.
+    fn update_stillness(&mut self, rate: Vector3<f32>, force: Vector3<f32>, dt_s: f32) {
+        let s = &mut self.stillness;
+        if !s.started {
+            s.slow_rate = rate;
+            s.slow_force = force;
+            s.started = true;
+        }
+        let alpha = (dt_s / 0.5).min(1.0);
+        s.slow_rate += (rate - s.slow_rate) * alpha;
+        s.slow_force += (force - s.slow_force) * alpha;
+        s.rate_deviation2 += ((rate - s.slow_rate).norm_squared() - s.rate_deviation2) * alpha;
+        s.force_deviation2 += ((force - s.slow_force).norm_squared() - s.force_deviation2) * alpha;
+        // The means' own noise: three axes of the fused per-sample noise over the interval.
+        let sets = (dt_s / self.config.sample_interval_s).max(1.0);
+        let noise = |live: &LiveNoise<UNITS>| {
+            let fused = (0..UNITS).map(|k| live.sigma(k)).fold(0.0f32, f32::max);
+            3.0 * fused * fused / sets
+        };
+        let rate_limit = self.config.still_rate_rad_s.powi(2) + noise(&self.gyro_live);
+        let force_limit = self.config.still_force_m_s2.powi(2) + noise(&self.accel_live);
+        let slow = self
+            .filter
+            .as_ref()
+            .is_none_or(|f| f.state().v_ned_m_s.norm() < self.config.still_speed_m_s);
+        self.still = slow && s.rate_deviation2 < rate_limit && s.force_deviation2 < force_limit;
+    }
+
+    /// A GNSS solution that arrived at `t_us`.
+    pub fn push_gnss(&mut self, t_us: u64, fix: &GnssFix) {
+        if !(fix.fix_type == 3 || fix.fix_type == 4) {
+            self.counts.gnss_skipped += 1;
+            return;
+        }
+        let age_s = t_us.saturating_sub(fix.t_us) as f32 * 1e-6;
+        if age_s > self.config.gnss_max_age_s || fix.t_us > t_us.saturating_add(100_000) {
+            self.counts.gnss_skipped += 1;
+            return;
+        }
+        let Some(filter) = &mut self.filter else {
+            if let Some(start) = self.alignment.on_fix(fix, self.still) {
+                self.start(&start);
+            }
+            self.counts.gnss_skipped += 1;
+            return;
+        };
+        let position = moved_forward(fix, age_s);
+        let sigma_h = fix.pos_sigma_m.max(0.1);
+        let sigma_p = Vector3::new(sigma_h, sigma_h, sigma_h * self.config.gnss_vertical_factor);
+        let velocity = Vector3::from(fix.vel_ned_m_s);
+        let sigma_vh = fix.vel_sigma_m_s.max(0.02);
+        let sigma_v = Vector3::new(
+            sigma_vh,
+            sigma_vh,
+            sigma_vh * self.config.gnss_vertical_factor,
+        );
+        let batch = filter.fuse_gnss_position(position.0, position.1, position.2, &sigma_p);
+        self.gnss_refused = if batch.rejected > 0 {
+            self.gnss_refused + 1
+        } else {
+            0
+        };
+        if self.gnss_refused >= self.config.gnss_reset_after {
+            filter.reset_position_velocity(position, velocity, &sigma_p, &sigma_v);
+            self.gnss_refused = 0;
+            self.counts.gnss_resets += 1;
+        } else {
+            filter.fuse_gnss_velocity(&velocity, &sigma_v);
+        }
+        filter.correct();
+        self.counts.gnss_fused += 1;
+    }
+
+    /// Starts the filter at an alignment's result.
+    fn start(&mut self, start: &Start) {
+        let mut config = self.config.ekf;
+        config.gyro_bias_psd = self.gyro_noise_model.bias_psd;
+        config.gyro_bias_inv_tau_s = self.gyro_noise_model.bias_inv_tau_s;
+        config.accel_bias_psd = self.accel_noise_model.bias_psd;
+        config.accel_bias_inv_tau_s = self.accel_noise_model.bias_inv_tau_s;
+        let mut initial = self.config.initial;
+        initial.attitude_rad.z = start.heading_sigma_rad;
+        let fix = &start.fix;
+        let sigma_h = fix.pos_sigma_m.max(0.1);
+        initial.position_m =
+            Vector3::new(sigma_h, sigma_h, sigma_h * self.config.gnss_vertical_factor);
+        initial.velocity_m_s = Vector3::repeat(fix.vel_sigma_m_s.max(0.02));
+        if self.accel_noise_model.bias_sigma > 0.0 {
+            initial.accel_bias_m_s2 = Vector3::repeat(self.accel_noise_model.bias_sigma);
+        }
+        let state = NavState {
+            q_nb: start.q_nb,
+            v_ned_m_s: Vector3::from(fix.vel_ned_m_s),
+            lat_rad: fix.lat_rad,
+            lon_rad: fix.lon_rad,
+            h_m: fix.h_m,
+        };
+        let mut ekf = ErrorStateEkf::new(config, initial);
+        ekf.set_biases(Vector3::zeros(), start.gyro_bias_rad_s);
+        for k in 1..UNITS {
+            let (c, r) = self.model_alignment[k];
+            let q = UnitQuaternion::from_matrix(&c);
+            ekf.set_calibration(
+                k - 1,
+                InterImuCalibration {
+                    q_b_to_s: q,
+                    lever_arm_b_m: r,
+                },
+            );
+        }
+        self.filter = Some(InsEkf::new(Strapdown::new(state), ekf));
+        self.window = CalibrationWindow::default();
+        self.differentiator = RateDifferentiator::new();
+    }
+
+    /// The filter's state for the log.
+    fn filter_state(&self, t_us: u64) -> Option<FilterState> {
+        let filter = self.filter.as_ref()?;
+        let s = filter.state();
+        let ekf = &filter.ekf;
+        let sigma3 = |first: usize| -> [f32; 3] {
+            core::array::from_fn(|a| ekf.sigma(first + a).unwrap_or(f32::NAN))
+        };
+        let q = s.q_nb.quaternion();
+        Some(FilterState {
+            t_us,
+            imu_id: FUSED_LANE_ID,
+            q_nb: [q.w, q.i, q.j, q.k],
+            vel_ned_m_s: s.v_ned_m_s.into(),
+            lat_rad: s.lat_rad,
+            lon_rad: s.lon_rad,
+            h_m: s.h_m,
+            gyro_bias_rad_s: ekf.gyro_bias_b_rad_s().into(),
+            accel_bias_m_s2: ekf.accel_bias_b_m_s2().into(),
+            attitude_sigma_rad: sigma3(ATT),
+            vel_sigma_m_s: sigma3(VEL),
+            pos_sigma_m: sigma3(POS),
+            gyro_bias_sigma_rad_s: sigma3(GYRO_BIAS),
+            accel_bias_sigma_m_s2: sigma3(ACCEL_BIAS),
+        })
+    }
+
+    /// Each unit's live noise level and which units are in use.
+    fn noise_frame(&self, t_us: u64) -> NoiseFrame {
+        let mut frame = NoiseFrame {
+            t_us,
+            gyro_sigma_rad_s: [f32::NAN; MAX_IMUS],
+            accel_sigma_m_s2: [f32::NAN; MAX_IMUS],
+            in_use: 0,
+            still: self.still,
+        };
+        for k in 0..UNITS.min(MAX_IMUS) {
+            frame.gyro_sigma_rad_s[k] = self.gyro_live.sigma(k);
+            frame.accel_sigma_m_s2[k] = self.accel_live.sigma(k);
+            frame.in_use |= u8::from(self.gyro_monitor.healthy(k)) << k;
+            frame.in_use |= u8::from(self.accel_monitor.healthy(k)) << (3 + k);
+        }
+        frame
+    }
+
+    /// Fault frames for what a monitor confirmed and readmitted at this set.
+    fn report_faults(
+        &self,
+        t_us: u64,
+        sensor: u8,
+        step: &Step,
+        out: &mut impl FnMut(FusionOutput),
+    ) {
+        let interval_us = (self.config.sample_interval_s * 1e6) as u64;
+        for event in &step.confirmed {
+            out(FusionOutput::Fault(fault_frame(
+                t_us,
+                interval_us,
+                sensor,
+                event,
+            )));
+        }
+        for k in 0..UNITS {
+            if step.readmitted & (1 << k) != 0 {
+                out(FusionOutput::Fault(FaultFrame {
+                    t_us,
+                    detected_t_us: t_us,
+                    sensor,
+                    unit: Some(k as u8),
+                    axis: None,
+                    kind: FaultFrame::KIND_READMITTED,
+                }));
+            }
+        }
+    }
+}
+
+/// The monitor's event as a log frame; `interval_us` between sample sets.
+fn fault_frame(t_us: u64, interval_us: u64, sensor: u8, event: &FaultEvent) -> FaultFrame {
+    let sets_before = u64::from(event.confirmed_sample.saturating_sub(event.detected_sample));
+    FaultFrame {
+        t_us,
+        detected_t_us: t_us.saturating_sub(sets_before * interval_us),
+        sensor,
+        unit: event.unit,
+        axis: event.axis,
+        kind: event.kind as u8,
+    }
+}
+
+/// The triads when every unit has one.
+fn all_present(triads: &[Option<[f32; 3]>; UNITS]) -> Option<[[f32; 3]; UNITS]> {
+    let mut all = [[0.0; 3]; UNITS];
+    for (slot, t) in all.iter_mut().zip(triads) {
+        *slot = (*t)?;
+    }
+    Some(all)
+}
+
+/// The white-noise PSDs (gyro, accelerometer) of the fused output: from the units in use
+/// and their live levels (per sample, so the PSD is the variance times the interval), or
+/// the model's where a level is not known yet.
+fn live_psds(
+    gyro: (&LiveNoise<UNITS>, &FaultMonitor<UNITS>, &FusedNoise),
+    accel: (&LiveNoise<UNITS>, &FaultMonitor<UNITS>, &FusedNoise),
+    sample_interval_s: f32,
+) -> (f32, f32) {
+    let psd = |(live, monitor, model): (&LiveNoise<UNITS>, &FaultMonitor<UNITS>, &FusedNoise)| {
+        let mut information = 0.0f32;
+        for k in (0..UNITS).filter(|&k| monitor.healthy(k)) {
+            let variance = live.sigma(k) * live.sigma(k);
+            if variance <= 0.0 {
+                return model.white_psd;
+            }
+            information += 1.0 / variance;
+        }
+        if information > 0.0 {
+            sample_interval_s / information
+        } else {
+            model.white_psd
+        }
+    };
+    (psd(gyro), psd(accel))
+}
+
+/// A fix's position carried `age_s` forward along its velocity: lat, lon (rad), h (m).
+fn moved_forward(fix: &GnssFix, age_s: f32) -> (f64, f64, f32) {
+    let r = radii(fix.lat_rad);
+    let [vn, ve, vd] = fix.vel_ned_m_s.map(|v| f64::from(v * age_s));
+    let h = f64::from(fix.h_m);
+    (
+        fix.lat_rad + vn / (r.meridian_m + h),
+        fix.lon_rad + ve / ((r.transverse_m + h) * fix.lat_rad.cos()),
+        fix.h_m - vd as f32,
+    )
+}
+
+fn empty_means() -> WindowMeans {
+    WindowMeans {
+        force: Vector3::zeros(),
+        unit_rate: [Vector3::zeros(); UNITS - 1],
+        unit_force: [Vector3::zeros(); UNITS - 1],
+        sets: 0,
+    }
+}
+
+#[cfg(test)]
+mod tests;
