@@ -1,4 +1,5 @@
-//! dynacal firmware: records three IMUs and GNSS PPS edges into the dynacal log.
+//! dynacal firmware: records three IMUs, GNSS and PPS edges into the dynacal log, and fuses
+//! them on the board (`dynacal_core::fusion`) with the board model it is given.
 //!
 //! The application (`dynacal_core::recorder::Recorder`) is board-agnostic; this crate adds
 //! the board layer (`board::*`, one board per cargo feature), start-up, cost measurement
@@ -32,7 +33,7 @@ mod bare_metal {
             calibration.instructions
         );
         let mut parts = board::init();
-        let recorder = Recorder::new(parts.header);
+        let recorder = Recorder::new(parts.header).with_fusion(parts.model);
         let result = recorder.run(&mut parts.source, &mut parts.sink, &mut clock);
         board::finish(result, &calibration, &mut parts.sink)
     }

@@ -24,8 +24,8 @@ use std::io::{self, Read};
 use std::path::{Path, PathBuf};
 
 use dynacal_core::log::{
-    FilterState, Frame, GnssFix, Header, Health, ImuConfig, LogAccumulator, LogError, PpsEvent,
-    StreamStats, WvFrame, PROTOCOL_VERSION,
+    FaultFrame, FilterState, Frame, GnssFix, Header, Health, ImuConfig, LogAccumulator, LogError,
+    NoiseFrame, PpsEvent, StreamStats, WvFrame, PROTOCOL_VERSION,
 };
 use serde::{Deserialize, Serialize};
 
@@ -187,6 +187,9 @@ pub struct DecodedLog {
     pub gnss: Vec<GnssFix>,
     pub filter: Vec<FilterState>,
     pub health: Vec<Health>,
+    /// The fusion's noise reports and fault events, in log order.
+    pub noise: Vec<NoiseFrame>,
+    pub faults: Vec<FaultFrame>,
     /// WaveletVariance frames of IMUs and channels the header lists, in log order.
     pub wavelet_variance: Vec<WvFrame>,
     /// WaveletVariance frames before the first header, for an IMU id the header does not
@@ -320,6 +323,8 @@ impl DecodedLog {
             Frame::Gnss(fix) => self.gnss.push(fix),
             Frame::Filter(state) => self.filter.push(state),
             Frame::Health(health) => self.health.push(health),
+            Frame::Noise(noise) => self.noise.push(noise),
+            Frame::Fault(fault) => self.faults.push(fault),
             Frame::WaveletVariance(wv) => {
                 let known = self.header.is_some()
                     && wv.channel().is_some()
@@ -463,6 +468,8 @@ impl DecodedLog {
             pps_events: self.pps.len() as u64,
             gnss_fixes: self.gnss.len() as u64,
             filter_states: self.filter.len() as u64,
+            noise_reports: self.noise.len() as u64,
+            fault_events: self.faults.len() as u64,
             health_reports: self.health.len() as u64,
             wavelet_variance_frames: self.wavelet_variance.len() as u64,
             wv_frames_unknown: self.wv_frames_unknown,
@@ -498,6 +505,8 @@ pub struct LogSummary {
     pub pps_events: u64,
     pub gnss_fixes: u64,
     pub filter_states: u64,
+    pub noise_reports: u64,
+    pub fault_events: u64,
     pub health_reports: u64,
     /// WaveletVariance frames kept (the latest per IMU channel goes to `wv.json`).
     pub wavelet_variance_frames: u64,

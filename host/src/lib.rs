@@ -4,6 +4,7 @@
 //! The `dynacal` binary is a thin command-line layer over this library; errors here are
 //! typed (`thiserror`), `anyhow` appears only in the binary.
 
+pub mod board_log;
 pub mod calibration;
 pub mod decode;
 pub mod diagnose;

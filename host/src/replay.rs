@@ -373,6 +373,10 @@ pub struct RunReport {
     pub imu_sample_sets: u64,
     pub pps_edges: u64,
     pub health_reports: u64,
+    /// Filter, Noise and Fault frames of the on-board fusion.
+    pub filter_states: u64,
+    pub noise_reports: u64,
+    pub fault_reports: u64,
     pub frames_written: u64,
     pub bytes_written: u64,
     pub frames_dropped: u64,
@@ -382,6 +386,11 @@ pub struct RunReport {
     pub source_instructions: u64,
     /// Instructions from the log header to the final flush.
     pub total_instructions: u64,
+    /// Instructions in the fusion (part of `record_instructions`), and of those the ones
+    /// while its filter ran, over `navigating_sample_sets` sample sets.
+    pub fusion_instructions: u64,
+    pub navigating_fusion_instructions: u64,
+    pub navigating_sample_sets: u64,
 }
 
 impl RunReport {
@@ -400,23 +409,45 @@ impl RunReport {
                 "imu_sample_sets" => &mut report.imu_sample_sets,
                 "pps_edges" => &mut report.pps_edges,
                 "health_reports" => &mut report.health_reports,
+                "filter_states" => &mut report.filter_states,
+                "noise_reports" => &mut report.noise_reports,
+                "fault_reports" => &mut report.fault_reports,
                 "frames_written" => &mut report.frames_written,
                 "bytes_written" => &mut report.bytes_written,
                 "frames_dropped" => &mut report.frames_dropped,
                 "record_instructions" => &mut report.record_instructions,
                 "source_instructions" => &mut report.source_instructions,
                 "total_instructions" => &mut report.total_instructions,
+                "fusion_instructions" => &mut report.fusion_instructions,
+                "navigating_fusion_instructions" => &mut report.navigating_fusion_instructions,
+                "navigating_sample_sets" => &mut report.navigating_sample_sets,
                 _ => continue,
             };
             *slot = value.parse().ok()?;
             seen += 1;
         }
-        (seen == 9).then_some(report)
+        (seen == 15).then_some(report)
     }
 
     /// Instructions per IMU sample set in the application's own work (framing + sink).
     pub fn record_instructions_per_sample(&self) -> f64 {
         self.record_instructions as f64 / self.imu_sample_sets.max(1) as f64
+    }
+
+    /// Instructions per second of data of the board's own work with its filter running:
+    /// recording (framing, accumulators, log sink) at its mean over the run, and the
+    /// fusion's cost per sample set while navigating, at `sample_rate_hz` sets a second.
+    /// None before the filter ever ran.
+    pub fn steady_instructions_per_second(&self, span_s: f64, sample_rate_hz: f64) -> Option<f64> {
+        if self.navigating_sample_sets == 0 || span_s <= 0.0 {
+            return None;
+        }
+        let recording = self
+            .record_instructions
+            .saturating_sub(self.fusion_instructions);
+        let fusion_per_set =
+            self.navigating_fusion_instructions as f64 / self.navigating_sample_sets as f64;
+        Some(recording as f64 / span_s + fusion_per_set * sample_rate_hz)
     }
 
     /// Instructions per IMU sample set over the whole run (source, framing, sink).
@@ -437,15 +468,17 @@ pub struct QemuRun {
     pub wall_time: Duration,
 }
 
-/// Runs the replay firmware `elf` in QEMU on `input`, writing the log to `log`
-/// (paths must not contain spaces: semihosting joins arguments with them). Fails unless
-/// the guest exits 0 and prints its run report.
+/// Runs the replay firmware `elf` in QEMU on `input`, writing the log to `log`, the fusion
+/// running `model` (a `board-model.bin`; None: the built-in model). Paths must not contain
+/// spaces: semihosting joins arguments with them. Fails unless the guest exits 0 and
+/// prints its run report.
 pub fn run_replay_in_qemu(
     elf: &Path,
     input: &Path,
     log: &Path,
+    model: Option<&Path>,
 ) -> Result<QemuRun, ReplayFileError> {
-    for path in [elf, input, log] {
+    for path in [elf, input, log].into_iter().chain(model) {
         if path.to_string_lossy().contains([' ', '\t']) {
             return Err(ReplayFileError::Tool(format!(
                 "{}: semihosting cannot pass a path containing a space",
@@ -454,11 +487,14 @@ pub fn run_replay_in_qemu(
         }
     }
     let arg = |p: &Path| p.to_string_lossy().replace(',', ",,");
-    let semihosting = format!(
+    let mut semihosting = format!(
         "enable=on,target=native,arg=dynacal-firmware,arg={},arg={}",
         arg(input),
         arg(log)
     );
+    if let Some(model) = model {
+        semihosting.push_str(&format!(",arg={}", arg(model)));
+    }
     let started = Instant::now();
     let output = Command::new("qemu-system-arm")
         .args(QEMU_BOARD_ARGS)

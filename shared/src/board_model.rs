@@ -246,6 +246,18 @@ mod tests {
         );
     }
 
+    /// In flash a blob is followed by erased bytes (0xFF), and a blob of fewer units is
+    /// shorter than the span the board reads: the model still reads.
+    #[test]
+    fn a_model_followed_by_erased_flash_reads() {
+        let mut model = refitted();
+        model.units.truncate(2);
+        let mut bytes = blob(&model);
+        assert!(bytes.len() < MAX_BOARD_MODEL_LEN);
+        bytes.resize(MAX_BOARD_MODEL_LEN + 64, 0xFF);
+        assert_eq!(BoardModel::decode(&bytes), Ok(model));
+    }
+
     /// Every kind of bad blob is refused with its reason and the built-in model is kept.
     #[test]
     fn bad_blobs_are_refused_with_the_reason() {

@@ -136,6 +136,12 @@ pub struct RecorderStats {
     pub filter_states: u64,
     pub noise_reports: u64,
     pub fault_reports: u64,
+    /// Ticks spent in the fusion (part of `record_ticks`).
+    pub fusion_ticks: u64,
+    /// Of those, ticks while its filter was running, and the sample sets fused meanwhile:
+    /// the fusion's cost in its steady state.
+    pub navigating_fusion_ticks: u64,
+    pub navigating_sample_sets: u64,
     /// Frames the sink took.
     pub frames_written: u64,
     /// Bytes of the frames the sink took.
@@ -331,7 +337,7 @@ impl Recorder {
                         *last = sample.t_us;
                     }
                     if let Some(imu) = self.header.imus.get(index) {
-                        run.fuse_sample(index, &sample, imu)?;
+                        run.fuse_sample(index, &sample, imu, clock)?;
                     }
                 }
                 SourceEvent::Pps(pps) => {
@@ -350,7 +356,14 @@ impl Recorder {
                         run.emit(&Frame::Gnss(fix))?;
                         run.stats.gnss_fixes += 1;
                         if let Some(f) = &mut run.fusion {
+                            let start = clock.now_ticks();
+                            let navigating = f.fusion.filter().is_some();
                             f.fusion.push_gnss(t_us, &fix);
+                            let ticks = clock.now_ticks().saturating_sub(start);
+                            run.stats.fusion_ticks += ticks;
+                            if navigating {
+                                run.stats.navigating_fusion_ticks += ticks;
+                            }
                         }
                         if fix.fix_type == 3 || fix.fix_type == 4 {
                             last_fix_t_us = Some(t_us);
@@ -363,7 +376,7 @@ impl Recorder {
 
         let final_start = clock.now_ticks();
         if let Some(set) = run.fusion.as_mut().and_then(|f| f.sets.finish()) {
-            run.fuse_set(set)?;
+            run.fuse_set(set, clock)?;
         }
         run.emit_wv(&self.header)?;
         let health = self.health(
@@ -448,9 +461,13 @@ struct Fusion {
     sets: SetAssembler,
 }
 
-/// A sample's counts in SI units, by its IMU's scale factors.
+/// A sample's counts in SI units, by its IMU's scale factors. In f32: the fusion's own
+/// precision, and f64 arithmetic runs in software on the Cortex-M4F.
 fn reading_of(sample: &ImuSampleSet, imu: &ImuConfig) -> UnitReading {
-    let si = |counts: &[i32; 3], scale: f64| counts.map(|c| (f64::from(c) * scale) as f32);
+    let si = |counts: &[i32; 3], scale: f64| {
+        let scale = scale as f32;
+        counts.map(|c| c as f32 * scale)
+    };
     UnitReading {
         gyro_rad_s: si(&sample.gyro_counts, imu.gyro_scale_rad_s_per_count),
         accel_m_s2: si(&sample.accel_counts, imu.accel_scale_m_s2_per_count),
@@ -464,12 +481,13 @@ impl<K: LogSink> Run<'_, K> {
         index: usize,
         sample: &ImuSampleSet,
         imu: &ImuConfig,
+        clock: &mut impl TickClock,
     ) -> Result<(), RecorderError<S, K::Error>> {
         let Some(f) = &mut self.fusion else {
             return Ok(());
         };
         match f.sets.push(index, sample.t_us, reading_of(sample, imu)) {
-            Some(set) => self.fuse_set(set),
+            Some(set) => self.fuse_set(set, clock),
             None => Ok(()),
         }
     }
@@ -478,16 +496,25 @@ impl<K: LogSink> Run<'_, K> {
     fn fuse_set<S>(
         &mut self,
         (t_us, readings): crate::fusion::sets::SampleSet,
+        clock: &mut impl TickClock,
     ) -> Result<(), RecorderError<S, K::Error>> {
         let Some(f) = &mut self.fusion else {
             return Ok(());
         };
+        let start = clock.now_ticks();
+        let navigating = f.fusion.filter().is_some();
         // At most a state, a noise report and, per sensor type, a confirmation and a
         // readmission of each unit.
         let mut outputs: heapless::Vec<FusionOutput, 16> = heapless::Vec::new();
         f.fusion.push_set(t_us, &readings, &mut |o| {
             let _ = outputs.push(o);
         });
+        let ticks = clock.now_ticks().saturating_sub(start);
+        self.stats.fusion_ticks += ticks;
+        if navigating {
+            self.stats.navigating_fusion_ticks += ticks;
+            self.stats.navigating_sample_sets += 1;
+        }
         for output in outputs {
             let frame = match output {
                 FusionOutput::State(s) => {

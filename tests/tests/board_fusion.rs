@@ -286,6 +286,9 @@ fn run_errors(seed: u64, true_noise: bool) -> DriveErrors {
     let (sim, log) = board_run(seed, true_noise);
     if std::env::var("DYNACAL_FUSION_TRACE").is_ok() {
         trace(&sim, &log.filter);
+        for f in &log.faults {
+            println!("fault {f:?}");
+        }
     }
     let e = drive_errors(&sim, &log.filter);
     println!("seed {seed}, true noise {true_noise}: {e:?}");

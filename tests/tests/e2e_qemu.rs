@@ -48,7 +48,7 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
 
     let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
     let log_path = dir.path().join("board.log");
-    let run = run_replay_in_qemu(&elf, &input_path, &log_path).unwrap();
+    let run = run_replay_in_qemu(&elf, &input_path, &log_path, None).unwrap();
     let report = run.report;
     eprintln!(
         "firmware: {} sample sets, {} frames, {} bytes, {:.1} instructions/sample recording, \
@@ -204,7 +204,7 @@ fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {
     // has the same length: the firmware prints it at start-up, which shifts SysTick's phase
     // and with it the load figures in the Health frames.)
     let log_again = dir.path().join("board.lo2");
-    let again = run_replay_in_qemu(&elf, &input_path, &log_again).unwrap();
+    let again = run_replay_in_qemu(&elf, &input_path, &log_again, None).unwrap();
     assert!(
         std::fs::read(&log_again).unwrap() == bytes,
         "the second run's log differs"
@@ -235,7 +235,7 @@ fn a_truncated_replay_input_fails_the_run_and_leaves_no_log() {
 
     let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
     let log_path = dir.path().join("board.log");
-    let err = run_replay_in_qemu(&elf, &input_path, &log_path)
+    let err = run_replay_in_qemu(&elf, &input_path, &log_path, None)
         .unwrap_err()
         .to_string();
     assert!(err.contains("exit status: 1"), "{err}");
@@ -274,7 +274,7 @@ fn the_board_logs_the_receivers_fixes_from_its_ubx_bytes() {
     std::fs::write(&input_path, board.replay_bytes().unwrap()).unwrap();
     let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
     let log_path = dir.path().join("board.log");
-    run_replay_in_qemu(&elf, &input_path, &log_path).unwrap();
+    run_replay_in_qemu(&elf, &input_path, &log_path, None).unwrap();
     let log = decode_file(&log_path).unwrap();
     assert_eq!(log.gnss.len(), board.gnss.len());
     for (logged, simulated) in log.gnss.iter().zip(&board.gnss) {

@@ -297,7 +297,7 @@ fn a_simulated_replay_passes_through_the_firmware_under_qemu_bit_exact() {
     input.write(&input_path).unwrap();
     let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
     let log_path = dir.path().join("board.log");
-    let qemu = run_replay_in_qemu(&elf, &input_path, &log_path).unwrap();
+    let qemu = run_replay_in_qemu(&elf, &input_path, &log_path, None).unwrap();
     assert_eq!(qemu.report.imu_sample_sets, 9000);
     assert_eq!(qemu.report.pps_edges, 3);
     let decoded = decode_file(&log_path).unwrap();

@@ -2,7 +2,10 @@
 //! from a recording instead of sensors.
 //!
 //! The semihosting command line names two host files: the replay input
-//! (`dynacal_core::replay` format) and the log to write. Both are accessed with semihosting
+//! (`dynacal_core::replay` format) and the log to write, and optionally a third: the board
+//! model (`board-model.bin`, `dynacal_core::board_model`) the fusion runs. A model that does
+//! not read (damaged, truncated, another version) is refused with its reason on stderr and
+//! the built-in model runs; a model file that cannot be opened at all is a usage error. Both are accessed with semihosting
 //! file calls; each call is a trap into QEMU, so input is read and output written in large
 //! chunks. The log is written to `OUT.part` and renamed to `OUT` only after a complete run,
 //! so a failed run never leaves a log that looks whole. The run report (counts and the
@@ -17,6 +20,7 @@
 use core::ffi::CStr;
 use core::fmt::Write as _;
 
+use dynacal_core::board_model::{BoardModel, MAX_BOARD_MODEL_LEN};
 use dynacal_core::log::ImuSampleSet;
 use dynacal_core::log::{Header, ImuConfig, PpsEvent, IMU_MODEL_LEN, MAX_IMUS, PROTOCOL_VERSION};
 use dynacal_core::recorder::{
@@ -55,43 +59,92 @@ pub struct Parts {
     pub header: Header,
     pub source: ReplaySource,
     pub sink: SemihostingSink,
+    /// The model the fusion runs.
+    pub model: BoardModel,
 }
 
 /// Reads the command line, opens both files and reads the replay header; on any failure
 /// prints why and exits.
 pub fn init() -> Parts {
-    let (input_path, output_path) = match command_line() {
+    let (input_path, output_path, model_path) = match command_line() {
         Ok(paths) => paths,
-        Err(message) => {
-            semihosting::eprintln!("dynacal-firmware: {message}");
-            semihosting::eprintln!("usage: dynacal-firmware REPLAY_INPUT LOG_OUTPUT");
-            semihosting::process::exit(EXIT_USAGE)
-        }
+        Err(message) => usage(&message),
     };
-    match open(input_path, output_path) {
+    let mut parts = match open(input_path, output_path) {
         Ok(parts) => parts,
         Err(message) => fail(&message),
+    };
+    let blob = model_path.map(|path| match read_model(&path) {
+        Ok(blob) => (path, blob),
+        Err(message) => usage(&message),
+    });
+    let ids: heapless::Vec<u8, MAX_IMUS> = parts.header.imus.iter().map(|i| i.imu_id).collect();
+    let (model, refused) =
+        BoardModel::load_or_built_in(blob.as_ref().map(|(_, b)| b.as_slice()), &ids);
+    match (&blob, refused) {
+        (Some((path, _)), Some(reason)) => {
+            semihosting::eprintln!(
+                "dynacal-firmware: board model {path} refused: {reason}; running the built-in model"
+            );
+        }
+        (Some((path, _)), None) => defmt::info!("board model {=str} loaded", path.as_str()),
+        (None, _) => defmt::info!("no board model given: running the built-in model"),
     }
+    parts.model = model;
+    parts
 }
 
-fn command_line() -> Result<(Path, Path), Message> {
+fn usage(message: &Message) -> ! {
+    semihosting::eprintln!("dynacal-firmware: {message}");
+    semihosting::eprintln!("usage: dynacal-firmware REPLAY_INPUT LOG_OUTPUT [BOARD_MODEL]");
+    semihosting::process::exit(EXIT_USAGE)
+}
+
+/// The board model file's bytes (at most one byte more than the largest model, so an
+/// oversized file is seen as such by the decoder rather than read short).
+fn read_model(path: &Path) -> Result<heapless::Vec<u8, { MAX_BOARD_MODEL_LEN + 1 }>, Message> {
+    let mut c_path = [0u8; MAX_PATH + 1];
+    let mut file = File::open(c_str(path, &mut c_path))
+        .map_err(|e| message(format_args!("{path}: cannot open the board model: {e}")))?;
+    let mut buf = [0u8; MAX_BOARD_MODEL_LEN + 1];
+    let mut len = 0;
+    while len < buf.len() {
+        match file.read(&mut buf[len..]) {
+            Ok(0) => break,
+            Ok(n) => len += n,
+            Err(e) => return Err(message(format_args!("{path}: read failed: {e}"))),
+        }
+    }
+    Ok(buf[..len].iter().copied().collect())
+}
+
+fn command_line() -> Result<(Path, Path, Option<Path>), Message> {
     let args = semihosting::experimental::env::args::<1024>().map_err(|e| {
         message(format_args!(
             "cannot read the semihosting command line: {e}"
         ))
     })?;
     let mut words = (&args).skip(1);
-    let mut next_path = |what: &str| -> Result<Path, Message> {
-        let word = words
-            .next()
-            .ok_or_else(|| message(format_args!("missing {what} path")))?
-            .map_err(|_| message(format_args!("{what} path is not UTF-8")))?;
-        Path::try_from(word)
-            .map_err(|_| message(format_args!("{what} path longer than {MAX_PATH} bytes")))
+    // None: no more words.
+    let mut next_path = |what: &str| -> Option<Result<Path, Message>> {
+        let word = words.next()?;
+        Some(
+            word.map_err(|_| message(format_args!("{what} path is not UTF-8")))
+                .and_then(|w| {
+                    Path::try_from(w).map_err(|_| {
+                        message(format_args!("{what} path longer than {MAX_PATH} bytes"))
+                    })
+                }),
+        )
     };
-    let input = next_path("replay input")?;
-    let output = next_path("log output")?;
-    Ok((input, output))
+    let missing = |what: &str| message(format_args!("missing {what} path"));
+    let input = next_path("replay input").ok_or_else(|| missing("replay input"))??;
+    let output = next_path("log output").ok_or_else(|| missing("log output"))??;
+    let model = next_path("board model").transpose()?;
+    if next_path("extra").is_some() {
+        return Err(message(format_args!("more than three paths given")));
+    }
+    Ok((input, output, model))
 }
 
 fn open(input_path: Path, output_path: Path) -> Result<Parts, Message> {
@@ -154,6 +207,9 @@ fn open(input_path: Path, output_path: Path) -> Result<Parts, Message> {
             path: output_path,
             buf: output_buf,
             len: 0,
+        },
+        model: BoardModel {
+            units: heapless::Vec::new(),
         },
     })
 }
@@ -418,18 +474,26 @@ pub fn finish(
     let _ = write!(
         line,
         "dynacal-firmware: run-report board={NAME} imu_sample_sets={} pps_edges={} \
-         health_reports={} frames_written={} bytes_written={} frames_dropped={} \
+         health_reports={} filter_states={} noise_reports={} fault_reports={} \
+         frames_written={} bytes_written={} frames_dropped={} \
          record_instructions={} source_instructions={} total_instructions={} \
+         fusion_instructions={} navigating_fusion_instructions={} navigating_sample_sets={} \
          calibration_instructions={} calibration_ticks={}",
         stats.total_imu_sample_sets(),
         stats.pps_edges,
         stats.health_reports,
+        stats.filter_states,
+        stats.noise_reports,
+        stats.fault_reports,
         stats.frames_written,
         stats.bytes_written,
         stats.frames_dropped,
         calibration.instructions(stats.record_ticks),
         calibration.instructions(stats.source_ticks),
         calibration.instructions(stats.total_ticks),
+        calibration.instructions(stats.fusion_ticks),
+        calibration.instructions(stats.navigating_fusion_ticks),
+        stats.navigating_sample_sets,
         calibration.instructions,
         calibration.ticks,
     );

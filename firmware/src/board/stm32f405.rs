@@ -15,12 +15,17 @@
 //! Pins: SPI1 SCK/MISO/MOSI = PA5/PA6/PA7, chip selects PC0/PC1/PC2 (IMU 0/1/2),
 //! USART1 TX = PA9.
 //!
+//! Model: the board model (`board-model.bin`) is read from flash sector 11 (`memory.x`); an
+//! erased sector, or a blob that does not read, leaves the built-in model running, and the
+//! reason goes out on RTT.
+//!
 //! This board needs hardware: CI builds it, nothing runs it (QEMU's netduinoplus2 models
 //! neither TIM2 input capture nor the IMUs).
 
 use core::cell::RefCell;
 
 use critical_section::Mutex;
+use dynacal_core::board_model::{BoardModel, BoardModelError, MAX_BOARD_MODEL_LEN};
 use dynacal_core::log::{Header, ImuConfig, ImuSampleSet, PpsEvent, MAX_IMUS, PROTOCOL_VERSION};
 use dynacal_core::recorder::{
     Accepted, LogSink, RecorderError, RecorderStats, SampleSource, SourceEvent,
@@ -63,8 +68,49 @@ type Imu<const N: u8> =
 /// Bytes waiting for the USART1 transmit interrupt.
 static LOG_TX: Mutex<RefCell<Option<Consumer<'static, u8>>>> = Mutex::new(RefCell::new(None));
 
+extern "C" {
+    /// First byte of flash sector 11, where the board model is flashed (`memory.x`).
+    static _board_model_start: u8;
+}
+
+/// The board model in flash, or the built-in one (with the reason, logged on RTT).
+fn flash_model(imu_ids: &[u8]) -> BoardModel {
+    // SAFETY: `_board_model_start` is the start of flash sector 11 (memory.x): mapped,
+    // 128 KiB long (more than MAX_BOARD_MODEL_LEN), and never written while the board runs,
+    // so reading it as bytes is sound.
+    let blob = unsafe {
+        core::slice::from_raw_parts(core::ptr::addr_of!(_board_model_start), MAX_BOARD_MODEL_LEN)
+    };
+    // An erased sector reads 0xFF: no model was flashed.
+    let flashed = blob.iter().take(4).any(|&b| b != 0xFF);
+    let (model, refused) = BoardModel::load_or_built_in(flashed.then_some(blob), imu_ids);
+    match refused {
+        Some(reason) => defmt::warn!(
+            "board model in flash refused: {=str}; running the built-in model",
+            reason_name(reason)
+        ),
+        None if flashed => defmt::info!("board model loaded from flash"),
+        None => defmt::info!("no board model flashed: running the built-in model"),
+    }
+    model
+}
+
+fn reason_name(reason: BoardModelError) -> &'static str {
+    match reason {
+        BoardModelError::Truncated => "truncated",
+        BoardModelError::BadMagic => "not a board model",
+        BoardModelError::UnsupportedVersion(_) => "another version",
+        BoardModelError::BadCrc => "damaged (CRC)",
+        BoardModelError::Malformed => "malformed",
+        BoardModelError::BufferTooSmall => "buffer too small",
+        BoardModelError::Invalid { .. } => "values no filter can run",
+    }
+}
+
 /// What `main` runs the recorder on.
 pub struct Parts {
+    /// The model the fusion runs.
+    pub model: BoardModel,
     pub header: Header,
     pub source: CaptureSource,
     pub sink: UartSink,
@@ -183,7 +229,9 @@ pub fn init() -> Parts {
     }
     let mut board = heapless::String::new();
     let _ = board.push_str(NAME);
+    let ids: heapless::Vec<u8, MAX_IMUS> = imus.iter().map(|i: &ImuConfig| i.imu_id).collect();
     Parts {
+        model: flash_model(&ids),
         header: Header {
             protocol_version: PROTOCOL_VERSION,
             board,

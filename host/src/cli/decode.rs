@@ -1,12 +1,14 @@
 //! `dynacal decode LOG --out DIR`: the board's log as one interchange CSV per IMU plus a
-//! `summary.json` of what was decoded and what was dropped, and, when the log holds
-//! WaveletVariance frames, `wv.json`: the latest snapshot of each IMU channel in SI units.
+//! `summary.json` of what was decoded and what was dropped; when the log holds them,
+//! `wv.json` (the latest wavelet-variance snapshot of each IMU channel in SI units) and what
+//! the board's fusion found: `nav.csv`, `noise.csv` and `faults.json` (`dynacal::board_log`).
 
 use std::path::PathBuf;
 
 use anyhow::Context;
+use dynacal::board_log::{fault_entries, nav_csv, noise_csv};
 use dynacal::decode::{decode_file, imu_file_name};
-use dynacal::output::write_json_atomic;
+use dynacal::output::{write_atomic, write_json_atomic};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -43,6 +45,29 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         write_json_atomic(&staging.path().join(&name), &wv)
             .with_context(|| format!("{}: cannot write", args.out.join(&name).display()))?;
         files.push(name);
+    }
+    let texts = [
+        ("nav.csv", nav_csv(&log.filter)),
+        (
+            "noise.csv",
+            log.header.as_ref().and_then(|h| noise_csv(h, &log.noise)),
+        ),
+    ];
+    for (name, text) in texts {
+        if let Some(text) = text {
+            write_atomic(&staging.path().join(name), text.as_bytes())
+                .with_context(|| format!("{}: cannot write", args.out.join(name).display()))?;
+            files.push(name.to_string());
+        }
+    }
+    if let (Some(header), false) = (&log.header, log.noise.is_empty() && log.faults.is_empty()) {
+        let name = "faults.json";
+        write_json_atomic(
+            &staging.path().join(name),
+            &fault_entries(header, &log.faults),
+        )
+        .with_context(|| format!("{}: cannot write", args.out.join(name).display()))?;
+        files.push(name.to_string());
     }
     let name = "summary.json".to_string();
     write_json_atomic(&staging.path().join(&name), &summary)

@@ -84,7 +84,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         elf.display()
     );
 
-    let run = run_replay_in_qemu(&elf, &input_path, &log_path)?;
+    let run = run_replay_in_qemu(&elf, &input_path, &log_path, None)?;
     let report = run.report;
     let log = decode_file(&log_path)?;
     log.validate(&log_path)?;

@@ -34,6 +34,8 @@ pub enum Command {
     Simulate(simulate::Args),
     /// Run the firmware in QEMU on a minute of real ADIS16405 data and check the log.
     Demo(demo::Args),
+    /// Run the board's firmware in QEMU on a replay input: its log, and what it cost.
+    Board(board::Args),
     /// Haar wavelet variance and Allan variance of each channel, with 95% intervals.
     Wv(wv::Args),
     /// Paper Fig. 1 on simulated data: boresight and lever-arm estimates of two IMUs (SVG, JSON).
@@ -47,6 +49,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Decode(args) => decode::run(args),
         Command::Simulate(args) => simulate::run(args),
         Command::Demo(args) => demo::run(args),
+        Command::Board(args) => board::run(args),
         Command::Errors(args) => errors::run(args),
         Command::Diagnose(args) => diagnose::run(args),
         Command::Regress(args) => regress::run(args),
@@ -58,6 +61,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+mod board;
 mod compare;
 mod decode;
 mod demo;

@@ -76,8 +76,12 @@ pub enum FusionOutput {
 pub struct FusionConfig {
     /// Time between sample sets, s.
     pub sample_interval_s: f32,
-    /// Sample sets per filter step.
+    /// Sample sets per filter step (the monitors and live levels run on the interval's
+    /// means, as does the mechanization).
     pub filter_every: u32,
+    /// Filter steps per covariance prediction (the mechanization runs at every step; the
+    /// covariance is carried over the steps between, as PX4 EKF2 does).
+    pub predict_every: u32,
     /// Filter steps per inter-IMU update.
     pub calibration_every: u32,
     /// Filter steps per [`FilterState`] output.
@@ -117,8 +121,19 @@ pub struct FusionConfig {
 }
 
 impl FusionConfig {
-    /// Settings for sample sets at `sample_rate_hz`: the filter near 200 Hz, calibration
-    /// near 20 Hz, states at 10 Hz, noise at 1 Hz; the automotive filter's settings.
+    /// Time between fusion steps (the filter's, and the monitors' and live levels'), s.
+    pub fn fusion_interval_s(&self) -> f32 {
+        self.sample_interval_s * self.config_filter_every()
+    }
+
+    fn config_filter_every(&self) -> f32 {
+        self.filter_every.max(1) as f32
+    }
+
+    /// Settings for sample sets at `sample_rate_hz`: the filter (mechanization, monitors,
+    /// live levels) near 200 Hz, its covariance prediction near 100 Hz, calibration and
+    /// zero-velocity updates near 10 Hz, states at 10 Hz, noise at 1 Hz; the automotive
+    /// filter's settings.
     pub fn at_rate(sample_rate_hz: f32) -> Self {
         let rate = if sample_rate_hz.is_finite() && sample_rate_hz > 0.0 {
             sample_rate_hz
@@ -129,14 +144,17 @@ impl FusionConfig {
         let filter_hz = rate / filter_every as f32;
         let every = |hz: f32| ((filter_hz / hz).round() as u32).max(1);
         let sample_interval_s = 1.0 / rate;
-        let mut accel_monitor = FaultConfig::new(sample_interval_s);
+        // The monitors and the live levels run on the filter interval's means.
+        let fusion_interval_s = sample_interval_s * filter_every as f32;
+        let mut accel_monitor = FaultConfig::new(fusion_interval_s);
         accel_monitor.norm_tolerance = Some(0.1);
-        let mut gyro_monitor = FaultConfig::new(sample_interval_s);
+        let mut gyro_monitor = FaultConfig::new(fusion_interval_s);
         gyro_monitor.common_hold_s = 0.0;
         Self {
             sample_interval_s,
             filter_every,
-            calibration_every: every(20.0),
+            predict_every: every(100.0),
+            calibration_every: every(10.0),
             state_every: every(10.0),
             noise_every: every(1.0),
             live_time_constant_s: 2.0,
@@ -186,7 +204,32 @@ pub struct FusionCounts {
     pub gnss_resets: u32,
 }
 
-/// Sums over one filter interval.
+/// Each unit's samples summed over one filter interval, in its own axes.
+#[derive(Debug, Clone, Copy, Default)]
+struct UnitSums {
+    rate: [Vector3<f32>; UNITS],
+    force: [Vector3<f32>; UNITS],
+    /// Samples summed per unit (fewer than `sets` where a unit missed some).
+    samples: [u32; UNITS],
+    sets: u32,
+}
+
+impl UnitSums {
+    /// Each unit's mean (None: no sample from it).
+    fn means(&self) -> [Option<UnitReading>; UNITS] {
+        core::array::from_fn(|k| {
+            (self.samples[k] > 0).then(|| {
+                let n = self.samples[k] as f32;
+                UnitReading {
+                    gyro_rad_s: (self.rate[k] / n).into(),
+                    accel_m_s2: (self.force[k] / n).into(),
+                }
+            })
+        })
+    }
+}
+
+/// The fused output over one filter interval.
 #[derive(Debug, Clone, Copy, Default)]
 struct Interval {
     rate_sum: Vector3<f32>,
@@ -237,16 +280,20 @@ pub struct BoardFusion {
     accel_monitor: FaultMonitor<UNITS>,
     gyro_live: LiveNoise<UNITS>,
     accel_live: LiveNoise<UNITS>,
-    previous_raw: [Option<UnitReading>; UNITS],
+    /// The previous interval's per-unit means (for the stuck test).
+    previous_means: [Option<UnitReading>; UNITS],
+    unit_sums: UnitSums,
     alignment: Alignment,
     filter: Option<BoardFilter>,
-    interval: Interval,
     window: CalibrationWindow,
     differentiator: RateDifferentiator<f32, WindowMeans>,
     stillness: Stillness,
     still: bool,
     /// Consecutive fixes whose position was refused.
     gnss_refused: u32,
+    /// Bias-corrected velocity increment (body, m/s) and time (s) mechanized since the last
+    /// covariance prediction.
+    pending_prediction: (Vector3<f32>, f32),
     counts: FusionCounts,
 }
 
@@ -274,24 +321,25 @@ impl BoardFusion {
             gyro_monitor: FaultMonitor::new(config.gyro_monitor),
             accel_monitor: FaultMonitor::new(config.accel_monitor),
             gyro_live: LiveNoise::new(
-                config.sample_interval_s,
+                config.fusion_interval_s(),
                 config.live_time_constant_s,
                 thresholds,
             ),
             accel_live: LiveNoise::new(
-                config.sample_interval_s,
+                config.fusion_interval_s(),
                 config.live_time_constant_s,
                 thresholds,
             ),
-            previous_raw: [None; UNITS],
+            previous_means: [None; UNITS],
+            unit_sums: UnitSums::default(),
             alignment: Alignment::new(config.heading_speed_change_m_s),
             filter: None,
-            interval: Interval::default(),
             window: CalibrationWindow::default(),
             differentiator: RateDifferentiator::new(),
             stillness: Stillness::default(),
             still: false,
             gnss_refused: 0,
+            pending_prediction: (Vector3::zeros(), 0.0),
             counts: FusionCounts::default(),
             config,
         }
@@ -323,7 +371,8 @@ impl BoardFusion {
         }
     }
 
-    /// One sample set taken at `t_us` (None: the unit's sample is missing).
+    /// One sample set taken at `t_us` (None: the unit's sample is missing). Each unit's
+    /// samples are summed over the filter interval; at its end the interval is fused.
     pub fn push_set(
         &mut self,
         t_us: u64,
@@ -331,54 +380,79 @@ impl BoardFusion {
         out: &mut impl FnMut(FusionOutput),
     ) {
         self.counts.sample_sets += 1;
+        let sums = &mut self.unit_sums;
+        for (k, reading) in readings.iter().enumerate() {
+            if let Some(r) = reading {
+                sums.rate[k] += Vector3::from(r.gyro_rad_s);
+                sums.force[k] += Vector3::from(r.accel_m_s2);
+                sums.samples[k] += 1;
+            }
+        }
+        sums.sets += 1;
+        if sums.sets >= self.config.filter_every {
+            let sums = core::mem::take(&mut self.unit_sums);
+            self.fuse_interval(t_us, &sums, out);
+        }
+    }
+
+    /// One interval's per-unit means through the monitors and the live levels into the
+    /// fused output, and on to the filter.
+    fn fuse_interval(&mut self, t_us: u64, sums: &UnitSums, out: &mut impl FnMut(FusionOutput)) {
         let alignment: [(Matrix3<f32>, Vector3<f32>); UNITS] =
             core::array::from_fn(|k| self.alignment_of(k));
-        // A stuck unit is seen in what it put out, per sensor.
-        let previous = self.previous_raw;
-        let repeated = |same: fn(&UnitReading, &UnitReading) -> bool| -> [bool; UNITS] {
-            core::array::from_fn(
-                |k| matches!((&readings[k], &previous[k]), (Some(a), Some(b)) if same(a, b)),
-            )
-        };
-        let gyro_repeated = repeated(|a, b| a.gyro_rad_s == b.gyro_rad_s);
-        let accel_repeated = repeated(|a, b| a.accel_m_s2 == b.accel_m_s2);
-        self.previous_raw = *readings;
-
-        let gyro_body: [Option<[f32; 3]>; UNITS] = core::array::from_fn(|k| {
-            readings[k].map(|u| (alignment[k].0.transpose() * Vector3::from(u.gyro_rad_s)).into())
-        });
-        let gyro_step = self.gyro_monitor.push_marked(&gyro_body, &gyro_repeated);
+        let means = sums.means();
+        self.test_units(t_us, &means, &alignment, out);
+        let gyro_body = gyro_in_body(&means, &alignment);
         let fused_rate = self.gyro_monitor.fused(&gyro_body).map(Vector3::from);
         let omega = fused_rate.unwrap_or_else(Vector3::zeros);
-        let accel_body: [Option<[f32; 3]>; UNITS] = core::array::from_fn(|k| {
-            readings[k].map(|u| {
-                let (c, r) = alignment[k];
-                let at_origin =
-                    c.transpose() * Vector3::from(u.accel_m_s2) - omega.cross(&omega.cross(&r));
-                at_origin.into()
-            })
-        });
-        let accel_step = self.accel_monitor.push_marked(&accel_body, &accel_repeated);
+        let accel_body = accel_in_body(&means, &alignment, &omega);
         let fused_force = self.accel_monitor.fused(&accel_body).map(Vector3::from);
-        self.report_faults(t_us, FaultFrame::SENSOR_GYRO, &gyro_step, out);
-        self.report_faults(t_us, FaultFrame::SENSOR_ACCEL, &accel_step, out);
         if let (Some(g), Some(a)) = (all_present(&gyro_body), all_present(&accel_body)) {
             self.gyro_live.push(&g, omega.into());
             self.accel_live.push(&a, omega.into());
         }
 
         let (Some(rate), Some(force)) = (fused_rate, fused_force) else {
-            self.counts.sets_without_output += 1;
+            self.counts.sets_without_output += u64::from(sums.sets);
             return;
         };
-        self.interval.rate_sum += rate;
-        self.interval.force_sum += force;
-        self.interval.sets += 1;
-        self.add_to_window(readings, &alignment, rate, force);
-        if self.interval.sets >= self.config.filter_every {
-            let interval = core::mem::take(&mut self.interval);
-            self.filter_step(t_us, &interval, out);
-        }
+        self.add_to_window(&means, &alignment, rate, force);
+        let interval = Interval {
+            rate_sum: rate * sums.sets as f32,
+            force_sum: force * sums.sets as f32,
+            sets: sums.sets,
+        };
+        self.filter_step(t_us, &interval, out);
+    }
+
+    /// The fault monitors' step on one interval's per-unit means (own axes).
+    fn test_units(
+        &mut self,
+        t_us: u64,
+        means: &[Option<UnitReading>; UNITS],
+        alignment: &[(Matrix3<f32>, Vector3<f32>); UNITS],
+        out: &mut impl FnMut(FusionOutput),
+    ) {
+        // A stuck unit is seen in what it put out, per sensor: equal means.
+        let previous = self.previous_means;
+        let repeated = |same: fn(&UnitReading, &UnitReading) -> bool| -> [bool; UNITS] {
+            core::array::from_fn(
+                |k| matches!((&means[k], &previous[k]), (Some(a), Some(b)) if same(a, b)),
+            )
+        };
+        let gyro_repeated = repeated(|a, b| a.gyro_rad_s == b.gyro_rad_s);
+        let accel_repeated = repeated(|a, b| a.accel_m_s2 == b.accel_m_s2);
+        self.previous_means = *means;
+        let gyro_body = gyro_in_body(means, alignment);
+        let gyro_step = self.gyro_monitor.push_marked(&gyro_body, &gyro_repeated);
+        let omega = self
+            .gyro_monitor
+            .fused(&gyro_body)
+            .map_or_else(Vector3::zeros, Vector3::from);
+        let accel_body = accel_in_body(means, alignment, &omega);
+        let accel_step = self.accel_monitor.push_marked(&accel_body, &accel_repeated);
+        self.report_faults(t_us, FaultFrame::SENSOR_GYRO, &gyro_step, out);
+        self.report_faults(t_us, FaultFrame::SENSOR_ACCEL, &accel_step, out);
     }
 
     /// Adds a set to the calibration window: the fused output and each extra unit in its
@@ -453,7 +527,7 @@ impl BoardFusion {
                 &self.accel_monitor,
                 &self.accel_noise_model,
             ),
-            self.config.sample_interval_s,
+            self.config.fusion_interval_s(),
         );
         let Some(filter) = &mut self.filter else {
             return;
@@ -461,26 +535,31 @@ impl BoardFusion {
         self.counts.filter_steps += 1;
         filter.ekf.set_sensor_noise_psd(accel_psd, gyro_psd);
         let interval_s = self.config.sample_interval_s;
-        if filter
-            .propagate(
-                interval.rate_sum * interval_s,
-                interval.force_sum * interval_s,
-                dt_s,
-            )
-            .is_err()
-        {
-            self.counts.restarts += 1;
-            self.filter = None;
+        let Ok(delta_v) = filter.mechanize(
+            interval.rate_sum * interval_s,
+            interval.force_sum * interval_s,
+            dt_s,
+        ) else {
+            self.restart();
+            return;
+        };
+        self.pending_prediction.0 += delta_v;
+        self.pending_prediction.1 += dt_s;
+        let steps = self.counts.filter_steps;
+        if steps.is_multiple_of(u64::from(self.config.predict_every)) && !self.flush_prediction() {
             return;
         }
-        let steps = self.counts.filter_steps;
-        if self.still && steps.is_multiple_of(u64::from(self.config.calibration_every)) {
+        let zupt_due = steps.is_multiple_of(u64::from(self.config.calibration_every));
+        if self.still && zupt_due && self.flush_prediction() {
+            let Some(filter) = &mut self.filter else {
+                return;
+            };
             filter.fuse_zero_velocity(self.config.zupt_sigma_m_s);
             filter.correct();
             self.counts.zero_velocity_updates += 1;
         }
         self.window.filter_steps += 1;
-        if self.window.filter_steps >= self.config.calibration_every {
+        if self.window.filter_steps >= self.config.calibration_every && self.flush_prediction() {
             self.calibrate(dt_s * self.window.filter_steps as f32);
         }
         if steps.is_multiple_of(u64::from(self.config.state_every)) {
@@ -488,6 +567,27 @@ impl BoardFusion {
                 out(FusionOutput::State(state));
             }
         }
+    }
+
+    /// Predicts the covariance over the steps mechanized since the last prediction (before
+    /// an update, and every `predict_every` steps). False if the filter had to start over.
+    fn flush_prediction(&mut self) -> bool {
+        let (delta_v, span_s) = core::mem::take(&mut self.pending_prediction);
+        let Some(filter) = &mut self.filter else {
+            return false;
+        };
+        if span_s <= 0.0 || filter.predict_covariance(delta_v / span_s, span_s).is_ok() {
+            return true;
+        }
+        self.restart();
+        false
+    }
+
+    /// The mechanization or the filter failed numerically: align again.
+    fn restart(&mut self) {
+        self.counts.restarts += 1;
+        self.filter = None;
+        self.pending_prediction = Default::default();
     }
 
     /// The inter-IMU update on the window just closed, `window_s` long.
@@ -556,11 +656,11 @@ impl BoardFusion {
         s.slow_force += (force - s.slow_force) * alpha;
         s.rate_deviation2 += ((rate - s.slow_rate).norm_squared() - s.rate_deviation2) * alpha;
         s.force_deviation2 += ((force - s.slow_force).norm_squared() - s.force_deviation2) * alpha;
-        // The means' own noise: three axes of the fused per-sample noise over the interval.
-        let sets = (dt_s / self.config.sample_interval_s).max(1.0);
+        // The means' own noise: three axes of the noisiest unit's level (the live levels are
+        // per interval mean already).
         let noise = |live: &LiveNoise<UNITS>| {
-            let fused = (0..UNITS).map(|k| live.sigma(k)).fold(0.0f32, f32::max);
-            3.0 * fused * fused / sets
+            let level = (0..UNITS).map(|k| live.sigma(k)).fold(0.0f32, f32::max);
+            3.0 * level * level
         };
         let rate_limit = self.config.still_rate_rad_s.powi(2) + noise(&self.gyro_live);
         let force_limit = self.config.still_force_m_s2.powi(2) + noise(&self.accel_live);
@@ -580,6 +680,9 @@ impl BoardFusion {
         let age_s = t_us.saturating_sub(fix.t_us) as f32 * 1e-6;
         if age_s > self.config.gnss_max_age_s || fix.t_us > t_us.saturating_add(100_000) {
             self.counts.gnss_skipped += 1;
+            return;
+        }
+        if self.filter.is_some() && !self.flush_prediction() {
             return;
         }
         let Some(filter) = &mut self.filter else {
@@ -656,6 +759,7 @@ impl BoardFusion {
         self.filter = Some(InsEkf::new(Strapdown::new(state), ekf));
         self.window = CalibrationWindow::default();
         self.differentiator = RateDifferentiator::new();
+        self.pending_prediction = (Vector3::zeros(), 0.0);
     }
 
     /// The filter's state for the log.
@@ -694,9 +798,11 @@ impl BoardFusion {
             in_use: 0,
             still: self.still,
         };
+        // The live levels are of interval means; white noise per IMU sample is sqrt(n) more.
+        let per_sample = self.config.config_filter_every().sqrt();
         for k in 0..UNITS.min(MAX_IMUS) {
-            frame.gyro_sigma_rad_s[k] = self.gyro_live.sigma(k);
-            frame.accel_sigma_m_s2[k] = self.accel_live.sigma(k);
+            frame.gyro_sigma_rad_s[k] = self.gyro_live.sigma(k) * per_sample;
+            frame.accel_sigma_m_s2[k] = self.accel_live.sigma(k) * per_sample;
             frame.in_use |= u8::from(self.gyro_monitor.healthy(k)) << k;
             frame.in_use |= u8::from(self.accel_monitor.healthy(k)) << (3 + k);
         }
@@ -711,7 +817,7 @@ impl BoardFusion {
         step: &Step,
         out: &mut impl FnMut(FusionOutput),
     ) {
-        let interval_us = (self.config.sample_interval_s * 1e6) as u64;
+        let interval_us = (self.config.fusion_interval_s() * 1e6) as u64;
         for event in &step.confirmed {
             out(FusionOutput::Fault(fault_frame(
                 t_us,
@@ -748,6 +854,33 @@ fn fault_frame(t_us: u64, interval_us: u64, sensor: u8, event: &FaultEvent) -> F
     }
 }
 
+/// Each unit's rate in body axes.
+fn gyro_in_body(
+    means: &[Option<UnitReading>; UNITS],
+    alignment: &[(Matrix3<f32>, Vector3<f32>); UNITS],
+) -> [Option<[f32; 3]>; UNITS] {
+    core::array::from_fn(|k| {
+        means[k].map(|u| (alignment[k].0.transpose() * Vector3::from(u.gyro_rad_s)).into())
+    })
+}
+
+/// Each unit's specific force in body axes, moved to the body origin by the centripetal term
+/// of the platform's rate `omega` (body, rad/s).
+fn accel_in_body(
+    means: &[Option<UnitReading>; UNITS],
+    alignment: &[(Matrix3<f32>, Vector3<f32>); UNITS],
+    omega: &Vector3<f32>,
+) -> [Option<[f32; 3]>; UNITS] {
+    core::array::from_fn(|k| {
+        means[k].map(|u| {
+            let (c, r) = alignment[k];
+            let at_origin =
+                c.transpose() * Vector3::from(u.accel_m_s2) - omega.cross(&omega.cross(&r));
+            at_origin.into()
+        })
+    })
+}
+
 /// The triads when every unit has one.
 fn all_present(triads: &[Option<[f32; 3]>; UNITS]) -> Option<[[f32; 3]; UNITS]> {
     let mut all = [[0.0; 3]; UNITS];
@@ -758,12 +891,12 @@ fn all_present(triads: &[Option<[f32; 3]>; UNITS]) -> Option<[[f32; 3]; UNITS]> 
 }
 
 /// The white-noise PSDs (gyro, accelerometer) of the fused output: from the units in use
-/// and their live levels (per sample, so the PSD is the variance times the interval), or
-/// the model's where a level is not known yet.
+/// and their live levels (of `interval_s` means, so the PSD is the variance times the
+/// interval), or the model's where a level is not known yet.
 fn live_psds(
     gyro: (&LiveNoise<UNITS>, &FaultMonitor<UNITS>, &FusedNoise),
     accel: (&LiveNoise<UNITS>, &FaultMonitor<UNITS>, &FusedNoise),
-    sample_interval_s: f32,
+    interval_s: f32,
 ) -> (f32, f32) {
     let psd = |(live, monitor, model): (&LiveNoise<UNITS>, &FaultMonitor<UNITS>, &FusedNoise)| {
         let mut information = 0.0f32;
@@ -775,7 +908,7 @@ fn live_psds(
             information += 1.0 / variance;
         }
         if information > 0.0 {
-            sample_interval_s / information
+            interval_s / information
         } else {
             model.white_psd
         }

@@ -40,16 +40,87 @@ pub struct Radii<T> {
     pub transverse_m: T,
 }
 
+/// One geodetic latitude with its sine, cosine and radii of curvature: what every Earth-model
+/// term below is made of. Computed once and reused while the position moves little
+/// (`Strapdown` keeps one and renews it every few metres), because `f32` trigonometry runs
+/// in software on the Cortex-M4F at thousands of instructions a call.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Latitude<T> {
+    pub lat_rad: T,
+    pub sin: T,
+    pub cos: T,
+    pub radii: Radii<T>,
+}
+
+impl<T: RealField + Copy> Latitude<T> {
+    pub fn new(lat_rad: T) -> Self {
+        let (sin, cos) = lat_rad.sin_cos();
+        let w2 = T::one() - c::<T>(WGS84_E2) * sin * sin;
+        let w = w2.sqrt();
+        let a: T = c(WGS84_A_M);
+        Self {
+            lat_rad,
+            sin,
+            cos,
+            radii: Radii {
+                meridian_m: a * (T::one() - c::<T>(WGS84_E2)) / (w2 * w),
+                transverse_m: a / w,
+            },
+        }
+    }
+
+    /// Normal gravity at height `h_m`: see [`normal_gravity_m_s2`].
+    pub fn normal_gravity_m_s2(&self, h_m: T) -> T {
+        let s2 = self.sin * self.sin;
+        let k = WGS84_B_M * WGS84_GAMMA_POLE_M_S2 / (WGS84_A_M * WGS84_GAMMA_EQUATOR_M_S2) - 1.0;
+        let gamma0 = c::<T>(WGS84_GAMMA_EQUATOR_M_S2) * (T::one() + c::<T>(k) * s2)
+            / (T::one() - c::<T>(WGS84_E2) * s2).sqrt();
+        let m = WGS84_OMEGA_IE_RAD_S * WGS84_OMEGA_IE_RAD_S * WGS84_A_M * WGS84_A_M * WGS84_B_M
+            / WGS84_GM_M3_S2;
+        let a: T = c(WGS84_A_M);
+        let linear = c::<T>(2.0) / a * (c::<T>(1.0 + WGS84_F + m) - c::<T>(2.0 * WGS84_F) * s2);
+        let quadratic = c::<T>(3.0) / (a * a);
+        gamma0 * (T::one() - linear * h_m + quadratic * h_m * h_m)
+    }
+
+    /// Gravity vector in NED at height `h_m`: see [`gravity_ned_m_s2`].
+    pub fn gravity_ned_m_s2(&self, h_m: T) -> Vector3<T> {
+        Vector3::new(T::zero(), T::zero(), self.normal_gravity_m_s2(h_m))
+    }
+
+    /// Earth rate in NED: see [`earth_rate_ned_rad_s`].
+    pub fn earth_rate_ned_rad_s(&self) -> Vector3<T> {
+        let w: T = c(WGS84_OMEGA_IE_RAD_S);
+        Vector3::new(w * self.cos, T::zero(), -w * self.sin)
+    }
+
+    /// Transport rate at height `h_m`: see [`transport_rate_ned_rad_s`].
+    pub fn transport_rate_ned_rad_s(&self, h_m: T, v_ned_m_s: &Vector3<T>) -> Vector3<T> {
+        let re_h = self.radii.transverse_m + h_m;
+        let rn_h = self.radii.meridian_m + h_m;
+        Vector3::new(
+            v_ned_m_s.y / re_h,
+            -v_ned_m_s.x / rn_h,
+            -v_ned_m_s.y * (self.sin / self.cos) / re_h,
+        )
+    }
+
+    /// Position rates at height `h_m`: see [`position_rates`].
+    pub fn position_rates(&self, h_m: T, v_ned_m_s: &Vector3<T>) -> Option<(T, T, T)> {
+        if self.cos.abs() < c(1e-6) {
+            return None;
+        }
+        Some((
+            v_ned_m_s.x / (self.radii.meridian_m + h_m),
+            v_ned_m_s.y / ((self.radii.transverse_m + h_m) * self.cos),
+            -v_ned_m_s.z,
+        ))
+    }
+}
+
 /// Radii of curvature at geodetic latitude `lat_rad`.
 pub fn radii<T: RealField + Copy>(lat_rad: T) -> Radii<T> {
-    let s = lat_rad.sin();
-    let w2 = T::one() - c::<T>(WGS84_E2) * s * s;
-    let w = w2.sqrt();
-    let a: T = c(WGS84_A_M);
-    Radii {
-        meridian_m: a * (T::one() - c::<T>(WGS84_E2)) / (w2 * w),
-        transverse_m: a / w,
-    }
+    Latitude::new(lat_rad).radii
 }
 
 /// Magnitude of normal gravity (gravitation plus centrifugal, along the ellipsoid normal),
@@ -57,29 +128,19 @@ pub fn radii<T: RealField + Copy>(lat_rad: T) -> Radii<T> {
 /// form on the ellipsoid with the usual second-order free-air height correction
 /// (NIMA TR8350.2 eq. 4-3), good to a few ugal up to aircraft heights.
 pub fn normal_gravity_m_s2<T: RealField + Copy>(lat_rad: T, h_m: T) -> T {
-    let s2 = lat_rad.sin() * lat_rad.sin();
-    let k = WGS84_B_M * WGS84_GAMMA_POLE_M_S2 / (WGS84_A_M * WGS84_GAMMA_EQUATOR_M_S2) - 1.0;
-    let gamma0 = c::<T>(WGS84_GAMMA_EQUATOR_M_S2) * (T::one() + c::<T>(k) * s2)
-        / (T::one() - c::<T>(WGS84_E2) * s2).sqrt();
-    let m = WGS84_OMEGA_IE_RAD_S * WGS84_OMEGA_IE_RAD_S * WGS84_A_M * WGS84_A_M * WGS84_B_M
-        / WGS84_GM_M3_S2;
-    let a: T = c(WGS84_A_M);
-    let linear = c::<T>(2.0) / a * (c::<T>(1.0 + WGS84_F + m) - c::<T>(2.0 * WGS84_F) * s2);
-    let quadratic = c::<T>(3.0) / (a * a);
-    gamma0 * (T::one() - linear * h_m + quadratic * h_m * h_m)
+    Latitude::new(lat_rad).normal_gravity_m_s2(h_m)
 }
 
 /// Gravity vector (plumb-bob: gravitation plus centrifugal) in NED, m/s^2. The model keeps
 /// only the component along the ellipsoid normal (the north component at height is below
 /// 1e-5 m/s^2 at car heights).
 pub fn gravity_ned_m_s2<T: RealField + Copy>(lat_rad: T, h_m: T) -> Vector3<T> {
-    Vector3::new(T::zero(), T::zero(), normal_gravity_m_s2(lat_rad, h_m))
+    Latitude::new(lat_rad).gravity_ned_m_s2(h_m)
 }
 
 /// Earth rate w.r.t. inertial space resolved in NED, omega_ie^n, rad/s.
 pub fn earth_rate_ned_rad_s<T: RealField + Copy>(lat_rad: T) -> Vector3<T> {
-    let w: T = c(WGS84_OMEGA_IE_RAD_S);
-    Vector3::new(w * lat_rad.cos(), T::zero(), -w * lat_rad.sin())
+    Latitude::new(lat_rad).earth_rate_ned_rad_s()
 }
 
 /// Transport rate (rotation of NED w.r.t. the Earth caused by moving over it), omega_en^n,
@@ -89,14 +150,7 @@ pub fn transport_rate_ned_rad_s<T: RealField + Copy>(
     h_m: T,
     v_ned_m_s: &Vector3<T>,
 ) -> Vector3<T> {
-    let r = radii(lat_rad);
-    let re_h = r.transverse_m + h_m;
-    let rn_h = r.meridian_m + h_m;
-    Vector3::new(
-        v_ned_m_s.y / re_h,
-        -v_ned_m_s.x / rn_h,
-        -v_ned_m_s.y * lat_rad.tan() / re_h,
-    )
+    Latitude::new(lat_rad).transport_rate_ned_rad_s(h_m, v_ned_m_s)
 }
 
 /// Rates of change of geodetic position for Earth-relative velocity `v_ned_m_s`:
@@ -107,16 +161,7 @@ pub fn position_rates<T: RealField + Copy>(
     h_m: T,
     v_ned_m_s: &Vector3<T>,
 ) -> Option<(T, T, T)> {
-    let r = radii(lat_rad);
-    let cos_lat = lat_rad.cos();
-    if cos_lat.abs() < c(1e-6) {
-        return None;
-    }
-    Some((
-        v_ned_m_s.x / (r.meridian_m + h_m),
-        v_ned_m_s.y / ((r.transverse_m + h_m) * cos_lat),
-        -v_ned_m_s.z,
-    ))
+    Latitude::new(lat_rad).position_rates(h_m, v_ned_m_s)
 }
 
 #[cfg(test)]

@@ -15,9 +15,11 @@
 
 use nalgebra::{Matrix3, RealField, UnitQuaternion, Vector3};
 
-use super::earth::{
-    earth_rate_ned_rad_s, gravity_ned_m_s2, position_rates, transport_rate_ned_rad_s,
-};
+use super::earth::Latitude;
+
+/// How far the position may move before the latitude's trigonometry is recomputed, rad
+/// (about 6 m): gravity then errs by 5e-8 m/s^2 at most and Earth rate by 1e-10 rad/s.
+const LATITUDE_REFRESH_RAD: f64 = 1e-6;
 
 #[inline]
 fn c<T: RealField + Copy>(x: f64) -> T {
@@ -106,6 +108,8 @@ pub enum NavFault {
 pub struct Strapdown<T: RealField + Copy> {
     state: NavState<T>,
     previous_increments: Option<(Vector3<T>, Vector3<T>)>,
+    /// The Earth model's latitude terms, and the latitude (f64) they were computed at.
+    latitude: (Latitude<T>, f64),
 }
 
 impl<T: RealField + Copy> Strapdown<T> {
@@ -113,9 +117,19 @@ impl<T: RealField + Copy> Strapdown<T> {
     /// sculling correction).
     pub fn new(state: NavState<T>) -> Self {
         Self {
+            latitude: (Latitude::new(state.lat()), state.lat_rad),
             state,
             previous_increments: None,
         }
+    }
+
+    /// The latitude terms at the current position (renewed every few metres, see
+    /// `LATITUDE_REFRESH_RAD`).
+    pub fn latitude(&mut self) -> Latitude<T> {
+        if (self.state.lat_rad - self.latitude.1).abs() > LATITUDE_REFRESH_RAD {
+            self.latitude = (Latitude::new(self.state.lat()), self.state.lat_rad);
+        }
+        self.latitude.0
     }
 
     /// The current navigation state.
@@ -207,33 +221,33 @@ impl<T: RealField + Copy> Strapdown<T> {
         let half: T = c(0.5);
         let c_bn = s.c_bn();
         let delta_v_sf_n0 = c_bn * delta_v_sf_b;
+        // A step moves the latitude by 1e-8 rad or so: its terms at the step start serve the
+        // whole step.
+        let latitude = self.latitude();
+        let omega_ie_n = latitude.earth_rate_ned_rad_s();
 
         // Predictor: slow terms at the step start; corrector: at the predicted mid-step.
         let mut v_new = s.v_ned_m_s;
-        let lat_start = s.lat();
-        let mut mid = (lat_start, s.h_m, s.v_ned_m_s);
+        let mut mid = (s.h_m, s.v_ned_m_s);
         let mut zeta_n = Vector3::zeros();
         for _ in 0..2 {
-            let (lat_mid, h_mid, v_mid) = mid;
-            let omega_ie_n = earth_rate_ned_rad_s(lat_mid);
-            let omega_en_n = transport_rate_ned_rad_s(lat_mid, h_mid, &v_mid);
+            let (h_mid, v_mid) = mid;
+            let omega_en_n = latitude.transport_rate_ned_rad_s(h_mid, &v_mid);
             zeta_n = (omega_ie_n + omega_en_n) * dt_s;
             let delta_v_sf_n = delta_v_sf_n0 - zeta_n.cross(&delta_v_sf_n0) * half;
             let coriolis = (omega_ie_n * c::<T>(2.0) + omega_en_n).cross(&v_mid);
             v_new =
-                s.v_ned_m_s + delta_v_sf_n + (gravity_ned_m_s2(lat_mid, h_mid) - coriolis) * dt_s;
+                s.v_ned_m_s + delta_v_sf_n + (latitude.gravity_ned_m_s2(h_mid) - coriolis) * dt_s;
             let v_avg = (s.v_ned_m_s + v_new) * half;
-            let (lat_rate, _, h_rate) =
-                position_rates(lat_start, s.h_m, &v_avg).ok_or(NavFault::NearPole)?;
-            mid = (
-                lat_start + lat_rate * dt_s * half,
-                s.h_m + h_rate * dt_s * half,
-                v_avg,
-            );
+            let (_, _, h_rate) = latitude
+                .position_rates(s.h_m, &v_avg)
+                .ok_or(NavFault::NearPole)?;
+            mid = (s.h_m + h_rate * dt_s * half, v_avg);
         }
-        let (lat_mid, h_mid, v_avg) = mid;
-        let (lat_rate, lon_rate, h_rate) =
-            position_rates(lat_mid, h_mid, &v_avg).ok_or(NavFault::NearPole)?;
+        let (h_mid, v_avg) = mid;
+        let (lat_rate, lon_rate, h_rate) = latitude
+            .position_rates(h_mid, &v_avg)
+            .ok_or(NavFault::NearPole)?;
         let q_body = UnitQuaternion::from_scaled_axis(rotation_vector_b);
         let q_nav = UnitQuaternion::from_scaled_axis(-zeta_n);
         let mut q_nb = q_nav * s.q_nb * q_body;
@@ -265,7 +279,7 @@ fn all_finite<T: RealField + Copy>(v: &Vector3<T>) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::nav::earth::normal_gravity_m_s2;
+    use crate::nav::earth::{earth_rate_ned_rad_s, gravity_ned_m_s2, normal_gravity_m_s2};
     use approx::assert_relative_eq;
 
     const LAT: f64 = 0.811_578; // 46.5 deg

@@ -76,10 +76,31 @@ impl<T: RealField + Copy, const K: usize, const N: usize> InsEkf<T, K, N> {
         delta_v_b_m_s: Vector3<T>,
         dt_s: T,
     ) -> Result<(), NavFault> {
+        let delta_v = self.mechanize(delta_theta_b_rad, delta_v_b_m_s, dt_s)?;
+        self.predict_covariance(delta_v / dt_s, dt_s)
+    }
+
+    /// The mechanization's step alone (as [`Self::propagate`], without the covariance):
+    /// returns the bias-corrected velocity increment (body, m/s), which a caller predicting
+    /// the covariance less often sums for [`Self::predict_covariance`].
+    pub fn mechanize(
+        &mut self,
+        delta_theta_b_rad: Vector3<T>,
+        delta_v_b_m_s: Vector3<T>,
+        dt_s: T,
+    ) -> Result<Vector3<T>, NavFault> {
         let delta_theta = delta_theta_b_rad - self.ekf.gyro_bias_b_rad_s() * dt_s;
         let delta_v = delta_v_b_m_s - self.ekf.accel_bias_b_m_s2() * dt_s;
         self.strapdown.step(delta_theta, delta_v, dt_s)?;
-        let lin = NavLinearization::from_state(self.strapdown.state(), delta_v / dt_s);
+        Ok(delta_v)
+    }
+
+    /// The covariance carried `dt_s` forward about the current mechanization state, with the
+    /// mean bias-corrected specific force `f_b_m_s2` (body) over that time.
+    pub fn predict_covariance(&mut self, f_b_m_s2: Vector3<T>, dt_s: T) -> Result<(), NavFault> {
+        let latitude = self.strapdown.latitude();
+        let s = self.strapdown.state();
+        let lin = NavLinearization::at_latitude(&latitude, s.h_m, s.v_ned_m_s, s.c_bn(), f_b_m_s2);
         if self.ekf.predict(&lin, dt_s) {
             Ok(())
         } else {

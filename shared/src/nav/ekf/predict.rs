@@ -17,9 +17,7 @@
 #![allow(clippy::needless_range_loop)]
 
 use super::{boresight_index, skew, ErrorStateEkf, ACCEL_BIAS, ATT, GYRO_BIAS, NAV_STATES, VEL};
-use crate::nav::earth::{
-    earth_rate_ned_rad_s, normal_gravity_m_s2, radii, transport_rate_ned_rad_s,
-};
+use crate::nav::earth::Latitude;
 use nalgebra::{Matrix3, RealField, SMatrix, Vector3};
 
 /// The nominal quantities the error model is linearised about, for one prediction step.
@@ -56,18 +54,29 @@ impl<T: RealField + Copy> NavLinearization<T> {
         c_b_n: Matrix3<T>,
         f_b_m_s2: Vector3<T>,
     ) -> Self {
-        let r = radii(lat_rad);
-        let (sin_lat, cos_lat) = lat_rad.sin_cos();
+        Self::at_latitude(&Latitude::new(lat_rad), h_m, v_ned_m_s, c_b_n, f_b_m_s2)
+    }
+
+    /// As [`Self::from_geodetic`], with the latitude's terms already computed (the
+    /// mechanization keeps them: see [`crate::nav::strapdown::Strapdown::latitude`]).
+    pub fn at_latitude(
+        latitude: &Latitude<T>,
+        h_m: T,
+        v_ned_m_s: Vector3<T>,
+        c_b_n: Matrix3<T>,
+        f_b_m_s2: Vector3<T>,
+    ) -> Self {
+        let r = latitude.radii;
         Self {
             c_b_n,
             f_b_m_s2,
             v_ned_m_s,
-            omega_ie_n_rad_s: earth_rate_ned_rad_s(lat_rad),
-            omega_en_n_rad_s: transport_rate_ned_rad_s(lat_rad, h_m, &v_ned_m_s),
-            gravity_m_s2: normal_gravity_m_s2(lat_rad, h_m),
+            omega_ie_n_rad_s: latitude.earth_rate_ned_rad_s(),
+            omega_en_n_rad_s: latitude.transport_rate_ned_rad_s(h_m, &v_ned_m_s),
+            gravity_m_s2: latitude.normal_gravity_m_s2(h_m),
             meridian_radius_plus_h_m: r.meridian_m + h_m,
             transverse_radius_plus_h_m: r.transverse_m + h_m,
-            tan_lat: sin_lat / cos_lat,
+            tan_lat: latitude.sin / latitude.cos,
         }
     }
 

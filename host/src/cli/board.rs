@@ -1,0 +1,110 @@
+//! `dynacal board INPUT.replay --out LOG [--model board-model.bin]`: the board's firmware
+//! run in QEMU's emulated STM32F405 on a replay input (a simulation's `board.replay`, or
+//! one made from measured data), writing the log the board would write, with the fusion
+//! running the given model (the built-in one without `--model`). Prints what the board did
+//! and its cost: instructions under `-icount`, per second of data and as a share of a
+//! 168 MHz Cortex-M4F.
+
+use std::path::PathBuf;
+
+use anyhow::{bail, Context};
+use dynacal::decode::decode_file;
+use dynacal::replay::{
+    build_replay_firmware, qemu_available, run_replay_in_qemu, workspace_root, FIRMWARE_TARGET_DIR,
+};
+
+/// Instructions per second of the STM32F405's core at full speed (one per cycle at best).
+const CORE_HZ: f64 = 168e6;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Replay input (`dynacal simulate` writes board.replay beside its CSVs).
+    pub input: PathBuf,
+    /// The log to write (written whole or not at all).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Board model for the fusion (`dynacal refit` writes board-model.bin); a model the
+    /// board refuses is named with its reason and the built-in model runs.
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Cargo target folder for the firmware build (default: target/firmware).
+    #[arg(long)]
+    pub target_dir: Option<PathBuf>,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    for (what, path) in [
+        ("replay input", Some(&args.input)),
+        ("board model", args.model.as_ref()),
+    ] {
+        if let Some(path) = path {
+            if !path.is_file() {
+                bail!("{}: {what} not found", path.display());
+            }
+        }
+    }
+    if !qemu_available() {
+        bail!("qemu-system-arm not found: run scripts/setup to install it (and the thumbv7em-none-eabihf target)");
+    }
+    let target_dir = args
+        .target_dir
+        .clone()
+        .unwrap_or_else(|| workspace_root().join(FIRMWARE_TARGET_DIR));
+    let elf = build_replay_firmware(&target_dir)?;
+    if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
+        std::fs::create_dir_all(parent)
+            .with_context(|| format!("{}: cannot create folder", parent.display()))?;
+    }
+    let run = run_replay_in_qemu(&elf, &args.input, &args.out, args.model.as_deref())?;
+    for line in run.stderr.lines().filter(|l| l.contains("board model")) {
+        println!("  {line}");
+    }
+    let report = run.report;
+    let log = decode_file(&args.out)?;
+    let span_s = log
+        .imus
+        .iter()
+        .filter_map(|imu| Some((*imu.t_us.first()?, *imu.t_us.last()?)))
+        .map(|(first, last)| (last - first) as f64 * 1e-6)
+        .fold(0.0, f64::max);
+    println!(
+        "{}: {} sample sets, {} PPS edges; fusion: {} states, {} noise reports, {} fault events; \
+         {} frames ({} bytes, {} dropped) to {}",
+        args.input.display(),
+        report.imu_sample_sets,
+        report.pps_edges,
+        report.filter_states,
+        report.noise_reports,
+        report.fault_reports,
+        report.frames_written,
+        report.bytes_written,
+        report.frames_dropped,
+        args.out.display()
+    );
+    if span_s > 0.0 {
+        let per_second = report.record_instructions as f64 / span_s;
+        println!(
+            "  cost      {:.0} instructions per second of data, the run's mean of the board's own \
+             work (recording, accumulators, fusion, log framing; QEMU -icount, SysTick): \
+             {:.1}% of a 168 MHz Cortex-M4F",
+            per_second,
+            100.0 * per_second / CORE_HZ
+        );
+    }
+    let rate_hz = log
+        .header
+        .as_ref()
+        .and_then(|h| h.imus.first())
+        .map_or(0.0, |i| f64::from(i.sample_rate_hz));
+    if let Some(steady) = report.steady_instructions_per_second(span_s, rate_hz) {
+        println!(
+            "  navigating {:.0} instructions per second with the filter running ({} of {} sample \
+             sets): {:.1}% of a 168 MHz Cortex-M4F",
+            steady,
+            report.navigating_sample_sets,
+            report.imu_sample_sets / log.imus.len().max(1) as u64,
+            100.0 * steady / CORE_HZ
+        );
+    }
+    Ok(())
+}
