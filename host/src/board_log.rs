@@ -7,15 +7,21 @@
 //! Times are GPS seconds as the log's microseconds give them (`decode::seconds_of_us`).
 //! Attitude sigmas: the filter's are about the north, east and down axes; roll and pitch
 //! sigmas are those turned by the heading (first order, near level), yaw's is the down one.
+//!
+//! [`state_error`] measures a state against a reference solution (the simulator's truth),
+//! with the NEES that says whether the filter's sigmas are honest.
 
 use std::fmt::Write as _;
 
 use dynacal_core::fusion::FUSED_LANE_ID;
 use dynacal_core::log::{FaultFrame, FilterState, Header, NoiseFrame};
-use nalgebra::{Quaternion, UnitQuaternion};
+use dynacal_core::nav::ekf::position_innovation_ned_m;
+use dynacal_core::nav::strapdown::NavState;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use serde::Serialize;
 
 use crate::decode::seconds_of_us;
+use crate::interchange::ImuRecording;
 
 /// Header of `nav.csv`.
 pub const NAV_COLUMNS: &str = "t_s,lat_rad,lon_rad,h_m,vn_m_s,ve_m_s,vd_m_s,roll_rad,pitch_rad,yaw_rad,\
@@ -134,6 +140,89 @@ pub fn fault_entries(header: &Header, faults: &[FaultFrame]) -> Vec<FaultEntry> 
             kind: f.kind_name(),
         })
         .collect()
+}
+
+/// A filter state's error against a reference solution: true minus estimated position
+/// (NED, m), velocity (NED, m/s) and attitude (rotation vector about NED, rad), with the
+/// state's own sigmas for each.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StateError {
+    pub t_s: f64,
+    pub position_ned_m: Vector3<f64>,
+    pub velocity_ned_m_s: Vector3<f64>,
+    pub attitude_rad: Vector3<f64>,
+    pub sigma_position_m: Vector3<f64>,
+    pub sigma_velocity_m_s: Vector3<f64>,
+    pub sigma_attitude_rad: Vector3<f64>,
+}
+
+impl StateError {
+    /// Normalised estimation error squared of position, velocity and attitude (3 degrees
+    /// of freedom each; the filter's diagonal sigmas).
+    pub fn nees(&self) -> [f64; 3] {
+        let n = |e: &Vector3<f64>, s: &Vector3<f64>| (0..3).map(|a| (e[a] / s[a]).powi(2)).sum();
+        [
+            n(&self.position_ned_m, &self.sigma_position_m),
+            n(&self.velocity_ned_m_s, &self.sigma_velocity_m_s),
+            n(&self.attitude_rad, &self.sigma_attitude_rad),
+        ]
+    }
+}
+
+/// The error of `state` against `reference` (a recording with attitude, position and
+/// velocity, such as the simulator's `reference.csv`) at the reference sample nearest in
+/// time; None when the reference has no navigation columns or no samples.
+pub fn state_error(reference: &ImuRecording, state: &FilterState) -> Option<StateError> {
+    let (att, pos, vel) = (
+        reference.attitude_rad.as_ref()?,
+        reference.position.as_ref()?,
+        reference.velocity_ned_m_s.as_ref()?,
+    );
+    let t_s = seconds_of_us(state.t_us);
+    let after = reference.t_s.partition_point(|t| *t < t_s);
+    let i = match after {
+        0 => 0,
+        k if k >= reference.len() => reference.len().checked_sub(1)?,
+        k if (reference.t_s[k] - t_s).abs() < (t_s - reference.t_s[k - 1]).abs() => k,
+        k => k - 1,
+    };
+    let truth = NavState::<f64>::from_euler(
+        att[0][i],
+        att[1][i],
+        att[2][i],
+        Vector3::new(vel[0][i], vel[1][i], vel[2][i]),
+        pos[0][i],
+        pos[1][i],
+        pos[2][i],
+    );
+    let q = UnitQuaternion::from_quaternion(Quaternion::new(
+        f64::from(state.q_nb[0]),
+        f64::from(state.q_nb[1]),
+        f64::from(state.q_nb[2]),
+        f64::from(state.q_nb[3]),
+    ));
+    let estimate = NavState {
+        q_nb: q,
+        v_ned_m_s: Vector3::from(state.vel_ned_m_s.map(f64::from)),
+        lat_rad: state.lat_rad,
+        lon_rad: state.lon_rad,
+        h_m: f64::from(state.h_m),
+    };
+    let v3 = |x: [f32; 3]| Vector3::from(x.map(f64::from));
+    Some(StateError {
+        t_s,
+        position_ned_m: position_innovation_ned_m(
+            truth.lat_rad,
+            truth.lon_rad,
+            truth.h_m,
+            &estimate,
+        ),
+        velocity_ned_m_s: truth.v_ned_m_s - estimate.v_ned_m_s,
+        attitude_rad: (truth.q_nb * estimate.q_nb.inverse()).scaled_axis(),
+        sigma_position_m: v3(state.pos_sigma_m),
+        sigma_velocity_m_s: v3(state.vel_sigma_m_s),
+        sigma_attitude_rad: v3(state.attitude_sigma_rad),
+    })
 }
 
 /// Appends `values` as one CSV row (shortest round-trip decimal; NaN as `NaN`).

@@ -19,6 +19,7 @@ pub mod nav_smoother;
 pub mod numeric;
 pub mod output;
 pub mod redundancy;
+pub mod refit;
 pub mod regress;
 pub mod replay;
 pub mod sim;

@@ -3,6 +3,7 @@
 //! mounted three ways, GNSS receiver bytes, PPS), its log decoded, and the `Filter` frames
 //! compared with the simulator's truth.
 
+use dynacal::board_log::state_error;
 use dynacal::decode::DecodedLog;
 use dynacal::model::SimModel;
 use dynacal::sim::board::board_recording;
@@ -10,13 +11,11 @@ use dynacal::sim::trajectory::Scenario;
 use dynacal::sim::{simulate, SimOptions, SimOutput};
 use dynacal_core::board_model::BoardModel;
 use dynacal_core::log::FilterState;
-use dynacal_core::nav::ekf::position_innovation_ned_m;
-use dynacal_core::nav::strapdown::NavState;
 use dynacal_core::recorder::{
     Accepted, GnssChunk, LogSink, Recorder, SampleSource, SourceEvent, TickClock,
 };
 use dynacal_core::replay::ReplayRecord;
-use nalgebra::{Quaternion, Rotation3, UnitQuaternion, Vector3};
+use nalgebra::{Rotation3, Vector3};
 
 const SECONDS: f64 = 300.0;
 const RATE_HZ: f64 = 200.0;
@@ -165,40 +164,8 @@ fn board_run(seed: u64, true_noise: bool) -> (SimOutput, DecodedLog) {
 /// Error of a logged state against the truth: NED position (m), velocity (m/s), attitude
 /// (rad, NED axes).
 fn errors(sim: &SimOutput, s: &FilterState) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
-    let r = &sim.reference.recording;
-    let t_s = s.t_us as f64 * 1e-6;
-    let i = r.t_s.partition_point(|t| *t < t_s).min(r.len() - 1);
-    let (att, pos, vel) = (
-        r.attitude_rad.as_ref().unwrap(),
-        r.position.as_ref().unwrap(),
-        r.velocity_ned_m_s.as_ref().unwrap(),
-    );
-    let truth = NavState::<f64>::from_euler(
-        att[0][i],
-        att[1][i],
-        att[2][i],
-        Vector3::new(vel[0][i], vel[1][i], vel[2][i]),
-        pos[0][i],
-        pos[1][i],
-        pos[2][i],
-    );
-    let q = UnitQuaternion::from_quaternion(Quaternion::new(
-        f64::from(s.q_nb[0]),
-        f64::from(s.q_nb[1]),
-        f64::from(s.q_nb[2]),
-        f64::from(s.q_nb[3]),
-    ));
-    let est = NavState {
-        q_nb: q,
-        v_ned_m_s: Vector3::from(s.vel_ned_m_s.map(f64::from)),
-        lat_rad: s.lat_rad,
-        lon_rad: s.lon_rad,
-        h_m: f64::from(s.h_m),
-    };
-    let dp = position_innovation_ned_m(truth.lat_rad, truth.lon_rad, truth.h_m, &est);
-    let dv = truth.v_ned_m_s - est.v_ned_m_s;
-    let da = (truth.q_nb * est.q_nb.inverse()).scaled_axis();
-    (dp, dv, da)
+    let e = state_error(&sim.reference.recording, s).unwrap();
+    (e.position_ned_m, e.velocity_ned_m_s, e.attitude_rad)
 }
 
 /// Prints every 5 s of a run (for looking into one: DYNACAL_FUSION_TRACE=1).
@@ -233,10 +200,6 @@ struct DriveErrors {
     mean_nees: [f64; 3],
 }
 
-fn nees(e: &Vector3<f64>, sigma: &[f32; 3]) -> f64 {
-    (0..3).map(|a| (e[a] / f64::from(sigma[a])).powi(2)).sum()
-}
-
 fn drive_errors(sim: &SimOutput, states: &[FilterState]) -> DriveErrors {
     let t0 = sim.reference.recording.t_s[0];
     let since_start = |s: &FilterState| s.t_us as f64 * 1e-6 - t0;
@@ -261,9 +224,10 @@ fn drive_errors(sim: &SimOutput, states: &[FilterState]) -> DriveErrors {
         sums[1] += dv.norm_squared();
         sums[2] += da.x * da.x + da.y * da.y;
         sums[3] += da.z * da.z;
-        nees_sums[0] += nees(&dp, &s.pos_sigma_m);
-        nees_sums[1] += nees(&dv, &s.vel_sigma_m_s);
-        nees_sums[2] += nees(&da, &s.attitude_sigma_rad);
+        let nees = state_error(&sim.reference.recording, s).unwrap().nees();
+        for (sum, x) in nees_sums.iter_mut().zip(nees) {
+            *sum += x;
+        }
         n += 1;
     }
     let n = n.max(1) as f64;

@@ -36,6 +36,8 @@ pub enum Command {
     Demo(demo::Args),
     /// Run the board's firmware in QEMU on a replay input: its log, and what it cost.
     Board(board::Args),
+    /// Refit a board log's units: error models and alignment, as model.json and board-model.bin.
+    Refit(refit::Args),
     /// Haar wavelet variance and Allan variance of each channel, with 95% intervals.
     Wv(wv::Args),
     /// Paper Fig. 1 on simulated data: boresight and lever-arm estimates of two IMUs (SVG, JSON).
@@ -50,6 +52,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Simulate(args) => simulate::run(args),
         Command::Demo(args) => demo::run(args),
         Command::Board(args) => board::run(args),
+        Command::Refit(args) => refit::run(args),
         Command::Errors(args) => errors::run(args),
         Command::Diagnose(args) => diagnose::run(args),
         Command::Regress(args) => regress::run(args),
@@ -72,6 +75,7 @@ mod fit;
 mod import;
 mod info;
 mod redundancy;
+mod refit;
 mod regress;
 mod simulate;
 mod wv;

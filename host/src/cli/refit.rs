@@ -1,0 +1,110 @@
+//! `dynacal refit LOG --out DIR`: the board log's units refitted (`dynacal::refit`): their
+//! own error models and alignment, written as `model.json` (the typed model, loadable by
+//! `dynacal simulate`), `board-model.bin` (what the board runs: `dynacal board --model`, or
+//! flashed into the board's model sector) and `refit.json` (the check of the board's
+//! wavelet variances, each fit with its intervals, the alignments, notes). All three are
+//! written whole or none.
+
+use std::path::PathBuf;
+
+use anyhow::Context;
+use dynacal::decode::decode_file;
+use dynacal::gmwm::inference::BootstrapOptions;
+use dynacal::output::{write_atomic, write_json_atomic};
+use dynacal::refit::{refit, typed_model, RefitOptions};
+use dynacal_core::board_model::MAX_BOARD_MODEL_LEN;
+
+use super::fit::model_choice;
+
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Board log (three IMUs or more, as the board writes it).
+    pub log: PathBuf,
+    /// Output folder (created if absent).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Model of each channel's error, e.g. "WN+GM", or "auto" (chosen by WIC).
+    #[arg(long, default_value = "auto")]
+    pub model: String,
+    /// Parametric bootstrap replicates for the intervals (0: delta method).
+    #[arg(long, default_value_t = 0)]
+    pub bootstrap: usize,
+    /// Seed of the bootstrap.
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+}
+
+pub fn run(args: Args) -> anyhow::Result<()> {
+    let log = decode_file(&args.log)?;
+    log.validate(&args.log)?;
+    let options = RefitOptions {
+        choice: model_choice(&args.model)?,
+        bootstrap: (args.bootstrap > 0).then_some(BootstrapOptions {
+            replicates: args.bootstrap,
+            seed: args.seed,
+        }),
+    };
+    let result = refit(&log, &options).with_context(|| format!("{}", args.log.display()))?;
+    let mut blob = [0u8; MAX_BOARD_MODEL_LEN];
+    let len = result
+        .board_model
+        .encode(&mut blob)
+        .map_err(|e| anyhow::anyhow!("the refitted board model does not encode: {e}"))?;
+
+    std::fs::create_dir_all(&args.out)
+        .with_context(|| format!("{}: cannot create output folder", args.out.display()))?;
+    let staging = tempfile::Builder::new()
+        .prefix(".dynacal-refit-")
+        .tempdir_in(&args.out)
+        .with_context(|| format!("{}: cannot create staging folder", args.out.display()))?;
+    let cannot = |name: &str| format!("{}: cannot write", args.out.join(name).display());
+    write_json_atomic(&staging.path().join("model.json"), &typed_model(&result))
+        .with_context(|| cannot("model.json"))?;
+    write_atomic(&staging.path().join("board-model.bin"), &blob[..len])
+        .with_context(|| cannot("board-model.bin"))?;
+    write_json_atomic(&staging.path().join("refit.json"), &result)
+        .with_context(|| cannot("refit.json"))?;
+    for name in ["model.json", "board-model.bin", "refit.json"] {
+        let target = args.out.join(name);
+        std::fs::rename(staging.path().join(name), &target)
+            .with_context(|| format!("{}: cannot move into place", target.display()))?;
+    }
+
+    let checked = result.agreement.len();
+    println!(
+        "{}: {} units refitted; board wavelet variances checked on {checked} channels{}",
+        args.log.display(),
+        result.units.len(),
+        if checked > 0 { ", all agree" } else { "" }
+    );
+    for (unit, model) in result.units.iter().zip(&result.board_model.units) {
+        let a = &unit.alignment;
+        println!(
+            "  {}: rotation {} deg, lever arm {} m",
+            unit.name,
+            a.rotation_rpy_deg
+                .map_or("not determined".into(), |r| format!(
+                    "{:.3} {:.3} {:.3}",
+                    r[0], r[1], r[2]
+                )),
+            a.lever_arm_m.map_or("not determined".into(), |r| format!(
+                "{:.4} {:.4} {:.4}",
+                r[0], r[1], r[2]
+            ))
+        );
+        for (fit, noise) in unit.fits.iter().zip(&model.channels) {
+            println!(
+                "    {:<9} {:<10} white {:.3e} unit^2 s, Gauss-Markov {:.3e} unit^2 tau {:.0} s, walk {:.3e} unit^2/s",
+                fit.channel, fit.model, noise.white_psd, noise.gauss_markov_sigma2, noise.gauss_markov_tau_s, noise.random_walk_psd
+            );
+        }
+    }
+    for note in &result.notes {
+        println!("  note: {note}");
+    }
+    println!(
+        "wrote model.json, board-model.bin ({len} bytes), refit.json to {}",
+        args.out.display()
+    );
+    Ok(())
+}

@@ -1,0 +1,476 @@
+//! The refit loop's host half (`dynacal refit`): from a board log, each unit's error model
+//! and alignment, as the typed model (`model.json`) and the blob the board runs
+//! (`board-model.bin`, `dynacal_core::board_model`).
+//!
+//! 1. The board's streaming wavelet variances are checked against the same variances
+//!    computed here from the logged samples: the full (overlapping) levels must equal the
+//!    batch estimator's to rounding; a decimated level is a different estimator of the same
+//!    variance, so its 95% interval must overlap the batch one's. A disagreement means the
+//!    log lost samples or the board's accumulators are wrong, and the refit stops (unless
+//!    the log itself says it dropped frames, which is then noted).
+//! 2. The units' own errors come from their differences (`crate::redundancy`): the motion
+//!    cancels, so a log of a drive gives the units' error wavelet variances, which a raw
+//!    variance of a moving sensor would not; the alignment of each unit to the first comes
+//!    from the same analysis.
+//! 3. Each unit's channels are fitted by the GMWM (`crate::gmwm`) on those own variances,
+//!    with intervals, and mapped to what the board's filter runs ([`channel_noise`]).
+
+use std::collections::BTreeMap;
+
+use dynacal_core::board_model::{BoardModel, ChannelNoise, UnitModel};
+use dynacal_core::Channel;
+use serde::Serialize;
+
+use crate::decode::{BoardChannelWv, DecodedLog};
+use crate::gmwm::fit::{FitInput, FitOptions};
+use crate::gmwm::inference::{analyze, BootstrapOptions, ChannelFit, ModelChoice};
+use crate::gmwm::model::{ModelSpec, Process};
+use crate::interchange::ImuRecording;
+use crate::model::SimModel;
+use crate::redundancy::{redundancy, Alignment, OwnWv, RedundancyOptions};
+use crate::wv::{haar_wv, level_coefficients, WaveletVariance, WvOptions};
+
+/// Why a log cannot be refitted.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RefitError {
+    #[error("the log has {0} IMUs with samples; the refit needs the board's three (or more)")]
+    Units(usize),
+    #[error("IMU {imu_id} {channel}: the board's wavelet variance disagrees with the logged samples' ({detail})")]
+    WvDisagrees {
+        imu_id: u8,
+        channel: Channel,
+        detail: String,
+    },
+    #[error(transparent)]
+    Redundancy(#[from] crate::redundancy::RedundancyError),
+    #[error("IMU {imu_id} {channel}: {detail}")]
+    Fit {
+        imu_id: u8,
+        channel: Channel,
+        detail: String,
+    },
+}
+
+/// How one channel's board wavelet variance compares with the logged samples'.
+#[derive(Debug, Clone, Serialize)]
+pub struct WvAgreement {
+    pub imu_id: u8,
+    pub channel: Channel,
+    /// Full levels compared, and their largest relative difference.
+    pub full_levels: usize,
+    pub full_max_relative_difference: f64,
+    /// Decimated levels compared, and those whose 95% interval misses the batch one.
+    pub decimated_levels: usize,
+    pub decimated_disjoint: usize,
+}
+
+/// What the refit found of one unit.
+#[derive(Debug, Clone, Serialize)]
+pub struct UnitRefit {
+    pub imu_id: u8,
+    pub name: String,
+    pub alignment: Alignment,
+    /// The GMWM fit of each channel's own error.
+    pub fits: Vec<ChannelFit>,
+}
+
+/// The refit of a log.
+#[derive(Debug, Clone, Serialize)]
+pub struct Refit {
+    pub agreement: Vec<WvAgreement>,
+    pub units: Vec<UnitRefit>,
+    /// What the board runs.
+    pub board_model: BoardModel,
+    pub notes: Vec<String>,
+}
+
+/// Options of [`refit`].
+#[derive(Debug, Clone)]
+pub struct RefitOptions {
+    pub choice: ModelChoice,
+    pub bootstrap: Option<BootstrapOptions>,
+}
+
+/// The refit of `log` (see the module's note).
+pub fn refit(log: &DecodedLog, options: &RefitOptions) -> Result<Refit, RefitError> {
+    let units: Vec<(u8, String, ImuRecording)> = log
+        .imus
+        .iter()
+        .filter(|imu| !imu.is_empty())
+        .map(|imu| {
+            let id = imu.config.imu_id;
+            (id, format!("imu{id}"), imu.to_recording())
+        })
+        .collect();
+    if units.len() < 3 {
+        return Err(RefitError::Units(units.len()));
+    }
+    let mut notes = Vec::new();
+    let agreement = check_board_wv(log, &units, &mut notes)?;
+    let named: Vec<(String, ImuRecording)> = units
+        .iter()
+        .map(|(_, n, r)| (n.clone(), r.clone()))
+        .collect();
+    let report = redundancy(&named, &RedundancyOptions::default())?;
+    notes.extend(report.notes.iter().cloned());
+    let mut unit_refits = Vec::new();
+    for ((imu_id, name, recording), unit) in units.iter().zip(&report.imus) {
+        let fits = fit_unit(*imu_id, name, recording, &unit.wv, options)?;
+        unit_refits.push(UnitRefit {
+            imu_id: *imu_id,
+            name: name.clone(),
+            alignment: unit.alignment.clone(),
+            fits,
+        });
+    }
+    let board_model = board_model_of(&unit_refits, &mut notes);
+    Ok(Refit {
+        agreement,
+        units: unit_refits,
+        board_model,
+        notes,
+    })
+}
+
+/// Checks every board snapshot against the batch estimator on the logged samples.
+fn check_board_wv(
+    log: &DecodedLog,
+    units: &[(u8, String, ImuRecording)],
+    notes: &mut Vec<String>,
+) -> Result<Vec<WvAgreement>, RefitError> {
+    let board = log.wavelet_variance_si();
+    if board.is_empty() {
+        notes.push("the log holds no wavelet-variance snapshots: nothing to check".into());
+    }
+    let frames_dropped =
+        log.stream.frames_dropped > 0 || log.health.iter().any(|h| h.frames_dropped > 0);
+    let mut out = Vec::new();
+    for snapshot in &board {
+        let Some((_, _, recording)) = units.iter().find(|(id, _, _)| *id == snapshot.imu_id) else {
+            continue;
+        };
+        let Some(board_wv) = &snapshot.wv else {
+            notes.push(format!(
+                "imu{} {}: the board's snapshot is unusable: {}",
+                snapshot.imu_id,
+                snapshot.channel,
+                snapshot.error.as_deref().unwrap_or("unknown")
+            ));
+            continue;
+        };
+        let agreement = compare_wv(snapshot, board_wv, recording)?;
+        let disagrees =
+            agreement.full_max_relative_difference > 1e-6 || agreement.decimated_disjoint > 0;
+        if disagrees && !frames_dropped {
+            return Err(RefitError::WvDisagrees {
+                imu_id: snapshot.imu_id,
+                channel: snapshot.channel,
+                detail: format!(
+                    "full levels differ by up to {:.2e} (relative), {} of {} decimated levels' intervals miss",
+                    agreement.full_max_relative_difference,
+                    agreement.decimated_disjoint,
+                    agreement.decimated_levels
+                ),
+            });
+        }
+        if disagrees {
+            notes.push(format!(
+                "imu{} {}: the board's wavelet variance differs from the logged samples', which the log's dropped frames explain",
+                snapshot.imu_id, snapshot.channel
+            ));
+        }
+        out.push(agreement);
+    }
+    Ok(out)
+}
+
+/// One channel's comparison: the board snapshot against the batch WV of the samples it
+/// covers (the log's samples up to the snapshot's time).
+fn compare_wv(
+    snapshot: &BoardChannelWv,
+    board: &WaveletVariance,
+    recording: &ImuRecording,
+) -> Result<WvAgreement, RefitError> {
+    let channel = snapshot.channel;
+    let values = recording.channel(channel.name()).unwrap_or_default();
+    let n = (snapshot.n_samples as usize).min(values.len());
+    let batch = haar_wv(&values[..n], board.dt_s, &WvOptions::default()).map_err(|e| {
+        RefitError::WvDisagrees {
+            imu_id: snapshot.imu_id,
+            channel,
+            detail: format!("no batch variance of the logged samples: {e}"),
+        }
+    })?;
+    let mut agreement = WvAgreement {
+        imu_id: snapshot.imu_id,
+        channel,
+        full_levels: 0,
+        full_max_relative_difference: 0.0,
+        decimated_levels: 0,
+        decimated_disjoint: 0,
+    };
+    for (i, &level) in board.levels.iter().enumerate() {
+        let Some(k) = batch.levels.iter().position(|&j| j == level) else {
+            continue;
+        };
+        let (b, h) = (board.variance[i], batch.variance[k]);
+        if level <= u32::from(snapshot.full_levels) {
+            agreement.full_levels += 1;
+            let relative = if h > 0.0 {
+                ((b - h) / h).abs()
+            } else {
+                (b - h).abs()
+            };
+            agreement.full_max_relative_difference =
+                agreement.full_max_relative_difference.max(relative);
+        } else {
+            agreement.decimated_levels += 1;
+            let overlap =
+                board.ci_low[i] <= batch.ci_high[k] && batch.ci_low[k] <= board.ci_high[i];
+            agreement.decimated_disjoint += usize::from(!overlap);
+        }
+    }
+    Ok(agreement)
+}
+
+/// A unit's own-error WV of one channel as a wavelet variance the GMWM fits: the levels
+/// whose variance the least squares did not clamp at zero.
+fn own_as_wv(own: &OwnWv, n: usize, dt_s: f64) -> WaveletVariance {
+    let mut wv = WaveletVariance {
+        scales_s: Vec::new(),
+        levels: Vec::new(),
+        variance: Vec::new(),
+        ci_low: Vec::new(),
+        ci_high: Vec::new(),
+        allan_variance: Vec::new(),
+        n,
+        n_coefficients: Vec::new(),
+        robust: false,
+        dt_s,
+    };
+    for (i, &scale) in own.scales_s.iter().enumerate() {
+        if own.clamped[i] || !(own.variance[i] > 0.0) {
+            continue;
+        }
+        let level = (scale / dt_s).log2().round() as u32;
+        wv.scales_s.push(scale);
+        wv.levels.push(level);
+        wv.variance.push(own.variance[i]);
+        wv.ci_low.push(own.ci_low[i]);
+        wv.ci_high.push(own.ci_high[i]);
+        wv.allan_variance.push(2.0 * own.variance[i]);
+        wv.n_coefficients.push(level_coefficients(n, level));
+    }
+    wv
+}
+
+/// The GMWM fit of each of a unit's channels on its own-error variances.
+fn fit_unit(
+    imu_id: u8,
+    name: &str,
+    recording: &ImuRecording,
+    own: &BTreeMap<String, OwnWv>,
+    options: &RefitOptions,
+) -> Result<Vec<ChannelFit>, RefitError> {
+    let dt_s = recording.median_dt_s();
+    Channel::ALL
+        .into_iter()
+        .filter_map(|channel| own.get(channel.name()).map(|w| (channel, w)))
+        .map(|(channel, w)| {
+            let err = |detail: String| RefitError::Fit {
+                imu_id,
+                channel,
+                detail,
+            };
+            let wv = own_as_wv(w, recording.len(), dt_s);
+            let input = FitInput::from_wv(&wv).map_err(|e| err(e.to_string()))?;
+            let unit = if channel.is_gyro() { "rad/s" } else { "m/s^2" };
+            analyze(
+                &format!("{name}/{}", channel.name()),
+                unit,
+                &input,
+                &options.choice,
+                options.bootstrap,
+                &FitOptions::default(),
+            )
+            .map_err(|e| err(e.to_string()))
+        })
+        .collect()
+}
+
+/// What the board's filter runs of a fitted channel model: white noise as a PSD, the
+/// largest Gauss-Markov bias as one, a random walk as a PSD. Other Gauss-Markov terms
+/// join the white noise when their correlation time is under a second (the filter cannot
+/// tell them from it) and the random walk otherwise (their driving PSD); quantization noise
+/// joins the white noise; a drift is not run (returned in the second value, named).
+pub fn channel_noise(spec: &ModelSpec) -> (ChannelNoise, Vec<&'static str>) {
+    let dt_s = 1.0 / spec.sample_rate_hz;
+    let mut noise = ChannelNoise {
+        white_psd: 0.0,
+        gauss_markov_sigma2: 0.0,
+        gauss_markov_tau_s: 0.0,
+        random_walk_psd: 0.0,
+    };
+    let mut white = 0.0f64;
+    let mut walk = 0.0f64;
+    let mut left_out = Vec::new();
+    let main_gm = spec
+        .processes
+        .iter()
+        .filter_map(|p| match *p {
+            Process::GaussMarkov { beta_per_s, sigma2 } => Some((beta_per_s, sigma2)),
+            _ => None,
+        })
+        .fold(None, |best: Option<(f64, f64)>, gm| match best {
+            Some(b) if b.1 >= gm.1 => Some(b),
+            _ => Some(gm),
+        });
+    for p in &spec.processes {
+        match *p {
+            Process::WhiteNoise { sigma2 } => white += sigma2 * dt_s,
+            Process::QuantizationNoise { q2 } => white += q2 * dt_s,
+            Process::RandomWalk { sigma2 } => walk += sigma2 / dt_s,
+            Process::Drift { .. } => left_out.push("drift"),
+            Process::GaussMarkov { beta_per_s, sigma2 } => {
+                if Some((beta_per_s, sigma2)) == main_gm {
+                    noise.gauss_markov_sigma2 = sigma2 as f32;
+                    noise.gauss_markov_tau_s = (1.0 / beta_per_s) as f32;
+                } else if beta_per_s > 1.0 {
+                    white += 2.0 * sigma2 / beta_per_s;
+                } else {
+                    walk += 2.0 * sigma2 * beta_per_s;
+                }
+            }
+        }
+    }
+    noise.white_psd = white as f32;
+    noise.random_walk_psd = walk as f32;
+    (noise, left_out)
+}
+
+/// The board model of the refitted units: their channels' noise and alignments (a rotation
+/// or lever arm the motion did not determine is left at the design's zero, and said).
+fn board_model_of(units: &[UnitRefit], notes: &mut Vec<String>) -> BoardModel {
+    let ids: Vec<u8> = units.iter().map(|u| u.imu_id).collect();
+    let mut model = BoardModel::built_in(&ids);
+    for (unit, target) in units.iter().zip(model.units.iter_mut()) {
+        for fit in &unit.fits {
+            let Some(channel) = fit
+                .channel
+                .rsplit('/')
+                .next()
+                .and_then(|c| c.parse::<Channel>().ok())
+            else {
+                continue;
+            };
+            let (noise, left_out) = channel_noise(&fit.model_object);
+            for what in left_out {
+                notes.push(format!(
+                    "{}: the fitted {what} is not run on the board",
+                    fit.channel
+                ));
+            }
+            target.channels[channel.index()] = noise;
+        }
+        set_alignment(target, &unit.alignment, &unit.name, notes);
+    }
+    model
+}
+
+fn set_alignment(
+    target: &mut UnitModel,
+    alignment: &Alignment,
+    name: &str,
+    notes: &mut Vec<String>,
+) {
+    match alignment.rotation_rpy_deg {
+        Some(rpy) => target.rotation_rpy_rad = rpy.map(|d| d.to_radians() as f32),
+        None => notes.push(format!(
+            "{name}: the motion did not determine its rotation; the board keeps the design's"
+        )),
+    }
+    match alignment.lever_arm_m {
+        Some(arm) => target.lever_arm_m = arm.map(|x| x as f32),
+        None => notes.push(format!(
+            "{name}: the motion did not determine its lever arm; the board keeps the design's"
+        )),
+    }
+}
+
+/// The typed model of a refit: each unit's fitted channel models (the simulator's model
+/// format, loadable by `dynacal simulate` and `dynacal diagnose`), mounted where the
+/// alignment put it relative to the first unit, with the fit statistics beside it.
+pub fn typed_model(refit: &Refit) -> SimModel {
+    let specs: Vec<(String, ModelSpec)> = refit
+        .units
+        .iter()
+        .flat_map(|u| {
+            u.fits
+                .iter()
+                .map(|f| (f.channel.clone(), f.model_object.clone()))
+        })
+        .collect();
+    let (mut model, _) = SimModel::from_channel_models("imu", &specs);
+    for (imu, unit) in model.imus.iter_mut().zip(&refit.units) {
+        if let Some(arm) = unit.alignment.lever_arm_m {
+            imu.lever_arm_b_m = arm;
+        }
+        if let Some([r, p, y]) = unit.alignment.rotation_rpy_deg {
+            // The alignment's C takes the first unit's axes to this unit's; the model's
+            // boresight angles are those of its transpose (the unit's axes to the body's).
+            let c = nalgebra::Rotation3::from_euler_angles(
+                r.to_radians(),
+                p.to_radians(),
+                y.to_radians(),
+            );
+            let (r, p, y) = c.transpose().euler_angles();
+            imu.boresight_rpy_deg = [r.to_degrees(), p.to_degrees(), y.to_degrees()];
+        }
+    }
+    model.comment = Some("refitted by dynacal refit from a board log".into());
+    model.fit = serde_json::to_value(refit.units.iter().map(|u| &u.fits).collect::<Vec<_>>()).ok();
+    model
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn spec(processes: Vec<Process>) -> ModelSpec {
+        ModelSpec {
+            model: String::new(),
+            unit: "rad/s".into(),
+            sample_rate_hz: 200.0,
+            processes,
+        }
+    }
+
+    #[test]
+    fn fitted_processes_map_to_what_the_filter_runs() {
+        let (noise, left_out) = channel_noise(&spec(vec![
+            Process::WhiteNoise { sigma2: 2e-6 },
+            Process::GaussMarkov {
+                beta_per_s: 0.01,
+                sigma2: 4e-7,
+            },
+            Process::GaussMarkov {
+                beta_per_s: 50.0,
+                sigma2: 1e-7,
+            },
+            Process::GaussMarkov {
+                beta_per_s: 0.1,
+                sigma2: 1e-8,
+            },
+            Process::RandomWalk { sigma2: 1e-12 },
+            Process::Drift { slope_per_s: 1e-6 },
+        ]));
+        let dt = 1.0 / 200.0;
+        let close = |a: f32, b: f64| ((f64::from(a) - b) / b).abs() < 1e-5;
+        assert!(close(noise.white_psd, 2e-6 * dt + 2.0 * 1e-7 / 50.0));
+        assert!(close(noise.gauss_markov_sigma2, 4e-7));
+        assert!(close(noise.gauss_markov_tau_s, 100.0));
+        assert!(close(noise.random_walk_psd, 1e-12 / dt + 2.0 * 1e-8 * 0.1));
+        assert_eq!(left_out, vec!["drift"]);
+    }
+}

@@ -1,0 +1,208 @@
+//! The refit loop end to end (issue 19): a simulated three-IMU car run with GNSS and PPS
+//! goes through the replay firmware in QEMU with the board's built-in model; `refit` turns
+//! the board's log into the units' error models and alignment; the firmware runs again
+//! with the refitted blob. The refitted parameters must hold the simulation's truth in
+//! their intervals, and the board's filter must be consistent with the refitted model where
+//! the built-in one is not. A damaged blob is refused with its reason and the board runs
+//! exactly as with no blob.
+//!
+//! Skips when qemu-system-arm is absent, except in CI, where that fails.
+
+use std::path::Path;
+
+use dynacal::board_log::state_error;
+use dynacal::decode::{decode_file, DecodedLog};
+use dynacal::gmwm::inference::ModelChoice;
+use dynacal::gmwm::model::Structure;
+use dynacal::model::SimModel;
+use dynacal::refit::{refit, RefitOptions};
+use dynacal::replay::{
+    build_replay_firmware, run_replay_in_qemu, workspace_root, FIRMWARE_TARGET_DIR,
+};
+use dynacal::sim::board::board_recording;
+use dynacal::sim::trajectory::Scenario;
+use dynacal::sim::{simulate, SimOptions, SimOutput};
+use dynacal_core::board_model::MAX_BOARD_MODEL_LEN;
+
+const SECONDS: f64 = 600.0;
+const RATE_HZ: f64 = 200.0;
+/// The units' errors: white noise per sample and a Gauss-Markov bias (stationary variance,
+/// 1/correlation time), gyros in rad/s, accelerometers in m/s^2.
+const GYRO_WHITE: f64 = 2e-6;
+const GYRO_GM: (f64, f64) = (1e-6, 0.05);
+const ACCEL_WHITE: f64 = 4e-4;
+const ACCEL_GM: (f64, f64) = (4e-4, 0.05);
+
+fn sim_model() -> SimModel {
+    let unit = |name: &str, lever: [f64; 3], boresight: [f64; 3]| {
+        let channel = |unit: &str, white: f64, (gm_sigma2, gm_beta): (f64, f64)| {
+            format!(
+                r#"{{"stochastic": {{"model": "WN+GM", "unit": "{unit}", "sample_rate_hz": {RATE_HZ},
+                  "processes": [{{"kind": "white_noise", "sigma2": {white}}},
+                                {{"kind": "gauss_markov", "beta_per_s": {gm_beta}, "sigma2": {gm_sigma2}}}]}}}}"#
+            )
+        };
+        format!(
+            r#"{{"name": "{name}", "rate_hz": {RATE_HZ}, "lever_arm_b_m": {lever:?}, "boresight_rpy_deg": {boresight:?},
+               "gyro": {}, "accel": {}}}"#,
+            channel("rad/s", GYRO_WHITE, GYRO_GM),
+            channel("m/s^2", ACCEL_WHITE, ACCEL_GM)
+        )
+    };
+    let json = format!(
+        r#"{{"imus": [{}, {}, {}],
+ "gnss": {{"rate_hz": 10, "lever_arm_b_m": [0, 0, 0], "position_sigma_ned_m": [0.5, 0.5, 1.0],
+   "velocity_sigma_ned_m_s": [0.05, 0.05, 0.1], "outages": [[200, 230], [420, 450]]}},
+ "pps": {{"jitter_s": 2e-8, "capture_resolution_s": 1e-6}}}}"#,
+        unit("u0", [0.0; 3], [0.0; 3]),
+        unit("u1", [0.03, 0.02, 0.0], [0.3, -0.2, 0.5]),
+        unit("u2", [-0.02, 0.03, 0.01], [-0.4, 0.3, -0.2])
+    );
+    SimModel::from_json(&json, Path::new("refit-loop.json")).unwrap()
+}
+
+/// Mean NEES (position, velocity, attitude) of a log's states against the simulation,
+/// over the states with GNSS (outside the outages and the 10 s after them).
+fn mean_nees(sim: &SimOutput, log: &DecodedLog) -> [f64; 3] {
+    let t0 = sim.reference.recording.t_s[0];
+    let near_outage = |t: f64| {
+        [[200.0, 230.0], [420.0, 450.0]]
+            .iter()
+            .any(|o| t >= o[0] && t < o[1] + 10.0)
+    };
+    let mut sums = [0.0; 3];
+    let mut n = 0.0;
+    for s in &log.filter {
+        let e = state_error(&sim.reference.recording, s).unwrap();
+        if near_outage(e.t_s - t0) {
+            continue;
+        }
+        for (sum, x) in sums.iter_mut().zip(e.nees()) {
+            *sum += x;
+        }
+        n += 1.0;
+    }
+    sums.map(|x| x / n)
+}
+
+/// True value of a fitted parameter, by process and name.
+fn truth_of(gyro: bool, process: &str, name: &str) -> Option<f64> {
+    let (white, (gm_sigma2, gm_beta)) = if gyro {
+        (GYRO_WHITE, GYRO_GM)
+    } else {
+        (ACCEL_WHITE, ACCEL_GM)
+    };
+    match (process, name) {
+        ("WN", "sigma2") => Some(white),
+        ("GM", "sigma2") | ("GM1", "sigma2") => Some(gm_sigma2),
+        ("GM", "beta_per_s") | ("GM1", "beta_per_s") => Some(gm_beta),
+        _ => None,
+    }
+}
+
+#[test]
+fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is_not() {
+    if !dynacal_tests::qemu_or_skip() {
+        return;
+    }
+    // GIVEN a simulated 600 s car run of three units, its replay input and the firmware
+    let model = sim_model();
+    let opts = SimOptions {
+        scenario: Scenario::Car,
+        seconds: SECONDS,
+        seed: std::env::var("DYNACAL_REFIT_SEED")
+            .ok()
+            .and_then(|s| s.parse().ok())
+            .unwrap_or(19),
+        disabled: Vec::new(),
+        keep_ideal: false,
+    };
+    let sim = simulate(&model, &opts, &|_| {}).unwrap();
+    let board = board_recording(&sim, &model).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("car.replay");
+    std::fs::write(&input, board.replay_bytes().unwrap()).unwrap();
+    let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
+
+    // WHEN the board runs with its built-in model, and the host refits its log
+    let built_in_log = dir.path().join("built-in.log");
+    run_replay_in_qemu(&elf, &input, &built_in_log, None).unwrap();
+    let built_in = decode_file(&built_in_log).unwrap();
+    let options = RefitOptions {
+        choice: ModelChoice::Fixed(Structure::parse("WN+GM").unwrap()),
+        bootstrap: None,
+    };
+    let result = refit(&built_in, &options).unwrap();
+
+    // THEN the board's wavelet variances agree with the logged samples' on every channel
+    assert_eq!(result.agreement.len(), 18);
+    for a in &result.agreement {
+        assert!(
+            a.full_levels >= 4 && a.full_max_relative_difference < 1e-9,
+            "{a:?}"
+        );
+        assert_eq!(a.decimated_disjoint, 0, "{a:?}");
+    }
+    // AND the refitted parameters mostly hold the truth in their 95% intervals. Measured:
+    // 46, 44 and 50 of 54 on seeds 19-21 (85%, 81%, 93%), short of the nominal 95%: the
+    // misses are white-noise variances off by 1-2% against intervals of +-0.8%, and
+    // Gauss-Markov correlation times come out short (beta 0.06-0.3 for 0.05), which is the
+    // motion the alignment's residual (0.08 deg, lever arms short by centimetres) leaves in
+    // the units' differences at the scales of turns. Fewer than 12 misses holds on all three.
+    let mut checked = 0;
+    let mut missed = Vec::new();
+    for unit in &result.units {
+        for fit in &unit.fits {
+            let gyro = fit.unit == "rad/s";
+            for p in &fit.parameters {
+                let (Some(truth), Some([low, high])) =
+                    (truth_of(gyro, &p.process, &p.name), p.ci95)
+                else {
+                    continue;
+                };
+                checked += 1;
+                if !(low..=high).contains(&truth) {
+                    missed.push(format!(
+                        "{} {} {}: {} not in [{low:e}, {high:e}]",
+                        fit.channel, p.process, p.name, truth
+                    ));
+                }
+            }
+        }
+    }
+    println!("refit: {checked} intervals, missed {missed:?}");
+    assert_eq!(checked, 54);
+    assert!(missed.len() < 12, "{missed:#?}");
+
+    // WHEN the board runs again with the refitted blob
+    let mut blob = [0u8; MAX_BOARD_MODEL_LEN];
+    let len = result.board_model.encode(&mut blob).unwrap();
+    let blob_path = dir.path().join("board-model.bin");
+    std::fs::write(&blob_path, &blob[..len]).unwrap();
+    let refitted_log = dir.path().join("refitted.log");
+    let run = run_replay_in_qemu(&elf, &input, &refitted_log, Some(&blob_path)).unwrap();
+    assert!(!run.stderr.contains("refused"), "{}", run.stderr);
+    let refitted = decode_file(&refitted_log).unwrap();
+
+    // THEN its filter is consistent (mean NEES near 3) where the built-in one is not
+    let (good, bad) = (mean_nees(&sim, &refitted), mean_nees(&sim, &built_in));
+    println!("mean NEES (position, velocity, attitude): refitted {good:?}, built-in {bad:?}");
+    assert!(
+        good.iter().all(|&x| x > 0.5 && x < 4.5),
+        "refitted {good:?}"
+    );
+    assert!(bad[1] > 9.0, "built-in {bad:?}");
+
+    // AND a damaged blob is refused with its reason, and the board runs as with none
+    let mut damaged = blob[..len].to_vec();
+    damaged[len / 2] ^= 0x40;
+    std::fs::write(&blob_path, &damaged).unwrap();
+    let again_log = dir.path().join("damaged.log");
+    let run = run_replay_in_qemu(&elf, &input, &again_log, Some(&blob_path)).unwrap();
+    assert!(run.stderr.contains("refused: damaged"), "{}", run.stderr);
+    let again = decode_file(&again_log).unwrap();
+    assert!(
+        again.filter == built_in.filter && again.noise == built_in.noise,
+        "the board ran differently with a refused blob than with none"
+    );
+}
