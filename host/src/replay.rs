@@ -860,12 +860,21 @@ mod tests {
     #[test]
     fn run_report_parses_only_a_complete_line() {
         let stderr = "noise\ndynacal-firmware: run-report board=x imu_sample_sets=6000 \
-            pps_edges=60 health_reports=60 frames_written=6121 bytes_written=200000 \
-            frames_dropped=0 record_instructions=1200000 source_instructions=600000 \
-            total_instructions=1900000 calibration_instructions=2000000 calibration_ticks=336000\n";
+            pps_edges=60 health_reports=60 filter_states=10 noise_reports=2 fault_reports=1 \
+            frames_written=6121 bytes_written=200000 frames_dropped=0 \
+            record_instructions=1200000 source_instructions=600000 total_instructions=1900000 \
+            fusion_instructions=300000 navigating_fusion_instructions=200000 \
+            navigating_sample_sets=1000 calibration_instructions=2000000 \
+            calibration_ticks=336000\n";
         let report = RunReport::parse(stderr).unwrap();
         assert_eq!(report.imu_sample_sets, 6000);
         assert_eq!(report.record_instructions_per_sample(), 200.0);
+        assert_eq!((report.filter_states, report.fault_reports), (10, 1));
+        // 900 000 recording instructions over 3 s, 200 fusion instructions a set at 1 kHz.
+        assert_eq!(
+            report.steady_instructions_per_second(3.0, 1000.0),
+            Some(500_000.0)
+        );
         assert!(RunReport::parse("dynacal-firmware: run-report imu_sample_sets=1").is_none());
     }
 }

@@ -21,6 +21,7 @@
 //! [`Recorder::wv_period_us`] after the first event, and once more when the source ends.
 
 use crate::board_model::BoardModel;
+use crate::clock::{ClockConfig, TimeTagger};
 use crate::fusion::sets::SetAssembler;
 use crate::fusion::{BoardFusion, FusionConfig, FusionOutput, UnitReading, UNITS};
 use crate::gnss::{UbxReceiver, LEAP_SECONDS_2017};
@@ -258,6 +259,9 @@ impl Recorder {
         let mut last_pps_t_us: Option<u64> = None;
         let mut last_fix_t_us: Option<u64> = None;
         let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
+        let mut tagger = TimeTagger::new(ClockConfig::microsecond_timer());
+        // Whether the latest event's logged time is GPS time.
+        let mut time_gps = false;
         let mut dropped_at_last_health = 0u32;
         let mut ticks_at_last_health = start;
         let mut record_ticks_at_last_health = 0u64;
@@ -278,11 +282,16 @@ impl Recorder {
                 }
             }
             previous_t_us = Some(t_us);
+            if let SourceEvent::Pps(_) = event {
+                tagger.on_pps(t_us);
+            }
+            let (log_t_us, clock_status) = tagger.time_of(t_us);
+            time_gps = clock_status.is_some();
             let due = *next_health_t_us.get_or_insert(t_us.saturating_add(self.health_period_us));
             if t_us >= due {
                 let now = clock.now_ticks();
                 let health = self.health(
-                    t_us,
+                    (t_us, log_t_us, time_gps),
                     source,
                     &run.stats,
                     (last_pps_t_us, last_fix_t_us),
@@ -325,6 +334,10 @@ impl Recorder {
                             t_us,
                         });
                     };
+                    let sample = ImuSampleSet {
+                        t_us: log_t_us,
+                        ..sample
+                    };
                     run.emit(&Frame::Imu(sample))?;
                     run.stats.imu_sample_sets[index] += 1;
                     if let Some(channels) = run.wv.get_mut(index) {
@@ -341,7 +354,10 @@ impl Recorder {
                     }
                 }
                 SourceEvent::Pps(pps) => {
-                    run.emit(&Frame::Pps(pps))?;
+                    run.emit(&Frame::Pps(PpsEvent {
+                        t_us: log_t_us,
+                        ..pps
+                    }))?;
                     run.stats.pps_edges += 1;
                     last_pps_t_us = Some(pps.t_us);
                 }
@@ -353,12 +369,15 @@ impl Recorder {
                         let _ = fixes.push(fix);
                     });
                     for fix in fixes {
+                        tagger.on_fix(fix.t_us, t_us);
                         run.emit(&Frame::Gnss(fix))?;
                         run.stats.gnss_fixes += 1;
+                        // Without GPS time the fix's age is unknown: taken as fresh.
+                        let now_us = if time_gps { log_t_us } else { fix.t_us };
                         if let Some(f) = &mut run.fusion {
                             let start = clock.now_ticks();
                             let navigating = f.fusion.filter().is_some();
-                            f.fusion.push_gnss(t_us, &fix);
+                            f.fusion.push_gnss(now_us, &fix);
                             let ticks = clock.now_ticks().saturating_sub(start);
                             run.stats.fusion_ticks += ticks;
                             if navigating {
@@ -379,8 +398,9 @@ impl Recorder {
             run.fuse_set(set, clock)?;
         }
         run.emit_wv(&self.header)?;
+        let last_t_us = previous_t_us.unwrap_or(0);
         let health = self.health(
-            previous_t_us.unwrap_or(0),
+            (last_t_us, tagger.time_of(last_t_us).0, time_gps),
             source,
             &run.stats,
             (last_pps_t_us, last_fix_t_us),
@@ -401,9 +421,11 @@ impl Recorder {
         Ok(run.stats)
     }
 
+    /// The health report at an event of raw time `t_us` (the source's), logged at
+    /// `log_t_us` (GPS time when `time_gps`).
     fn health<Src: SampleSource>(
         &self,
-        t_us: u64,
+        (t_us, log_t_us, time_gps): (u64, u64, bool),
         source: &mut Src,
         stats: &RecorderStats,
         (last_pps_t_us, last_fix_t_us): (Option<u64>, Option<u64>),
@@ -411,6 +433,9 @@ impl Recorder {
         cpu_load_permille: u16,
     ) -> Health {
         let mut flags = 0;
+        if time_gps {
+            flags |= Health::FLAG_TIME_GPS;
+        }
         let recent =
             |t: Option<u64>| t.is_some_and(|t| t_us.saturating_sub(t) <= self.pps_lock_window_us);
         if recent(last_pps_t_us) {
@@ -426,7 +451,7 @@ impl Recorder {
             flags |= Health::FLAG_LOG_BACKPRESSURE;
         }
         Health {
-            t_us,
+            t_us: log_t_us,
             frames_dropped: stats.frames_dropped,
             samples_overrun: source.samples_overrun(),
             flags,
@@ -722,6 +747,86 @@ mod tests {
             _ => None,
         });
         assert!(last_health.is_some_and(|h| h.flags & Health::FLAG_GNSS_FIX != 0));
+    }
+
+    /// The board's timer counts microseconds since boot, 40 ppm fast; the receiver's fixes
+    /// (NAV-PVT every 100 ms, 50 ms late) and PPS edges make the log GPS time: samples
+    /// are logged within 10 us of their GPS time once a fix has labelled a pulse and a second
+    /// pulse has given the rate, and Health says so (FLAG_TIME_GPS).
+    #[test]
+    fn samples_are_logged_in_gps_time_once_pulses_and_fixes_discipline_the_timer() {
+        let gps0_s = 1_400_000_000.0f64;
+        let boot_us = |gps_s: f64| ((gps_s - gps0_s + 500.25) * (1.0 + 40e-6) * 1e6).round() as u64;
+        let fix = |valid_s: f64| GnssFix {
+            t_us: (valid_s * 1e6).round() as u64,
+            lat_rad: 0.8,
+            lon_rad: 0.1,
+            h_m: 400.0,
+            vel_ned_m_s: [0.0; 3],
+            pos_sigma_m: 0.3,
+            vel_sigma_m_s: 0.05,
+            num_sats: 12,
+            fix_type: 3,
+        };
+        let mut events = std::vec::Vec::new();
+        let mut truth = std::vec::Vec::new();
+        for ms in 0..6000u32 {
+            let gps_s = gps0_s + 0.5 + f64::from(ms) * 1e-3;
+            if ms % 1000 == 500 {
+                events.push(SourceEvent::Pps(PpsEvent {
+                    t_us: boot_us(gps_s),
+                    sequence: ms / 1000,
+                }));
+            }
+            if ms % 100 == 50 {
+                let frame = crate::gnss::encode_nav_pvt(&fix(gps_s - 0.05), LEAP_SECONDS_2017);
+                let mut data = [0u8; GNSS_CHUNK_MAX];
+                data[..frame.len()].copy_from_slice(&frame);
+                events.push(SourceEvent::Gnss(GnssChunk {
+                    t_us: boot_us(gps_s),
+                    len: frame.len() as u8,
+                    data,
+                }));
+            }
+            events.push(imu(boot_us(gps_s + 0.0003), 0, ms as i32));
+            truth.push(gps_s + 0.0003);
+        }
+        let mut sink = BoundedSink::with_capacity(usize::MAX);
+        Recorder::new(header(&[0]))
+            .run(
+                &mut VecSource(events.into_iter()),
+                &mut sink,
+                &mut StepClock(0),
+            )
+            .unwrap();
+        let frames = decode(&sink.bytes);
+        let samples: std::vec::Vec<u64> = frames
+            .iter()
+            .filter_map(|f| match f {
+                Frame::Imu(s) => Some(s.t_us),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(samples.len(), truth.len());
+        // Before the second pulse: boot time; from the third second on: GPS time.
+        assert_eq!(samples[0], boot_us(truth[0]));
+        let worst_us = samples[2000..]
+            .iter()
+            .zip(&truth[2000..])
+            .map(|(&logged, &t)| (logged as f64 - t * 1e6).abs())
+            .fold(0.0, f64::max);
+        assert!(worst_us < 10.0, "worst {worst_us} us");
+        let health: std::vec::Vec<&Health> = frames
+            .iter()
+            .filter_map(|f| match f {
+                Frame::Health(h) => Some(h),
+                _ => None,
+            })
+            .collect();
+        assert_eq!(health[0].flags & Health::FLAG_TIME_GPS, 0);
+        assert!(health[3..]
+            .iter()
+            .all(|h| h.flags & Health::FLAG_TIME_GPS != 0));
     }
 
     #[test]

@@ -128,6 +128,10 @@ fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is
     let built_in_log = dir.path().join("built-in.log");
     run_replay_in_qemu(&elf, &input, &built_in_log, None).unwrap();
     let built_in = decode_file(&built_in_log).unwrap();
+    // (Its clock is disciplined by the PPS and labelled by the fixes: GPS time from the
+    // third second on.)
+    let gps = dynacal_core::log::Health::FLAG_TIME_GPS;
+    assert!(built_in.health[3..].iter().all(|h| h.flags & gps != 0));
     let options = RefitOptions {
         choice: ModelChoice::Fixed(Structure::parse("WN+GM").unwrap()),
         bootstrap: None,
