@@ -67,7 +67,6 @@ impl SysTickClock {
     /// bench does first. Right after `start` SysTick's current value reads 0 until its first
     /// reload, which [`TickClock::now_ticks`] counts as a full period: a calibration that
     /// began there would come out negative.
-    #[allow(dead_code)] // the cost benches' (src/bin/*_cost.rs), not the application's
     pub fn start_calibrated(syst: SYST) -> (Self, Calibration) {
         let mut clock = Self::start(syst);
         let first = clock.now_ticks();

@@ -11,6 +11,8 @@
 mod board;
 #[cfg(target_os = "none")]
 mod cost;
+#[cfg(target_os = "none")]
+mod stack;
 
 #[cfg(target_os = "none")]
 mod bare_metal {
@@ -21,11 +23,12 @@ mod bare_metal {
 
     #[entry]
     fn main() -> ! {
+        // Before anything else runs deep: the run report states the deepest the stack went.
+        crate::stack::paint();
         let Some(core) = cortex_m::Peripherals::take() else {
             board::fatal("core peripherals taken twice")
         };
-        let mut clock = cost::SysTickClock::start(core.SYST);
-        let calibration = clock.calibrate();
+        let (mut clock, calibration) = cost::SysTickClock::start_calibrated(core.SYST);
         defmt::info!(
             "dynacal-firmware on {=str}: {=u64} SysTick ticks per {=u64} calibration instructions",
             board::NAME,

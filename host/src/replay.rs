@@ -391,6 +391,9 @@ pub struct RunReport {
     pub fusion_instructions: u64,
     pub navigating_fusion_instructions: u64,
     pub navigating_sample_sets: u64,
+    /// The deepest the stack went (painted at start-up), and the statics, bytes.
+    pub stack_peak_bytes: u64,
+    pub static_bytes: u64,
 }
 
 impl RunReport {
@@ -421,12 +424,14 @@ impl RunReport {
                 "fusion_instructions" => &mut report.fusion_instructions,
                 "navigating_fusion_instructions" => &mut report.navigating_fusion_instructions,
                 "navigating_sample_sets" => &mut report.navigating_sample_sets,
+                "stack_peak_bytes" => &mut report.stack_peak_bytes,
+                "static_bytes" => &mut report.static_bytes,
                 _ => continue,
             };
             *slot = value.parse().ok()?;
             seen += 1;
         }
-        (seen == 15).then_some(report)
+        (seen == 17).then_some(report)
     }
 
     /// Instructions per IMU sample set in the application's own work (framing + sink).
@@ -864,7 +869,8 @@ mod tests {
             frames_written=6121 bytes_written=200000 frames_dropped=0 \
             record_instructions=1200000 source_instructions=600000 total_instructions=1900000 \
             fusion_instructions=300000 navigating_fusion_instructions=200000 \
-            navigating_sample_sets=1000 calibration_instructions=2000000 \
+            navigating_sample_sets=1000 stack_peak_bytes=40000 static_bytes=50000 \
+            calibration_instructions=2000000 \
             calibration_ticks=336000\n";
         let report = RunReport::parse(stderr).unwrap();
         assert_eq!(report.imu_sample_sets, 6000);

@@ -215,6 +215,22 @@ impl PpsClock {
         }
     }
 
+    /// The clock's estimate as a line: the unwrapped count at the edge of GPS second
+    /// `second`, and counts per second; None before a pulse.
+    pub fn line(&self) -> Option<(f64, f64, u64)> {
+        (self.pulses > 0).then_some((self.state[0], self.state[1], self.second))
+    }
+
+    /// Pulses accepted so far.
+    pub fn pulses(&self) -> u32 {
+        self.pulses
+    }
+
+    /// `capture` unwrapped to 64 bits (see the module's note).
+    pub fn unwrapped(&mut self, capture: u32) -> u64 {
+        self.unwrap(capture)
+    }
+
     /// GPS time of a capture, with its 1-sigma and the clock's status.
     pub fn time_of(&mut self, capture: u32) -> GpsTime {
         let count = self.unwrap(capture) as f64;
@@ -254,6 +270,11 @@ impl PpsClock {
 #[derive(Debug, Clone)]
 pub struct TimeTagger {
     clock: PpsClock,
+    /// The clock's line in integers, renewed at each pulse, so an event costs a few integer
+    /// operations (f64 runs in software on the Cortex-M4F, and there are thousands of events
+    /// a second): the edge's count, the edge's GPS time in microseconds, microseconds
+    /// per count in 32.32 fixed point, and the counts in 2.5 s (the end of lock).
+    map: Option<(u64, u64, u64, i128)>,
     /// The latest fix: its GPS time and the capture its bytes arrived at, microseconds.
     last_fix: Option<(u64, u64)>,
     /// A pulse has been labelled with its GPS second.
@@ -268,6 +289,7 @@ impl TimeTagger {
     pub fn new(config: ClockConfig) -> Self {
         Self {
             clock: PpsClock::new(config),
+            map: None,
             last_fix: None,
             labelled: false,
         }
@@ -283,6 +305,15 @@ impl TimeTagger {
         if second.is_some() && matches!(outcome, PpsOutcome::Accepted { .. }) {
             self.labelled = true;
         }
+        self.map = match self.clock.line() {
+            Some((edge, rate, second)) if self.clock.pulses() >= 2 && rate > 0.0 => Some((
+                edge.round() as u64,
+                second.saturating_mul(1_000_000),
+                (1e6 / rate * 4_294_967_296.0).round() as u64,
+                (2.5 * rate) as i128,
+            )),
+            _ => None,
+        };
         outcome
     }
 
@@ -295,14 +326,21 @@ impl TimeTagger {
     /// status once the time is GPS time, else the capture itself (microseconds since boot)
     /// and None.
     pub fn time_of(&mut self, capture_us: u64) -> (u64, Option<ClockStatus>) {
-        if !self.labelled {
+        let count = self.clock.unwrapped(capture_us as u32);
+        let (true, Some((edge, second_us, us_per_count_q32, lock_counts))) =
+            (self.labelled, self.map)
+        else {
             return (capture_us, None);
-        }
-        let t = self.clock.time_of(capture_us as u32);
-        match t.status {
-            ClockStatus::Unlocked => (capture_us, None),
-            status => (t.t_us(), Some(status)),
-        }
+        };
+        let since = i128::from(count) - i128::from(edge);
+        let offset_us = (since * i128::from(us_per_count_q32) + (1 << 31)) >> 32;
+        let status = if since <= lock_counts {
+            ClockStatus::Locked
+        } else {
+            ClockStatus::Holdover
+        };
+        let t_us = (i128::from(second_us) + offset_us).max(0) as u64;
+        (t_us, Some(status))
     }
 }
 

@@ -213,6 +213,12 @@ impl Recorder {
         self
     }
 
+    /// Puts the fusion for this header into `slot`, if it runs.
+    #[inline(never)]
+    fn install_fusion(&self, slot: &mut Option<Fusion>) {
+        *slot = self.fusion();
+    }
+
     /// The fusion and its set assembler for this header, if it runs.
     fn fusion(&self) -> Option<Fusion> {
         let model = self.fusion_model.as_ref()?;
@@ -247,10 +253,13 @@ impl Recorder {
             sink,
             wv: [const { [const { RecorderWv::new() }; WV_CHANNELS] }; MAX_IMUS],
             wv_last_t_us: [0; MAX_IMUS],
-            fusion: self.fusion(),
+            fusion: None,
         };
+        // Built in a callee's frame: a fusion is 10 KiB, and the board's stack is measured
+        // (firmware/src/stack.rs).
+        self.install_fusion(&mut run.fusion);
         let start = clock.now_ticks();
-        run.emit(&Frame::Header(self.header.clone()))?;
+        run.emit_with(|| Frame::Header(self.header.clone()))?;
         run.stats.record_ticks += clock.now_ticks().saturating_sub(start);
 
         let mut previous_t_us: Option<u64> = None;
@@ -306,7 +315,7 @@ impl Recorder {
                 dropped_at_last_health = run.stats.frames_dropped;
                 ticks_at_last_health = now;
                 record_ticks_at_last_health = run.stats.record_ticks;
-                run.emit(&Frame::Health(health))?;
+                run.emit_with(|| Frame::Health(health))?;
                 run.stats.health_reports += 1;
                 // Skip whole periods with no events rather than reporting them in a burst.
                 let periods_late = (t_us - due) / self.health_period_us.max(1) + 1;
@@ -338,7 +347,7 @@ impl Recorder {
                         t_us: log_t_us,
                         ..sample
                     };
-                    run.emit(&Frame::Imu(sample))?;
+                    run.emit_with(|| Frame::Imu(sample))?;
                     run.stats.imu_sample_sets[index] += 1;
                     if let Some(channels) = run.wv.get_mut(index) {
                         let counts = sample.gyro_counts.iter().chain(&sample.accel_counts);
@@ -354,10 +363,12 @@ impl Recorder {
                     }
                 }
                 SourceEvent::Pps(pps) => {
-                    run.emit(&Frame::Pps(PpsEvent {
-                        t_us: log_t_us,
-                        ..pps
-                    }))?;
+                    run.emit_with(|| {
+                        Frame::Pps(PpsEvent {
+                            t_us: log_t_us,
+                            ..pps
+                        })
+                    })?;
                     run.stats.pps_edges += 1;
                     last_pps_t_us = Some(pps.t_us);
                 }
@@ -370,20 +381,11 @@ impl Recorder {
                     });
                     for fix in fixes {
                         tagger.on_fix(fix.t_us, t_us);
-                        run.emit(&Frame::Gnss(fix))?;
+                        run.emit_with(|| Frame::Gnss(fix))?;
                         run.stats.gnss_fixes += 1;
                         // Without GPS time the fix's age is unknown: taken as fresh.
                         let now_us = if time_gps { log_t_us } else { fix.t_us };
-                        if let Some(f) = &mut run.fusion {
-                            let start = clock.now_ticks();
-                            let navigating = f.fusion.filter().is_some();
-                            f.fusion.push_gnss(now_us, &fix);
-                            let ticks = clock.now_ticks().saturating_sub(start);
-                            run.stats.fusion_ticks += ticks;
-                            if navigating {
-                                run.stats.navigating_fusion_ticks += ticks;
-                            }
-                        }
+                        run.fuse_gnss(now_us, &fix, clock);
                         if fix.fix_type == 3 || fix.fix_type == 4 {
                             last_fix_t_us = Some(t_us);
                         }
@@ -412,7 +414,7 @@ impl Recorder {
                 final_start.saturating_sub(ticks_at_last_health),
             ),
         );
-        run.emit(&Frame::Health(health))?;
+        run.emit_with(|| Frame::Health(health))?;
         run.stats.health_reports += 1;
         run.sink.flush().map_err(RecorderError::Sink)?;
         let end = clock.now_ticks();
@@ -517,22 +519,65 @@ impl<K: LogSink> Run<'_, K> {
         }
     }
 
-    /// Fuses one sample set and logs what the fusion reports.
+    /// Gives a receiver solution to the fusion (out of line: the run loop's frame stays
+    /// small).
+    #[inline(never)]
+    fn fuse_gnss(&mut self, now_us: u64, fix: &GnssFix, clock: &mut impl TickClock) {
+        let Some(f) = &mut self.fusion else {
+            return;
+        };
+        let start = clock.now_ticks();
+        let navigating = f.fusion.filter().is_some();
+        f.fusion.push_gnss(now_us, fix);
+        let ticks = clock.now_ticks().saturating_sub(start);
+        self.stats.fusion_ticks += ticks;
+        if navigating {
+            self.stats.navigating_fusion_ticks += ticks;
+        }
+    }
+
+    /// Fuses one sample set and logs what the fusion reports, each output framed as it
+    /// comes (no list of outputs, no frame kept: the board's stack is measured).
+    #[inline(never)]
     fn fuse_set<S>(
         &mut self,
         (t_us, readings): crate::fusion::sets::SampleSet,
         clock: &mut impl TickClock,
     ) -> Result<(), RecorderError<S, K::Error>> {
-        let Some(f) = &mut self.fusion else {
+        let Run {
+            stats,
+            frame_buf,
+            sink,
+            fusion,
+            ..
+        } = self;
+        let Some(f) = fusion else {
             return Ok(());
         };
         let start = clock.now_ticks();
         let navigating = f.fusion.filter().is_some();
-        // At most a state, a noise report and, per sensor type, a confirmation and a
-        // readmission of each unit.
-        let mut outputs: heapless::Vec<FusionOutput, 16> = heapless::Vec::new();
-        f.fusion.push_set(t_us, &readings, &mut |o| {
-            let _ = outputs.push(o);
+        let mut failed = None;
+        f.fusion.push_set(t_us, &readings, &mut |output| {
+            if failed.is_some() {
+                return;
+            }
+            let frame = match output {
+                FusionOutput::State(s) => {
+                    stats.filter_states += 1;
+                    Frame::Filter(s)
+                }
+                FusionOutput::Noise(n) => {
+                    stats.noise_reports += 1;
+                    Frame::Noise(n)
+                }
+                FusionOutput::Fault(fault) => {
+                    stats.fault_reports += 1;
+                    Frame::Fault(fault)
+                }
+            };
+            if let Err(e) = emit_to(&mut **sink, frame_buf, stats, &frame) {
+                failed = Some(e);
+            }
         });
         let ticks = clock.now_ticks().saturating_sub(start);
         self.stats.fusion_ticks += ticks;
@@ -540,24 +585,7 @@ impl<K: LogSink> Run<'_, K> {
             self.stats.navigating_fusion_ticks += ticks;
             self.stats.navigating_sample_sets += 1;
         }
-        for output in outputs {
-            let frame = match output {
-                FusionOutput::State(s) => {
-                    self.stats.filter_states += 1;
-                    Frame::Filter(s)
-                }
-                FusionOutput::Noise(n) => {
-                    self.stats.noise_reports += 1;
-                    Frame::Noise(n)
-                }
-                FusionOutput::Fault(fault) => {
-                    self.stats.fault_reports += 1;
-                    Frame::Fault(fault)
-                }
-            };
-            self.emit(&frame)?;
-        }
-        Ok(())
+        failed.map_or(Ok(()), Err)
     }
 
     /// One WaveletVariance frame per declared IMU and channel.
@@ -584,22 +612,40 @@ impl<K: LogSink> Run<'_, K> {
     }
 
     fn emit<S>(&mut self, frame: &Frame) -> Result<(), RecorderError<S, K::Error>> {
-        let len = encode_frame(frame, &mut self.frame_buf).map_err(RecorderError::Encode)?;
-        let bytes = self
-            .frame_buf
-            .get(..len)
-            .ok_or(RecorderError::Encode(LogError::BufferTooSmall))?;
-        match self.sink.write_frame(bytes).map_err(RecorderError::Sink)? {
-            Accepted::Written => {
-                self.stats.frames_written += 1;
-                self.stats.bytes_written += len as u64;
-            }
-            Accepted::Dropped => {
-                self.stats.frames_dropped = self.stats.frames_dropped.saturating_add(1)
-            }
-        }
-        Ok(())
+        emit_to(&mut *self.sink, &mut self.frame_buf, &mut self.stats, frame)
     }
+
+    /// Emits the frame `make` builds, in this function's frame rather than the caller's (a
+    /// `Frame` is 1 KiB: the large run loop keeps none of them).
+    #[inline(never)]
+    fn emit_with<S>(
+        &mut self,
+        make: impl FnOnce() -> Frame,
+    ) -> Result<(), RecorderError<S, K::Error>> {
+        let frame = make();
+        self.emit(&frame)
+    }
+}
+
+/// Encodes `frame` into `frame_buf` and hands it to `sink`, counting it in `stats`.
+fn emit_to<S, K: LogSink>(
+    sink: &mut K,
+    frame_buf: &mut [u8; MAX_FRAME_LEN],
+    stats: &mut RecorderStats,
+    frame: &Frame,
+) -> Result<(), RecorderError<S, K::Error>> {
+    let len = encode_frame(frame, frame_buf).map_err(RecorderError::Encode)?;
+    let bytes = frame_buf
+        .get(..len)
+        .ok_or(RecorderError::Encode(LogError::BufferTooSmall))?;
+    match sink.write_frame(bytes).map_err(RecorderError::Sink)? {
+        Accepted::Written => {
+            stats.frames_written += 1;
+            stats.bytes_written += len as u64;
+        }
+        Accepted::Dropped => stats.frames_dropped = stats.frames_dropped.saturating_add(1),
+    }
+    Ok(())
 }
 
 #[cfg(test)]

@@ -246,6 +246,33 @@ fn a_truncated_replay_input_fails_the_run_and_leaves_no_log() {
     assert!(!log_path.exists());
 }
 
+/// A panic on the board ends the emulated run with failure (exit code 101 and the panic's
+/// message) instead of hanging it: the firmware's one deliberate panic,
+/// `--panic-self-test`, goes through the same handler as any other.
+#[test]
+fn a_panic_on_the_board_ends_the_run_with_failure() {
+    if !dynacal_tests::qemu_or_skip() {
+        return;
+    }
+    let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
+    let run = std::process::Command::new("timeout")
+        .arg("60")
+        .arg("qemu-system-arm")
+        .args(dynacal::replay::QEMU_BOARD_ARGS)
+        .arg("-semihosting-config")
+        .arg("enable=on,target=native,arg=dynacal-firmware,arg=--panic-self-test")
+        .arg("-kernel")
+        .arg(&elf)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert_eq!(run.status.code(), Some(101), "{stderr}");
+    assert!(
+        stderr.contains("panic") && stderr.contains("self-test"),
+        "{stderr}"
+    );
+}
+
 /// A simulated car run's receiver bytes (each GNSS fix as the NAV-PVT frame a u-blox
 /// receiver sends, in the replay input as its UART delivers them) go through the firmware's
 /// receiver: the board logs every fix, equal to the simulation's to the frame's resolution,

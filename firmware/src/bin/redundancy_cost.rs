@@ -34,6 +34,10 @@
 mod cost;
 
 #[cfg(target_os = "none")]
+#[path = "../stack.rs"]
+mod stack;
+
+#[cfg(target_os = "none")]
 mod bare_metal {
     use core::hint::black_box;
 
@@ -260,44 +264,8 @@ mod bare_metal {
         }
     }
 
-    extern "C" {
-        // cortex-m-rt's link.x: the RAM region of memory.x, and the stack's lowest address
-        // (right after the statics).
-        static _ram_start: u32;
-        static _ram_end: u32;
-        static _stack_end: u32;
-    }
-
-    const PAINT: u32 = 0xC0DE_5AFE;
-
-    fn stack_floor() -> usize {
-        core::ptr::addr_of!(_stack_end) as usize
-    }
-
-    /// Fills the free stack (from its lowest address to just below this function's frame)
-    /// with PAINT, so [`low_water`] can tell how deep the stack has gone since.
-    #[inline(never)]
-    fn paint_free_stack() {
-        let sp = cortex_m::register::msp::read() as usize;
-        let mut p = stack_floor();
-        while p + 64 < sp {
-            // SAFETY: below the stack pointer and above the statics: memory no object owns
-            // (exception frames pushed there meanwhile are dead once their handler returns).
-            unsafe { core::ptr::write_volatile(p as *mut u32, PAINT) };
-            p += 4;
-        }
-    }
-
-    /// The lowest stack address written since [`paint_free_stack`].
-    fn low_water() -> usize {
-        let top = core::ptr::addr_of!(_ram_end) as usize;
-        let mut p = stack_floor();
-        // SAFETY: reads of RAM between the statics and the top of the stack, as words.
-        while p < top && unsafe { core::ptr::read_volatile(p as *const u32) } == PAINT {
-            p += 4;
-        }
-        p
-    }
+    use crate::stack;
+    use stack::{floor as stack_floor, low_water, paint as paint_free_stack};
 
     fn run(clock: &mut SysTickClock, calibration: &Calibration) {
         let overhead = clock.read_overhead(calibration, 200);
@@ -371,8 +339,8 @@ mod bare_metal {
 
         let live_noise = core::mem::size_of::<LiveNoise<UNITS>>();
         let fault_monitor = core::mem::size_of::<FaultMonitor<UNITS>>();
-        let ram_start = core::ptr::addr_of!(_ram_start) as usize;
-        let ram_end = core::ptr::addr_of!(_ram_end) as usize;
+        let ram_start = stack::ram_start();
+        let ram_end = stack::ram_end();
         semihosting::eprintln!(
             "redundancy-cost sizes live_noise_3={} fault_monitor_3={} estimator_state={} \
              stack_per_set={} statics={} stack_peak={} ram={}",

@@ -5,7 +5,8 @@
 //! (`dynacal_core::replay` format) and the log to write, and optionally a third: the board
 //! model (`board-model.bin`, `dynacal_core::board_model`) the fusion runs. A model that does
 //! not read (damaged, truncated, another version) is refused with its reason on stderr and
-//! the built-in model runs; a model file that cannot be opened at all is a usage error. Both are accessed with semihosting
+//! the built-in model runs; a model file that cannot be opened at all is a usage error.
+//! `--panic-self-test` as the only argument panics on purpose, to show the fatal path. Both are accessed with semihosting
 //! file calls; each call is a trap into QEMU, so input is read and output written in large
 //! chunks. The log is written to `OUT.part` and renamed to `OUT` only after a complete run,
 //! so a failed run never leaves a log that looks whole. The run report (counts and the
@@ -139,6 +140,11 @@ fn command_line() -> Result<(Path, Path, Option<Path>), Message> {
     };
     let missing = |what: &str| message(format_args!("missing {what} path"));
     let input = next_path("replay input").ok_or_else(|| missing("replay input"))??;
+    if input == "--panic-self-test" {
+        // The one deliberate panic: it shows that a panic ends the run with failure (exit
+        // code 101) instead of hanging the board.
+        panic!("self-test: a panic ends the run");
+    }
     let output = next_path("log output").ok_or_else(|| missing("log output"))??;
     let model = next_path("board model").transpose()?;
     if next_path("extra").is_some() {
@@ -470,7 +476,15 @@ pub fn finish(
     if let Err(m) = sink.commit() {
         fail(&m)
     }
-    let mut line = String::<512>::new();
+    // Painted stack worn down to the statics: the run may have overwritten them.
+    if crate::stack::low_water() <= crate::stack::floor() {
+        fail(&message(format_args!(
+            "the stack reached the statics ({} bytes of stack, {} of statics): the run is not to be trusted",
+            crate::stack::peak_bytes(),
+            crate::stack::static_bytes()
+        )))
+    }
+    let mut line = String::<640>::new();
     let _ = write!(
         line,
         "dynacal-firmware: run-report board={NAME} imu_sample_sets={} pps_edges={} \
@@ -478,6 +492,7 @@ pub fn finish(
          frames_written={} bytes_written={} frames_dropped={} \
          record_instructions={} source_instructions={} total_instructions={} \
          fusion_instructions={} navigating_fusion_instructions={} navigating_sample_sets={} \
+         stack_peak_bytes={} static_bytes={} \
          calibration_instructions={} calibration_ticks={}",
         stats.total_imu_sample_sets(),
         stats.pps_edges,
@@ -494,6 +509,8 @@ pub fn finish(
         calibration.instructions(stats.fusion_ticks),
         calibration.instructions(stats.navigating_fusion_ticks),
         stats.navigating_sample_sets,
+        crate::stack::peak_bytes(),
+        crate::stack::static_bytes(),
         calibration.instructions,
         calibration.ticks,
     );

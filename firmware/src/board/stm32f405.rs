@@ -514,6 +514,11 @@ pub fn finish(
     sink: &mut UartSink,
 ) -> ! {
     let _ = sink.flush();
+    defmt::info!(
+        "stack at the deepest {=usize} bytes, statics {=usize} bytes",
+        crate::stack::peak_bytes(),
+        crate::stack::static_bytes()
+    );
     match result {
         Ok(stats) => defmt::warn!(
             "source ended after {=u64} sample sets ({=u64} core cycles of recording, \

@@ -91,6 +91,11 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             100.0 * per_second / CORE_HZ
         );
     }
+    println!(
+        "  memory    {} bytes of stack at the deepest (painted), {} of statics (the replay \
+         board's 48 KiB of semihosting buffers among them)",
+        report.stack_peak_bytes, report.static_bytes
+    );
     let rate_hz = log
         .header
         .as_ref()

@@ -719,7 +719,9 @@ impl BoardFusion {
         self.counts.gnss_fused += 1;
     }
 
-    /// Starts the filter at an alignment's result.
+    /// Starts the filter at an alignment's result (out of line: its 4 KiB filter is built
+    /// once, and the frames of the hot path stay small).
+    #[inline(never)]
     fn start(&mut self, start: &Start) {
         let mut config = self.config.ekf;
         config.gyro_bias_psd = self.gyro_noise_model.bias_psd;
