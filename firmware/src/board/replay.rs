@@ -42,7 +42,7 @@ use defmt_semihosting as _;
 pub const NAME: &str = "replay-qemu-netduinoplus2";
 
 /// Bytes read from the input per semihosting call.
-const INPUT_CHUNK: usize = 16 * 1024;
+const INPUT_CHUNK: usize = 8 * 1024;
 /// Bytes of log collected before one semihosting write.
 const OUTPUT_CHUNK: usize = 32 * 1024;
 /// Longest host path accepted, bytes (NUL excluded).

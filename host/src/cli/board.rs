@@ -93,7 +93,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     println!(
         "  memory    {} bytes of stack at the deepest (painted), {} of statics (the replay \
-         board's 48 KiB of semihosting buffers among them)",
+         board's 40 KiB of semihosting buffers among them)",
         report.stack_peak_bytes, report.static_bytes
     );
     let rate_hz = log
