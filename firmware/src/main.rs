@@ -17,9 +17,14 @@ mod stack;
 #[cfg(target_os = "none")]
 mod bare_metal {
     use cortex_m_rt::{entry, exception, ExceptionFrame};
-    use dynacal_core::recorder::Recorder;
+    use dynacal_core::recorder::{Recorder, RunState};
+    use static_cell::ConstStaticCell;
 
     use crate::{board, cost};
+
+    /// The recorder's state between events, in RAM beside the other statics: it is built at
+    /// compile time, so it never passes through the stack, whose depth is measured.
+    static RUN_STATE: ConstStaticCell<RunState> = ConstStaticCell::new(RunState::new());
 
     #[entry]
     fn main() -> ! {
@@ -37,7 +42,10 @@ mod bare_metal {
         );
         let mut parts = board::init();
         let recorder = Recorder::new(parts.header).with_fusion(parts.model);
-        let result = recorder.run(&mut parts.source, &mut parts.sink, &mut clock);
+        let Some(state) = RUN_STATE.try_take() else {
+            board::fatal("run state taken twice")
+        };
+        let result = recorder.run_in(state, &mut parts.source, &mut parts.sink, &mut clock);
         board::finish(result, &calibration, &mut parts.sink)
     }
 

@@ -306,6 +306,30 @@ mod tests {
     }
 
     proptest::proptest! {
+
+
+        // Seeded: every failure reproduces (the project's rule for random generators).
+
+
+        #![proptest_config(proptest::test_runner::Config {
+
+
+            rng_seed: proptest::test_runner::RngSeed::Fixed(0x5eed0b01),
+
+
+            failure_persistence: Some(std::boxed::Box::new(
+
+
+                proptest::test_runner::FileFailurePersistence::Off
+
+
+            )),
+
+
+            ..proptest::test_runner::Config::default()
+
+
+        })]
         /// Arbitrary bytes, and a good blob with bytes changed, never panic the reader, and
         /// a changed blob is never read as a different model.
         #[test]

@@ -431,6 +431,30 @@ mod tests {
     }
 
     proptest::proptest! {
+
+
+        // Seeded: every failure reproduces (the project's rule for random generators).
+
+
+        #![proptest_config(proptest::test_runner::Config {
+
+
+            rng_seed: proptest::test_runner::RngSeed::Fixed(0x5eed0c01),
+
+
+            failure_persistence: Some(std::boxed::Box::new(
+
+
+                proptest::test_runner::FileFailurePersistence::Off
+
+
+            )),
+
+
+            ..proptest::test_runner::Config::default()
+
+
+        })]
         /// Whatever captures arrive, in whatever order, the clock neither panics nor
         /// returns a time without a sigma.
         #[test]

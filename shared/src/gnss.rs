@@ -412,6 +412,30 @@ mod tests {
     }
 
     proptest::proptest! {
+
+
+        // Seeded: every failure reproduces (the project's rule for random generators).
+
+
+        #![proptest_config(proptest::test_runner::Config {
+
+
+            rng_seed: proptest::test_runner::RngSeed::Fixed(0x5eed0901),
+
+
+            failure_persistence: Some(std::boxed::Box::new(
+
+
+                proptest::test_runner::FileFailurePersistence::Off
+
+
+            )),
+
+
+            ..proptest::test_runner::Config::default()
+
+
+        })]
         /// Arbitrary bytes, in arbitrary pieces, never panic the receiver; a solution that
         /// follows them whole is still found.
         #[test]

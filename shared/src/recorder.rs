@@ -158,6 +158,27 @@ pub struct RecorderStats {
 }
 
 impl RecorderStats {
+    /// Nothing yet.
+    pub const ZERO: Self = Self {
+        imu_sample_sets: [0; MAX_IMUS],
+        pps_edges: 0,
+        gnss_fixes: 0,
+        health_reports: 0,
+        wv_frames: 0,
+        filter_states: 0,
+        noise_reports: 0,
+        fault_reports: 0,
+        fusion_ticks: 0,
+        navigating_fusion_ticks: 0,
+        navigating_sample_sets: 0,
+        frames_written: 0,
+        bytes_written: 0,
+        frames_dropped: 0,
+        source_ticks: 0,
+        record_ticks: 0,
+        total_ticks: 0,
+    };
+
     /// All IMU sample sets received.
     pub fn total_imu_sample_sets(&self) -> u64 {
         self.imu_sample_sets.iter().sum()
@@ -215,8 +236,11 @@ impl Recorder {
 
     /// Puts the fusion for this header into `slot`, if it runs.
     #[inline(never)]
-    fn install_fusion(&self, slot: &mut Option<Fusion>) {
-        *slot = self.fusion();
+    fn install_fusion(&self, slot: &mut heapless::Vec<Fusion, 1>) {
+        slot.clear();
+        if let Some(fusion) = self.fusion() {
+            let _ = slot.push(fusion);
+        }
     }
 
     /// The fusion and its set assembler for this header, if it runs.
@@ -247,14 +271,21 @@ impl Recorder {
         sink: &mut Snk,
         clock: &mut C,
     ) -> Result<RecorderStats, RecorderError<Src::Error, Snk::Error>> {
-        let mut run = Run {
-            stats: RecorderStats::default(),
-            frame_buf: [0u8; MAX_FRAME_LEN],
-            sink,
-            wv: [const { [const { RecorderWv::new() }; WV_CHANNELS] }; MAX_IMUS],
-            wv_last_t_us: [0; MAX_IMUS],
-            fusion: None,
-        };
+        let mut state = RunState::new();
+        self.run_in(&mut state, source, sink, clock)
+    }
+
+    /// As [`Self::run`], in a state the caller keeps (a board's static, so that the run's
+    /// 35 KiB never sit on its stack); the state is reset first.
+    pub fn run_in<Src: SampleSource, Snk: LogSink, C: TickClock>(
+        &self,
+        state: &mut RunState,
+        source: &mut Src,
+        sink: &mut Snk,
+        clock: &mut C,
+    ) -> Result<RecorderStats, RecorderError<Src::Error, Snk::Error>> {
+        state.reset();
+        let mut run = Run { state, sink };
         // Built in a callee's frame: a fusion is 10 KiB, and the board's stack is measured
         // (firmware/src/stack.rs).
         self.install_fusion(&mut run.fusion);
@@ -396,7 +427,7 @@ impl Recorder {
         }
 
         let final_start = clock.now_ticks();
-        if let Some(set) = run.fusion.as_mut().and_then(|f| f.sets.finish()) {
+        if let Some(set) = run.fusion.first_mut().and_then(|f| f.sets.finish()) {
             run.fuse_set(set, clock)?;
         }
         run.emit_wv(&self.header)?;
@@ -471,15 +502,67 @@ fn load_permille(busy_ticks: u64, interval_ticks: u64) -> u16 {
     (busy_ticks.min(interval_ticks) * 1000 / interval_ticks) as u16
 }
 
-struct Run<'a, K> {
+/// What a run keeps from event to event: 35 KiB, most of it the 18 wavelet-variance
+/// accumulators and the fusion. A board that measures its stack keeps it in a static
+/// ([`Recorder::run_in`]; it is `const`-constructed, so it never passes through the stack).
+pub struct RunState {
     stats: RecorderStats,
     frame_buf: [u8; MAX_FRAME_LEN],
-    sink: &'a mut K,
     /// Wavelet-variance accumulators per IMU (header order) and channel.
     wv: [[RecorderWv; WV_CHANNELS]; MAX_IMUS],
     /// Time of the last sample accumulated per IMU, microseconds.
     wv_last_t_us: [u64; MAX_IMUS],
-    fusion: Option<Fusion>,
+    /// The fusion when it runs. A `heapless::Vec` of one rather than an `Option`: empty, it
+    /// is all zero bytes (an `Option`'s `None` is a niche value), so a board's static state
+    /// sits in .bss and costs no flash image.
+    fusion: heapless::Vec<Fusion, 1>,
+}
+
+impl RunState {
+    /// A fresh state.
+    pub const fn new() -> Self {
+        Self {
+            stats: RecorderStats::ZERO,
+            frame_buf: [0u8; MAX_FRAME_LEN],
+            wv: [const { [const { RecorderWv::new() }; WV_CHANNELS] }; MAX_IMUS],
+            wv_last_t_us: [0; MAX_IMUS],
+            fusion: heapless::Vec::new(),
+        }
+    }
+
+    /// Back to fresh, field by field in place.
+    fn reset(&mut self) {
+        self.stats = RecorderStats::ZERO;
+        for stream in self.wv.iter_mut().flatten() {
+            *stream = RecorderWv::new();
+        }
+        self.wv_last_t_us = [0; MAX_IMUS];
+        self.fusion.clear();
+    }
+}
+
+impl Default for RunState {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+struct Run<'a, K> {
+    state: &'a mut RunState,
+    sink: &'a mut K,
+}
+
+impl<K> core::ops::Deref for Run<'_, K> {
+    type Target = RunState;
+    fn deref(&self) -> &RunState {
+        self.state
+    }
+}
+
+impl<K> core::ops::DerefMut for Run<'_, K> {
+    fn deref_mut(&mut self) -> &mut RunState {
+        self.state
+    }
 }
 
 /// The on-board fusion and the sets it is fed.
@@ -510,7 +593,7 @@ impl<K: LogSink> Run<'_, K> {
         imu: &ImuConfig,
         clock: &mut impl TickClock,
     ) -> Result<(), RecorderError<S, K::Error>> {
-        let Some(f) = &mut self.fusion else {
+        let Some(f) = self.fusion.first_mut() else {
             return Ok(());
         };
         match f.sets.push(index, sample.t_us, reading_of(sample, imu)) {
@@ -523,7 +606,7 @@ impl<K: LogSink> Run<'_, K> {
     /// small).
     #[inline(never)]
     fn fuse_gnss(&mut self, now_us: u64, fix: &GnssFix, clock: &mut impl TickClock) {
-        let Some(f) = &mut self.fusion else {
+        let Some(f) = self.fusion.first_mut() else {
             return;
         };
         let start = clock.now_ticks();
@@ -544,14 +627,14 @@ impl<K: LogSink> Run<'_, K> {
         (t_us, readings): crate::fusion::sets::SampleSet,
         clock: &mut impl TickClock,
     ) -> Result<(), RecorderError<S, K::Error>> {
-        let Run {
+        let Run { state, sink } = self;
+        let RunState {
             stats,
             frame_buf,
-            sink,
             fusion,
             ..
-        } = self;
-        let Some(f) = fusion else {
+        } = &mut **state;
+        let Some(f) = fusion.first_mut() else {
             return Ok(());
         };
         let start = clock.now_ticks();
@@ -612,7 +695,8 @@ impl<K: LogSink> Run<'_, K> {
     }
 
     fn emit<S>(&mut self, frame: &Frame) -> Result<(), RecorderError<S, K::Error>> {
-        emit_to(&mut *self.sink, &mut self.frame_buf, &mut self.stats, frame)
+        let Run { state, sink } = self;
+        emit_to(&mut **sink, &mut state.frame_buf, &mut state.stats, frame)
     }
 
     /// Emits the frame `make` builds, in this function's frame rather than the caller's (a
