@@ -4,16 +4,26 @@
 //! Timing: TIM2 free-runs at 1 MHz. Its four input-capture channels latch the counter on the
 //! PPS edge (CH1, PA0) and on each IMU's data-ready pulse (CH2..CH4, PA1..PA3), so every
 //! sample set and every PPS edge is stamped in hardware on one time base, independent of
-//! when the software gets to it. The 32-bit capture is extended to 64 bits by counting
-//! timer wraps (every 71.6 min). An over-capture flag means a data-ready edge came before
-//! the previous capture was read: that sample set is counted as overrun.
+//! when the software gets to it. The TIM2 interrupt takes each capture (and each wrap, every
+//! 71.6 min, which extends the count to 64 bits) into a queue; the main loop sleeps (`wfi`)
+//! until there is one, reads that IMU over SPI, and hands the event on. An over-capture
+//! flag means a data-ready edge came before the previous capture was read: that sample set
+//! is counted as overrun. Events are handed on 200 us after their stamp at the earliest,
+//! in time order, so a capture whose interrupt waited behind another still comes first.
+//!
+//! GNSS: the u-blox receiver's UART on USART3 (RX PB11, 115 200 baud); its receive
+//! interrupt queues the bytes with the timer's count at the last one, and the main loop
+//! hands them on as GNSS chunks for the recorder's UBX parser.
+//!
+//! Watchdog: the independent watchdog resets the board if the main loop stops asking for
+//! events for 500 ms (a hung SPI transfer, a loop gone wrong).
 //!
 //! Log: frames go into a 16 KiB queue drained by the USART1 transmit interrupt at
 //! 921 600 baud; a frame that does not fit is dropped whole and counted (the recorder puts
 //! the count in its Health frames). Defmt goes out over RTT to a debug probe.
 //!
 //! Pins: SPI1 SCK/MISO/MOSI = PA5/PA6/PA7, chip selects PC0/PC1/PC2 (IMU 0/1/2),
-//! USART1 TX = PA9.
+//! USART1 TX = PA9 (log), USART3 RX = PB11 (GNSS receiver).
 //!
 //! Model: the board model (`board-model.bin`) is read from flash sector 11 (`memory.x`); an
 //! erased sector, or a blob that does not read, leaves the built-in model running, and the
@@ -22,23 +32,26 @@
 //! This board needs hardware: CI builds it, nothing runs it (QEMU's netduinoplus2 models
 //! neither TIM2 input capture nor the IMUs).
 
-use core::cell::RefCell;
+use core::cell::{Cell, RefCell};
+use core::sync::atomic::{AtomicU32, Ordering};
 
 use critical_section::Mutex;
 use dynacal_core::board_model::{BoardModel, BoardModelError, MAX_BOARD_MODEL_LEN};
 use dynacal_core::log::{Header, ImuConfig, ImuSampleSet, PpsEvent, MAX_IMUS, PROTOCOL_VERSION};
 use dynacal_core::recorder::{
-    Accepted, LogSink, RecorderError, RecorderStats, SampleSource, SourceEvent,
+    Accepted, GnssChunk, LogSink, RecorderError, RecorderStats, SampleSource, SourceEvent,
 };
+use dynacal_core::replay::GNSS_CHUNK_MAX;
 use embedded_hal::delay::DelayNs;
 use embedded_hal_bus::spi::RefCellDevice;
 use heapless::spsc::{Consumer, Producer, Queue};
 use stm32f4xx_hal::gpio::{Output, Pin, PushPull};
-use stm32f4xx_hal::pac::{self, interrupt, Interrupt, TIM2, USART1};
+use stm32f4xx_hal::pac::{self, interrupt, Interrupt, TIM2, USART1, USART3};
 use stm32f4xx_hal::prelude::*;
 use stm32f4xx_hal::rcc::{Clocks, Enable, Reset};
-use stm32f4xx_hal::serial::{Config, Tx};
+use stm32f4xx_hal::serial::{Config, Rx, Tx};
 use stm32f4xx_hal::spi::{Mode, Phase, Polarity, Spi};
+use stm32f4xx_hal::watchdog::IndependentWatchdog;
 
 use super::icm42688::{self, Icm42688};
 use crate::cost::Calibration;
@@ -49,6 +62,15 @@ use defmt_rtt as _;
 pub const NAME: &str = "dynacal-stm32f405-3xicm42688";
 
 const LOG_QUEUE_LEN: usize = 16 * 1024;
+/// Captures waiting for the main loop (4 channels at up to 1 kHz: 16 ms of them).
+const CAPTURE_QUEUE_LEN: usize = 64;
+/// Receiver bytes waiting for the main loop (a NAV-PVT frame is 100 bytes).
+const GNSS_QUEUE_LEN: usize = 512;
+const GNSS_BAUD: u32 = 115_200;
+/// An event is handed on no sooner than this after its stamp, microseconds: longer than any
+/// interrupt waits behind another, so events leave in the order of their stamps.
+const REORDER_US: u64 = 200;
+const WATCHDOG_MS: u32 = 500;
 const LOG_BAUD: u32 = 921_600;
 const TIMER_HZ: u32 = 1_000_000;
 
@@ -67,6 +89,26 @@ type Imu<const N: u8> =
 
 /// Bytes waiting for the USART1 transmit interrupt.
 static LOG_TX: Mutex<RefCell<Option<Consumer<'static, u8>>>> = Mutex::new(RefCell::new(None));
+
+/// One timer capture: channel 0 is the PPS, 1..=3 the IMUs' data-ready lines.
+#[derive(Debug, Clone, Copy)]
+struct Capture {
+    channel: u8,
+    t_us: u64,
+}
+
+/// The TIM2 interrupt's side of the capture queue.
+static CAPTURES: Mutex<RefCell<Option<Producer<'static, Capture>>>> =
+    Mutex::new(RefCell::new(None));
+/// TIM2 wraps so far: the upper 32 bits of the 64-bit time.
+static TIMER_HIGH: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));
+/// Captures lost: over-captured in the timer, or the queue full.
+static CAPTURES_LOST: AtomicU32 = AtomicU32::new(0);
+/// PPS edges lost (their pulse count still advances).
+static PPS_LOST: AtomicU32 = AtomicU32::new(0);
+/// The USART3 interrupt's side of the receiver's byte queue, and the time of its last byte.
+static GNSS_RX: Mutex<RefCell<Option<Producer<'static, u8>>>> = Mutex::new(RefCell::new(None));
+static GNSS_LAST_US: Mutex<Cell<u64>> = Mutex::new(Cell::new(0));
 
 extern "C" {
     /// First byte of flash sector 11, where the board model is flashed (`memory.x`).
@@ -197,6 +239,36 @@ pub fn init() -> Parts {
     let _drdy1 = gpioa.pa2.into_alternate::<1>();
     let _drdy2 = gpioa.pa3.into_alternate::<1>();
     let timer = start_capture_timer(dp.TIM2, &clocks);
+    let Some(capture_queue) =
+        cortex_m::singleton!(: Queue<Capture, CAPTURE_QUEUE_LEN> = Queue::new())
+    else {
+        fatal("capture queue taken twice")
+    };
+    let (capture_producer, captures) = capture_queue.split();
+    critical_section::with(|cs| CAPTURES.borrow(cs).replace(Some(capture_producer)));
+
+    // The receiver's UART: configured here, read by its interrupt.
+    let gpiob = dp.GPIOB.split();
+    let mut gnss_rx: Rx<USART3> = dp
+        .USART3
+        .rx(
+            gpiob.pb11.into_alternate(),
+            Config::default().baudrate(GNSS_BAUD.bps()),
+            &clocks,
+        )
+        .unwrap_or_else(|_| fatal("USART3 configuration rejected"));
+    let Some(gnss_queue) = cortex_m::singleton!(: Queue<u8, GNSS_QUEUE_LEN> = Queue::new()) else {
+        fatal("receiver queue taken twice")
+    };
+    let (gnss_producer, gnss_bytes) = gnss_queue.split();
+    critical_section::with(|cs| GNSS_RX.borrow(cs).replace(Some(gnss_producer)));
+    gnss_rx.listen();
+    // SAFETY: the handlers only touch their queues, the cells above and their own
+    // peripheral's registers, all set up by now.
+    unsafe {
+        cortex_m::peripheral::NVIC::unmask(Interrupt::TIM2);
+        cortex_m::peripheral::NVIC::unmask(Interrupt::USART3);
+    }
 
     // Configured here; the transmit interrupt writes USART1's data register directly.
     let _tx: Tx<USART1> = dp
@@ -239,15 +311,16 @@ pub fn init() -> Parts {
         },
         source: CaptureSource {
             timer,
-            high: 0,
+            captures,
+            gnss_bytes,
             imu0,
             imu1,
             imu2,
-            pending: heapless::Vec::new(),
             pps_sequence: 0,
             overrun: 0,
             fault: false,
             temperature_deg_c: [f32::NAN; MAX_IMUS],
+            watchdog: start_watchdog(dp.IWDG),
         },
         sink: UartSink { producer },
     }
@@ -296,130 +369,230 @@ fn start_capture_timer(tim: TIM2, clocks: &Clocks) -> TIM2 {
     // Load the prescaler now rather than at the first wrap, then clear that update.
     tim.egr().write(|w| w.ug().set_bit());
     tim.sr().write(|w| unsafe { w.bits(0) });
+    // Interrupts on every capture and on the wrap.
+    tim.dier().write(|w| {
+        w.uie().set_bit();
+        w.cc1ie().set_bit();
+        w.cc2ie().set_bit();
+        w.cc3ie().set_bit();
+        w.cc4ie().set_bit()
+    });
     tim.cr1().modify(|_, w| w.cen().set_bit());
     tim
 }
 
-/// Sample sets and PPS edges, stamped by TIM2 captures.
+/// The independent watchdog, started: the main loop must feed it within [`WATCHDOG_MS`].
+fn start_watchdog(iwdg: pac::IWDG) -> IndependentWatchdog {
+    let mut watchdog = IndependentWatchdog::new(iwdg);
+    watchdog.start(WATCHDOG_MS.millis());
+    watchdog
+}
+
+#[interrupt]
+fn TIM2() {
+    // SAFETY: this handler is the only writer of TIM2's status register and reader of its
+    // capture registers once the timer runs; the main loop only reads its counter.
+    let tim = unsafe { &*TIM2::ptr() };
+    let sr = tim.sr().read();
+    let raw = sr.bits();
+    let wrapped = sr.uif().bit_is_set();
+    critical_section::with(|cs| {
+        let high_cell = TIMER_HIGH.borrow(cs);
+        let high = high_cell.get();
+        // A capture taken just before a wrap seen in the same snapshot holds a large value;
+        // one taken after holds a small value.
+        let stamp = |capture: u32| -> u64 {
+            let high = if wrapped && capture < 0x8000_0000 {
+                high + 1
+            } else {
+                high
+            };
+            (high << 32) | u64::from(capture)
+        };
+        let mut queue = CAPTURES.borrow(cs).borrow_mut();
+        let mut push = |channel: u8, capture: u32| {
+            let event = Capture {
+                channel,
+                t_us: stamp(capture),
+            };
+            if queue.as_mut().is_none_or(|q| q.enqueue(event).is_err()) {
+                CAPTURES_LOST.fetch_add(1, Ordering::Relaxed);
+            }
+        };
+        // Reading a capture register clears its flag.
+        if sr.cc1if().bit_is_set() {
+            push(0, tim.ccr1().read().bits());
+        }
+        if sr.cc2if().bit_is_set() {
+            push(1, tim.ccr2().read().bits());
+        }
+        if sr.cc3if().bit_is_set() {
+            push(2, tim.ccr3().read().bits());
+        }
+        if sr.cc4if().bit_is_set() {
+            push(3, tim.ccr4().read().bits());
+        }
+        if wrapped {
+            high_cell.set(high + 1);
+        }
+    });
+    let lost = [SR_CC2OF, SR_CC3OF, SR_CC4OF]
+        .iter()
+        .filter(|&&flag| raw & flag != 0)
+        .count() as u32;
+    CAPTURES_LOST.fetch_add(lost, Ordering::Relaxed);
+    if raw & SR_CC1OF != 0 {
+        PPS_LOST.fetch_add(1, Ordering::Relaxed);
+    }
+    // Status flags are rc_w0: clear only those seen set (the update and over-captures).
+    let handled = raw & (SR_UIF | SR_CC1OF | SR_CC2OF | SR_CC3OF | SR_CC4OF);
+    // SAFETY: only defined TIM2_SR flag bits are written.
+    tim.sr().write(|w| unsafe { w.bits(SR_FLAGS & !handled) });
+}
+
+/// The timer's count now, extended to 64 bits, microseconds.
+fn now_us() -> u64 {
+    // SAFETY: reads of TIM2's counter and status; the TIM2 handler owns the writes.
+    let tim = unsafe { &*TIM2::ptr() };
+    critical_section::with(|cs| {
+        let high = TIMER_HIGH.borrow(cs).get();
+        let count = tim.cnt().read().bits();
+        // A wrap not yet handled (interrupts are off here) shows as UIF with a small count.
+        let pending_wrap = tim.sr().read().uif().bit_is_set() && count < 0x8000_0000;
+        ((high + u64::from(pending_wrap)) << 32) | u64::from(count)
+    })
+}
+
+#[interrupt]
+fn USART3() {
+    // SAFETY: this handler is the only reader of USART3's data register.
+    let usart = unsafe { &*USART3::ptr() };
+    let t_us = now_us();
+    critical_section::with(|cs| {
+        let mut rx = GNSS_RX.borrow(cs).borrow_mut();
+        while usart.sr().read().rxne().bit_is_set() {
+            let byte = usart.dr().read().dr().bits() as u8;
+            // A full queue drops the byte: the receiver's parser finds the next frame.
+            if let Some(q) = rx.as_mut() {
+                let _ = q.enqueue(byte);
+            }
+        }
+        GNSS_LAST_US.borrow(cs).set(t_us);
+    });
+}
+
+/// Sample sets, PPS edges and receiver bytes, from the interrupts' queues.
 pub struct CaptureSource {
+    /// Owned so nothing else reconfigures it; the interrupt reads it.
+    #[allow(dead_code)]
     timer: TIM2,
-    /// Timer wraps so far: the upper 32 bits of the 64-bit time.
-    high: u64,
+    captures: Consumer<'static, Capture>,
+    gnss_bytes: Consumer<'static, u8>,
     imu0: Imu<0>,
     imu1: Imu<1>,
     imu2: Imu<2>,
-    /// Events captured together, handed out in time order.
-    pending: heapless::Vec<SourceEvent, 4>,
     pps_sequence: u32,
     overrun: u32,
     fault: bool,
     temperature_deg_c: [f32; MAX_IMUS],
+    watchdog: IndependentWatchdog,
 }
 
 impl CaptureSource {
-    /// Waits for at least one capture and reads everything that is ready.
-    fn poll(&mut self) {
-        while self.pending.is_empty() {
-            let sr = self.timer.sr().read();
-            let wrapped = sr.uif().bit_is_set();
-            // A capture taken just before a wrap that is seen in the same snapshot holds a
-            // large value; one taken after holds a small value.
-            let stamp = |high: u64, capture: u32| -> u64 {
-                let high = if wrapped && capture < 0x8000_0000 {
-                    high + 1
-                } else {
-                    high
-                };
-                (high << 32) | capture as u64
-            };
-            let raw = sr.bits();
-            // Flags this snapshot handles: the update (wrap) and the over-captures. Status
-            // flags are rc_w0, so writing 1 leaves a flag alone and 0 clears it; only the
-            // flags seen set are cleared, so one raised since the read is kept for the next
-            // pass. Reading a CCR below clears its CCxIF.
-            let handled = raw & (SR_UIF | SR_CC1OF | SR_CC2OF | SR_CC3OF | SR_CC4OF);
-            // SAFETY: only defined TIM2_SR flag bits are written.
-            self.timer
-                .sr()
-                .write(|w| unsafe { w.bits(SR_FLAGS & !handled) });
-            // An over-captured data-ready line lost one sample set of that IMU.
-            self.overrun += [SR_CC2OF, SR_CC3OF, SR_CC4OF]
-                .iter()
-                .filter(|&&flag| raw & flag != 0)
-                .count() as u32;
+    /// The next event whose stamp is at least [`REORDER_US`] old, earliest first: a
+    /// capture (read from its IMU when it is a data-ready edge) or the receiver's bytes.
+    fn ready_event(&mut self) -> Option<SourceEvent> {
+        let now = now_us();
+        let ripe = |t_us: u64| t_us.saturating_add(REORDER_US) <= now;
+        let gnss_t_us = critical_section::with(|cs| GNSS_LAST_US.borrow(cs).get());
+        let gnss_ready = self.gnss_bytes.ready() && ripe(gnss_t_us);
+        match self.captures.peek().copied() {
+            Some(c) if ripe(c.t_us) && !(gnss_ready && gnss_t_us < c.t_us) => {
+                self.captures.dequeue();
+                self.capture_event(c)
+            }
+            _ if gnss_ready => Some(self.gnss_chunk(gnss_t_us)),
+            _ => None,
+        }
+    }
+
+    /// A capture as an event: a PPS edge, or the sample set its IMU has ready.
+    fn capture_event(&mut self, capture: Capture) -> Option<SourceEvent> {
+        if capture.channel == 0 {
+            let lost = PPS_LOST.swap(0, Ordering::Relaxed);
             // A PPS edge lost to over-capture still advances the pulse count, so the gap
             // shows in the logged sequence numbers.
-            if raw & SR_CC1OF != 0 {
-                self.pps_sequence = self.pps_sequence.wrapping_add(1);
+            self.pps_sequence = self.pps_sequence.wrapping_add(lost);
+            let event = SourceEvent::Pps(PpsEvent {
+                t_us: capture.t_us,
+                sequence: self.pps_sequence,
+            });
+            self.pps_sequence = self.pps_sequence.wrapping_add(1);
+            return Some(event);
+        }
+        let imu_id = capture.channel - 1;
+        let read = match imu_id {
+            0 => self.imu0.read_sample().map_err(|_| ()),
+            1 => self.imu1.read_sample().map_err(|_| ()),
+            _ => self.imu2.read_sample().map_err(|_| ()),
+        };
+        match read {
+            Ok(raw) => {
+                self.fault = false;
+                self.temperature_deg_c[usize::from(imu_id)] = raw.temperature_deg_c();
+                Some(SourceEvent::Imu(ImuSampleSet {
+                    t_us: capture.t_us,
+                    imu_id,
+                    gyro_counts: raw.gyro_counts.map(i32::from),
+                    accel_counts: raw.accel_counts.map(i32::from),
+                }))
             }
-            if sr.cc1if().bit_is_set() {
-                let t_us = stamp(self.high, self.timer.ccr1().read().bits());
-                let _ = self.pending.push(SourceEvent::Pps(PpsEvent {
-                    t_us,
-                    sequence: self.pps_sequence,
-                }));
-                self.pps_sequence = self.pps_sequence.wrapping_add(1);
-            }
-            let ready = [
-                sr.cc2if().bit_is_set(),
-                sr.cc3if().bit_is_set(),
-                sr.cc4if().bit_is_set(),
-            ];
-            for (imu_id, ready) in ready.into_iter().enumerate() {
-                if !ready {
-                    continue;
-                }
-                let capture = match imu_id {
-                    0 => self.timer.ccr2().read().bits(),
-                    1 => self.timer.ccr3().read().bits(),
-                    _ => self.timer.ccr4().read().bits(),
-                };
-                let t_us = stamp(self.high, capture);
-                let read = match imu_id {
-                    0 => self.imu0.read_sample().map_err(|_| ()),
-                    1 => self.imu1.read_sample().map_err(|_| ()),
-                    _ => self.imu2.read_sample().map_err(|_| ()),
-                };
-                match read {
-                    Ok(raw) => {
-                        self.fault = false;
-                        self.temperature_deg_c[imu_id] = raw.temperature_deg_c();
-                        let _ = self.pending.push(SourceEvent::Imu(ImuSampleSet {
-                            t_us,
-                            imu_id: imu_id as u8,
-                            gyro_counts: raw.gyro_counts.map(i32::from),
-                            accel_counts: raw.accel_counts.map(i32::from),
-                        }));
-                    }
-                    Err(()) => {
-                        self.fault = true;
-                        self.overrun += 1;
-                    }
-                }
-            }
-            if wrapped {
-                self.high += 1;
+            Err(()) => {
+                self.fault = true;
+                self.overrun += 1;
+                None
             }
         }
+    }
+
+    /// Up to a chunk of the receiver's bytes, stamped with the last byte's time.
+    fn gnss_chunk(&mut self, t_us: u64) -> SourceEvent {
+        let mut data = [0u8; GNSS_CHUNK_MAX];
+        let mut len = 0;
+        while len < GNSS_CHUNK_MAX {
+            let Some(byte) = self.gnss_bytes.dequeue() else {
+                break;
+            };
+            data[len] = byte;
+            len += 1;
+        }
+        SourceEvent::Gnss(GnssChunk {
+            t_us,
+            len: len as u8,
+            data,
+        })
     }
 }
 
 impl SampleSource for CaptureSource {
     type Error = core::convert::Infallible;
 
+    /// Sleeps until an event is ready; feeds the watchdog each time it wakes.
     fn next_event(&mut self) -> Result<Option<SourceEvent>, Self::Error> {
-        self.poll();
-        let earliest = self
-            .pending
-            .iter()
-            .enumerate()
-            .min_by_key(|(_, e)| e.t_us())
-            .map(|(k, _)| k);
-        Ok(earliest.map(|k| self.pending.swap_remove(k)))
+        loop {
+            self.watchdog.feed();
+            if let Some(event) = self.ready_event() {
+                return Ok(Some(event));
+            }
+            if !self.captures.ready() && !self.gnss_bytes.ready() {
+                cortex_m::asm::wfi();
+            }
+        }
     }
 
     fn samples_overrun(&self) -> u32 {
         self.overrun
+            .saturating_add(CAPTURES_LOST.load(Ordering::Relaxed))
     }
 
     fn imu_fault(&self) -> bool {
