@@ -7,28 +7,36 @@
 #![allow(dead_code)]
 
 extern "C" {
-    // cortex-m-rt's link.x: the RAM region of memory.x, and the stack's lowest address
-    // (right after the statics).
+    // memory.x and cortex-m-rt's link.x: the statics' RAM region and their end, and the
+    // stack's region below them (its lowest address and its top).
     static _ram_start: u32;
     static _ram_end: u32;
+    static __sheap: u32;
     static _stack_end: u32;
+    static _stack_start: u32;
 }
 
 const PAINT: u32 = 0xC0DE_5AFE;
 
-/// Lowest address the stack may use (just above the statics).
+/// Lowest address the stack may use (the bottom of SRAM, below the statics: memory.x).
 pub fn floor() -> usize {
     core::ptr::addr_of!(_stack_end) as usize
 }
 
-/// Start of RAM.
+/// Start of the statics' RAM.
 pub fn ram_start() -> usize {
     core::ptr::addr_of!(_ram_start) as usize
 }
 
-/// End of RAM (the stack's top).
+/// SRAM in all: the statics' region and the stack's, bytes.
+pub fn sram_bytes() -> usize {
+    let statics_region = (core::ptr::addr_of!(_ram_end) as usize).saturating_sub(ram_start());
+    statics_region + ram_end().saturating_sub(floor())
+}
+
+/// The stack's top (it grows down from here).
 pub fn ram_end() -> usize {
-    core::ptr::addr_of!(_ram_end) as usize
+    core::ptr::addr_of!(_stack_start) as usize
 }
 
 /// Fills the free stack, from its lowest address to just below this function's frame, with
@@ -38,8 +46,8 @@ pub fn paint() {
     let sp = cortex_m::register::msp::read() as usize;
     let mut p = floor();
     while p + 64 < sp {
-        // SAFETY: below the stack pointer and above the statics: memory no object owns
-        // (exception frames pushed there meanwhile are dead once their handler returns).
+        // SAFETY: below the stack pointer and within the stack's region: memory no object
+        // owns (exception frames pushed there meanwhile are dead once their handler returns).
         unsafe { core::ptr::write_volatile(p as *mut u32, PAINT) };
         p += 4;
     }
@@ -49,7 +57,7 @@ pub fn paint() {
 pub fn low_water() -> usize {
     let top = ram_end();
     let mut p = floor();
-    // SAFETY: reads of RAM between the statics and the top of the stack, as words.
+    // SAFETY: reads of the stack's region, as words.
     while p < top && unsafe { core::ptr::read_volatile(p as *const u32) } == PAINT {
         p += 4;
     }
@@ -63,5 +71,5 @@ pub fn peak_bytes() -> usize {
 
 /// Bytes of statics (.data, .bss, .uninit).
 pub fn static_bytes() -> usize {
-    floor().saturating_sub(ram_start())
+    (core::ptr::addr_of!(__sheap) as usize).saturating_sub(ram_start())
 }

@@ -273,6 +273,33 @@ fn a_panic_on_the_board_ends_the_run_with_failure() {
     );
 }
 
+/// A stack overflow faults instead of overwriting the statics: the stack sits below them at
+/// the bottom of SRAM (memory.x, as flip-link arranges it), so running off it reaches
+/// unmapped addresses; the core cannot even stack the fault's frame there and locks up,
+/// which ends the emulator with failure (on the board, the watchdog then resets it).
+#[test]
+fn a_stack_overflow_faults_instead_of_overwriting_the_statics() {
+    if !dynacal_tests::qemu_or_skip() {
+        return;
+    }
+    let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
+    let run = std::process::Command::new("timeout")
+        .arg("60")
+        .arg("qemu-system-arm")
+        .args(dynacal::replay::QEMU_BOARD_ARGS)
+        .arg("-semihosting-config")
+        .arg("enable=on,target=native,arg=dynacal-firmware,arg=--stack-overflow-self-test")
+        .arg("-kernel")
+        .arg(&elf)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(!run.status.success(), "{stderr}");
+    assert_ne!(run.status.code(), Some(124), "it hung: {stderr}");
+    assert!(stderr.contains("Lockup"), "{stderr}");
+    assert!(!stderr.contains("did not overflow"), "{stderr}");
+}
+
 /// A simulated car run's receiver bytes (each GNSS fix as the NAV-PVT frame a u-blox
 /// receiver sends, in the replay input as its UART delivers them) go through the firmware's
 /// receiver: the board logs every fix, equal to the simulation's to the frame's resolution,

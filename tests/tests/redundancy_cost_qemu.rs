@@ -59,20 +59,30 @@ fn number(fields: &HashMap<&str, &str>, key: &str) -> u64 {
 }
 
 /// The RAM region's length in `memory.x` (`RAM : ORIGIN = ..., LENGTH = 128K`), bytes.
+/// SRAM in memory.x: the statics' region (RAM) and the stack's below it (STACK).
 fn ram_in_memory_x() -> u64 {
     let text = std::fs::read_to_string(workspace_root().join("memory.x")).expect("memory.x");
-    let line = text
+    let regions: Vec<&str> = text
         .lines()
-        .find(|l| l.trim_start().starts_with("RAM") && l.contains("LENGTH"))
-        .expect("a RAM line in memory.x");
-    let length = line.split("LENGTH").nth(1).expect("LENGTH");
-    let length = length.trim_start_matches([' ', '=']).trim();
-    let (digits, scale) = match length.chars().last() {
-        Some('K') => (&length[..length.len() - 1], 1024),
-        Some('M') => (&length[..length.len() - 1], 1024 * 1024),
-        _ => (length, 1),
-    };
-    digits.trim().parse::<u64>().expect("RAM length") * scale
+        .filter(|l| {
+            let l = l.trim_start();
+            (l.starts_with("RAM") || l.starts_with("STACK")) && l.contains("LENGTH")
+        })
+        .collect();
+    assert!(!regions.is_empty(), "a RAM line in memory.x");
+    regions
+        .iter()
+        .map(|line| {
+            let length = line.split("LENGTH").nth(1).expect("LENGTH");
+            let length = length.trim_start_matches([' ', '=']).trim();
+            let (digits, scale) = match length.chars().last() {
+                Some('K') => (&length[..length.len() - 1], 1024),
+                Some('M') => (&length[..length.len() - 1], 1024 * 1024),
+                _ => (length, 1),
+            };
+            digits.trim().parse::<u64>().expect("RAM length") * scale
+        })
+        .sum()
 }
 
 #[test]

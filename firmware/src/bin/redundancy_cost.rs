@@ -265,7 +265,7 @@ mod bare_metal {
     }
 
     use crate::stack;
-    use stack::{floor as stack_floor, low_water, paint as paint_free_stack};
+    use stack::{low_water, paint as paint_free_stack};
 
     fn run(clock: &mut SysTickClock, calibration: &Calibration) {
         let overhead = clock.read_overhead(calibration, 200);
@@ -339,7 +339,6 @@ mod bare_metal {
 
         let live_noise = core::mem::size_of::<LiveNoise<UNITS>>();
         let fault_monitor = core::mem::size_of::<FaultMonitor<UNITS>>();
-        let ram_start = stack::ram_start();
         let ram_end = stack::ram_end();
         semihosting::eprintln!(
             "redundancy-cost sizes live_noise_3={} fault_monitor_3={} estimator_state={} \
@@ -348,9 +347,9 @@ mod bare_metal {
             fault_monitor,
             2 * live_noise + 2 * fault_monitor,
             loop_sp.saturating_sub(low),
-            stack_floor() - ram_start,
+            stack::static_bytes(),
             ram_end - low,
-            ram_end - ram_start
+            stack::sram_bytes()
         );
         semihosting::eprintln!(
             "redundancy-cost check events={} events_before_onset={} read_overhead={}",

@@ -6,7 +6,8 @@
 //! model (`board-model.bin`, `dynacal_core::board_model`) the fusion runs. A model that does
 //! not read (damaged, truncated, another version) is refused with its reason on stderr and
 //! the built-in model runs; a model file that cannot be opened at all is a usage error.
-//! `--panic-self-test` as the only argument panics on purpose, to show the fatal path. Both are accessed with semihosting
+//! `--panic-self-test` as the only argument panics on purpose, to show the fatal path, and
+//! `--stack-overflow-self-test` overflows the stack on purpose, to show it faults. Both are accessed with semihosting
 //! file calls; each call is a trap into QEMU, so input is read and output written in large
 //! chunks. The log is written to `OUT.part` and renamed to `OUT` only after a complete run,
 //! so a failed run never leaves a log that looks whole. The run report (counts and the
@@ -145,12 +146,33 @@ fn command_line() -> Result<(Path, Path, Option<Path>), Message> {
         // code 101) instead of hanging the board.
         panic!("self-test: a panic ends the run");
     }
+    if input == "--stack-overflow-self-test" {
+        // Deliberately deep: the stack runs off the bottom of SRAM (memory.x) and faults,
+        // which ends the run with exit code 102, instead of overwriting the statics.
+        let depth = overflow_the_stack(0);
+        return Err(message(format_args!(
+            "the stack did not overflow at depth {depth}"
+        )));
+    }
     let output = next_path("log output").ok_or_else(|| missing("log output"))??;
     let model = next_path("board model").transpose()?;
     if next_path("extra").is_some() {
         return Err(message(format_args!("more than three paths given")));
     }
     Ok((input, output, model))
+}
+
+/// Recurses with a 1 KiB frame until the stack overflows (see `--stack-overflow-self-test`);
+/// returns only if it never does.
+#[inline(never)]
+fn overflow_the_stack(depth: u32) -> u32 {
+    let mut frame = [0u8; 1024];
+    frame[depth as usize % 1024] = depth as u8;
+    let frame = core::hint::black_box(frame);
+    if depth > 1_000 {
+        return depth;
+    }
+    overflow_the_stack(depth + 1) + u32::from(frame[0])
 }
 
 fn open(input_path: Path, output_path: Path) -> Result<Parts, Message> {
