@@ -31,7 +31,7 @@ pub mod sets;
 // Float methods without std.
 #[allow(unused_imports)]
 use nalgebra::ComplexField;
-use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Quaternion, RealField, UnitQuaternion, Vector3};
 
 use crate::board_model::BoardModel;
 use crate::log::{FaultFrame, FilterState, GnssFix, NoiseFrame, MAX_IMUS};
@@ -51,8 +51,28 @@ use process_noise::{fused_noise, FusedNoise};
 pub const UNITS: usize = 3;
 /// The `imu_id` of the fused virtual IMU's filter lane in [`FilterState`].
 pub const FUSED_LANE_ID: u8 = 0xFF;
-/// The board's filter: two extra units' calibrations, 27 states.
-pub type BoardFilter = InsEkf<f32, { UNITS - 1 }, 27>;
+/// The fusion's filter in scalar `T`: two extra units' calibrations, 27 states.
+pub type FusionFilter<T> = InsEkf<T, { UNITS - 1 }, 27>;
+/// The board's filter (f32).
+pub type BoardFilter = FusionFilter<f32>;
+
+/// `x` in the filter's scalar.
+fn t<T: RealField + Copy>(x: f32) -> T {
+    nalgebra::convert(f64::from(x))
+}
+
+/// A filter value back in f32 (NaN for a scalar f32 cannot hold).
+fn f<T: RealField + Copy>(x: T) -> f32 {
+    nalgebra::try_convert::<T, f64>(x).map_or(f32::NAN, |v| v as f32)
+}
+
+fn tv<T: RealField + Copy>(v: Vector3<f32>) -> Vector3<T> {
+    v.map(t)
+}
+
+fn fv<T: RealField + Copy>(v: Vector3<T>) -> Vector3<f32> {
+    v.map(f)
+}
 
 /// One unit's sample, in its own axes.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -269,8 +289,10 @@ struct Stillness {
     started: bool,
 }
 
-/// The fusion (see the module's note).
-pub struct BoardFusion {
+/// The fusion (see the module's note), its filter in scalar `T`: f32 on the board; f64 on
+/// the host, to measure what f32 costs. The monitors, live levels and alignment are f32
+/// either way.
+pub struct BoardFusion<T: RealField + Copy = f32> {
     config: FusionConfig,
     /// Board-model alignment of each unit: C_b^k and lever arm (body axes, m).
     model_alignment: [(Matrix3<f32>, Vector3<f32>); UNITS],
@@ -284,7 +306,7 @@ pub struct BoardFusion {
     previous_means: [Option<UnitReading>; UNITS],
     unit_sums: UnitSums,
     alignment: Alignment,
-    filter: Option<BoardFilter>,
+    filter: Option<FusionFilter<T>>,
     window: CalibrationWindow,
     differentiator: RateDifferentiator<f32, WindowMeans>,
     stillness: Stillness,
@@ -293,11 +315,11 @@ pub struct BoardFusion {
     gnss_refused: u32,
     /// Bias-corrected velocity increment (body, m/s) and time (s) mechanized since the last
     /// covariance prediction.
-    pending_prediction: (Vector3<f32>, f32),
+    pending_prediction: (Vector3<T>, T),
     counts: FusionCounts,
 }
 
-impl BoardFusion {
+impl<T: RealField + Copy> BoardFusion<T> {
     /// A fusion of the units of `model` (its first three, in order: the header's IMUs).
     pub fn new(config: FusionConfig, model: &BoardModel) -> Self {
         let alignment_of = |k: usize| {
@@ -339,7 +361,7 @@ impl BoardFusion {
             stillness: Stillness::default(),
             still: false,
             gnss_refused: 0,
-            pending_prediction: (Vector3::zeros(), 0.0),
+            pending_prediction: (Vector3::zeros(), T::zero()),
             counts: FusionCounts::default(),
             config,
         }
@@ -351,7 +373,7 @@ impl BoardFusion {
     }
 
     /// The running filter, once aligned.
-    pub fn filter(&self) -> Option<&BoardFilter> {
+    pub fn filter(&self) -> Option<&FusionFilter<T>> {
         self.filter.as_ref()
     }
 
@@ -366,7 +388,9 @@ impl BoardFusion {
             (1.., Some(filter)) => filter
                 .ekf
                 .calibration(k - 1)
-                .map_or(self.model_alignment[k], |c| (c.c_b_s(), c.lever_arm_b_m)),
+                .map_or(self.model_alignment[k], |c| {
+                    (c.c_b_s().map(f), fv(c.lever_arm_b_m))
+                }),
             _ => self.model_alignment[k],
         }
     }
@@ -472,8 +496,8 @@ impl BoardFusion {
             return;
         }
         let (gyro_bias, accel_bias) = (
-            filter.ekf.gyro_bias_b_rad_s(),
-            filter.ekf.accel_bias_b_m_s2(),
+            fv(filter.ekf.gyro_bias_b_rad_s()),
+            fv(filter.ekf.accel_bias_b_m_s2()),
         );
         let w = &mut self.window;
         w.rate_sum += rate;
@@ -533,18 +557,18 @@ impl BoardFusion {
             return;
         };
         self.counts.filter_steps += 1;
-        filter.ekf.set_sensor_noise_psd(accel_psd, gyro_psd);
+        filter.ekf.set_sensor_noise_psd(t(accel_psd), t(gyro_psd));
         let interval_s = self.config.sample_interval_s;
         let Ok(delta_v) = filter.mechanize(
-            interval.rate_sum * interval_s,
-            interval.force_sum * interval_s,
-            dt_s,
+            tv(interval.rate_sum * interval_s),
+            tv(interval.force_sum * interval_s),
+            t(dt_s),
         ) else {
             self.restart();
             return;
         };
         self.pending_prediction.0 += delta_v;
-        self.pending_prediction.1 += dt_s;
+        self.pending_prediction.1 += t::<T>(dt_s);
         let steps = self.counts.filter_steps;
         if steps.is_multiple_of(u64::from(self.config.predict_every)) && !self.flush_prediction() {
             return;
@@ -554,7 +578,7 @@ impl BoardFusion {
             let Some(filter) = &mut self.filter else {
                 return;
             };
-            filter.fuse_zero_velocity(self.config.zupt_sigma_m_s);
+            filter.fuse_zero_velocity(t(self.config.zupt_sigma_m_s));
             filter.correct();
             self.counts.zero_velocity_updates += 1;
         }
@@ -572,11 +596,12 @@ impl BoardFusion {
     /// Predicts the covariance over the steps mechanized since the last prediction (before
     /// an update, and every `predict_every` steps). False if the filter had to start over.
     fn flush_prediction(&mut self) -> bool {
-        let (delta_v, span_s) = core::mem::take(&mut self.pending_prediction);
+        let (delta_v, span_s) =
+            core::mem::replace(&mut self.pending_prediction, (Vector3::zeros(), T::zero()));
         let Some(filter) = &mut self.filter else {
             return false;
         };
-        if span_s <= 0.0 || filter.predict_covariance(delta_v / span_s, span_s).is_ok() {
+        if span_s <= T::zero() || filter.predict_covariance(delta_v / span_s, span_s).is_ok() {
             return true;
         }
         self.restart();
@@ -587,7 +612,7 @@ impl BoardFusion {
     fn restart(&mut self) {
         self.counts.restarts += 1;
         self.filter = None;
-        self.pending_prediction = Default::default();
+        self.pending_prediction = (Vector3::zeros(), T::zero());
     }
 
     /// The inter-IMU update on the window just closed, `window_s` long.
@@ -604,12 +629,12 @@ impl BoardFusion {
         }
         let n = w.sets as f32;
         let means = WindowMeans {
-            force: w.force_sum / n - filter.ekf.accel_bias_b_m_s2(),
+            force: w.force_sum / n - fv(filter.ekf.accel_bias_b_m_s2()),
             unit_rate: w.unit_rate_sum.map(|s| s / n),
             unit_force: w.unit_force_sum.map(|s| s / n),
             sets: w.sets,
         };
-        let rate = w.rate_sum / n - filter.ekf.gyro_bias_b_rad_s();
+        let rate = w.rate_sum / n - fv(filter.ekf.gyro_bias_b_rad_s());
         let Some((omega, omega_dot, m)) = self.differentiator.push(window_s, rate, means) else {
             return;
         };
@@ -625,18 +650,18 @@ impl BoardFusion {
                 .sqrt()
                 .max(self.config.calibration_force_floor_m_s2);
             let sample = InterImuSample {
-                omega_ib_b_rad_s: omega,
-                omega_dot_ib_b_rad_s2: omega_dot,
-                f_b_m_s2: m.force,
-                omega_is_s_rad_s: m.unit_rate[k - 1],
-                f_s_m_s2: m.unit_force[k - 1],
+                omega_ib_b_rad_s: tv(omega),
+                omega_dot_ib_b_rad_s2: tv(omega_dot),
+                f_b_m_s2: tv(m.force),
+                omega_is_s_rad_s: tv(m.unit_rate[k - 1]),
+                f_s_m_s2: tv(m.unit_force[k - 1]),
                 shares_reference_bias: true,
             };
             filter.fuse_inter_imu(
                 k - 1,
                 &sample,
-                &Vector3::repeat(sigma_rate),
-                &Vector3::repeat(sigma_force),
+                &Vector3::repeat(t(sigma_rate)),
+                &Vector3::repeat(t(sigma_force)),
             );
         }
         filter.correct();
@@ -667,7 +692,7 @@ impl BoardFusion {
         let slow = self
             .filter
             .as_ref()
-            .is_none_or(|f| f.state().v_ned_m_s.norm() < self.config.still_speed_m_s);
+            .is_none_or(|filter| f(filter.state().v_ned_m_s.norm()) < self.config.still_speed_m_s);
         self.still = slow && s.rate_deviation2 < rate_limit && s.force_deviation2 < force_limit;
     }
 
@@ -692,16 +717,21 @@ impl BoardFusion {
             self.counts.gnss_skipped += 1;
             return;
         };
-        let position = moved_forward(fix, age_s);
+        let (lat_rad, lon_rad, h_m) = moved_forward(fix, age_s);
+        let position = (lat_rad, lon_rad, t::<T>(h_m));
         let sigma_h = fix.pos_sigma_m.max(0.1);
-        let sigma_p = Vector3::new(sigma_h, sigma_h, sigma_h * self.config.gnss_vertical_factor);
-        let velocity = Vector3::from(fix.vel_ned_m_s);
+        let sigma_p = tv(Vector3::new(
+            sigma_h,
+            sigma_h,
+            sigma_h * self.config.gnss_vertical_factor,
+        ));
+        let velocity = tv(Vector3::from(fix.vel_ned_m_s));
         let sigma_vh = fix.vel_sigma_m_s.max(0.02);
-        let sigma_v = Vector3::new(
+        let sigma_v = tv(Vector3::new(
             sigma_vh,
             sigma_vh,
             sigma_vh * self.config.gnss_vertical_factor,
-        );
+        ));
         let batch = filter.fuse_gnss_position(position.0, position.1, position.2, &sigma_p);
         self.gnss_refused = if batch.rejected > 0 {
             self.gnss_refused + 1
@@ -738,30 +768,31 @@ impl BoardFusion {
         if self.accel_noise_model.bias_sigma > 0.0 {
             initial.accel_bias_m_s2 = Vector3::repeat(self.accel_noise_model.bias_sigma);
         }
+        let q = start.q_nb.into_inner();
         let state = NavState {
-            q_nb: start.q_nb,
-            v_ned_m_s: Vector3::from(fix.vel_ned_m_s),
+            q_nb: UnitQuaternion::new_normalize(Quaternion::new(t(q.w), t(q.i), t(q.j), t(q.k))),
+            v_ned_m_s: tv(Vector3::from(fix.vel_ned_m_s)),
             lat_rad: fix.lat_rad,
             lon_rad: fix.lon_rad,
-            h_m: fix.h_m,
+            h_m: t(fix.h_m),
         };
-        let mut ekf = ErrorStateEkf::new(config, initial);
-        ekf.set_biases(Vector3::zeros(), start.gyro_bias_rad_s);
+        let mut ekf = ErrorStateEkf::new(ekf_config_in(&config), initial_sigmas_in(&initial));
+        ekf.set_biases(Vector3::zeros(), tv(start.gyro_bias_rad_s));
         for k in 1..UNITS {
             let (c, r) = self.model_alignment[k];
-            let q = UnitQuaternion::from_matrix(&c);
+            let q = UnitQuaternion::from_matrix(&c.map(t));
             ekf.set_calibration(
                 k - 1,
                 InterImuCalibration {
                     q_b_to_s: q,
-                    lever_arm_b_m: r,
+                    lever_arm_b_m: tv(r),
                 },
             );
         }
         self.filter = Some(InsEkf::new(Strapdown::new(state), ekf));
         self.window = CalibrationWindow::default();
         self.differentiator = RateDifferentiator::new();
-        self.pending_prediction = (Vector3::zeros(), 0.0);
+        self.pending_prediction = (Vector3::zeros(), T::zero());
     }
 
     /// The filter's state for the log.
@@ -770,19 +801,19 @@ impl BoardFusion {
         let s = filter.state();
         let ekf = &filter.ekf;
         let sigma3 = |first: usize| -> [f32; 3] {
-            core::array::from_fn(|a| ekf.sigma(first + a).unwrap_or(f32::NAN))
+            core::array::from_fn(|a| ekf.sigma(first + a).map_or(f32::NAN, f))
         };
         let q = s.q_nb.quaternion();
         Some(FilterState {
             t_us,
             imu_id: FUSED_LANE_ID,
-            q_nb: [q.w, q.i, q.j, q.k],
-            vel_ned_m_s: s.v_ned_m_s.into(),
+            q_nb: [f(q.w), f(q.i), f(q.j), f(q.k)],
+            vel_ned_m_s: fv(s.v_ned_m_s).into(),
             lat_rad: s.lat_rad,
             lon_rad: s.lon_rad,
-            h_m: s.h_m,
-            gyro_bias_rad_s: ekf.gyro_bias_b_rad_s().into(),
-            accel_bias_m_s2: ekf.accel_bias_b_m_s2().into(),
+            h_m: f(s.h_m),
+            gyro_bias_rad_s: fv(ekf.gyro_bias_b_rad_s()).into(),
+            accel_bias_m_s2: fv(ekf.accel_bias_b_m_s2()).into(),
             attitude_sigma_rad: sigma3(ATT),
             vel_sigma_m_s: sigma3(VEL),
             pos_sigma_m: sigma3(POS),
@@ -928,6 +959,35 @@ fn moved_forward(fix: &GnssFix, age_s: f32) -> (f64, f64, f32) {
         fix.lon_rad + ve / ((r.transverse_m + h) * fix.lat_rad.cos()),
         fix.h_m - vd as f32,
     )
+}
+
+/// The filter's settings in scalar `T`.
+fn ekf_config_in<T: RealField + Copy>(c: &EkfConfig<f32>) -> EkfConfig<T> {
+    EkfConfig {
+        accel_noise_psd: t(c.accel_noise_psd),
+        gyro_noise_psd: t(c.gyro_noise_psd),
+        accel_bias_psd: t(c.accel_bias_psd),
+        gyro_bias_psd: t(c.gyro_bias_psd),
+        accel_bias_inv_tau_s: t(c.accel_bias_inv_tau_s),
+        gyro_bias_inv_tau_s: t(c.gyro_bias_inv_tau_s),
+        boresight_psd: t(c.boresight_psd),
+        lever_arm_psd: t(c.lever_arm_psd),
+        innovation_gate: t(c.innovation_gate),
+        variance_floor: c.variance_floor.map(t),
+    }
+}
+
+/// The filter's initial sigmas in scalar `T`.
+fn initial_sigmas_in<T: RealField + Copy>(s: &InitialSigmas<f32>) -> InitialSigmas<T> {
+    InitialSigmas {
+        position_m: tv(s.position_m),
+        velocity_m_s: tv(s.velocity_m_s),
+        attitude_rad: tv(s.attitude_rad),
+        accel_bias_m_s2: tv(s.accel_bias_m_s2),
+        gyro_bias_rad_s: tv(s.gyro_bias_rad_s),
+        boresight_rad: tv(s.boresight_rad),
+        lever_arm_m: tv(s.lever_arm_m),
+    }
 }
 
 fn empty_means() -> WindowMeans {

@@ -55,7 +55,7 @@ fn at_rest(k: usize, rng: &mut rand_chacha::ChaCha8Rng) -> UnitReading {
 fn at_rest_each_units_own_noise_is_reported_and_a_stuck_gyro_is_isolated() {
     // GIVEN three units mounted three ways (as the board model says), at rest, with gyro
     // noise 0.01, 0.02, 0.03 rad/s and accelerometer noise 0.02, 0.04, 0.06 m/s^2 per sample
-    let mut fusion = BoardFusion::new(FusionConfig::at_rate(RATE_HZ), &model());
+    let mut fusion = BoardFusion::<f32>::new(FusionConfig::at_rate(RATE_HZ), &model());
     let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0xf05e);
     let mut outputs = std::vec::Vec::new();
     let mut stuck: Option<UnitReading> = None;
