@@ -263,3 +263,89 @@ fn decode_writes_the_latest_wavelet_variance_of_each_channel_in_si() {
     names.sort();
     assert_eq!(names, ["imu0.csv", "summary.json", "wv.json"]);
 }
+
+/// What the board's fusion logs comes out as `nav.csv` (the simulator's `reference.csv`
+/// columns first, then sigmas and biases), `noise.csv` and `faults.json`, units named by
+/// their IMU ids; a log without fusion frames gets none of the three.
+#[test]
+fn decode_writes_the_fusions_states_noise_and_faults() {
+    use dynacal_core::fusion::FUSED_LANE_ID;
+    use dynacal_core::log::{FaultFrame, FilterState, NoiseFrame};
+    let dir = tempfile::tempdir().unwrap();
+    let mut frames = vec![Frame::Header(common::header())];
+    for k in 0..5u64 {
+        frames.push(Frame::Filter(FilterState {
+            t_us: 1_000_000 + k * 100_000,
+            imu_id: FUSED_LANE_ID,
+            q_nb: [1.0, 0.0, 0.0, 0.0],
+            vel_ned_m_s: [k as f32, 0.0, 0.0],
+            lat_rad: 0.8,
+            lon_rad: 0.1,
+            h_m: 400.0,
+            gyro_bias_rad_s: [1e-3; 3],
+            accel_bias_m_s2: [1e-2; 3],
+            attitude_sigma_rad: [0.01; 3],
+            vel_sigma_m_s: [0.05; 3],
+            pos_sigma_m: [0.3; 3],
+            gyro_bias_sigma_rad_s: [1e-4; 3],
+            accel_bias_sigma_m_s2: [1e-3; 3],
+        }));
+    }
+    frames.push(Frame::Noise(NoiseFrame {
+        t_us: 1_500_000,
+        gyro_sigma_rad_s: [0.01, 0.02, 0.03],
+        accel_sigma_m_s2: [0.1, 0.2, 0.3],
+        in_use: 0b11_1111,
+        still: false,
+    }));
+    frames.push(Frame::Fault(FaultFrame {
+        t_us: 1_600_000,
+        detected_t_us: 1_550_000,
+        sensor: FaultFrame::SENSOR_ACCEL,
+        unit: Some(1),
+        axis: Some(2),
+        kind: 4,
+    }));
+    let log = dir.path().join("board.log");
+    std::fs::write(&log, encode_log(&frames).unwrap()).unwrap();
+    let out = dir.path().join("decoded");
+    let result = decode(&log, &out);
+    assert!(
+        result.status.success(),
+        "{}",
+        String::from_utf8_lossy(&result.stderr)
+    );
+
+    let nav = std::fs::read_to_string(out.join("nav.csv")).unwrap();
+    let mut lines = nav.lines();
+    assert!(lines.next().unwrap().starts_with(
+        "t_s,lat_rad,lon_rad,h_m,vn_m_s,ve_m_s,vd_m_s,roll_rad,pitch_rad,yaw_rad,sigma_"
+    ));
+    let rows: Vec<&str> = lines.collect();
+    assert_eq!(rows.len(), 5);
+    assert!(rows[3].starts_with("1.3,0.8,0.1,400,3,0,0,"), "{}", rows[3]);
+    let noise = std::fs::read_to_string(out.join("noise.csv")).unwrap();
+    assert_eq!(noise.lines().count(), 2);
+    let header = common::header();
+    let id1 = header.imus[1].imu_id;
+    assert!(noise
+        .lines()
+        .next()
+        .unwrap()
+        .contains(&format!("gyro_sigma_rad_s_imu{id1}")));
+    let faults: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("faults.json")).unwrap()).unwrap();
+    assert_eq!(faults[0]["kind"], "bias_step");
+    assert_eq!(faults[0]["sensor"], "accel");
+    assert_eq!(faults[0]["imu_id"], u64::from(id1));
+    assert_eq!(faults[0]["detected_t_s"], 1.55);
+
+    // A log without the fusion's frames: none of its files.
+    let plain = dir.path().join("plain.log");
+    std::fs::write(&plain, encode_log(&common::frames(3, 1)).unwrap()).unwrap();
+    let out2 = dir.path().join("plain");
+    assert!(decode(&plain, &out2).status.success());
+    for name in ["nav.csv", "noise.csv", "faults.json"] {
+        assert!(!out2.join(name).exists(), "{name}");
+    }
+}
