@@ -321,6 +321,7 @@ pub struct BoardFusion<T: RealField + Copy = f32> {
 
 impl<T: RealField + Copy> BoardFusion<T> {
     /// A fusion of the units of `model` (its first three, in order: the header's IMUs).
+    #[inline(always)]
     pub fn new(config: FusionConfig, model: &BoardModel) -> Self {
         let alignment_of = |k: usize| {
             model
