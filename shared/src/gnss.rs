@@ -6,6 +6,13 @@
 //! which are GPS time less the leap seconds, and the time of week must agree with them
 //! (a solution whose date or time is not valid, or disagrees, gives no fix: the log's
 //! timescale needs the week).
+//!
+//! In front of the crate's parser sits a framer ([`NavPvtFramer`]) that passes on only whole
+//! NAV-PVT frames whose checksum holds: it looks for NAV-PVT's exact six-byte header, and
+//! when a frame's checksum fails it searches again from the byte after the false start. A
+//! parser that trusts the length after any sync pair would let noise holding `B5 62` and a
+//! large length swallow the real frames that follow (the proptest below found one); the
+//! framer loses at most the bytes before a real header. The board uses nothing but NAV-PVT.
 
 // Float methods (round, sqrt) without std come from nalgebra's ComplexField.
 #[allow(unused_imports)]
@@ -41,6 +48,7 @@ pub struct ReceiverCounts {
 
 /// u-blox bytes in, fixes out (see the module's note).
 pub struct UbxReceiver {
+    framer: NavPvtFramer,
     parser: Parser<FixedBuffer<PARSER_BYTES>, Proto23>,
     leap_seconds: u32,
     counts: ReceiverCounts,
@@ -50,6 +58,7 @@ impl UbxReceiver {
     /// A receiver whose UTC is GPS time less `leap_seconds`.
     pub fn new(leap_seconds: u32) -> Self {
         Self {
+            framer: NavPvtFramer::new(),
             parser: Parser::with_fixed_buffer(),
             leap_seconds,
             counts: ReceiverCounts::default(),
@@ -64,9 +73,20 @@ impl UbxReceiver {
     /// Feeds `bytes` as read from the UART; `on_fix` gets every NAV-PVT solution with a
     /// valid time, in order.
     pub fn push(&mut self, bytes: &[u8], mut on_fix: impl FnMut(GnssFix)) {
+        for &byte in bytes {
+            match self.framer.push(byte) {
+                Framed::Frame(frame) => self.parse(&frame, &mut on_fix),
+                Framed::BadChecksum => self.counts.malformed += 1,
+                Framed::Pending => {}
+            }
+        }
+    }
+
+    /// One whole, checked NAV-PVT frame through the crate's parser.
+    fn parse(&mut self, frame: &[u8], on_fix: &mut impl FnMut(GnssFix)) {
         let leap = self.leap_seconds;
         let mut counts = self.counts;
-        let mut packets = self.parser.consume_ubx(bytes);
+        let mut packets = self.parser.consume_ubx(frame);
         while let Some(packet) = packets.next() {
             match packet {
                 Ok(UbxPacket::Proto23(PacketRef::NavPvt(pvt))) => {
@@ -107,6 +127,82 @@ impl UbxReceiver {
         }
         self.counts = counts;
     }
+}
+
+/// NAV-PVT's header: sync, class 0x01, id 0x07, payload length 92 (little-endian).
+const NAV_PVT_HEADER: [u8; 6] = [0xB5, 0x62, 0x01, 0x07, 92, 0];
+/// What one byte gave the framer.
+enum Framed {
+    Pending,
+    /// A whole frame whose checksum holds.
+    Frame([u8; NAV_PVT_FRAME_LEN]),
+    /// A whole frame whose checksum failed: the search started again after its first byte.
+    BadChecksum,
+}
+
+/// Whole NAV-PVT frames out of a byte stream (see the module's note).
+struct NavPvtFramer {
+    buf: [u8; NAV_PVT_FRAME_LEN],
+    len: usize,
+}
+
+impl NavPvtFramer {
+    const fn new() -> Self {
+        Self {
+            buf: [0; NAV_PVT_FRAME_LEN],
+            len: 0,
+        }
+    }
+
+    fn push(&mut self, byte: u8) -> Framed {
+        if let Some(slot) = self.buf.get_mut(self.len) {
+            *slot = byte;
+            self.len += 1;
+        }
+        if self.len <= NAV_PVT_HEADER.len() {
+            if !self.holds_header_start(0) {
+                self.resync();
+            }
+            return Framed::Pending;
+        }
+        if self.len < NAV_PVT_FRAME_LEN {
+            return Framed::Pending;
+        }
+        if checksum_holds(&self.buf) {
+            self.len = 0;
+            Framed::Frame(self.buf)
+        } else {
+            self.resync();
+            Framed::BadChecksum
+        }
+    }
+
+    /// Whether the bytes from `from` on are the start of a header (or all of one).
+    fn holds_header_start(&self, from: usize) -> bool {
+        let held = self.buf.get(from..self.len).unwrap_or(&[]);
+        held.iter()
+            .zip(NAV_PVT_HEADER)
+            .all(|(&byte, expected)| byte == expected)
+    }
+
+    /// Drops the first byte, and the ones after it up to where a header could start.
+    fn resync(&mut self) {
+        let start = (1..self.len)
+            .find(|&from| self.holds_header_start(from))
+            .unwrap_or(self.len);
+        self.buf.copy_within(start..self.len, 0);
+        self.len -= start;
+    }
+}
+
+/// UBX's 8-bit Fletcher checksum over class, id, length and payload.
+fn checksum_holds(frame: &[u8; NAV_PVT_FRAME_LEN]) -> bool {
+    let (mut a, mut b) = (0u8, 0u8);
+    for &byte in &frame[2..NAV_PVT_FRAME_LEN - 2] {
+        a = a.wrapping_add(byte);
+        b = b.wrapping_add(a);
+    }
+    frame[NAV_PVT_FRAME_LEN - 2] == a && frame[NAV_PVT_FRAME_LEN - 1] == b
 }
 
 /// The log's fix-type code of a NAV-PVT fix type.
@@ -408,6 +504,26 @@ mod tests {
                 ),
                 (0.3, 0.05, 11, 3)
             );
+        }
+    }
+
+    /// Noise that holds NAV-PVT's whole header, 50 bytes before a real frame: the false
+    /// frame's checksum fails, and the search resumes inside it, where the real frames are.
+    #[test]
+    fn a_false_frame_start_does_not_hide_the_frames_that_follow() {
+        let mut bytes = std::vec![0xB5, 0x62, 0x01, 0x07, 92, 0];
+        bytes.extend((0..44u8).map(|k| k.wrapping_mul(37)));
+        let frame = nav_pvt_frame(&example());
+        bytes.extend_from_slice(&frame);
+        bytes.extend_from_slice(&frame);
+        for chunk in [1, 7, 100, 400] {
+            let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
+            assert_eq!(
+                fixes(&mut receiver, &bytes, chunk).len(),
+                2,
+                "pieces of {chunk}"
+            );
+            assert_eq!(receiver.counts().malformed, 1);
         }
     }
 
