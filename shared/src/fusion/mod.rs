@@ -3,25 +3,28 @@
 //! process noise from the units' live noise level, zero-velocity updates at standstill, and
 //! what it finds (states, noise levels, faults) as log frames.
 //!
-//! The body frame is the first unit's axes at its place. Per sample set:
-//! 1. each unit's rate and specific force are brought into the body frame with its
+//! The body frame is the first unit's axes at its place. Each unit's samples are summed over
+//! `filter_every` sample sets (5 ms at 1 kHz); at the end of each such interval:
+//! 1. each unit's mean rate and specific force are brought into the body frame with its
 //!    alignment (the board model's at first, the filter's estimate once it runs); the
 //!    specific force is also moved to the body origin by the centripetal term `Ω Ω r`
-//!    (the `Ω̇ r` term is left: differencing a 1 kHz MEMS rate would add more noise than it
+//!    (the `Ω̇ r` term is left: differencing a MEMS rate would add more noise than it
 //!    removes, and it averages out);
 //! 2. the fault monitors (`crate::redundancy::FaultMonitor`, gyros and accelerometers) test
 //!    the units and give the fused virtual IMU, each unit less its bias relative to the set
 //!    and weighted by its own noise; `LiveNoise` measures each unit's own noise level;
-//! 3. every `filter_every` sets the fused increments drive the strapdown and the filter's
-//!    prediction, with the white-noise PSD of the fused output from the live levels and
-//!    the bias noise from the board model ([`process_noise`]).
+//! 3. the fused increments drive the strapdown, with the white-noise PSD of the fused output
+//!    from the live levels and the bias noise from the board model ([`process_noise`]); the
+//!    covariance is predicted every `predict_every` intervals (and before every update).
 //!
-//! The filter runs at the filter rate; the inter-IMU update (the paper's II-B, eqs. 8-12) of
-//! units 2 and 3 against the fused output runs on means over `calibration_every` filter
-//! steps, where the angular acceleration it needs is a usable central difference. GNSS
-//! fixes are fused when they arrive, moved forward to the filter's time by their velocity.
-//! Before the filter can start it aligns ([`alignment`]) from a standstill and a drive-off.
-//!
+//! The inter-IMU update (the paper's II-B, eqs. 8-12) of units 2 and 3 against the fused
+//! output runs on means over `calibration_every` intervals, where the angular acceleration
+//! it needs is a usable central difference; zero-velocity updates run on the same cadence
+//! while the platform is still. GNSS fixes are fused when they arrive, moved forward to the
+//! filter's time by their velocity. Before the filter can start it aligns ([`alignment`])
+//! from a standstill and a drive-off. The filter's scalar is a parameter: f32 on the board,
+//! f64 on the host to measure what f32 costs.
+
 //! Nothing here allocates or panics; the outputs go to a caller's closure.
 
 pub mod alignment;
