@@ -319,6 +319,15 @@ pub fn adis16405_replay(path: &Path, seconds: u32) -> Result<ReplayInput, Replay
 /// on the lock of the build that is running it.
 pub const FIRMWARE_TARGET_DIR: &str = "target/firmware";
 
+/// Core clock of the real board's Cortex-M4F (STM32F405), Hz: the budget instruction counts
+/// under emulation are a share of.
+pub const BOARD_CORE_HZ: f64 = 168e6;
+
+/// Cargo profile of both boards' firmware (`[profile.firmware]` in the workspace's
+/// `Cargo.toml`: speed where the samples run, size elsewhere, so the real board's image fits
+/// its flash).
+pub const FIRMWARE_PROFILE: &str = "firmware";
+
 /// The workspace root (where `Cargo.toml`, `memory.x` and `firmware/` are).
 pub fn workspace_root() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -334,10 +343,17 @@ pub fn qemu_available() -> bool {
         .is_ok_and(|o| o.status.success())
 }
 
-/// Builds the replay firmware (release, `board-replay`) with cargo into `target_dir` and
-/// returns the ELF's path. A separate target directory keeps this build from waiting on
-/// the lock of the host build that is running it.
+/// Builds the replay firmware ([`FIRMWARE_PROFILE`], `board-replay`) with cargo into
+/// `target_dir` and returns the ELF's path. A separate target directory keeps this build
+/// from waiting on the lock of the host build that is running it.
 pub fn build_replay_firmware(target_dir: &Path) -> Result<PathBuf, ReplayFileError> {
+    build_firmware(target_dir, "board-replay")
+}
+
+/// Builds the firmware for one board (`board_feature`: `board-replay`, the emulated board, or
+/// `board-stm32f405`, the real one) with cargo into `target_dir` and returns the ELF's path.
+/// Both boards' images land at the same path: read one before building the other.
+pub fn build_firmware(target_dir: &Path, board_feature: &str) -> Result<PathBuf, ReplayFileError> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let root = workspace_root();
     let output = Command::new(cargo)
@@ -346,11 +362,12 @@ pub fn build_replay_firmware(target_dir: &Path) -> Result<PathBuf, ReplayFileErr
             "build",
             "-p",
             "dynacal-firmware",
-            "--release",
+            "--profile",
+            FIRMWARE_PROFILE,
             "--target",
             "thumbv7em-none-eabihf",
             "--features",
-            "board-replay",
+            board_feature,
             "--target-dir",
         ])
         .arg(target_dir)
@@ -358,12 +375,15 @@ pub fn build_replay_firmware(target_dir: &Path) -> Result<PathBuf, ReplayFileErr
         .map_err(|e| ReplayFileError::Tool(format!("cannot run cargo: {e}")))?;
     if !output.status.success() {
         return Err(ReplayFileError::Tool(format!(
-            "building the replay firmware failed (is the thumbv7em-none-eabihf target \
-             installed? run scripts/setup):\n{}",
+            "building the firmware ({board_feature}) failed (is the thumbv7em-none-eabihf \
+             target installed? run scripts/setup):\n{}",
             String::from_utf8_lossy(&output.stderr)
         )));
     }
-    Ok(target_dir.join("thumbv7em-none-eabihf/release/dynacal-firmware"))
+    Ok(target_dir
+        .join("thumbv7em-none-eabihf")
+        .join(FIRMWARE_PROFILE)
+        .join("dynacal-firmware"))
 }
 
 /// What the firmware reported at the end of a successful run (one `key=value` line on

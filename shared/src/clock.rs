@@ -148,8 +148,12 @@ impl PpsClock {
     /// the frequency's random walk integrated into it.
     fn process_noise(&self, seconds: f64) -> Matrix2<f64> {
         let f = self.config.nominal_hz;
-        let white = (self.config.allan_deviation_1s * f).powi(2) * seconds;
-        let walk = (self.config.frequency_walk_per_sqrt_s * f).powi(2);
+        let (white_1s, walk_1s) = (
+            self.config.allan_deviation_1s * f,
+            self.config.frequency_walk_per_sqrt_s * f,
+        );
+        let white = white_1s * white_1s * seconds;
+        let walk = walk_1s * walk_1s;
         let (t2, t3) = (seconds * seconds, seconds * seconds * seconds);
         Matrix2::new(
             white + walk * t3 / 3.0,
@@ -171,7 +175,8 @@ impl PpsClock {
     /// Variance of one edge's capture, counts^2: the receiver's jitter and the timer's
     /// quantisation (uniform over one tick).
     fn edge_variance(&self) -> f64 {
-        (self.config.pps_jitter_s * self.config.nominal_hz).powi(2) + 1.0 / 12.0
+        let jitter_counts = self.config.pps_jitter_s * self.config.nominal_hz;
+        jitter_counts * jitter_counts + 1.0 / 12.0
     }
 
     /// A PPS edge captured at `capture`, beginning GPS second `second` where the receiver
@@ -181,12 +186,10 @@ impl PpsClock {
         if self.pulses == 0 {
             let f = self.config.nominal_hz;
             self.state = Vector2::new(count, f);
-            self.covariance = Matrix2::new(
-                self.edge_variance(),
-                0.0,
-                0.0,
-                (self.config.initial_frequency_error * f).powi(2),
-            );
+            self.covariance = Matrix2::new(self.edge_variance(), 0.0, 0.0, {
+                let frequency_counts = self.config.initial_frequency_error * f;
+                frequency_counts * frequency_counts
+            });
             self.second = second.unwrap_or(0);
             self.pulses = 1;
             return PpsOutcome::Accepted { missed: 0 };

@@ -19,12 +19,13 @@ use dynacal::wv::{haar_wv_counts, WvOptions};
 
 const SECONDS: u32 = 60;
 /// Instructions per sample set the firmware may spend framing and queueing the log and
-/// accumulating the wavelet variance of the six channels (measured 2927: 1214 for the log
-/// alone, about 285 per channel for `RecorderWv::push`; the bound catches a regression of
-/// about 20%).
-const MAX_RECORD_INSTRUCTIONS_PER_SAMPLE: f64 = 3500.0;
-/// Instructions per sample set for the whole loop, replay decoding included (measured 3130).
-const MAX_TOTAL_INSTRUCTIONS_PER_SAMPLE: f64 = 3750.0;
+/// accumulating the wavelet variance of the six channels. Measured 3632 with the `firmware`
+/// profile (3113 at opt-level 3: the size the real board's flash needs costs 17% here, and
+/// 0.6 points of the core's budget with the fusion running, BENCHMARKS.md); the bound catches
+/// a regression of about 20%.
+const MAX_RECORD_INSTRUCTIONS_PER_SAMPLE: f64 = 4300.0;
+/// Instructions per sample set for the whole loop, replay decoding included (measured 4311).
+const MAX_TOTAL_INSTRUCTIONS_PER_SAMPLE: f64 = 5100.0;
 
 #[test]
 fn adis16405_minute_passes_through_the_firmware_under_qemu_bit_exact() {

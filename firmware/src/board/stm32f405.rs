@@ -730,8 +730,13 @@ pub fn fatal(what: &str) -> ! {
     cortex_m::peripheral::SCB::sys_reset()
 }
 
+/// Logs where the panic was and its message when the message is a plain string. A message
+/// with arguments is not formatted: `core::fmt` would cost 3 KB of the 128 KiB of flash
+/// the image must fit in, and the file and line find the place.
 pub fn fatal_panic(info: &core::panic::PanicInfo) -> ! {
-    defmt::error!("panic: {}", defmt::Display2Format(info));
+    let (file, line) = info.location().map_or(("?", 0), |l| (l.file(), l.line()));
+    let message = info.message().as_str().unwrap_or("(a formatted message)");
+    defmt::error!("panic at {=str}:{=u32}: {=str}", file, line, message);
     cortex_m::peripheral::SCB::sys_reset()
 }
 

@@ -10,11 +10,9 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use dynacal::decode::decode_file;
 use dynacal::replay::{
-    build_replay_firmware, qemu_available, run_replay_in_qemu, workspace_root, FIRMWARE_TARGET_DIR,
+    build_replay_firmware, qemu_available, run_replay_in_qemu, workspace_root,
+    BOARD_CORE_HZ as CORE_HZ, FIRMWARE_TARGET_DIR,
 };
-
-/// Instructions per second of the STM32F405's core at full speed (one per cycle at best).
-const CORE_HZ: f64 = 168e6;
 
 #[derive(Debug, clap::Args)]
 pub struct Args {

@@ -111,7 +111,9 @@ impl Alignment {
     /// A GNSS fix with a 3-D solution; `still` as for [`Self::push`]. Returns the start
     /// once the heading is known.
     pub fn on_fix(&mut self, fix: &GnssFix, still: bool) -> Option<Start> {
-        self.gravity_m_s2 = normal_gravity_m_s2(fix.lat_rad, f64::from(fix.h_m)) as f32;
+        // In f32: gravity to 1e-7 is far below the accelerometers' noise, and the board then
+        // links no f64 trigonometry.
+        self.gravity_m_s2 = normal_gravity_m_s2(fix.lat_rad as f32, fix.h_m);
         let v = Vector3::from(fix.vel_ned_m_s);
         let horizontal = |x: &Vector3<f32>| x.x.hypot(x.y);
         if still && horizontal(&v) < 0.5 {

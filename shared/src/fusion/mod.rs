@@ -38,7 +38,7 @@ use nalgebra::{Matrix3, Quaternion, RealField, UnitQuaternion, Vector3};
 
 use crate::board_model::BoardModel;
 use crate::log::{FaultFrame, FilterState, GnssFix, NoiseFrame, MAX_IMUS};
-use crate::nav::earth::radii;
+use crate::nav::earth::Latitude;
 use crate::nav::ekf::{
     EkfConfig, ErrorStateEkf, InitialSigmas, InsEkf, InterImuCalibration, InterImuSample,
     RateDifferentiator, ACCEL_BIAS, ATT, GYRO_BIAS, POS, VEL,
@@ -691,8 +691,9 @@ impl<T: RealField + Copy> BoardFusion<T> {
             let level = (0..UNITS).map(|k| live.sigma(k)).fold(0.0f32, f32::max);
             3.0 * level * level
         };
-        let rate_limit = self.config.still_rate_rad_s.powi(2) + noise(&self.gyro_live);
-        let force_limit = self.config.still_force_m_s2.powi(2) + noise(&self.accel_live);
+        let (rate, force) = (self.config.still_rate_rad_s, self.config.still_force_m_s2);
+        let rate_limit = rate * rate + noise(&self.gyro_live);
+        let force_limit = force * force + noise(&self.accel_live);
         let slow = self
             .filter
             .as_ref()
@@ -954,14 +955,18 @@ fn live_psds(
 }
 
 /// A fix's position carried `age_s` forward along its velocity: lat, lon (rad), h (m).
+///
+/// The displacement is metres, so the curvature terms in f32 (1e-7 relative) change it by
+/// well under a micrometre, and the board links no f64 trigonometry.
 fn moved_forward(fix: &GnssFix, age_s: f32) -> (f64, f64, f32) {
-    let r = radii(fix.lat_rad);
-    let [vn, ve, vd] = fix.vel_ned_m_s.map(|v| f64::from(v * age_s));
-    let h = f64::from(fix.h_m);
+    let latitude = Latitude::new(fix.lat_rad as f32);
+    let r = latitude.radii;
+    let [vn, ve, vd] = fix.vel_ned_m_s.map(|v| v * age_s);
+    let h = fix.h_m;
     (
-        fix.lat_rad + vn / (r.meridian_m + h),
-        fix.lon_rad + ve / ((r.transverse_m + h) * fix.lat_rad.cos()),
-        fix.h_m - vd as f32,
+        fix.lat_rad + f64::from(vn / (r.meridian_m + h)),
+        fix.lon_rad + f64::from(ve / ((r.transverse_m + h) * latitude.cos)),
+        fix.h_m - vd,
     )
 }
 

@@ -83,8 +83,7 @@ impl<T: RealField + Copy> RotationAccumulator<T> {
     pub fn sigma_rad(&self, c: &Matrix3<T>) -> Option<T> {
         let s2 = self.residual_variance(c);
         let mut eig = self.scatter.symmetric_eigenvalues();
-        eig.as_mut_slice()
-            .sort_unstable_by(|a, b| a.partial_cmp(b).unwrap_or(core::cmp::Ordering::Equal));
+        super::sort_few(eig.as_mut_slice(), |a, b| a < b);
         let n = self.pairs;
         let two = T::one() + T::one();
         let motion = eig[1] - n * s2 / two;

@@ -629,7 +629,7 @@ impl<const N: usize> FaultMonitor<N> {
         if others.len() < 2 {
             return false;
         }
-        others.sort_unstable_by(f32::total_cmp);
+        super::sort_few(&mut others, |a, b| a.total_cmp(b).is_lt());
         let mid = others.len() / 2;
         let median = if others.len().is_multiple_of(2) {
             (others[mid - 1] + others[mid]) / 2.0
@@ -802,8 +802,10 @@ impl<const N: usize> FaultMonitor<N> {
                     / n
             });
             for a in 0..3 {
-                slot[0] += (now[a] - x_then[a] - bias[a]).powi(2);
-                slot[1] += (unit_then[a] - x[a] - bias[a]).powi(2);
+                let (lagged_unit, lagged_set) =
+                    (now[a] - x_then[a] - bias[a], unit_then[a] - x[a] - bias[a]);
+                slot[0] += lagged_unit * lagged_unit;
+                slot[1] += lagged_set * lagged_set;
             }
         }
         let e = &mut self.units[k].episode;
@@ -812,7 +814,10 @@ impl<const N: usize> FaultMonitor<N> {
             sum[1] += add[1];
         }
         e.unlagged += (0..3)
-            .map(|a| (now[a] - x[a] - bias[a]).powi(2))
+            .map(|a| {
+                let d = now[a] - x[a] - bias[a];
+                d * d
+            })
             .sum::<f32>();
     }
 
@@ -1013,10 +1018,8 @@ impl<const N: usize> FaultMonitor<N> {
                         p.spread += alpha_spread * ((u * u).min(limit) - p.spread);
                         let s2 = (p.shift * p.shift).min(9.0 * p.shift_spread.max(floor));
                         p.shift_spread += alpha_spread * (s2 - p.shift_spread);
-                        let r2 = p
-                            .slip_correlation()
-                            .powi(2)
-                            .min(9.0 * p.slip_spread.max(slip_floor));
+                        let r = p.slip_correlation();
+                        let r2 = (r * r).min(9.0 * p.slip_spread.max(slip_floor));
                         p.slip_spread += alpha_spread * (r2 - p.slip_spread);
                     }
                 }
@@ -1063,7 +1066,13 @@ impl<const N: usize> FaultMonitor<N> {
                 let weight = if unit.norm == 0.0 { 1.0 } else { alpha_fast };
                 unit.norm += weight * (length - unit.norm);
                 if let Some(before) = self.previous[k] {
-                    let step2 = (0..3).map(|a| (s[a] - before[a]).powi(2)).sum::<f32>() / 3.0;
+                    let step2 = (0..3)
+                        .map(|a| {
+                            let d = s[a] - before[a];
+                            d * d
+                        })
+                        .sum::<f32>()
+                        / 3.0;
                     let limit = if unit.step_spread > 0.0 {
                         25.0 * unit.step_spread
                     } else {
