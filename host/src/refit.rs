@@ -13,7 +13,8 @@
 //!    variance of a moving sensor would not; the alignment of each unit to the first comes
 //!    from the same analysis.
 //! 3. Each unit's channels are fitted by the GMWM (`crate::gmwm`) on those own variances,
-//!    with intervals, and mapped to what the board's filter runs ([`channel_noise`]).
+//!    with intervals from a bootstrap of the whole hat ([`hat_bootstrap`]), and mapped to
+//!    what the board's filter runs ([`channel_noise`]).
 
 use std::collections::BTreeMap;
 
@@ -22,9 +23,11 @@ use dynacal_core::Channel;
 use serde::Serialize;
 
 use crate::decode::{BoardChannelWv, DecodedLog};
-use crate::gmwm::fit::{FitInput, FitOptions};
-use crate::gmwm::inference::{analyze, BootstrapOptions, ChannelFit, ModelChoice};
-use crate::gmwm::model::{ModelSpec, Process};
+use crate::gmwm::fit::{refit_from, FitInput, FitOptions};
+use crate::gmwm::inference::{
+    analyze, set_bootstrap_intervals, BootstrapOptions, ChannelFit, ModelChoice,
+};
+use crate::gmwm::model::{ModelSpec, Process, Structure};
 use crate::interchange::ImuRecording;
 use crate::model::SimModel;
 use crate::redundancy::{redundancy, Alignment, OwnWv, RedundancyOptions};
@@ -89,6 +92,8 @@ pub struct Refit {
 #[derive(Debug, Clone)]
 pub struct RefitOptions {
     pub choice: ModelChoice,
+    /// The intervals' bootstrap of the units' hat ([`hat_bootstrap`]); None: the delta
+    /// method's intervals, too narrow for variances from the units' differences.
     pub bootstrap: Option<BootstrapOptions>,
 }
 
@@ -123,6 +128,11 @@ pub fn refit(log: &DecodedLog, options: &RefitOptions) -> Result<Refit, RefitErr
             alignment: unit.alignment.clone(),
             fits,
         });
+    }
+    if let Some(b) = options.bootstrap.filter(|b| b.replicates > 0) {
+        let n = units[0].2.len();
+        let dt_s = units[0].2.median_dt_s();
+        hat_bootstrap(&mut unit_refits, n, dt_s, b);
     }
     let board_model = board_model_of(&unit_refits, &mut notes);
     Ok(Refit {
@@ -286,17 +296,106 @@ fn fit_unit(
             let wv = own_as_wv(w, recording.len(), dt_s);
             let input = FitInput::from_wv(&wv).map_err(|e| err(e.to_string()))?;
             let unit = if channel.is_gyro() { "rad/s" } else { "m/s^2" };
+            // Intervals by the delta method here; a bootstrap must simulate the units'
+            // hat, not one series ([`hat_bootstrap`]).
             analyze(
                 &format!("{name}/{}", channel.name()),
                 unit,
                 &input,
                 &options.choice,
-                options.bootstrap,
+                None,
                 &FitOptions::default(),
             )
             .map_err(|e| err(e.to_string()))
         })
         .collect()
+}
+
+/// Intervals that hold what the refit is uncertain of: a parametric bootstrap of the whole
+/// analysis. Each replicate simulates every unit's channel from its fitted model (`n`
+/// samples, seeded: ChaCha8 from `b.seed`, one stream per channel and replicate, so the
+/// draws do not depend on the thread count), takes their own wavelet variances through the
+/// same N-cornered hat ([`crate::redundancy::own_wv_of`]) and refits each unit on the
+/// levels its fit used. A single-series bootstrap would miss the hat's own variance (the
+/// pairs' differences of large numbers, 2.5 times a single unit's at the white noise's
+/// scales with three units) and the trade between a short-record Gauss-Markov term and the
+/// white noise; the delta method misses both. The simulated units hold no motion, so what
+/// the alignment leaves in the real differences is not in the intervals.
+fn hat_bootstrap(units: &mut [UnitRefit], n: usize, dt_s: f64, b: BootstrapOptions) {
+    use rand::SeedableRng;
+    use rayon::prelude::*;
+    for (c, channel) in Channel::ALL.into_iter().enumerate() {
+        let fits: Option<Vec<ChannelFit>> = units
+            .iter()
+            .map(|u| {
+                u.fits
+                    .iter()
+                    .find(|f| f.channel.ends_with(channel.name()))
+                    .cloned()
+            })
+            .collect();
+        let Some(fits) = fits else { continue };
+        let structures: Option<Vec<Structure>> = fits
+            .iter()
+            .map(|f| Structure::parse(&f.model).ok())
+            .collect();
+        let Some(structures) = structures else {
+            continue;
+        };
+        let draws: Vec<Vec<Option<Vec<f64>>>> = (0..b.replicates)
+            .into_par_iter()
+            .map(|r| {
+                let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(b.seed);
+                rng.set_stream((c * b.replicates + r) as u64);
+                let series: Vec<Vec<f64>> = fits
+                    .iter()
+                    .map(|f| f.model_object.simulate(n, &mut rng))
+                    .collect();
+                let refs: Vec<&[f64]> = series.iter().map(Vec::as_slice).collect();
+                let own = crate::redundancy::own_wv_of(&refs, dt_s);
+                fits.iter()
+                    .zip(&structures)
+                    .zip(&own)
+                    .map(|((fit, structure), own)| refit_own(fit, structure, own, n, dt_s))
+                    .collect()
+            })
+            .collect();
+        for (k, unit) in units.iter_mut().enumerate() {
+            let replicates: Vec<Vec<f64>> = draws.iter().filter_map(|d| d[k].clone()).collect();
+            let method = format!(
+                "bootstrap of the N-cornered hat, bias-corrected percentiles (B={}, seed={}, converged replicates={})",
+                b.replicates,
+                b.seed,
+                replicates.len()
+            );
+            if let Some(fit) = unit
+                .fits
+                .iter_mut()
+                .find(|f| f.channel.ends_with(channel.name()))
+            {
+                set_bootstrap_intervals(fit, &replicates, method);
+            }
+        }
+    }
+}
+
+/// One bootstrap refit of a unit's channel on a simulated own wavelet variance, at the
+/// levels its fit used; None when the fit does not converge.
+fn refit_own(
+    fit: &ChannelFit,
+    structure: &Structure,
+    own: &OwnWv,
+    n: usize,
+    dt_s: f64,
+) -> Option<Vec<f64>> {
+    let input = FitInput::from_wv(&own_as_wv(own, n, dt_s))
+        .ok()?
+        .at_levels(&fit.levels);
+    if input.levels.len() <= structure.n_params() {
+        return None;
+    }
+    let refit = refit_from(structure, &input, &fit.theta, &FitOptions::default());
+    refit.converged().then_some(refit.theta)
 }
 
 /// What the board's filter runs of a fitted channel model: white noise as a PSD, the

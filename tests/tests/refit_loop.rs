@@ -12,7 +12,7 @@ use std::path::Path;
 
 use dynacal::board_log::state_error;
 use dynacal::decode::{decode_file, DecodedLog};
-use dynacal::gmwm::inference::ModelChoice;
+use dynacal::gmwm::inference::{BootstrapOptions, ModelChoice};
 use dynacal::gmwm::model::Structure;
 use dynacal::model::SimModel;
 use dynacal::refit::{refit, RefitOptions};
@@ -134,7 +134,10 @@ fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is
     assert!(built_in.health[3..].iter().all(|h| h.flags & gps != 0));
     let options = RefitOptions {
         choice: ModelChoice::Fixed(Structure::parse("WN+GM").unwrap()),
-        bootstrap: None,
+        bootstrap: Some(BootstrapOptions {
+            replicates: 200,
+            seed: 7,
+        }),
     };
     let result = refit(&built_in, &options).unwrap();
 
@@ -147,12 +150,11 @@ fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is
         );
         assert_eq!(a.decimated_disjoint, 0, "{a:?}");
     }
-    // AND the refitted parameters mostly hold the truth in their 95% intervals. Measured:
-    // 46, 44 and 50 of 54 on seeds 19-21 (85%, 81%, 93%), short of the nominal 95%: the
-    // misses are white-noise variances off by 1-2% against intervals of +-0.8%, and
-    // Gauss-Markov correlation times come out short (beta 0.06-0.3 for 0.05), which is the
-    // motion the alignment's residual (0.08 deg, lever arms short by centimetres) leaves in
-    // the units' differences at the scales of turns. Fewer than 12 misses holds on all three.
+    // AND the refitted parameters hold the truth in their 95% intervals (a bootstrap of the
+    // whole N-cornered hat, bias-corrected percentiles). Measured on seeds 19-21: 49, 52 and
+    // 54 of 54 (155 of 162, 95.7%; the delta method's had held 46, 44 and 50). The misses
+    // are Gauss-Markov terms of 20 s on a 600 s record, their beta fitted at 0.07-0.5, and
+    // one white-noise variance 0.3% outside an interval of +-1.3%.
     let mut checked = 0;
     let mut missed = Vec::new();
     for unit in &result.units {
@@ -176,7 +178,7 @@ fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is
     }
     println!("refit: {checked} intervals, missed {missed:?}");
     assert_eq!(checked, 54);
-    assert!(missed.len() < 12, "{missed:#?}");
+    assert!(missed.len() <= 6, "{missed:#?}");
 
     // WHEN the board runs again with the refitted blob
     let mut blob = [0u8; MAX_BOARD_MODEL_LEN];

@@ -98,6 +98,22 @@ impl FitInput {
         })
     }
 
+    /// The same input restricted to `levels` (those it holds, in its order).
+    pub fn at_levels(&self, levels: &[u32]) -> FitInput {
+        let idx: Vec<usize> = levels
+            .iter()
+            .filter_map(|j| self.levels.iter().position(|x| x == j))
+            .collect();
+        FitInput {
+            levels: idx.iter().map(|&i| self.levels[i]).collect(),
+            variance: idx.iter().map(|&i| self.variance[i]).collect(),
+            omega: idx.iter().map(|&i| self.omega[i]).collect(),
+            n_coefficients: idx.iter().map(|&i| self.n_coefficients[i]).collect(),
+            dt_s: self.dt_s,
+            n: self.n,
+        }
+    }
+
     pub fn taus(&self) -> Vec<f64> {
         self.levels.iter().map(|&j| (j as f64).exp2()).collect()
     }

@@ -188,15 +188,35 @@ fn own_wv(
     dt_s: f64,
     correction: Option<&align::CorrectionError>,
 ) -> Vec<OwnWv> {
-    let units = signals.len();
+    let series: Vec<&[f64]> = signals.iter().map(|s| s[c].as_slice()).collect();
+    let members = members(signals.len());
+    hat_wv(&series, dt_s, |level, p, q| match (correction, c >= 3) {
+        (Some(e), true) => e.pair_covariance(c - 3, level, members[p], members[q]),
+        _ => 0.0,
+    })
+}
+
+/// Each unit's own wavelet variance from `series`, one per unit, sampled together and
+/// already in one frame with nothing common left in them (the N-cornered hat of
+/// [`own_variances`] at every scale, with the intervals of [`own_interval`]): what
+/// [`redundancy`] computes of a channel, for a caller that simulates the units (the refit's
+/// bootstrap).
+pub fn own_wv_of(series: &[&[f64]], dt_s: f64) -> Vec<OwnWv> {
+    hat_wv(series, dt_s, |_, _, _| 0.0)
+}
+
+/// The N-cornered hat per scale; `common(level, p, q)` is the covariance the pairs p and q
+/// (in [`members`] order) share beyond their units, taken out of every pair.
+fn hat_wv(series: &[&[f64]], dt_s: f64, common: impl Fn(usize, usize, usize) -> f64) -> Vec<OwnWv> {
+    let units = series.len();
     let members = members(units);
     let mut scales_s = Vec::new();
     let mut eta: Vec<f64> = Vec::new();
     let mut pair_wv: Vec<Vec<f64>> = vec![Vec::new(); pairs(units)];
     for &(k, l) in &members {
-        let d: Vec<f64> = signals[k][c]
+        let d: Vec<f64> = series[k]
             .iter()
-            .zip(&signals[l][c])
+            .zip(series[l])
             .map(|(a, b)| a - b)
             .collect();
         let wv = haar_wv(&d, dt_s, &WvOptions::default()).expect("at least 64 samples");
@@ -219,12 +239,8 @@ fn own_wv(
         })
         .collect();
     for level in 0..scales_s.len() {
-        let common = |p: usize, q: usize| match (correction, c >= 3) {
-            (Some(e), true) => e.pair_covariance(c - 3, level, members[p], members[q]),
-            _ => 0.0,
-        };
         let at_level: Vec<f64> = (0..members.len())
-            .map(|p| pair_wv[p][level] - common(p, p))
+            .map(|p| pair_wv[p][level] - common(level, p, p))
             .collect();
         let own = own_variances(units, &at_level).expect("3..=MAX_UNITS units, variances");
         let covariance: Vec<Vec<f64>> = (0..members.len())
@@ -234,7 +250,8 @@ fn own_wv(
                         if p == q {
                             pair_wv[p][level]
                         } else {
-                            shared(members[p], members[q], &own.value[..units]) + common(p, q)
+                            shared(members[p], members[q], &own.value[..units])
+                                + common(level, p, q)
                         }
                     })
                     .collect()
