@@ -399,7 +399,7 @@ fn refit_own(
 }
 
 /// What the board's filter runs of a fitted channel model: white noise as a PSD, the
-/// largest Gauss-Markov bias as one, a random walk as a PSD. Other Gauss-Markov terms
+/// largest Gauss-Markov term of a second or longer as its bias, a random walk as a PSD. Other Gauss-Markov terms
 /// join the white noise when their correlation time is under a second (the filter cannot
 /// tell them from it) and the random walk otherwise (their driving PSD); quantization noise
 /// joins the white noise; a drift is not run (returned in the second value, named).
@@ -414,11 +414,15 @@ pub fn channel_noise(spec: &ModelSpec) -> (ChannelNoise, Vec<&'static str>) {
     let mut white = 0.0f64;
     let mut walk = 0.0f64;
     let mut left_out = Vec::new();
+    // The filter's bias state is the largest Gauss-Markov term slow enough to be a bias:
+    // one of a millisecond is white noise to a filter predicting every 10 ms.
     let main_gm = spec
         .processes
         .iter()
         .filter_map(|p| match *p {
-            Process::GaussMarkov { beta_per_s, sigma2 } => Some((beta_per_s, sigma2)),
+            Process::GaussMarkov { beta_per_s, sigma2 } if beta_per_s <= 1.0 => {
+                Some((beta_per_s, sigma2))
+            }
             _ => None,
         })
         .fold(None, |best: Option<(f64, f64)>, gm| match best {
@@ -571,5 +575,38 @@ mod tests {
         assert!(close(noise.gauss_markov_tau_s, 100.0));
         assert!(close(noise.random_walk_psd, 1e-12 / dt + 2.0 * 1e-8 * 0.1));
         assert_eq!(left_out, vec!["drift"]);
+    }
+
+    #[test]
+    fn a_fast_gauss_markov_term_is_white_noise_to_the_filter_however_large() {
+        // As fitted on a 120 s drive at 1 kHz: a 0.55 ms term larger than the slow one.
+        let (noise, _) = channel_noise(&spec(vec![
+            Process::WhiteNoise { sigma2: 2.5e-3 },
+            Process::GaussMarkov {
+                beta_per_s: 1810.0,
+                sigma2: 1.1e-3,
+            },
+            Process::GaussMarkov {
+                beta_per_s: 0.05,
+                sigma2: 1e-5,
+            },
+        ]));
+        let dt = 1.0 / 200.0;
+        let close = |a: f32, b: f64| ((f64::from(a) - b) / b).abs() < 1e-5;
+        assert!(close(noise.gauss_markov_tau_s, 20.0));
+        assert!(close(noise.gauss_markov_sigma2, 1e-5));
+        assert!(close(noise.white_psd, 2.5e-3 * dt + 2.0 * 1.1e-3 / 1810.0));
+        // With no slow term the filter's bias state stays off.
+        let (noise, _) = channel_noise(&spec(vec![
+            Process::WhiteNoise { sigma2: 2.5e-3 },
+            Process::GaussMarkov {
+                beta_per_s: 1810.0,
+                sigma2: 1.1e-3,
+            },
+        ]));
+        assert_eq!(
+            (noise.gauss_markov_sigma2, noise.gauss_markov_tau_s),
+            (0.0, 0.0)
+        );
     }
 }

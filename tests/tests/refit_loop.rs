@@ -212,3 +212,87 @@ fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is
         "the board ran differently with a refused blob than with none"
     );
 }
+
+/// Mean horizontal and vertical position error (m) and mean position NEES of a log's
+/// states against the simulation.
+fn position_summary(sim: &SimOutput, log: &DecodedLog) -> (f64, f64) {
+    let errors: Vec<_> = log
+        .filter
+        .iter()
+        .filter_map(|s| state_error(&sim.reference.recording, s))
+        .collect();
+    let n = errors.len().max(1) as f64;
+    let horizontal = errors
+        .iter()
+        .map(|e| e.position_ned_m.xy().norm_squared())
+        .sum::<f64>()
+        / n;
+    let nees = errors.iter().map(|e| e.nees()[0]).sum::<f64>() / n;
+    (horizontal.sqrt(), nees)
+}
+
+#[test]
+fn an_automatic_refit_of_a_short_fast_drive_runs_on_the_board_as_long_as_the_built_in_model() {
+    if !dynacal_tests::qemu_or_skip() {
+        return;
+    }
+    // GIVEN 120 s of three units at 1 kHz (the example board model), through the board
+    // with its built-in model, refitted as a user would: models chosen by WIC, intervals
+    // bootstrapped. On such a short drive WIC picks Gauss-Markov terms of a millisecond
+    // beside the white noise; run as the filter's bias with a first-order step, one made
+    // the board's covariance explode at the filter's start.
+    let model_path = workspace_root().join("examples/models/board-three-mems.json");
+    let model = SimModel::load(&model_path).unwrap();
+    let opts = SimOptions {
+        scenario: Scenario::Car,
+        seconds: 120.0,
+        seed: 5,
+        disabled: Vec::new(),
+        keep_ideal: false,
+    };
+    let sim = simulate(&model, &opts, &|_| {}).unwrap();
+    let board = board_recording(&sim, &model).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("drive.replay");
+    std::fs::write(&input, board.replay_bytes().unwrap()).unwrap();
+    let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
+    let built_in_log = dir.path().join("built-in.log");
+    run_replay_in_qemu(&elf, &input, &built_in_log, None).unwrap();
+    let built_in = decode_file(&built_in_log).unwrap();
+    let options = RefitOptions {
+        choice: ModelChoice::Auto,
+        bootstrap: Some(BootstrapOptions {
+            replicates: 50,
+            seed: 3,
+        }),
+    };
+    let result = refit(&built_in, &options).unwrap();
+
+    // WHEN the board runs with the refitted blob
+    let mut blob = [0u8; MAX_BOARD_MODEL_LEN];
+    let len = result.board_model.encode(&mut blob).unwrap();
+    let blob_path = dir.path().join("board-model.bin");
+    std::fs::write(&blob_path, &blob[..len]).unwrap();
+    let refitted_log = dir.path().join("refitted.log");
+    let run = run_replay_in_qemu(&elf, &input, &refitted_log, Some(&blob_path)).unwrap();
+    assert!(!run.stderr.contains("refused"), "{}", run.stderr);
+    let refitted = decode_file(&refitted_log).unwrap();
+
+    // THEN its filter navigates as long as the built-in one, as well, and consistently
+    let (good, bad) = (
+        position_summary(&sim, &refitted),
+        position_summary(&sim, &built_in),
+    );
+    println!(
+        "{} and {} states; horizontal RMS, position NEES: refitted {good:?}, built-in {bad:?}",
+        refitted.filter.len(),
+        built_in.filter.len()
+    );
+    assert!(built_in.filter.len() > 500, "{}", built_in.filter.len());
+    assert_eq!(refitted.filter.len(), built_in.filter.len());
+    assert!(
+        good.0 < 0.5 && good.0 < 2.0 * bad.0,
+        "{good:?} against {bad:?}"
+    );
+    assert!(good.1 > 0.3 && good.1 < 9.0, "position NEES {}", good.1);
+}

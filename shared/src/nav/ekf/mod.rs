@@ -38,7 +38,7 @@ mod predict;
 pub use fuse_gnss::{geodetic_difference_ned_m, position_innovation_ned_m};
 pub use fuse_inter_imu::{InterImuSample, RateDifferentiator};
 pub use ins::{apply_correction, InsEkf};
-pub use predict::NavLinearization;
+pub use predict::{gauss_markov_step, NavLinearization};
 
 use nalgebra::{Matrix3, Quaternion, RealField, SMatrix, SVector, UnitQuaternion, Vector3};
 

@@ -148,6 +148,25 @@ impl<T: RealField + Copy> Block3<T> {
     }
 }
 
+/// A Gauss-Markov bias (inverse correlation time `inv_tau_s`, 1/s; driving PSD `psd`,
+/// unit²/s) over `dt` seconds, discretised exactly: its decay `exp(-dt/tau)` and the
+/// variance it gains, `psd tau (1 - exp(-2 dt/tau)) / 2` (`psd dt` for a random walk,
+/// `inv_tau_s = 0`). The first-order `1 - dt/tau` turns unstable past `dt = 2 tau`: a bias
+/// model fitted with a correlation time of a millisecond, predicted every 10 ms, made the
+/// board's covariance explode within a second.
+pub fn gauss_markov_step<T: RealField + Copy>(inv_tau_s: T, psd: T, dt: T) -> (T, T) {
+    let x = inv_tau_s * dt;
+    if x <= nalgebra::convert(1e-4) {
+        // exp's series: the exact form loses its digits to the subtraction here.
+        return (T::one() - x, psd * dt * (T::one() - x));
+    }
+    let decay = (-x).exp();
+    (
+        decay,
+        psd * (T::one() - decay * decay) / (inv_tau_s + inv_tau_s),
+    )
+}
+
 /// `Φ_nav` as 5×5 blocks (position, velocity, attitude, accel bias, gyro bias).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct BlockTransition<T: RealField + Copy> {
@@ -191,8 +210,10 @@ impl<T: RealField + Copy> BlockTransition<T> {
         blocks[2][1] = Block3::Full(-d_omega_en_dv * dt);
         blocks[2][2] = Block3::Full(identity - skew(&omega_in) * dt);
         blocks[2][4] = Block3::Full(-lin.c_b_n * dt);
-        blocks[3][3] = Block3::Diag(Vector3::repeat(one - config.accel_bias_inv_tau_s * dt));
-        blocks[4][4] = Block3::Diag(Vector3::repeat(one - config.gyro_bias_inv_tau_s * dt));
+        let (accel_decay, _) = gauss_markov_step(config.accel_bias_inv_tau_s, T::zero(), dt);
+        let (gyro_decay, _) = gauss_markov_step(config.gyro_bias_inv_tau_s, T::zero(), dt);
+        blocks[3][3] = Block3::Diag(Vector3::repeat(accel_decay));
+        blocks[4][4] = Block3::Diag(Vector3::repeat(gyro_decay));
         Self { blocks }
     }
 
@@ -310,11 +331,13 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     /// NED leaves it diagonal), bias and calibration driving noise on the diagonal.
     fn add_process_noise(&mut self, dt: T) {
         let cfg = self.config;
+        let (_, accel_bias_q) = gauss_markov_step(cfg.accel_bias_inv_tau_s, cfg.accel_bias_psd, dt);
+        let (_, gyro_bias_q) = gauss_markov_step(cfg.gyro_bias_inv_tau_s, cfg.gyro_bias_psd, dt);
         for axis in 0..3 {
             self.p[(VEL + axis, VEL + axis)] += cfg.accel_noise_psd * dt;
             self.p[(ATT + axis, ATT + axis)] += cfg.gyro_noise_psd * dt;
-            self.p[(ACCEL_BIAS + axis, ACCEL_BIAS + axis)] += cfg.accel_bias_psd * dt;
-            self.p[(GYRO_BIAS + axis, GYRO_BIAS + axis)] += cfg.gyro_bias_psd * dt;
+            self.p[(ACCEL_BIAS + axis, ACCEL_BIAS + axis)] += accel_bias_q;
+            self.p[(GYRO_BIAS + axis, GYRO_BIAS + axis)] += gyro_bias_q;
         }
         for imu in 0..K {
             for axis in 0..6 {

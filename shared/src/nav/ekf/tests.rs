@@ -885,3 +885,27 @@ proptest! {
         prop_assert_eq!(ekf.stats().covariance_resets, 0);
     }
 }
+
+#[test]
+fn a_gauss_markov_bias_keeps_its_stationary_variance_at_any_step() {
+    // sigma^2 = psd / (2 beta): 1e-4 for beta = 0.05 /s; also for a bias fitted with a
+    // correlation time far below the step (beta = 1800 /s predicted every 10 ms).
+    for (beta, dt) in [(0.05f64, 0.01), (0.05, 1.0), (1800.0, 0.01), (3.0, 0.5)] {
+        let sigma2: f64 = 1e-4;
+        let psd = 2.0 * sigma2 * beta;
+        let (decay, q) = gauss_markov_step(beta, psd, dt);
+        let mut p: f64 = 0.0;
+        for _ in 0..200_000 {
+            p = decay * decay * p + q;
+        }
+        assert!((p / sigma2 - 1.0).abs() < 1e-9, "beta {beta}, dt {dt}: {p}");
+        assert!((decay - (-beta * dt).exp()).abs() < 1e-12);
+    }
+    // A random walk gains psd dt, and the series branch meets the exact form.
+    assert_eq!(gauss_markov_step(0.0, 2.0, 0.01), (1.0, 0.02));
+    let (series, exact): ((f64, f64), (f64, f64)) = (
+        gauss_markov_step(0.999e-4, 1.0, 1.0),
+        gauss_markov_step(1.001e-4, 1.0, 1.0),
+    );
+    assert!((series.0 - exact.0).abs() < 1e-6 && (series.1 - exact.1).abs() < 1e-6);
+}
