@@ -80,3 +80,25 @@ pub fn run_cost_bench(bin: &str) -> Option<String> {
     eprintln!("{stderr}");
     Some(stderr)
 }
+
+/// A simulated car drive of `model` (`seconds` long, seeded) and its replay input, written
+/// to `dir/drive.replay`: what the QEMU tests feed the replay board.
+pub fn simulated_drive(
+    model: &dynacal::model::SimModel,
+    seconds: f64,
+    seed: u64,
+    dir: &std::path::Path,
+) -> (dynacal::sim::SimOutput, PathBuf) {
+    let options = dynacal::sim::SimOptions {
+        scenario: dynacal::sim::trajectory::Scenario::Car,
+        seconds,
+        seed,
+        disabled: Vec::new(),
+        keep_ideal: false,
+    };
+    let sim = dynacal::sim::simulate(model, &options, &|_| {}).expect("simulate");
+    let board = dynacal::sim::board::board_recording(&sim, model).expect("board recording");
+    let input = dir.join("drive.replay");
+    std::fs::write(&input, board.replay_bytes().expect("replay bytes")).expect("write input");
+    (sim, input)
+}

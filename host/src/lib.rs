@@ -9,6 +9,7 @@ pub mod calibration;
 pub mod decode;
 pub mod diagnose;
 pub mod error_signal;
+pub mod export;
 pub mod figures;
 pub mod gmwm;
 pub mod import;

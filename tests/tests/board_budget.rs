@@ -18,9 +18,6 @@ use dynacal::model::SimModel;
 use dynacal::replay::{
     build_firmware, run_replay_in_qemu, workspace_root, BOARD_CORE_HZ, FIRMWARE_TARGET_DIR,
 };
-use dynacal::sim::board::board_recording;
-use dynacal::sim::trajectory::Scenario;
-use dynacal::sim::{simulate, SimOptions};
 use object::{Object, ObjectSegment};
 
 const FLASH_BUDGET_BYTES: u64 = 128 * 1024;
@@ -65,18 +62,8 @@ fn the_real_board_fits_its_flash_and_ram_and_the_fusion_its_core() {
     // about 35 s, after a standstill and the drive-off)
     let model_path = workspace_root().join("examples/models/board-three-mems.json");
     let model = SimModel::load(&model_path).unwrap();
-    let options = SimOptions {
-        scenario: Scenario::Car,
-        seconds: 60.0,
-        seed: 5,
-        disabled: Vec::new(),
-        keep_ideal: false,
-    };
-    let sim = simulate(&model, &options, &|_| {}).unwrap();
-    let board = board_recording(&sim, &model).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("drive.replay");
-    std::fs::write(&input, board.replay_bytes().unwrap()).unwrap();
+    let (_, input) = dynacal_tests::simulated_drive(&model, 60.0, 5, dir.path());
 
     // WHEN the replay board runs it
     let replay = build_firmware(&target_dir, "board-replay").unwrap();

@@ -19,9 +19,7 @@ use dynacal::refit::{refit, RefitOptions};
 use dynacal::replay::{
     build_replay_firmware, run_replay_in_qemu, workspace_root, FIRMWARE_TARGET_DIR,
 };
-use dynacal::sim::board::board_recording;
-use dynacal::sim::trajectory::Scenario;
-use dynacal::sim::{simulate, SimOptions, SimOutput};
+use dynacal::sim::SimOutput;
 use dynacal_core::board_model::MAX_BOARD_MODEL_LEN;
 
 const SECONDS: f64 = 600.0;
@@ -100,6 +98,23 @@ fn truth_of(gyro: bool, process: &str, name: &str) -> Option<f64> {
     }
 }
 
+/// The refit's board model written as `dir/board-model.bin`: its path and bytes.
+fn write_blob(result: &dynacal::refit::Refit, dir: &Path) -> (std::path::PathBuf, Vec<u8>) {
+    let mut blob = [0u8; MAX_BOARD_MODEL_LEN];
+    let len = result.board_model.encode(&mut blob).unwrap();
+    let path = dir.join("board-model.bin");
+    std::fs::write(&path, &blob[..len]).unwrap();
+    (path, blob[..len].to_vec())
+}
+
+/// The replay board's log of `input` with the blob at `blob_path`, which it must accept.
+fn run_with_blob(elf: &Path, input: &Path, blob_path: &Path, dir: &Path) -> DecodedLog {
+    let log = dir.join("refitted.log");
+    let run = run_replay_in_qemu(elf, input, &log, Some(blob_path)).unwrap();
+    assert!(!run.stderr.contains("refused"), "{}", run.stderr);
+    decode_file(&log).unwrap()
+}
+
 #[test]
 fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is_not() {
     if !dynacal_tests::qemu_or_skip() {
@@ -107,21 +122,12 @@ fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is
     }
     // GIVEN a simulated 600 s car run of three units, its replay input and the firmware
     let model = sim_model();
-    let opts = SimOptions {
-        scenario: Scenario::Car,
-        seconds: SECONDS,
-        seed: std::env::var("DYNACAL_REFIT_SEED")
-            .ok()
-            .and_then(|s| s.parse().ok())
-            .unwrap_or(19),
-        disabled: Vec::new(),
-        keep_ideal: false,
-    };
-    let sim = simulate(&model, &opts, &|_| {}).unwrap();
-    let board = board_recording(&sim, &model).unwrap();
+    let seed = std::env::var("DYNACAL_REFIT_SEED")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(19);
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("car.replay");
-    std::fs::write(&input, board.replay_bytes().unwrap()).unwrap();
+    let (sim, input) = dynacal_tests::simulated_drive(&model, SECONDS, seed, dir.path());
     let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
 
     // WHEN the board runs with its built-in model, and the host refits its log
@@ -181,14 +187,8 @@ fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is
     assert!(missed.len() <= 6, "{missed:#?}");
 
     // WHEN the board runs again with the refitted blob
-    let mut blob = [0u8; MAX_BOARD_MODEL_LEN];
-    let len = result.board_model.encode(&mut blob).unwrap();
-    let blob_path = dir.path().join("board-model.bin");
-    std::fs::write(&blob_path, &blob[..len]).unwrap();
-    let refitted_log = dir.path().join("refitted.log");
-    let run = run_replay_in_qemu(&elf, &input, &refitted_log, Some(&blob_path)).unwrap();
-    assert!(!run.stderr.contains("refused"), "{}", run.stderr);
-    let refitted = decode_file(&refitted_log).unwrap();
+    let (blob_path, blob) = write_blob(&result, dir.path());
+    let refitted = run_with_blob(&elf, &input, &blob_path, dir.path());
 
     // THEN its filter is consistent (mean NEES near 3) where the built-in one is not
     let (good, bad) = (mean_nees(&sim, &refitted), mean_nees(&sim, &built_in));
@@ -200,8 +200,8 @@ fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is
     assert!(bad[1] > 9.0, "built-in {bad:?}");
 
     // AND a damaged blob is refused with its reason, and the board runs as with none
-    let mut damaged = blob[..len].to_vec();
-    damaged[len / 2] ^= 0x40;
+    let mut damaged = blob.clone();
+    damaged[blob.len() / 2] ^= 0x40;
     std::fs::write(&blob_path, &damaged).unwrap();
     let again_log = dir.path().join("damaged.log");
     let run = run_replay_in_qemu(&elf, &input, &again_log, Some(&blob_path)).unwrap();
@@ -243,18 +243,8 @@ fn an_automatic_refit_of_a_short_fast_drive_runs_on_the_board_as_long_as_the_bui
     // the board's covariance explode at the filter's start.
     let model_path = workspace_root().join("examples/models/board-three-mems.json");
     let model = SimModel::load(&model_path).unwrap();
-    let opts = SimOptions {
-        scenario: Scenario::Car,
-        seconds: 120.0,
-        seed: 5,
-        disabled: Vec::new(),
-        keep_ideal: false,
-    };
-    let sim = simulate(&model, &opts, &|_| {}).unwrap();
-    let board = board_recording(&sim, &model).unwrap();
     let dir = tempfile::tempdir().unwrap();
-    let input = dir.path().join("drive.replay");
-    std::fs::write(&input, board.replay_bytes().unwrap()).unwrap();
+    let (sim, input) = dynacal_tests::simulated_drive(&model, 120.0, 5, dir.path());
     let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
     let built_in_log = dir.path().join("built-in.log");
     run_replay_in_qemu(&elf, &input, &built_in_log, None).unwrap();
@@ -269,14 +259,8 @@ fn an_automatic_refit_of_a_short_fast_drive_runs_on_the_board_as_long_as_the_bui
     let result = refit(&built_in, &options).unwrap();
 
     // WHEN the board runs with the refitted blob
-    let mut blob = [0u8; MAX_BOARD_MODEL_LEN];
-    let len = result.board_model.encode(&mut blob).unwrap();
-    let blob_path = dir.path().join("board-model.bin");
-    std::fs::write(&blob_path, &blob[..len]).unwrap();
-    let refitted_log = dir.path().join("refitted.log");
-    let run = run_replay_in_qemu(&elf, &input, &refitted_log, Some(&blob_path)).unwrap();
-    assert!(!run.stderr.contains("refused"), "{}", run.stderr);
-    let refitted = decode_file(&refitted_log).unwrap();
+    let (blob_path, _) = write_blob(&result, dir.path());
+    let refitted = run_with_blob(&elf, &input, &blob_path, dir.path());
 
     // THEN its filter navigates as long as the built-in one, as well, and consistently
     let (good, bad) = (

@@ -38,6 +38,8 @@ pub enum Command {
     Board(board::Args),
     /// Refit a board log's units: error models and alignment, as model.json and board-model.bin.
     Refit(refit::Args),
+    /// A fitted model as Kalibr imu.yaml, PX4 EKF2 or ArduPilot EKF3 parameters.
+    Export(export::Args),
     /// Haar wavelet variance and Allan variance of each channel, with 95% intervals.
     Wv(wv::Args),
     /// Paper Fig. 1 on simulated data: boresight and lever-arm estimates of two IMUs (SVG, JSON).
@@ -59,6 +61,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Redundancy(args) => redundancy::run(args),
         Command::Fit(args) => fit::run(args),
         Command::Compare(args) => compare::run(args),
+        Command::Export(args) => export::run(args),
         Command::Wv(args) => wv::run(args),
         Command::Fig1(args) => fig1::run(args),
     }
@@ -70,6 +73,7 @@ mod decode;
 mod demo;
 mod diagnose;
 mod errors;
+mod export;
 mod fig1;
 mod fit;
 mod import;
