@@ -30,7 +30,7 @@ use crate::gmwm::inference::{
 use crate::gmwm::model::{ModelSpec, Process, Structure};
 use crate::interchange::ImuRecording;
 use crate::model::SimModel;
-use crate::redundancy::{redundancy, Alignment, OwnWv, RedundancyOptions};
+use crate::redundancy::{redundancy, Alignment, OwnWv, RedundancyOptions, RotationBasis};
 use crate::wv::{haar_wv, level_coefficients, WaveletVariance, WvOptions};
 
 /// Why a log cannot be refitted.
@@ -487,6 +487,12 @@ fn set_alignment(
     name: &str,
     notes: &mut Vec<String>,
 ) {
+    if alignment.basis == RotationBasis::Reference {
+        // The first unit is the body frame: at its origin, along its axes, nothing to say.
+        target.rotation_rpy_rad = [0.0; 3];
+        target.lever_arm_m = [0.0; 3];
+        return;
+    }
     match alignment.rotation_rpy_deg {
         Some(rpy) => target.rotation_rpy_rad = rpy.map(|d| d.to_radians() as f32),
         None => notes.push(format!(
