@@ -273,10 +273,8 @@ pub fn render(
     format: Format,
     source: &str,
 ) -> String {
-    let comment = match format {
-        Format::Kalibr | Format::Ardupilot => "#",
-        Format::Px4 => "#",
-    };
+    // Every target's comments start with `#`.
+    let comment = "#";
     let mut out = String::new();
     let _ = writeln!(
         out,

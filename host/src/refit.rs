@@ -23,9 +23,9 @@ use dynacal_core::Channel;
 use serde::Serialize;
 
 use crate::decode::{BoardChannelWv, DecodedLog};
-use crate::gmwm::fit::{refit_from, FitInput, FitOptions};
+use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{
-    analyze, set_bootstrap_intervals, BootstrapOptions, ChannelFit, ModelChoice,
+    analyze, refit_replicate, set_bootstrap_intervals, BootstrapOptions, ChannelFit, ModelChoice,
 };
 use crate::gmwm::model::{ModelSpec, Process, Structure};
 use crate::interchange::ImuRecording;
@@ -76,6 +76,21 @@ pub struct UnitRefit {
     pub alignment: Alignment,
     /// The GMWM fit of each channel's own error.
     pub fits: Vec<ChannelFit>,
+}
+
+impl UnitRefit {
+    /// The fit of `channel` (fits are named `unit/channel`).
+    fn fit_of(&self, channel: Channel) -> Option<&ChannelFit> {
+        self.fits
+            .iter()
+            .find(|f| f.channel.ends_with(channel.name()))
+    }
+
+    fn fit_mut_of(&mut self, channel: Channel) -> Option<&mut ChannelFit> {
+        self.fits
+            .iter_mut()
+            .find(|f| f.channel.ends_with(channel.name()))
+    }
 }
 
 /// The refit of a log.
@@ -325,15 +340,8 @@ fn hat_bootstrap(units: &mut [UnitRefit], n: usize, dt_s: f64, b: BootstrapOptio
     use rand::SeedableRng;
     use rayon::prelude::*;
     for (c, channel) in Channel::ALL.into_iter().enumerate() {
-        let fits: Option<Vec<ChannelFit>> = units
-            .iter()
-            .map(|u| {
-                u.fits
-                    .iter()
-                    .find(|f| f.channel.ends_with(channel.name()))
-                    .cloned()
-            })
-            .collect();
+        let fits: Option<Vec<ChannelFit>> =
+            units.iter().map(|u| u.fit_of(channel).cloned()).collect();
         let Some(fits) = fits else { continue };
         let structures: Option<Vec<Structure>> = fits
             .iter()
@@ -368,11 +376,7 @@ fn hat_bootstrap(units: &mut [UnitRefit], n: usize, dt_s: f64, b: BootstrapOptio
                 b.seed,
                 replicates.len()
             );
-            if let Some(fit) = unit
-                .fits
-                .iter_mut()
-                .find(|f| f.channel.ends_with(channel.name()))
-            {
+            if let Some(fit) = unit.fit_mut_of(channel) {
                 set_bootstrap_intervals(fit, &replicates, method);
             }
         }
@@ -391,12 +395,12 @@ fn refit_own(
     let input = FitInput::from_wv(&own_as_wv(own, n, dt_s))
         .ok()?
         .at_levels(&fit.levels);
-    if input.levels.len() <= structure.n_params() {
-        return None;
-    }
-    let refit = refit_from(structure, &input, &fit.theta, &FitOptions::default());
-    refit.converged().then_some(refit.theta)
+    refit_replicate(structure, &input, &fit.theta, &FitOptions::default())
 }
+
+/// Inverse correlation time (1/s) at and below which a Gauss-Markov term is a bias to the
+/// board's filter; faster ones are white noise to it.
+const SLOWEST_WHITE_BETA_PER_S: f64 = 1.0;
 
 /// What the board's filter runs of a fitted channel model: white noise as a PSD, the
 /// largest Gauss-Markov term of a second or longer as its bias, a random walk as a PSD. Other Gauss-Markov terms
@@ -420,7 +424,9 @@ pub fn channel_noise(spec: &ModelSpec) -> (ChannelNoise, Vec<&'static str>) {
         .processes
         .iter()
         .filter_map(|p| match *p {
-            Process::GaussMarkov { beta_per_s, sigma2 } if beta_per_s <= 1.0 => {
+            Process::GaussMarkov { beta_per_s, sigma2 }
+                if beta_per_s <= SLOWEST_WHITE_BETA_PER_S =>
+            {
                 Some((beta_per_s, sigma2))
             }
             _ => None,
@@ -439,7 +445,7 @@ pub fn channel_noise(spec: &ModelSpec) -> (ChannelNoise, Vec<&'static str>) {
                 if Some((beta_per_s, sigma2)) == main_gm {
                     noise.gauss_markov_sigma2 = sigma2 as f32;
                     noise.gauss_markov_tau_s = (1.0 / beta_per_s) as f32;
-                } else if beta_per_s > 1.0 {
+                } else if beta_per_s > SLOWEST_WHITE_BETA_PER_S {
                     white += 2.0 * sigma2 / beta_per_s;
                 } else {
                     walk += 2.0 * sigma2 * beta_per_s;

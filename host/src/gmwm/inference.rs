@@ -347,10 +347,22 @@ fn refit_on_simulation<R: rand::Rng + ?Sized>(
     )
     .ok()?;
     let sub = FitInput::from_wv(&wv).ok()?.at_levels(levels);
-    if sub.levels.len() <= structure.n_params() {
+    refit_replicate(structure, &sub, theta0, opts)
+}
+
+/// One bootstrap replicate's refit of `structure` on `input` from `theta0`: its transformed
+/// parameters, or None when the levels cannot support the model or the fit does not
+/// converge.
+pub fn refit_replicate(
+    structure: &Structure,
+    input: &FitInput,
+    theta0: &[f64],
+    opts: &FitOptions,
+) -> Option<Vec<f64>> {
+    if input.levels.len() <= structure.n_params() {
         return None;
     }
-    let refit = refit_from(structure, &sub, theta0, opts);
+    let refit = refit_from(structure, input, theta0, opts);
     refit.converged().then_some(refit.theta)
 }
 
