@@ -277,6 +277,15 @@ impl LogDecoder {
 }
 
 impl DecodedLog {
+    /// Seconds of data the log spans: the longest of its IMUs' first-to-last sample times.
+    pub fn span_s(&self) -> f64 {
+        self.imus
+            .iter()
+            .filter_map(|imu| Some((*imu.t_us.first()?, *imu.t_us.last()?)))
+            .map(|(first, last)| (last - first) as f64 * 1e-6)
+            .fold(0.0, f64::max)
+    }
+
     fn count_error(&mut self, error: &LogError) {
         *self
             .dropped_by_error

@@ -15,6 +15,7 @@ pub mod gmwm;
 pub mod import;
 pub mod input;
 pub mod interchange;
+pub mod mission;
 pub mod model;
 pub mod nav_smoother;
 pub mod numeric;
@@ -23,6 +24,7 @@ pub mod redundancy;
 pub mod refit;
 pub mod regress;
 pub mod replay;
+pub mod report;
 pub mod sim;
 pub mod wv;
 

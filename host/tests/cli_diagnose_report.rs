@@ -192,7 +192,7 @@ fn report_directory_holds_the_markdown_and_every_plot_it_links() {
         .collect();
     names.sort();
     let mut wanted = links.clone();
-    wanted.extend(["extended-model.json".to_string(), "report.md".to_string()]);
+    wanted.extend(["extended-model.json", "report.html", "report.md"].map(String::from));
     wanted.sort();
     assert_eq!(names, wanted);
 }

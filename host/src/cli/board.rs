@@ -59,12 +59,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     }
     let report = run.report;
     let log = decode_file(&args.out)?;
-    let span_s = log
-        .imus
-        .iter()
-        .filter_map(|imu| Some((*imu.t_us.first()?, *imu.t_us.last()?)))
-        .map(|(first, last)| (last - first) as f64 * 1e-6)
-        .fold(0.0, f64::max);
+    let span_s = log.span_s();
     println!(
         "{}: {} sample sets, {} PPS edges; fusion: {} states, {} noise reports, {} fault events; \
          {} frames ({} bytes, {} dropped) to {}",

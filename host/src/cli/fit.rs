@@ -32,6 +32,9 @@ pub struct Args {
     /// not at all.
     #[arg(long)]
     pub json: PathBuf,
+    /// Also write DIR/report.html: the figures and tables, one self-contained page.
+    #[arg(long, value_name = "DIR")]
+    pub report: Option<PathBuf>,
 }
 
 pub fn model_choice(model: &str) -> anyhow::Result<ModelChoice> {
@@ -85,7 +88,27 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for note in notes {
         println!("note: {note}");
     }
+    let file = args.file.display().to_string();
+    let page = match &args.report {
+        Some(_) => Some(
+            dynacal::report::pages::fit_report(&file, &fits)
+                .map_err(|e| anyhow::anyhow!("drawing the report: {e}"))?,
+        ),
+        None => None,
+    };
     dynacal::output::write_json_atomic(&args.json, &model)
         .with_context(|| format!("writing {}", args.json.display()))?;
+    match (&args.report, &page) {
+        (Some(dir), Some(page)) => {
+            dynacal::report::write_html(dir, page)
+                .with_context(|| format!("writing the report into {}", dir.display()))?;
+            println!(
+                "wrote {} and {}",
+                args.json.display(),
+                dir.join(dynacal::report::REPORT_HTML).display()
+            );
+        }
+        _ => println!("wrote {}", args.json.display()),
+    }
     Ok(())
 }

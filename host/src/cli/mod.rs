@@ -32,7 +32,7 @@ pub enum Command {
     Redundancy(redundancy::Args),
     /// Simulate a car or static run: reference IMU, MEMS IMUs, GNSS and PPS.
     Simulate(simulate::Args),
-    /// Run the firmware in QEMU on a minute of real ADIS16405 data and check the log.
+    /// The mission end to end: a hidden effect found, three IMUs, the board, one report.html.
     Demo(demo::Args),
     /// Run the board's firmware in QEMU on a replay input: its log, and what it cost.
     Board(board::Args),

@@ -37,6 +37,9 @@ pub struct Args {
     /// Output JSON file (written whole or not at all).
     #[arg(long)]
     pub json: PathBuf,
+    /// Also write DIR/report.html: the figures and tables, one self-contained page.
+    #[arg(long, value_name = "DIR")]
+    pub report: Option<PathBuf>,
 }
 
 /// The JSON document written by `dynacal wv`.
@@ -82,6 +85,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         channels,
     };
+    let page = match &args.report {
+        Some(_) => Some(
+            dynacal::report::pages::wv_report(&report.file, &report.channels)
+                .map_err(|e| anyhow::anyhow!("drawing the report: {e}"))?,
+        ),
+        None => None,
+    };
     dynacal::output::write_json_atomic(&args.json, &report)
         .with_context(|| format!("writing {}", args.json.display()))?;
     for (name, wv) in &report.channels {
@@ -93,6 +103,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             wv.scales_s.last().copied().unwrap_or(0.0)
         );
     }
-    println!("wrote {}", args.json.display());
+    match (&args.report, &page) {
+        (Some(dir), Some(page)) => {
+            dynacal::report::write_html(dir, page)
+                .with_context(|| format!("writing the report into {}", dir.display()))?;
+            println!(
+                "wrote {} and {}",
+                args.json.display(),
+                dir.join(dynacal::report::REPORT_HTML).display()
+            );
+        }
+        _ => println!("wrote {}", args.json.display()),
+    }
     Ok(())
 }

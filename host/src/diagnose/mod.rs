@@ -8,6 +8,7 @@ pub mod engine;
 mod extension;
 mod gain;
 mod generalise;
+pub mod html;
 mod moments;
 mod null;
 pub mod readable;

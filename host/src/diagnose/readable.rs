@@ -9,23 +9,7 @@ use crate::model::{Cause, Channel};
 const G0_M_S2: f64 = 9.806_65;
 const DEG_PER_RAD: f64 = 180.0 / std::f64::consts::PI;
 
-/// `x` with `digits` significant digits: plain decimals from 1e-3 to 1e5, scientific
-/// notation (`3.910e-8`) outside.
-pub fn significant(x: f64, digits: usize) -> String {
-    if !x.is_finite() {
-        return format!("{x}");
-    }
-    if x == 0.0 {
-        return "0".into();
-    }
-    let magnitude = x.abs().log10().floor() as i32;
-    if (-3..5).contains(&magnitude) {
-        let decimals = (digits as i32 - 1 - magnitude).max(0) as usize;
-        format!("{x:.decimals$}")
-    } else {
-        format!("{x:.prec$e}", prec = digits.saturating_sub(1))
-    }
-}
+pub use crate::report::html::significant;
 
 /// The unit a cause's estimate on `channel` is shown in, and its factor from SI.
 fn display_unit(cause: Cause, channel: Channel) -> (&'static str, f64) {

@@ -117,6 +117,12 @@ pub fn report_files(r: &DiagnoseReport) -> Result<Vec<ReportFile>, ReportError> 
         name: "extended-model.json".into(),
         bytes: model,
     });
+    let page = crate::report::HtmlReport {
+        title: "dynacal diagnose".into(),
+        summary: super::html::summary(r),
+        sections: super::html::sections(r, "")?,
+    };
+    files.push(crate::report::html_file(&page));
     files.push(ReportFile {
         name: "report.md".into(),
         bytes: markdown(r, &figures).into_bytes(),
@@ -318,7 +324,7 @@ pub fn markdown(r: &DiagnoseReport, figures: &Figures) -> String {
 pub struct PlotError(String);
 
 impl PlotError {
-    fn on(self, file: &str) -> ReportError {
+    pub(crate) fn on(self, file: &str) -> ReportError {
         ReportError::Plot {
             file: file.to_string(),
             message: self.0,
@@ -339,7 +345,7 @@ impl From<DrawError> for PlotError {
 }
 
 /// The distinct causes named on `channel`, in the order of the findings.
-fn causes_on(findings: &[Finding], channel: Channel) -> Vec<&'static str> {
+pub(crate) fn causes_on(findings: &[Finding], channel: Channel) -> Vec<&'static str> {
     let mut causes: Vec<&str> = Vec::new();
     for f in findings.iter().filter(|f| f.channel == channel) {
         if !causes.contains(&f.cause.name()) {
@@ -977,6 +983,7 @@ mod tests {
                 "gain.svg",
                 "findings.svg",
                 "extended-model.json",
+                "report.html",
                 "report.md"
             ]
         );

@@ -15,6 +15,7 @@ use crate::figures::plot::{
     chart, decade_label, draw_err, draw_legend, grey_grid, render_svg, titled_with_legend, usable,
     Area, Decades, DrawError, Frame, Glyph, FONT,
 };
+use crate::report::{Cell, HtmlReport, Section, Table};
 
 /// One colour per unit (up to eight), and grey for faults no unit could be given.
 const UNIT_COLOURS: [RGBColor; 8] = [
@@ -70,6 +71,12 @@ pub fn write_report(dir: &Path, r: &RedundancyReport) -> Result<Vec<ReportFile>,
         });
     }
     let names: Vec<String> = files.iter().map(|f| f.name.clone()).collect();
+    let page = HtmlReport {
+        title: "dynacal redundancy".into(),
+        summary: html_summary(r),
+        sections: html_sections(r)?,
+    };
+    files.push(crate::report::html_file(&page));
     files.push(ReportFile {
         name: "report.md".into(),
         bytes: markdown(r, &names).into_bytes(),
@@ -384,6 +391,157 @@ fn markdown(r: &RedundancyReport, figures: &[String]) -> String {
         let _ = writeln!(s, "- {n}");
     }
     s
+}
+
+/// What a reader acts on: each unit's own white noise against the set's quietest, and the
+/// faults found.
+pub fn html_summary(r: &RedundancyReport) -> Vec<String> {
+    let mut lines = Vec::new();
+    for (name, channels, unit, _) in SENSORS {
+        let sd: Vec<f64> = r
+            .imus
+            .iter()
+            .map(|u| {
+                let mean: f64 = channels
+                    .iter()
+                    .map(|c| u.white_noise_sigma2[*c].max(0.0))
+                    .sum::<f64>()
+                    / 3.0;
+                mean.sqrt()
+            })
+            .collect();
+        let quietest = sd.iter().copied().fold(f64::INFINITY, f64::min);
+        for (u, s) in r.imus.iter().zip(&sd) {
+            if *s > 1.5 * quietest {
+                lines.push(format!(
+                    "{}: {name} white noise {} {unit} per sample, {}x the quietest unit's.",
+                    u.name_short(),
+                    crate::report::html::significant(*s, 3),
+                    crate::report::html::significant(s / quietest, 2)
+                ));
+            }
+        }
+    }
+    if r.faults.is_empty() {
+        lines.push(format!(
+            "{} units, no fault found; each unit's own noise is in the table below.",
+            r.imus.len()
+        ));
+    } else {
+        lines.push(format!(
+            "{} faults found and isolated (table below).",
+            r.faults.len()
+        ));
+    }
+    lines
+}
+
+/// The units' own white noise and alignment to the first unit as a table.
+fn own_noise_table(r: &RedundancyReport) -> Table {
+    let rows = r
+        .imus
+        .iter()
+        .map(|u| {
+            let mut row = vec![Cell::from(u.name_short())];
+            for c in ["gx", "gy", "gz", "ax", "ay", "az"] {
+                row.push(Cell::Number(u.white_noise_sigma2[c].max(0.0).sqrt()));
+            }
+            row.push(
+                u.alignment
+                    .rotation_rpy_deg
+                    .map_or("not determined".into(), |a| {
+                        Cell::from(format!(
+                            "{}, {}, {}",
+                            crate::report::html::significant(a[0], 3),
+                            crate::report::html::significant(a[1], 3),
+                            crate::report::html::significant(a[2], 3)
+                        ))
+                    }),
+            );
+            row
+        })
+        .collect();
+    Table {
+        caption: "Each unit's own white noise (standard deviation per sample, from the units' \
+                  differences) and its rotation to the first unit"
+            .into(),
+        header: [
+            "unit",
+            "gx (rad/s)",
+            "gy (rad/s)",
+            "gz (rad/s)",
+            "ax (m/s^2)",
+            "ay (m/s^2)",
+            "az (m/s^2)",
+            "rotation to the first (roll, pitch, yaw; deg)",
+        ]
+        .map(String::from)
+        .to_vec(),
+        rows,
+    }
+}
+
+fn faults_table(r: &RedundancyReport) -> Table {
+    let rows = r
+        .faults
+        .iter()
+        .map(|f| {
+            let unit = f
+                .imu
+                .map_or("not placed".to_string(), |k| r.imus[k].name_short());
+            vec![
+                Cell::from(unit),
+                Cell::from(f.channel.to_string()),
+                Cell::from(f.kind.to_string()),
+                Cell::Number(f.t_detected_s),
+                match (f.imu, f.t_readmitted_s) {
+                    (None, _) => "-".into(),
+                    (Some(_), Some(t)) => Cell::Number(t),
+                    (Some(_), None) => "never".into(),
+                },
+            ]
+        })
+        .collect();
+    Table {
+        caption: "Faults found and isolated".into(),
+        header: ["unit", "channel", "kind", "detected (s)", "readmitted (s)"]
+            .map(String::from)
+            .to_vec(),
+        rows,
+    }
+}
+
+/// The redundancy's sections of an HTML report: own noise and alignment, the own wavelet
+/// variances, the live noise levels, the faults, the notes.
+pub fn html_sections(r: &RedundancyReport) -> Result<Vec<Section>, ReportError> {
+    let mut own = Section::new("Redundant IMUs: each unit's own error").table(own_noise_table(r));
+    for (sensor, (name, ..)) in SENSORS.iter().enumerate() {
+        let file = format!("own-wv-{name}.svg");
+        let svg = own_wv_svg(r, sensor).map_err(|e| plot_error(&file, e))?;
+        own = own.figure(
+            format!(
+                "Each unit's own {name} wavelet variance (mean of the axes) with its 95% interval"
+            ),
+            svg,
+        );
+    }
+    let levels = levels_svg(r).map_err(|e| plot_error("noise-levels.svg", e))?;
+    let mut live = Section::new("Redundant IMUs: live noise levels and faults").figure(
+        "Each unit's live white-noise level over time, faults marked where detected",
+        Some(levels),
+    );
+    if r.faults.is_empty() {
+        live = live.paragraph("No fault found.");
+    } else {
+        let faults = faults_svg(r).map_err(|e| plot_error("faults.svg", e))?;
+        live = live
+            .table(faults_table(r))
+            .figure("Faults from detection to readmission", Some(faults));
+    }
+    for n in &r.notes {
+        live = live.paragraph(format!("Note: {n}"));
+    }
+    Ok(vec![own, live])
 }
 
 impl super::UnitReport {

@@ -11,6 +11,7 @@ pub mod board;
 pub mod clock;
 pub mod effects;
 pub mod gnss;
+pub mod hidden;
 pub mod jet;
 pub mod output;
 pub mod sensors;

@@ -1,0 +1,96 @@
+//! `dynacal demo` as a new user runs it, on a shorter drive than its default: it must finish,
+//! say what was hidden and that the diagnosis found it, and leave a report.html that a real
+//! browser renders with every figure drawn. Skips without qemu-system-arm or Chromium,
+//! except in CI, where either missing fails.
+
+mod browser;
+
+use std::process::Command;
+
+fn qemu_or_skip() -> bool {
+    if dynacal::replay::qemu_available() {
+        return true;
+    }
+    assert!(
+        std::env::var_os("CI").is_none() && std::env::var_os("DYNACAL_REQUIRE_QEMU").is_none(),
+        "qemu-system-arm is missing: run scripts/setup"
+    );
+    eprintln!("SKIPPED: qemu-system-arm not found");
+    false
+}
+
+#[test]
+fn the_demo_finds_the_hidden_effect_and_its_report_renders_in_a_browser() {
+    if !qemu_or_skip() {
+        return;
+    }
+    // GIVEN a fresh folder and a 120 s drive (seed 1 hides a noise growth with the turn rate)
+    let dir = tempfile::tempdir().unwrap();
+    let report_dir = dir.path().join("demo");
+    // WHEN the demo runs
+    let out = Command::new(env!("CARGO_BIN_EXE_dynacal"))
+        .args([
+            "demo",
+            "--seconds",
+            "120",
+            "--seed",
+            "1",
+            "--bootstrap",
+            "20",
+            "--report",
+        ])
+        .arg(&report_dir)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "{stdout}\n{stderr}");
+    // THEN it ends saying what was hidden, that it was found, and where the report is
+    let lines: Vec<&str> = stdout.lines().collect();
+    let n = lines.len();
+    assert!(n >= 2, "{stdout}");
+    assert!(
+        lines[n - 2].starts_with("hidden: noise_scales_with_dynamics on gz")
+            && lines[n - 2].ends_with("found: yes"),
+        "{stdout}"
+    );
+    let html = report_dir.join("report.html");
+    assert!(
+        lines[n - 1].starts_with(&format!("wrote {}", html.display())),
+        "{stdout}"
+    );
+    // the board's refitted model was written and runs: the board line names both models
+    assert!(report_dir.join("board-model.bin").exists());
+    assert!(stdout.contains("with the built-in model") && stdout.contains("with the refitted one"));
+    // and the report holds the paper's figures, the diagnosis's, the units' and the board's
+    let text = std::fs::read_to_string(&html).unwrap();
+    for caption in [
+        "paper Fig. 3",
+        "paper Fig. 4",
+        "paper Fig. 5",
+        "paper Figs. 6-7",
+        "paper Fig. 8",
+        "north position error",
+    ] {
+        assert!(text.contains(caption), "no figure `{caption}`");
+    }
+    // with its numbers as people read them: no `1.7054e1` in a table
+    for cell in text.split("<td>").skip(1) {
+        let cell = &cell[..cell.find("</td>").unwrap()];
+        let b = cell.as_bytes();
+        let e_notation = (1..b.len().saturating_sub(1)).any(|k| {
+            b[k] == b'e'
+                && b[k - 1].is_ascii_digit()
+                && (b[k + 1].is_ascii_digit() || b[k + 1] == b'-')
+        });
+        assert!(!e_notation, "a table cell in e notation: {cell}");
+    }
+    let Some(chromium) = browser::chromium_or_skip() else {
+        return;
+    };
+    let rendered = browser::assert_renders(&chromium, &html, 6);
+    eprintln!(
+        "{} figures rendered: {:?}",
+        rendered.figures, rendered.figure_ink
+    );
+}
