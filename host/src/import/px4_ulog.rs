@@ -163,7 +163,7 @@ impl BasicType {
 pub struct FieldDecl {
     /// Type name without the array suffix: a basic type or a nested format's name.
     pub type_name: String,
-    /// `n` of `type[n]`; `None` for a single value.
+    /// `n` of `type[n]` (0 allowed); `None` for a single value.
     pub array_len: Option<usize>,
     pub name: String,
 }
@@ -183,10 +183,10 @@ impl FieldDecl {
                 let (base, n) = head
                     .split_once('[')
                     .ok_or_else(|| format!("field `{text}`: `{ty}` is not `type[n]`"))?;
-                let n: usize =
-                    n.parse().ok().filter(|n| *n > 0).ok_or_else(|| {
-                        format!("field `{text}`: `{ty}` has no array length >= 1")
-                    })?;
+                // `char[0]` occurs: an empty continued multi information value.
+                let n: usize = n
+                    .parse()
+                    .map_err(|_| format!("field `{text}`: `{ty}` has no array length"))?;
                 (base, Some(n))
             }
         };

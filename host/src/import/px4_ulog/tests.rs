@@ -438,7 +438,7 @@ fn bad_definitions_and_subscriptions_name_their_byte_offset() {
     for (text, expected) in [
         ("t uint64_t timestamp;", "has no `name:`"),
         ("t:uint64_t;", "is not `type name`"),
-        ("t:float[0] x;", "no array length >= 1"),
+        ("t:float[x] x;", "`float[x]` has no array length"),
         ("t:float x;;float y;", "empty field 1"),
         ("t:float x;float x;", "field `x` twice"),
     ] {
