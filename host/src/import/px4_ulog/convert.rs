@@ -32,7 +32,7 @@ fn push(triplet: &mut Option<Triplet>, row: [f64; 3]) {
     }
 }
 
-/// Fields `{prefix}[0..3]` (or `names` verbatim) of sample `i`.
+/// The three fields `names` of sample `i`, each present and finite.
 fn vector(log: &ULog, topic: &Topic, i: usize, names: [&str; 3]) -> Result<[f64; 3], ImportError> {
     Ok([
         log.required(topic, i, names[0])?,
