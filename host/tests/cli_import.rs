@@ -1,5 +1,5 @@
 //! `dynacal import` end to end: the binary on the real PSINS FOG/MEMS folder, the ArduPilot
-//! log and the Xsens DOT folder, and on an unknown file and a damaged log (skips the
+//! log, the PX4 ULog and the Xsens DOT folder, and on an unknown file and a damaged log (skips the
 //! real-data parts when the data folder is absent).
 
 use std::process::Command;
@@ -142,6 +142,76 @@ fn import_ardupilot_log_writes_one_file_per_imu_and_the_reference() {
     let imu1 = ImuRecording::read(&out.path().join("ardupilot-log171-imu1.csv.gz")).unwrap();
     assert_eq!(imu1.sample_rate_hz, Some(50.0));
     assert_eq!((imu1.t_s[0], imu1.len()), (11.46, 11_916));
+}
+
+#[test]
+fn import_px4_ulog_writes_each_imu_topic_instance_and_the_reference() {
+    let input = dynacal::data_dir().join("px4-ulog/sample_log_small.ulg");
+    if !input.exists() {
+        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", input.display());
+        return;
+    }
+    let out = tempfile::tempdir().unwrap();
+    let (ok, stdout, stderr) = import(&input, out.path());
+    assert!(ok, "{stdout}{stderr}");
+    assert_eq!(
+        names_in(out.path()),
+        [
+            "px4-sample_log_small-imu0.csv.gz",
+            "px4-sample_log_small-imu1.csv.gz",
+            "px4-sample_log_small-imu2.csv.gz",
+            "px4-sample_log_small-reference.csv.gz",
+            "px4-sample_log_small-sensor_combined.csv.gz",
+            "px4-sample_log_small-vehicle_imu0.csv.gz",
+            "px4-sample_log_small-vehicle_imu1.csv.gz",
+            "px4-sample_log_small-vehicle_imu2.csv.gz",
+        ]
+    );
+    for line in [
+        "px4-sample_log_small-sensor_combined.csv.gz: 1298 samples, 6.496 s, [gx gy gz ax ay az]",
+        "px4-sample_log_small-imu1.csv.gz: 6 samples, 5.000 s, [gx gy gz ax ay az]",
+        "px4-sample_log_small-vehicle_imu2.csv.gz: 12 samples, 5.494 s, [gx gy gz ax ay az]",
+        "px4-sample_log_small-reference.csv.gz: 32 samples, 6.187 s, [attitude velocity_ned position]",
+    ] {
+        assert!(stdout.contains(line), "{line}\n{stdout}");
+    }
+    // The written file reads back to what the library produced.
+    let written = ImuRecording::read(
+        &out.path()
+            .join("px4-sample_log_small-sensor_combined.csv.gz"),
+    )
+    .unwrap();
+    let direct = dynacal::import::px4_ulog::read(&input).unwrap().remove(0);
+    assert_eq!(direct.0, "sensor_combined");
+    assert_eq!(written.t_s, direct.1.t_s);
+    assert_eq!(written.accel_m_s2, direct.1.accel_m_s2);
+    assert_eq!(written.gyro_rad_s, direct.1.gyro_rad_s);
+}
+
+#[test]
+fn damaged_ulog_fails_with_nonzero_exit_naming_the_file_and_offset() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("flight.ulg");
+    // A ULog header, then a format message whose size runs past the end of the file.
+    let mut bytes = b"ULog\x01\x12\x35\x01".to_vec();
+    bytes.extend(0u64.to_le_bytes());
+    bytes.extend([200, 0, b'F']);
+    bytes.extend(b"t:uint64_t timestamp;");
+    std::fs::write(&path, &bytes).unwrap();
+    let out = dir.path().join("out");
+    let (ok, stdout, stderr) = import(&path, &out);
+    assert!(!ok, "{stdout}");
+    assert!(
+        stderr.contains("flight.ulg")
+            && stderr.contains(
+                "byte offset 16: message 0 ('F'): truncated: a payload of 200 bytes, but the file ends after 21"
+            ),
+        "{stderr}"
+    );
+    assert!(
+        !out.exists() || names_in(&out).is_empty(),
+        "nothing written"
+    );
 }
 
 #[test]

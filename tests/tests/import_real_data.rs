@@ -1,16 +1,16 @@
 //! The importers on the real datasets in the data folder: sample counts and durations, and
 //! physical facts each converted recording must show (gravity, Earth rate, the MEMS gyro
 //! tracking the FOG attitude, the ArduPilot and Xsens DOT gyros tracking their own attitude
-//! outputs), which would fail on a wrong scale, sign or axis. Malformed copies of real files
-//! give errors naming file and line (byte offset for the binary log). Every test skips with a
-//! message when its dataset is absent.
+//! outputs, the PX4 raw IMUs calibrating to the autopilot's own), which would fail on a wrong
+//! scale, sign or axis. Malformed copies of real files give errors naming file and line (byte
+//! offset for the binary logs). Every test skips with a message when its dataset is absent.
 
 use std::io::{BufRead, BufReader};
 use std::path::{Path, PathBuf};
 
 use dynacal::import::{
     adis16405, ardupilot_dataflash, detect, frames, import_to_dir, mpu9250_tetra, mtig,
-    psins_fog_mems, psins_lasergyro, xsens_dot, Dataset,
+    psins_fog_mems, psins_lasergyro, px4_ulog, xsens_dot, Dataset,
 };
 use dynacal::interchange::{open_maybe_gz, ImuRecording};
 use nalgebra::{Rotation3, Vector3};
@@ -692,4 +692,351 @@ fn xsens_dots_import_at_120_hz_on_one_clock_with_gyros_in_rad_s() {
     let mut dot7_expected = dot1.clone();
     dot7_expected.retain(|t| *t != 710_081_700 && *t != 710_090_033);
     assert_eq!(inside(&stamps[3].1), dot7_expected);
+}
+
+const PX4_LOG: &str = "px4-ulog/sample_log_small.ulg";
+
+/// Median of the steps of `t` (any unit).
+fn median_step(t: &[f64]) -> f64 {
+    let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+    d.sort_by(f64::total_cmp);
+    d[d.len() / 2]
+}
+
+#[test]
+fn px4_log_holds_its_topics_instances_and_rates() {
+    let Some(path) = dataset(PX4_LOG) else {
+        return;
+    };
+    assert_eq!(detect(&path).unwrap(), Some(Dataset::Px4ULog));
+    let log = px4_ulog::ULog::read(&path).unwrap();
+    assert_eq!((log.version, log.start_time_us), (1, 20_309_082));
+    assert_eq!(log.message_count(), 15_900);
+    assert_eq!(log.topics().len(), 72, "one per subscription");
+    let samples: usize = log.topics().iter().map(|t| t.len()).sum();
+    assert_eq!(samples, 14_604, "every data message in a topic");
+    assert_eq!(log.parameter_count(), 980);
+    assert_eq!(
+        log.info()["ver_hw"],
+        px4_ulog::InfoValue::Text("CUBEPILOT_CUBEORANGE".into())
+    );
+    let texts: Vec<&str> = log
+        .logged_strings()
+        .iter()
+        .map(|l| l.text.as_str())
+        .collect();
+    assert_eq!(
+        texts,
+        [
+            "[commander] Takeoff detected",
+            "[commander] Landing detected",
+            "[commander] Disarmed by landing"
+        ]
+    );
+    assert_eq!(log.dropouts().len(), 1);
+    assert_eq!(log.dropouts()[0].duration_ms, 30);
+
+    // Three instances of each raw sensor and of vehicle_imu; vehicle_imu k integrates the
+    // chip of sensor_gyro k and sensor_accel k (the device ids say so).
+    for (name, len) in [("sensor_gyro", 6), ("sensor_accel", 6), ("vehicle_imu", 12)] {
+        let instances: Vec<_> = log.instances(name).collect();
+        assert_eq!(instances.len(), 3, "{name}");
+        for (k, t) in instances.iter().enumerate() {
+            assert_eq!((t.multi_id as usize, t.len()), (k, len), "{name}");
+        }
+    }
+    for k in 0..3 {
+        let id = |name: &str, field: &str| log.topic(name, k).unwrap().value(0, field).unwrap();
+        let gyro = id("sensor_gyro", "device_id");
+        assert_eq!(gyro, id("sensor_accel", "device_id"), "instance {k}");
+        assert_eq!(gyro, id("vehicle_imu", "gyro_device_id"), "instance {k}");
+        assert_eq!(gyro, id("vehicle_imu", "accel_device_id"), "instance {k}");
+    }
+
+    // Rates from the file's own stamps against what it declares: sensor_combined steps by
+    // its integration interval (`gyro_integral_dt`), about 1 / IMU_INTEG_RATE.
+    let step_us = |name: &str, k: u8| {
+        let t = log.topic(name, k).unwrap().timestamps_us().unwrap();
+        median_step(&t.iter().map(|&t| t as f64).collect::<Vec<_>>())
+    };
+    let combined = log.topic("sensor_combined", 0).unwrap();
+    assert_eq!(combined.len(), 1298);
+    let integ_rate_hz = log.parameter("IMU_INTEG_RATE").unwrap();
+    let combined_step_us = step_us("sensor_combined", 0);
+    let integral_dt_us = median_of(&combined.column("gyro_integral_dt").unwrap());
+    println!(
+        "sensor_combined: median step {combined_step_us} µs ({:.2} Hz), median gyro_integral_dt \
+         {integral_dt_us} µs, IMU_INTEG_RATE {integ_rate_hz} Hz",
+        1e6 / combined_step_us
+    );
+    assert_eq!(integ_rate_hz, 200.0);
+    assert!((combined_step_us - integral_dt_us).abs() <= 5.0);
+    assert!((1e6 / combined_step_us / integ_rate_hz - 1.0).abs() < 0.03);
+    assert_eq!(log.topic("vehicle_attitude", 0).unwrap().len(), 1298);
+    // The logger keeps one raw sample a second, one vehicle_imu integral every 0.5 s, GPS at
+    // 5 Hz.
+    for k in 0..3 {
+        assert!((step_us("sensor_gyro", k) / 1e6 - 1.0).abs() < 0.01);
+        assert!((step_us("vehicle_imu", k) / 0.5e6 - 1.0).abs() < 0.01);
+        let dt = log
+            .topic("vehicle_imu", k)
+            .unwrap()
+            .column("delta_angle_dt")
+            .unwrap();
+        assert!(
+            (median_of(&dt) * integ_rate_hz / 1e6 - 1.0).abs() < 0.03,
+            "{dt:?}"
+        );
+    }
+    assert_eq!(log.topic("vehicle_gps_position", 0).unwrap().len(), 32);
+    assert!((step_us("vehicle_gps_position", 0) / 0.2e6 - 1.0).abs() < 0.01);
+
+    // Nested formats decode: position_setpoint_triplet's `current` setpoint (no position yet:
+    // NaN) and telemetry_status's array of heartbeats.
+    let triplet = log.topic("position_setpoint_triplet", 0).unwrap();
+    assert_eq!(triplet.value(0, "current.timestamp"), Some(1_425_100.0));
+    assert_eq!(triplet.value(0, "current.type"), Some(5.0));
+    assert!(triplet.value(0, "current.lat").unwrap().is_nan());
+    let telemetry = log.topic("telemetry_status", 1).unwrap();
+    assert!(telemetry.has("heartbeats[3].system_id"));
+}
+
+fn median_of(x: &[f64]) -> f64 {
+    let mut x = x.to_vec();
+    x.sort_by(f64::total_cmp);
+    x[x.len() / 2]
+}
+
+/// Roll and pitch (rad) of a body whose accelerometer reads the mean specific force `f` at
+/// rest (FRD: f = -g down in the body frame).
+fn tilt_from_gravity(f: Vector3<f64>) -> (f64, f64) {
+    ((-f[1]).atan2(-f[2]), f[0].atan2(f[1].hypot(f[2])))
+}
+
+#[test]
+fn px4_imus_read_gravity_and_agree_with_the_attitude() {
+    let Some(path) = dataset(PX4_LOG) else {
+        return;
+    };
+    let recs = px4_ulog::read(&path).unwrap();
+    let names: Vec<&str> = recs.iter().map(|r| r.0.as_str()).collect();
+    assert_eq!(
+        names,
+        [
+            "sensor_combined",
+            "imu0",
+            "imu1",
+            "imu2",
+            "vehicle_imu0",
+            "vehicle_imu1",
+            "vehicle_imu2",
+            "reference"
+        ]
+    );
+    let rec = |name: &str| &recs.iter().find(|r| r.0 == name).unwrap().1;
+
+    // The vehicle stands still throughout (the "takeoff" it logs moves no sensor).
+    let combined = rec("sensor_combined");
+    assert_eq!(combined.len(), 1298);
+    assert_eq!(combined.t_s[0], 20.326716);
+    assert!((duration_s(combined) - 6.496152).abs() < 1e-9);
+    let f = mean_vec(combined.accel_m_s2.as_ref().unwrap(), 0..combined.len());
+    let gyro = combined.gyro_rad_s.as_ref().unwrap();
+    let w = mean_vec(gyro, 0..combined.len());
+    let w_max = (0..combined.len())
+        .map(|i| Vector3::new(gyro[0][i], gyro[1][i], gyro[2][i]).norm())
+        .fold(0.0, f64::max);
+    println!(
+        "sensor_combined: mean f {f:.4?} m/s^2, |f| {:.4} ({:+.2}% of g); mean |omega| {:.2e}, max |omega| {w_max:.4} rad/s",
+        f.norm(),
+        100.0 * (f.norm() / G - 1.0),
+        w.norm()
+    );
+    assert!((f.norm() / G - 1.0).abs() < 0.03, "{}", f.norm());
+    assert!(f[2] < -0.99 * f.norm(), "FRD, z down");
+    assert!(w.norm() < 0.01 && w_max < 0.05);
+
+    // The estimator's attitude (the reference) against the tilt gravity gives.
+    let reference = rec("reference");
+    let att = reference.attitude_rad.as_ref().unwrap();
+    let (roll, pitch) = tilt_from_gravity(f);
+    let (ref_roll, ref_pitch) = (mean(&att[0]), mean(&att[1]));
+    println!(
+        "tilt from gravity roll {:.3} pitch {:.3} deg; reference roll {:.3} pitch {:.3} deg",
+        roll / DEG,
+        pitch / DEG,
+        ref_roll / DEG,
+        ref_pitch / DEG
+    );
+    assert!(roll > 0.5 * DEG, "a measurable roll: {}", roll / DEG);
+    assert!((roll - ref_roll).abs() < 0.2 * DEG && (pitch - ref_pitch).abs() < 0.2 * DEG);
+
+    // vehicle_imu: calibrated, body frame, the same gravity to 0.5 % and 1 deg (instance 1
+    // leans 0.7 deg from the others); sensor_combined is instance 0's (CAL_ACC_PRIME).
+    for k in 0..3 {
+        let v = rec(&format!("vehicle_imu{k}"));
+        assert_eq!(v.len(), 12);
+        let f_k = mean_vec(v.accel_m_s2.as_ref().unwrap(), 0..v.len());
+        let w_k = mean_vec(v.gyro_rad_s.as_ref().unwrap(), 0..v.len());
+        println!(
+            "vehicle_imu{k}: mean f {f_k:.4?}, |f| {:.4}, |omega| {:.2e}",
+            f_k.norm(),
+            w_k.norm()
+        );
+        assert!(
+            (f_k.norm() / f.norm() - 1.0).abs() < 0.005,
+            "vehicle_imu{k}"
+        );
+        assert!(f_k.angle(&f) < DEG, "vehicle_imu{k}: {f_k:?}");
+        if k == 0 {
+            assert!((f_k - f).norm() < 0.02, "the primary IMU");
+        }
+        assert!(w_k.norm() < 0.01);
+    }
+}
+
+#[test]
+fn px4_raw_imus_calibrate_to_vehicle_imu_with_the_logs_parameters() {
+    let Some(path) = dataset(PX4_LOG) else {
+        return;
+    };
+    let log = px4_ulog::ULog::read(&path).unwrap();
+    let imus = px4_ulog::read_sensor_imus(&log).unwrap();
+    let vehicle = px4_ulog::read_vehicle_imus(&log).unwrap();
+    assert_eq!(imus.len(), 3);
+    // Sampled together: the instances' stamps agree to 2 ms (as `dynacal redundancy` needs).
+    for (name, rec) in &imus {
+        assert_eq!(rec.len(), 6);
+        for (t, t0) in rec.t_s.iter().zip(&imus[0].1.t_s) {
+            assert!((t - t0).abs() < 2e-3, "{name}: {t} vs {t0}");
+        }
+    }
+    // PX4 1.11: corrected = board rotation (SENS_BOARD_ROT 4 = yaw 180 deg, then the
+    // SENS_BOARD_{X,Y,Z}_OFF trims in degrees) * ((raw - offset) .* scale), with the
+    // calibration slot whose CAL_ACCn_ID is the chip's device id.
+    let p = |name: &str| log.parameter(name).unwrap_or_else(|| panic!("no {name}"));
+    assert_eq!(p("SENS_BOARD_ROT"), 4.0);
+    let board = Rotation3::from_euler_angles(
+        p("SENS_BOARD_X_OFF") * DEG,
+        p("SENS_BOARD_Y_OFF") * DEG,
+        p("SENS_BOARD_Z_OFF") * DEG,
+    ) * Rotation3::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
+    for (k, (name, raw)) in imus.iter().enumerate() {
+        let device = log
+            .topic("sensor_accel", k as u8)
+            .unwrap()
+            .value(0, "device_id")
+            .unwrap();
+        let slot = (0..4)
+            .find(|c| log.parameter(&format!("CAL_ACC{c}_ID")) == Some(device))
+            .unwrap();
+        let cal = |kind: &str, what: &str| {
+            Vector3::from_fn(|a, _| p(&format!("CAL_{kind}{slot}_{}{what}", ["X", "Y", "Z"][a])))
+        };
+        let f_raw = mean_vec(raw.accel_m_s2.as_ref().unwrap(), 0..raw.len());
+        let w_raw = mean_vec(raw.gyro_rad_s.as_ref().unwrap(), 0..raw.len());
+        let f_corrected = board * (f_raw - cal("ACC", "OFF")).component_mul(&cal("ACC", "SCALE"));
+        let v = &vehicle[k].1;
+        let f_vehicle = mean_vec(v.accel_m_s2.as_ref().unwrap(), 0..v.len());
+        println!(
+            "{name}: raw f {f_raw:.3?} (|f| {:.3}), corrected {f_corrected:.3?}, vehicle_imu{k} {f_vehicle:.3?}; raw omega {w_raw:.4?} vs CAL_GYRO{slot} offsets {:.4?}",
+            f_raw.norm(),
+            cal("GYRO", "OFF")
+        );
+        assert!((f_raw.norm() / G - 1.0).abs() < 0.03);
+        assert!((f_corrected - f_vehicle).norm() < 0.05, "{name}");
+        // Uncorrected, the raw values are far from the body frame's (x and y flipped).
+        assert!((f_raw - f_vehicle).norm() > 0.3, "{name}");
+        // At rest a raw gyro reads its calibration offset (to 4.5e-3 rad/s here).
+        assert!((w_raw - cal("GYRO", "OFF")).norm() < 0.006, "{name}");
+    }
+}
+
+#[test]
+fn px4_reference_is_a_parked_vehicle_in_trondheim() {
+    let Some(path) = dataset(PX4_LOG) else {
+        return;
+    };
+    let log = px4_ulog::ULog::read(&path).unwrap();
+    let reference = px4_ulog::read_reference(&log).unwrap().unwrap();
+    // Every one of the 32 fixes is 3D and inside the attitude's span.
+    assert_eq!(reference.len(), 32);
+    assert_eq!(reference.t_s[0], 20.471648);
+    let pos = reference.position.as_ref().unwrap();
+    let vel = reference.velocity_ned_m_s.as_ref().unwrap();
+    let lat0 = pos[0][0];
+    for i in 0..reference.len() {
+        let north_m = (pos[0][i] - lat0) * 6.371e6;
+        let east_m = (pos[1][i] - pos[1][0]) * 6.371e6 * lat0.cos();
+        assert!(
+            north_m.hypot(east_m) < 5.0,
+            "fix {i}: {north_m} m N, {east_m} m E"
+        );
+        assert!(
+            (102.0..108.0).contains(&pos[2][i]),
+            "ellipsoidal height {}",
+            pos[2][i]
+        );
+        let speed = Vector3::new(vel[0][i], vel[1][i], vel[2][i]).norm();
+        assert!(speed < 0.5, "fix {i}: {speed} m/s");
+    }
+    assert!((lat0 / DEG - 63.4170622).abs() < 1e-9);
+    assert!((pos[1][0] / DEG - 10.4082151).abs() < 1e-9);
+    // The height is the ellipsoidal one: `alt` (above mean sea level) is the geoid height
+    // (about 40 m here) lower.
+    let gps = log.topic("vehicle_gps_position", 0).unwrap();
+    let undulation_m =
+        (gps.value(0, "alt_ellipsoid").unwrap() - gps.value(0, "alt").unwrap()) / 1e3;
+    assert!((39.0..41.0).contains(&undulation_m), "{undulation_m}");
+}
+
+#[test]
+fn damaged_copies_of_the_px4_log_fail_naming_the_byte_offset() {
+    let Some(path) = dataset(PX4_LOG) else {
+        return;
+    };
+    let bytes = std::fs::read(&path).unwrap();
+    let log = px4_ulog::ULog::parse(&path, &bytes).unwrap();
+    let sample = log.topic("sensor_combined", 0).unwrap().offset(700) as usize;
+    let tmp = tempfile::tempdir().unwrap();
+    let copy = tmp.path().join("log-damaged.ulg");
+    let out = tmp.path().join("out");
+
+    // Cut inside a message.
+    std::fs::write(&copy, &bytes[..sample + 20]).unwrap();
+    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    println!("{msg}");
+    assert!(
+        msg.contains("log-damaged.ulg")
+            && msg.contains(&format!("byte offset {sample}: message "))
+            && msg.contains("('D'): truncated: a payload of 47 bytes, but the file ends after 17"),
+        "{msg}"
+    );
+    // A msg_id changed to one never subscribed.
+    let mut damaged = bytes.clone();
+    damaged[sample + 3..sample + 5].copy_from_slice(&999u16.to_le_bytes());
+    std::fs::write(&copy, &damaged).unwrap();
+    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    assert!(
+        msg.contains(&format!("byte offset {sample}: "))
+            && msg.contains("data for msg_id 999, which no subscription ('A') announced"),
+        "{msg}"
+    );
+    // A payload size one short.
+    let mut damaged = bytes;
+    damaged[sample] -= 1;
+    std::fs::write(&copy, &damaged).unwrap();
+    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    assert!(
+        msg.contains(&format!("byte offset {sample}: "))
+            && msg.contains(
+                "`sensor_combined` instance 0 data of 44 bytes, its format needs 45 to 48"
+            ),
+        "{msg}"
+    );
+    assert_eq!(
+        std::fs::read_dir(&out).unwrap().count(),
+        0,
+        "nothing written"
+    );
 }

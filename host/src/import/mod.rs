@@ -3,7 +3,7 @@
 //! the forward-right-down body frame where the source's frames are known.
 //!
 //! One module per dataset; [`detect`] recognises a file by its first data line (a binary
-//! ArduPilot log by its first bytes), and [`import_to_dir`] imports a file or folder and
+//! ArduPilot or PX4 log by its first bytes), and [`import_to_dir`] imports a file or folder and
 //! writes one interchange file per sensor, all of them or none. `docs/formats.md` states each
 //! conversion.
 
@@ -14,6 +14,7 @@ pub mod mpu9250_tetra;
 pub mod mtig;
 pub mod psins_fog_mems;
 pub mod psins_lasergyro;
+pub mod px4_ulog;
 pub mod xsens_dot;
 
 use std::collections::BTreeMap;
@@ -97,6 +98,8 @@ pub enum Dataset {
     ArduPilotDataFlash,
     /// An Xsens DOT CSV export (`xsens-dot4-quadrotor/dot*.csv.gz`).
     XsensDot,
+    /// A PX4 ULog flight log (`px4-ulog/sample_log_small.ulg`).
+    Px4ULog,
 }
 
 impl Dataset {
@@ -111,6 +114,7 @@ impl Dataset {
             Dataset::Mpu9250Tetra => "4 x MPU9250 tetra static rig",
             Dataset::ArduPilotDataFlash => "ArduPilot DataFlash log (IMU instances, GPS + ATT)",
             Dataset::XsensDot => "Xsens DOT CSV export (sensor axes)",
+            Dataset::Px4ULog => "PX4 ULog (IMU topics and instances, GPS + attitude)",
         }
     }
 }
@@ -121,18 +125,21 @@ fn header_fields(line: &str) -> Vec<&str> {
 }
 
 /// Recognises a dataset from its first bytes (an ArduPilot DataFlash log: `A3 95 80`, a
-/// message header and `FMT`) or its first data line (the CSV header, or for the PSINS SIMU
+/// message header and `FMT`; a PX4 ULog: `ULog 01 12 35`) or its first data line (the CSV header, or for the PSINS SIMU
 /// log its first numeric line; blank lines and `%` comment lines are skipped; an Xsens DOT
 /// header may follow a preamble). `Ok(None)` means "not a known dataset"; errors are I/O
 /// failures.
 pub fn detect(path: &Path) -> Result<Option<Dataset>, ImportError> {
-    let mut head = Vec::with_capacity(3);
+    let mut head = Vec::with_capacity(px4_ulog::MAGIC.len());
     open_maybe_gz(path)?
-        .take(3)
+        .take(px4_ulog::MAGIC.len() as u64)
         .read_to_end(&mut head)
         .map_err(|e| ImportError::io(path, e))?;
     if ardupilot_dataflash::is_dataflash(&head) {
         return Ok(Some(Dataset::ArduPilotDataFlash));
+    }
+    if px4_ulog::is_ulog(&head) {
+        return Ok(Some(Dataset::Px4ULog));
     }
     let Some((_, line)) = first_data_line(path)? else {
         return Ok(None);
@@ -223,16 +230,24 @@ pub fn import_file(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>,
             format!("xsens-{stem}-imu"),
             xsens_dot::read(path)?.recording,
         ),
+        Dataset::Px4ULog => px4_ulog::read(path)?
+            .into_iter()
+            .map(|(name, recording)| ImportedSensor {
+                name: format!("px4-{stem}-{name}"),
+                recording,
+            })
+            .collect(),
     })
 }
 
-/// The file name without directory and without `.gz` / `.csv` / `.imu` / `.bin` suffixes.
+/// The file name without directory and without `.gz` / `.csv` / `.imu` / `.bin` / `.ulg`
+/// suffixes.
 fn file_stem(path: &Path) -> String {
     let mut name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    for suffix in [".gz", ".csv", ".imu", ".bin", ".BIN"] {
+    for suffix in [".gz", ".csv", ".imu", ".bin", ".BIN", ".ulg"] {
         if let Some(s) = name.strip_suffix(suffix) {
             name = s.to_string();
         }
@@ -543,6 +558,12 @@ mod tests {
         assert_eq!(detect(&bin).unwrap(), Some(Dataset::ArduPilotDataFlash));
         std::fs::write(&bin, [0xA3, 0x95, 0x81, 0x00]).unwrap();
         assert_eq!(detect(&bin).unwrap(), None);
+        // A ULog file by its magic; a shorter or different start is not one.
+        let ulg = d.join("log.ulg");
+        std::fs::write(&ulg, b"ULog\x01\x12\x35\x01").unwrap();
+        assert_eq!(detect(&ulg).unwrap(), Some(Dataset::Px4ULog));
+        std::fs::write(&ulg, b"ULog\x01\x12").unwrap();
+        assert_eq!(detect(&ulg).unwrap(), None);
     }
 
     #[test]
