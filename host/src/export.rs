@@ -23,6 +23,7 @@
 use std::fmt::Write as _;
 use std::path::Path;
 
+use dynacal_core::board_model::BoardModel;
 use dynacal_core::Channel;
 
 use crate::model::{stochastic_in_si, ImuModel, SimModel};
@@ -62,6 +63,8 @@ pub enum ExportError {
         imu: String,
         channel: Channel,
     },
+    #[error("{path}: {message}")]
+    Board { path: String, message: String },
 }
 
 /// One sensor's (three axes') noise as the targets hold it, SI.
@@ -329,9 +332,144 @@ pub fn render(
     out
 }
 
+/// A model file's IMUs as the board's model blob (`board-model.bin`, what `dynacal board
+/// --model` runs and the real board is flashed with): each IMU in order as unit 0, 1, ...,
+/// each channel's stochastic model reduced as the refit reduces it
+/// ([`crate::refit::channel_noise`]), each unit's mount relative to the first IMU (the
+/// board's body frame): its rotation `C_k C_0^T` from the models' boresights and its lever
+/// arm `C_0 (l_k - l_0)` in the first unit's axes. A channel without a stochastic model
+/// keeps the board's built-in noise, and what was left out is said in the notes.
+pub fn board_model_of(
+    model: &SimModel,
+    path: &Path,
+) -> Result<(BoardModel, Vec<String>), ExportError> {
+    if model.imus.is_empty() || model.imus.len() > dynacal_core::log::MAX_IMUS {
+        return Err(ExportError::Board {
+            path: path.display().to_string(),
+            message: format!(
+                "{} IMUs: the board runs 1 to {}",
+                model.imus.len(),
+                dynacal_core::log::MAX_IMUS
+            ),
+        });
+    }
+    let ids: Vec<u8> = (0..model.imus.len() as u8).collect();
+    let mut board = BoardModel::built_in(&ids);
+    let mut notes = Vec::new();
+    let mount = |rpy_deg: [f64; 3]| {
+        // The model's boresight angles are those of the unit's axes to the body's (C^T).
+        nalgebra::Rotation3::from_euler_angles(
+            rpy_deg[0].to_radians(),
+            rpy_deg[1].to_radians(),
+            rpy_deg[2].to_radians(),
+        )
+        .transpose()
+    };
+    let first = &model.imus[0];
+    let c0 = mount(first.boresight_rpy_deg);
+    let l0 = nalgebra::Vector3::from(first.lever_arm_b_m);
+    for (imu, unit) in model.imus.iter().zip(board.units.iter_mut()) {
+        for channel in Channel::ALL {
+            match &imu.model_of(channel).stochastic {
+                Some(spec) => {
+                    let (noise, left_out) = channel_noise(spec);
+                    for what in left_out {
+                        notes.push(format!(
+                            "{}/{channel}: the {what} is not run on the board",
+                            imu.name
+                        ));
+                    }
+                    unit.channels[channel.index()] = noise;
+                }
+                None => notes.push(format!(
+                    "{}/{channel}: no stochastic model; the board keeps its built-in noise",
+                    imu.name
+                )),
+            }
+        }
+        let relative = mount(imu.boresight_rpy_deg) * c0.transpose();
+        let (r, p, y) = relative.euler_angles();
+        unit.rotation_rpy_rad = [r as f32, p as f32, y as f32];
+        let arm = c0 * (nalgebra::Vector3::from(imu.lever_arm_b_m) - l0);
+        unit.lever_arm_m = [arm.x as f32, arm.y as f32, arm.z as f32];
+    }
+    Ok((board, notes))
+}
+
+/// The board model blob's bytes.
+pub fn board_blob(board: &BoardModel, path: &Path) -> Result<Vec<u8>, ExportError> {
+    let mut blob = [0u8; dynacal_core::board_model::MAX_BOARD_MODEL_LEN];
+    let len = board.encode(&mut blob).map_err(|e| ExportError::Board {
+        path: path.display().to_string(),
+        message: format!("the board refuses this model: {e:?}"),
+    })?;
+    Ok(blob[..len].to_vec())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::gmwm::model::Process;
+
+    #[test]
+    fn a_model_file_becomes_the_boards_blob_relative_to_its_first_imu() {
+        // GIVEN two IMUs at 200 Hz: gyro WN 1e-5 (rad/s)^2 per sample + GM(0.1/s, 4e-6),
+        // accel WN 1e-3 (m/s^2)^2; the first mounted at (0.1, 0, 0) m, the second 5 cm to
+        // its right and 10 deg off in yaw.
+        let spec = |unit: &str, processes| crate::gmwm::model::ModelSpec {
+            model: String::new(),
+            unit: unit.into(),
+            sample_rate_hz: 200.0,
+            processes,
+        };
+        let mut model = SimModel::default();
+        for (k, (arm, yaw)) in [([0.1, 0.0, 0.0], 0.0), ([0.1, 0.05, 0.0], 10.0)]
+            .into_iter()
+            .enumerate()
+        {
+            let mut imu = ImuModel::bare(&format!("u{k}"), 200.0);
+            imu.gyro.stochastic = Some(spec(
+                "rad/s",
+                vec![
+                    Process::WhiteNoise { sigma2: 1e-5 },
+                    Process::GaussMarkov {
+                        beta_per_s: 0.1,
+                        sigma2: 4e-6,
+                    },
+                ],
+            ));
+            imu.accel.stochastic = Some(spec("m/s^2", vec![Process::WhiteNoise { sigma2: 1e-3 }]));
+            imu.lever_arm_b_m = arm;
+            imu.boresight_rpy_deg = [0.0, 0.0, yaw];
+            model.imus.push(imu);
+        }
+        // WHEN it is exported to the board and the blob read back as the board reads it
+        let (board, notes) = board_model_of(&model, Path::new("m.json")).unwrap();
+        let blob = board_blob(&board, Path::new("m.json")).unwrap();
+        let read = BoardModel::decode(&blob).unwrap();
+        // THEN each channel's noise is the hand-computed PSD, the GM is the bias, and the
+        // second unit sits 5 cm along the first's y axis, turned -10 deg in yaw (y_k = C y_0
+        // with C the transpose of the unit's mount)
+        assert!(notes.is_empty(), "{notes:?}");
+        assert_eq!(read.units.len(), 2);
+        let close = |a: f32, b: f64| (f64::from(a) - b).abs() <= 1e-6 * b.abs().max(1e-9);
+        for u in &read.units {
+            assert!(close(u.channels[0].white_psd, 1e-5 / 200.0));
+            assert!(close(u.channels[0].gauss_markov_sigma2, 4e-6));
+            assert!(close(u.channels[0].gauss_markov_tau_s, 10.0));
+            assert!(close(u.channels[5].white_psd, 1e-3 / 200.0));
+            assert_eq!(u.channels[5].gauss_markov_sigma2, 0.0);
+        }
+        assert_eq!(read.units[0].rotation_rpy_rad, [0.0; 3]);
+        assert_eq!(read.units[0].lever_arm_m, [0.0; 3]);
+        let yaw = read.units[1].rotation_rpy_rad[2];
+        assert!((f64::from(yaw) + 10f64.to_radians()).abs() < 1e-6, "{yaw}");
+        let arm = read.units[1].lever_arm_m;
+        assert!(
+            arm[0].abs() < 1e-7 && (arm[1] - 0.05).abs() < 1e-7 && arm[2].abs() < 1e-7,
+            "{arm:?}"
+        );
+    }
 
     /// One IMU at 200 Hz: gyro white noise 2e-6 (rad/s)^2 per sample and a random walk of
     /// 5e-13 (rad/s)^2 per sample; accelerometer white noise 4e-4 (m/s^2)^2 and a

@@ -350,6 +350,34 @@ pub fn build_replay_firmware(target_dir: &Path) -> Result<PathBuf, ReplayFileErr
     build_firmware(target_dir, "board-replay")
 }
 
+/// The replay board's firmware image built with this crate (`host/build.rs`), empty when it
+/// could not be built then.
+static EMBEDDED_REPLAY_FIRMWARE: &[u8] =
+    include_bytes!(concat!(env!("OUT_DIR"), "/replay-firmware.elf"));
+
+/// The replay board's firmware ELF embedded in this binary at build time, if it was.
+pub fn embedded_replay_firmware() -> Option<&'static [u8]> {
+    (!EMBEDDED_REPLAY_FIRMWARE.is_empty()).then_some(EMBEDDED_REPLAY_FIRMWARE)
+}
+
+/// The replay firmware to run under QEMU: the image embedded at build time, written to
+/// `dir/dynacal-replay-firmware.elf`; or, in a binary built without it, the firmware built
+/// now with cargo into `target_dir` (which needs the source tree and the
+/// thumbv7em-none-eabihf target).
+pub fn replay_firmware_elf(dir: &Path, target_dir: &Path) -> Result<PathBuf, ReplayFileError> {
+    match embedded_replay_firmware() {
+        Some(image) => {
+            let path = dir.join("dynacal-replay-firmware.elf");
+            crate::output::write_atomic(&path, image).map_err(|source| ReplayFileError::Io {
+                path: path.clone(),
+                source,
+            })?;
+            Ok(path)
+        }
+        None => build_replay_firmware(target_dir),
+    }
+}
+
 /// Builds the firmware for one board (`board_feature`: `board-replay`, the emulated board, or
 /// `board-stm32f405`, the real one) with cargo into `target_dir` and returns the ELF's path.
 /// Both boards' images land at the same path: read one before building the other.

@@ -132,3 +132,78 @@ fn a_model_of_several_imus_is_refused_without_imu_and_nothing_is_written() {
     );
     assert!(!out_path.exists());
 }
+
+/// The board's example model (three units at 1 kHz, mounted apart) exported as the board's
+/// blob: it decodes to the model's noise and mounts, and the board's firmware under QEMU
+/// runs it on a drive of that model instead of refusing it. `--imu` is refused with it.
+#[test]
+fn a_model_file_exports_to_the_board_blob_the_firmware_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let model =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/board-three-mems.json");
+    let blob = dir.path().join("board-model.bin");
+    let out = dynacal(&[
+        "export",
+        model.to_str().unwrap(),
+        "--to",
+        "board",
+        "--out",
+        blob.to_str().unwrap(),
+    ]);
+    ok(&out);
+    assert!(String::from_utf8_lossy(&out.stdout).contains("3 units"));
+    let read =
+        dynacal_core::board_model::BoardModel::decode(&std::fs::read(&blob).unwrap()).unwrap();
+    assert_eq!(read.units.len(), 3);
+    // icm1: gyro WN 2e-5 (rad/s)^2 at 1 kHz, GM 2.5e-7 (rad/s)^2 over 1/0.0033 s; 3 cm
+    // forward, 2 cm right of icm0.
+    let u = &read.units[1];
+    assert!((f64::from(u.channels[0].white_psd) - 2e-8).abs() < 1e-13);
+    assert!((f64::from(u.channels[0].gauss_markov_sigma2) - 2.5e-7).abs() < 1e-12);
+    assert!((f64::from(u.channels[0].gauss_markov_tau_s) - 1.0 / 0.0033).abs() < 1e-2);
+    assert!((u.lever_arm_m[0] - 0.03).abs() < 1e-6 && (u.lever_arm_m[1] - 0.02).abs() < 1e-6);
+    let refused = dynacal(&[
+        "export",
+        model.to_str().unwrap(),
+        "--to",
+        "board",
+        "--imu",
+        "icm1",
+        "--out",
+        dir.path().join("x.bin").to_str().unwrap(),
+    ]);
+    assert!(!refused.status.success() && !dir.path().join("x.bin").exists());
+
+    if !dynacal::replay::qemu_available() {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "qemu-system-arm is missing in CI"
+        );
+        eprintln!("SKIPPED the board run: qemu-system-arm not found");
+        return;
+    }
+    let sim = dir.path().join("sim");
+    ok(&dynacal(&[
+        "simulate",
+        "--model",
+        model.to_str().unwrap(),
+        "--seconds",
+        "20",
+        "--seed",
+        "2",
+        "--replay",
+        "--out",
+        sim.to_str().unwrap(),
+    ]));
+    let run = dynacal(&[
+        "board",
+        sim.join("board.replay").to_str().unwrap(),
+        "--out",
+        dir.path().join("board.log").to_str().unwrap(),
+        "--model",
+        blob.to_str().unwrap(),
+    ]);
+    ok(&run);
+    let said = String::from_utf8_lossy(&run.stdout);
+    assert!(!said.contains("refused"), "{said}");
+}

@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context};
 use dynacal::decode::decode_file;
 use dynacal::replay::{
-    build_replay_firmware, qemu_available, run_replay_in_qemu, workspace_root,
+    build_replay_firmware, qemu_available, replay_firmware_elf, run_replay_in_qemu, workspace_root,
     BOARD_CORE_HZ as CORE_HZ, FIRMWARE_TARGET_DIR,
 };
 
@@ -25,7 +25,8 @@ pub struct Args {
     /// board refuses is named with its reason and the built-in model runs.
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// Cargo target folder for the firmware build (default: target/firmware).
+    /// Build the replay firmware with cargo into this target folder instead of running the
+    /// image built into this binary.
     #[arg(long)]
     pub target_dir: Option<PathBuf>,
 }
@@ -44,15 +45,15 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if !qemu_available() {
         bail!("qemu-system-arm not found: run scripts/setup to install it (and the thumbv7em-none-eabihf target)");
     }
-    let target_dir = args
-        .target_dir
-        .clone()
-        .unwrap_or_else(|| workspace_root().join(FIRMWARE_TARGET_DIR));
-    let elf = build_replay_firmware(&target_dir)?;
     if let Some(parent) = args.out.parent().filter(|p| !p.as_os_str().is_empty()) {
         std::fs::create_dir_all(parent)
             .with_context(|| format!("{}: cannot create folder", parent.display()))?;
     }
+    let scratch = tempfile::tempdir().context("cannot create a temporary folder")?;
+    let elf = match &args.target_dir {
+        Some(target_dir) => build_replay_firmware(target_dir)?,
+        None => replay_firmware_elf(scratch.path(), &workspace_root().join(FIRMWARE_TARGET_DIR))?,
+    };
     let run = run_replay_in_qemu(&elf, &args.input, &args.out, args.model.as_deref())?;
     for line in run.stderr.lines().filter(|l| l.contains("board model")) {
         println!("  {line}");

@@ -10,7 +10,9 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use dynacal::diagnose::report::write_files;
 use dynacal::mission::{run_mission, MissionOptions, STAGES};
-use dynacal::replay::{build_replay_firmware, qemu_available, workspace_root, FIRMWARE_TARGET_DIR};
+use dynacal::replay::{
+    build_replay_firmware, qemu_available, replay_firmware_elf, workspace_root, FIRMWARE_TARGET_DIR,
+};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Debug, clap::Args)]
@@ -30,7 +32,8 @@ pub struct Args {
     /// Bootstrap replicates of the board log's refit.
     #[arg(long, default_value_t = 50)]
     pub bootstrap: usize,
-    /// Cargo target folder for the firmware build (default: target/firmware).
+    /// Build the replay firmware with cargo into this target folder instead of running the
+    /// image built into this binary.
     #[arg(long)]
     pub target_dir: Option<PathBuf>,
 }
@@ -46,14 +49,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         bail!("qemu-system-arm not found: run scripts/setup to install it (and the thumbv7em-none-eabihf target)");
     }
     let started = Instant::now();
-    let target_dir = args
-        .target_dir
-        .clone()
-        .unwrap_or_else(|| workspace_root().join(FIRMWARE_TARGET_DIR));
-    eprintln!("dynacal demo: building the board's replay firmware");
-    let elf = build_replay_firmware(&target_dir)?;
     std::fs::create_dir_all(&args.report)
         .with_context(|| format!("{}: cannot create folder", args.report.display()))?;
+    let elf = match &args.target_dir {
+        Some(target_dir) => build_replay_firmware(target_dir)?,
+        None => replay_firmware_elf(&args.report, &workspace_root().join(FIRMWARE_TARGET_DIR))?,
+    };
     let options = MissionOptions {
         seconds: args.seconds,
         seed: args.seed,

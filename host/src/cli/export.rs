@@ -1,11 +1,11 @@
-//! `dynacal export MODEL --to kalibr|px4|ardupilot --out FILE [--imu NAME] [--static S.json]`:
+//! `dynacal export MODEL --to kalibr|px4|ardupilot|board --out FILE [--imu NAME] [--static S.json]`:
 //! a fitted model (`fit`, `refit`, `diagnose`) as the noise parameters of the tools people
-//! run (`dynacal::export`), written whole or not at all.
+//! run, or as the board's model blob (`dynacal::export`), written whole or not at all.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
-use dynacal::export::{imu_noise, render, Format};
+use dynacal::export::{board_blob, board_model_of, imu_noise, render, Format};
 use dynacal::model::SimModel;
 use dynacal::output::write_atomic;
 
@@ -16,7 +16,7 @@ pub struct Args {
     pub model: PathBuf,
     /// Target format.
     #[arg(long = "to", value_enum)]
-    pub format: Format,
+    pub format: Target,
     /// The file to write.
     #[arg(long)]
     pub out: PathBuf,
@@ -29,8 +29,28 @@ pub struct Args {
     pub static_model: Option<PathBuf>,
 }
 
+/// Where the model goes: a tool's noise parameters, or the board.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Target {
+    /// Kalibr `imu.yaml` (Kalibr, OpenVINS, VINS-Mono).
+    Kalibr,
+    /// PX4 EKF2 parameters (QGroundControl's `.params` file).
+    Px4,
+    /// ArduPilot EKF3 parameters (a `.parm` file Mission Planner and MAVProxy load).
+    Ardupilot,
+    /// The board's model blob (`board-model.bin`: `dynacal board --model`, or flashed into
+    /// the real board): every IMU of the model, in order.
+    Board,
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
     let model = SimModel::load(&args.model)?;
+    let format = match args.format {
+        Target::Kalibr => Format::Kalibr,
+        Target::Px4 => Format::Px4,
+        Target::Ardupilot => Format::Ardupilot,
+        Target::Board => return export_board(&model, &args),
+    };
     let noise = imu_noise(&model, args.imu.as_deref(), &args.model)?;
     let static_noise = match &args.static_model {
         Some(path) => {
@@ -49,7 +69,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let text = render(
         &noise,
         static_noise.as_ref(),
-        args.format,
+        format,
         &args.model.display().to_string(),
     );
     write_atomic(&args.out, text.as_bytes())
@@ -61,6 +81,30 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         noise.gyro.random_walk,
         noise.accel.noise_density,
         noise.accel.random_walk,
+        args.out.display()
+    );
+    Ok(())
+}
+
+fn export_board(model: &SimModel, args: &Args) -> anyhow::Result<()> {
+    if args.imu.is_some() || args.static_model.is_some() {
+        anyhow::bail!(
+            "--to board takes every IMU of {} (the board runs them all) and no --static: \
+             leave out --imu and --static",
+            args.model.display()
+        );
+    }
+    let (board, notes) = board_model_of(model, &args.model)?;
+    let blob = board_blob(&board, &args.model)?;
+    for note in notes {
+        println!("note: {note}");
+    }
+    write_atomic(&args.out, &blob)
+        .with_context(|| format!("{}: cannot write", args.out.display()))?;
+    println!(
+        "{} units, {} bytes of board model; wrote {}",
+        board.units.len(),
+        blob.len(),
         args.out.display()
     );
     Ok(())

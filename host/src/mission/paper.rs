@@ -4,8 +4,6 @@
 //! III, Fig. 5), and the GMWM of Section IV on the errors in motion, against the same
 //! sensor's errors at rest where there is a static recording (Table I, Figs. 6 and 7).
 
-use nalgebra::Vector3;
-
 use super::{stage, MissionError};
 use crate::calibration::{build_error_signals, CalibrationSummary, ErrorOptions};
 use crate::error_signal::ErrorSignals;
@@ -580,18 +578,4 @@ pub fn sections(chain: &PaperChain, gyro: &str, accel: &str) -> Result<Vec<Secti
         wv_svg(chain, &[gyro, accel])?,
     );
     Ok(vec![errors, dynamics, noise])
-}
-
-/// The axis (0 x, 1 y, 2 z) of a channel name (`gz` -> 2).
-pub fn axis_of(channel: &str) -> usize {
-    match channel.as_bytes().get(1) {
-        Some(b'x') => 0,
-        Some(b'y') => 1,
-        _ => 2,
-    }
-}
-
-/// The boresight as a vector, deg.
-pub fn boresight_deg(chain: &PaperChain) -> Vector3<f64> {
-    Vector3::from(chain.calibration.boresight_rad.value) * DEG_PER_RAD
 }
