@@ -896,14 +896,19 @@ fn px4_imus_read_gravity_and_agree_with_the_attitude() {
 }
 
 #[test]
-fn px4_raw_imus_calibrate_to_vehicle_imu_with_the_logs_parameters() {
+fn px4_raw_imus_turn_into_the_body_frame_and_calibrate_to_vehicle_imu() {
     let Some(path) = dataset(PX4_LOG) else {
         return;
     };
     let log = px4_ulog::ULog::read(&path).unwrap();
     let imus = px4_ulog::read_sensor_imus(&log).unwrap();
     let vehicle = px4_ulog::read_vehicle_imus(&log).unwrap();
-    assert_eq!(imus.len(), 3);
+    let names: Vec<&str> = imus.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(
+        names,
+        ["imu0", "imu1", "imu2"],
+        "in the body frame: no `_board`"
+    );
     // Sampled together: the instances' stamps agree to 2 ms (as `dynacal redundancy` needs).
     for (name, rec) in &imus {
         assert_eq!(rec.len(), 6);
@@ -913,7 +918,8 @@ fn px4_raw_imus_calibrate_to_vehicle_imu_with_the_logs_parameters() {
     }
     // PX4 1.11: corrected = board rotation (SENS_BOARD_ROT 4 = yaw 180 deg, then the
     // SENS_BOARD_{X,Y,Z}_OFF trims in degrees) * ((raw - offset) .* scale), with the
-    // calibration slot whose CAL_ACCn_ID is the chip's device id.
+    // calibration slot whose CAL_ACCn_ID is the chip's device id. The importer applies the
+    // rotation, built here on its own.
     let p = |name: &str| log.parameter(name).unwrap_or_else(|| panic!("no {name}"));
     assert_eq!(p("SENS_BOARD_ROT"), 4.0);
     let board = Rotation3::from_euler_angles(
@@ -921,31 +927,58 @@ fn px4_raw_imus_calibrate_to_vehicle_imu_with_the_logs_parameters() {
         p("SENS_BOARD_Y_OFF") * DEG,
         p("SENS_BOARD_Z_OFF") * DEG,
     ) * Rotation3::from_axis_angle(&Vector3::z_axis(), std::f64::consts::PI);
-    for (k, (name, raw)) in imus.iter().enumerate() {
-        let device = log
-            .topic("sensor_accel", k as u8)
-            .unwrap()
-            .value(0, "device_id")
-            .unwrap();
+    println!(
+        "SENS_BOARD_ROT 4, trims {:.3} {:.3} {:.3} deg",
+        p("SENS_BOARD_X_OFF"),
+        p("SENS_BOARD_Y_OFF"),
+        p("SENS_BOARD_Z_OFF")
+    );
+    for (k, (name, rec)) in imus.iter().enumerate() {
+        let topic = |t: &str| log.topic(t, k as u8).unwrap();
+        let device = topic("sensor_accel").value(0, "device_id").unwrap();
+        let to_body =
+            px4_ulog::sensor_to_body(&log, px4_ulog::SensorKind::Accel, Some(device)).unwrap();
+        let to_body = to_body.unwrap();
+        assert!(
+            (to_body.r_b_s.matrix() - board.matrix()).norm() < 1e-12,
+            "{name}"
+        );
         let slot = (0..4)
             .find(|c| log.parameter(&format!("CAL_ACC{c}_ID")) == Some(device))
             .unwrap();
         let cal = |kind: &str, what: &str| {
             Vector3::from_fn(|a, _| p(&format!("CAL_{kind}{slot}_{}{what}", ["X", "Y", "Z"][a])))
         };
-        let f_raw = mean_vec(raw.accel_m_s2.as_ref().unwrap(), 0..raw.len());
-        let w_raw = mean_vec(raw.gyro_rad_s.as_ref().unwrap(), 0..raw.len());
+        // The topics' own means, in the sensor's axes.
+        let raw_mean = |t: &str| {
+            let t = topic(t);
+            Vector3::from_fn(|a, _| mean(&t.column(["x", "y", "z"][a]).unwrap()))
+        };
+        let (f_raw, w_raw) = (raw_mean("sensor_accel"), raw_mean("sensor_gyro"));
+        let f = mean_vec(rec.accel_m_s2.as_ref().unwrap(), 0..rec.len());
+        let w = mean_vec(rec.gyro_rad_s.as_ref().unwrap(), 0..rec.len());
+        assert!((f - board * f_raw).norm() < 1e-9 && (w - board * w_raw).norm() < 1e-9);
         let f_corrected = board * (f_raw - cal("ACC", "OFF")).component_mul(&cal("ACC", "SCALE"));
         let v = &vehicle[k].1;
         let f_vehicle = mean_vec(v.accel_m_s2.as_ref().unwrap(), 0..v.len());
         println!(
-            "{name}: raw f {f_raw:.3?} (|f| {:.3}), corrected {f_corrected:.3?}, vehicle_imu{k} {f_vehicle:.3?}; raw omega {w_raw:.4?} vs CAL_GYRO{slot} offsets {:.4?}",
+            "{name}: raw f {f_raw:.3?} (|f| {:.3}), imported {f:.3?}, calibrated {f_corrected:.3?}, vehicle_imu{k} {f_vehicle:.3?}; raw omega {w_raw:.4?} vs CAL_GYRO{slot} offsets {:.4?}",
             f_raw.norm(),
             cal("GYRO", "OFF")
         );
         assert!((f_raw.norm() / G - 1.0).abs() < 0.03);
+        // Imported (rotated, uncalibrated): gravity along the body's axes as vehicle_imu has
+        // it, to the calibration (offsets to 0.16 m/s^2 across, scales to 3 % along z);
+        // unrotated it leans 4.6 deg away.
+        let across = |v: Vector3<f64>| v.xy().norm();
+        assert!(
+            across(f - f_vehicle) < 0.2,
+            "{name}: {f:?} vs {f_vehicle:?}"
+        );
+        assert!(f.angle(&f_vehicle) < 1.5 * DEG, "{name}");
+        assert!(f_raw.angle(&f_vehicle) > 3.0 * DEG, "{name}");
         assert!((f_corrected - f_vehicle).norm() < 0.05, "{name}");
-        // Uncorrected, the raw values are far from the body frame's (x and y flipped).
+        // Unrotated, the raw values are far from the body frame's (x and y flipped).
         assert!((f_raw - f_vehicle).norm() > 0.3, "{name}");
         // At rest a raw gyro reads its calibration offset (to 4.5e-3 rad/s here).
         assert!((w_raw - cal("GYRO", "OFF")).norm() < 0.006, "{name}");

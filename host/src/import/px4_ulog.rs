@@ -32,20 +32,25 @@
 //!   calibrated and in the body frame, `t_s` = `timestamp` (the gyro's); the accelerometer's
 //!   own `accelerometer_timestamp_relative` is not applied (0 throughout the sample log), and a
 //!   sample marked as having no accelerometer value (`0x7fffffff`) is an error.
-//! - `sensor_gyro` k and `sensor_accel` k (x, y, z in rad/s, m/s^2) -> `imu{k}`: raw, as the
-//!   driver published them (before PX4's calibration offsets and scales and before the board
-//!   rotation `SENS_BOARD_ROT` and its `SENS_BOARD_*_OFF` trims), so in the board's axes, not
-//!   the body's; `t_s` = `timestamp_sample` (`timestamp` where the format has none). Gyro and
-//!   accelerometer of one instance index share a recording when both carry the same
-//!   `device_id` (the same chip) and identical sample times; otherwise they are written apart
-//!   as `gyro{k}` and `accel{k}`.
+//! - `sensor_gyro` k and `sensor_accel` k (x, y, z in rad/s, m/s^2) -> `imu{k}`: uncalibrated
+//!   (PX4's calibration offsets and scales are not applied) but turned from the sensor's axes
+//!   into the body's with the log's board rotation, `v_b = R_b_s v_s`, `R_b_s` = the level
+//!   trims `SENS_BOARD_{X,Y,Z}_OFF` times the rotation `SENS_BOARD_ROT` (or an external
+//!   sensor's `CAL_*n_ROT`), every value PX4 defines ([`board`] has the convention). A log
+//!   without `SENS_BOARD_ROT` keeps the sensor's axes and the output's name ends in
+//!   [`BOARD_FRAME_SUFFIX`] (`imu0_board`). `t_s` = `timestamp_sample` (`timestamp` where the
+//!   format has none). Gyro and accelerometer of one instance index share a recording when
+//!   both carry the same `device_id` (the same chip), identical sample times and the same
+//!   frame; otherwise they are written apart as `gyro{k}` and `accel{k}`.
 //! - `vehicle_imu` k -> `vehicle_imu{k}`: `delta_angle[3]` / (`delta_angle_dt` µs) rad/s and
 //!   `delta_velocity[3]` / (`delta_velocity_dt` µs) m/s^2, the mean over the interval ending at
 //!   `timestamp_sample` (= `t_s`), calibrated and in the body frame.
-//! - Reference (no IMU channel): one row per `vehicle_gps_position` (instance 0) fix with
-//!   `fix_type` >= 3 and, where the format has it, `vel_ned_valid`; `t_s` = `timestamp`; lat/lon
-//!   from `lat`/`lon` (1e-7 deg) or `latitude_deg`/`longitude_deg`; `h_m` the ellipsoidal
-//!   height `alt_ellipsoid` (mm) or `altitude_ellipsoid_m`; velocity `vel_n_m_s`, `vel_e_m_s`,
+//! - Reference (no IMU channel): one row per measured 3D GPS fix ([`GPS_FIXES_3D`]) with,
+//!   where the format has it, `vel_ned_valid`, from instance 0 of the first of [`GPS_TOPICS`]
+//!   with samples (`vehicle_gps_position`, else `sensor_gps`); `t_s` =
+//!   `timestamp`; lat/lon from `lat`/`lon` (1e-7 deg) or `latitude_deg`/`longitude_deg`
+//!   (double deg); `h_m` the ellipsoidal height `alt_ellipsoid` (mm) or
+//!   `altitude_ellipsoid_m`; velocity `vel_n_m_s`, `vel_e_m_s`,
 //!   `vel_d_m_s`; attitude from `vehicle_attitude` (instance 0) `q[4]` (Hamilton w, x, y, z,
 //!   body FRD to NED) as roll, pitch, yaw Z-Y-X, by slerp between the two samples around the
 //!   fix (a fix outside their span, or whose neighbours are more than [`MAX_ATTITUDE_GAP_S`]
@@ -81,8 +86,15 @@ pub const RELATIVE_TIMESTAMP_INVALID: f64 = 2_147_483_647.0;
 /// Largest gap between the two `vehicle_attitude` samples around a GPS fix for the fix to get
 /// an interpolated attitude, s.
 pub const MAX_ATTITUDE_GAP_S: f64 = 0.5;
-/// Lowest `vehicle_gps_position.fix_type` that is a 3D fix.
-pub const GPS_FIX_3D: f64 = 3.0;
+/// The `fix_type` values of a measured 3D fix: 3 (3D), 4 (RTCM code differential), 5 (RTK
+/// float), 6 (RTK fixed). 0-2 have no 3D position and 8 (extrapolated) is dead reckoning.
+pub const GPS_FIXES_3D: [f64; 4] = [3.0, 4.0, 5.0, 6.0];
+/// The GPS topics the reference reads, in order of preference (instance 0 of the first one
+/// with samples): `vehicle_gps_position`, the receiver PX4's `vehicle_gps_position` module
+/// selects (or blends) from the `sensor_gps` instances and the estimator fuses, then
+/// `sensor_gps`, the first receiver itself, for logs without the former. Both carry the same
+/// message from PX4 v1.14 (`msg/SensorGps.msg`: `# TOPICS sensor_gps vehicle_gps_position`).
+pub const GPS_TOPICS: [&str; 2] = ["vehicle_gps_position", "sensor_gps"];
 /// Largest departure of a `vehicle_attitude` quaternion's norm from 1 accepted (a float
 /// quaternion is unit to about 1e-7; more is not an attitude).
 pub const MAX_QUATERNION_NORM_ERROR: f64 = 1e-3;
@@ -467,6 +479,8 @@ pub struct ULog {
     info: BTreeMap<String, InfoValue>,
     multi_info: BTreeMap<String, Vec<InfoValue>>,
     parameters: BTreeMap<String, Vec<f64>>,
+    /// Byte offset of each `P` message, by parameter name, in step with `parameters`.
+    parameter_offsets: BTreeMap<String, Vec<u64>>,
     default_parameters: Vec<DefaultParameter>,
     logged: Vec<LoggedString>,
     dropouts: Vec<Dropout>,
@@ -552,6 +566,11 @@ impl ULog {
     pub fn parameter_values(&self, name: &str) -> Option<&[f64]> {
         self.parameters.get(name).map(Vec::as_slice)
     }
+    /// Byte offsets of the `P` messages that set parameter `name`, in log order (one per
+    /// value of [`ULog::parameter_values`]).
+    pub fn parameter_offsets(&self, name: &str) -> Option<&[u64]> {
+        self.parameter_offsets.get(name).map(Vec::as_slice)
+    }
     /// Number of parameters logged.
     pub fn parameter_count(&self) -> usize {
         self.parameters.len()
@@ -629,10 +648,13 @@ impl ULog {
     }
 }
 
+pub mod board;
 mod convert;
 
+pub use board::{sensor_to_body, SensorKind, SensorToBody};
 pub use convert::{
-    read, read_reference, read_sensor_combined, read_sensor_imus, read_vehicle_imus, NamedRecording,
+    gps_topic, read, read_reference, read_sensor_combined, read_sensor_imus, read_vehicle_imus,
+    NamedRecording, BOARD_FRAME_SUFFIX,
 };
 
 #[cfg(test)]

@@ -5,11 +5,17 @@
 use std::collections::BTreeSet;
 use std::path::Path;
 
+use super::board::{sensor_to_body, SensorKind, SensorToBody};
 use super::{
-    corrupt, ImportError, ImuRecording, Quaternion, Topic, ULog, UnitQuaternion, GPS_FIX_3D,
-    MAX_ATTITUDE_GAP_S, MAX_QUATERNION_NORM_ERROR, RELATIVE_TIMESTAMP_INVALID,
+    corrupt, ImportError, ImuRecording, Quaternion, Topic, ULog, UnitQuaternion, GPS_FIXES_3D,
+    GPS_TOPICS, MAX_ATTITUDE_GAP_S, MAX_QUATERNION_NORM_ERROR, RELATIVE_TIMESTAMP_INVALID,
 };
 use crate::interchange::Triplet;
+use nalgebra::Vector3;
+
+/// The end of a raw IMU output's name when the log gives no board rotation and its data stay
+/// in the sensor's axes (`imu0_board`): not the body frame the interchange format expects.
+pub const BOARD_FRAME_SUFFIX: &str = "_board";
 
 /// One output of [`read`]: `sensor_combined`, `imu0`, `vehicle_imu0`, `reference`... and its
 /// recording.
@@ -129,17 +135,60 @@ fn same_device(gyro: &Topic, accel: &Topic, gyro_t: &[f64], accel_t: &[f64]) -> 
     ids_agree && gyro_t == accel_t
 }
 
-/// One raw sensor topic's `x, y, z` into `triplet` (gyro or accelerometer).
-fn raw_axes(log: &ULog, topic: &Topic, triplet: &mut Option<Triplet>) -> Result<(), ImportError> {
-    for i in 0..topic.len() {
-        push(triplet, vector(log, topic, i, ["x", "y", "z"])?);
-    }
-    Ok(())
+/// One raw sensor topic: its sample times (s) and its rotation into the body's axes (`None`:
+/// the log does not say, the data stay in the sensor's axes).
+struct RawSensor<'a> {
+    topic: &'a Topic,
+    t_s: Vec<f64>,
+    to_body: Option<SensorToBody>,
 }
 
-/// Every `sensor_gyro` / `sensor_accel` instance: raw values in the board's axes on
-/// `timestamp_sample`. Instance k's gyro and accelerometer share `imu{k}` when they are one
-/// chip sampled together ([`same_device`]), else they are `gyro{k}` and `accel{k}`.
+impl RawSensor<'_> {
+    /// Instance `k` of the raw topic of `kind`, if it has samples.
+    fn new(log: &ULog, kind: SensorKind, k: u8) -> Result<Option<RawSensor<'_>>, ImportError> {
+        let name = match kind {
+            SensorKind::Gyro => "sensor_gyro",
+            SensorKind::Accel => "sensor_accel",
+        };
+        let Some(topic) = log.topic(name, k).filter(|t| !t.is_empty()) else {
+            return Ok(None);
+        };
+        Ok(Some(RawSensor {
+            topic,
+            t_s: sample_times_s(log, topic)?,
+            to_body: sensor_to_body(log, kind, topic.value(0, "device_id"))?,
+        }))
+    }
+
+    /// Its `x, y, z` into `triplet` (gyro or accelerometer), rotated into the body's axes
+    /// where the rotation is known.
+    fn axes_into(&self, log: &ULog, triplet: &mut Option<Triplet>) -> Result<(), ImportError> {
+        for i in 0..self.topic.len() {
+            let v = vector(log, self.topic, i, ["x", "y", "z"])?;
+            let v = match &self.to_body {
+                Some(to_body) => (to_body.r_b_s * Vector3::from(v)).into(),
+                None => v,
+            };
+            push(triplet, v);
+        }
+        Ok(())
+    }
+
+    /// The suffix of its output's name: none in the body's axes, `_board` in the sensor's.
+    fn frame_suffix(&self) -> &'static str {
+        if self.to_body.is_some() {
+            ""
+        } else {
+            BOARD_FRAME_SUFFIX
+        }
+    }
+}
+
+/// Every `sensor_gyro` / `sensor_accel` instance on `timestamp_sample`, uncalibrated, turned
+/// into the body's axes with the log's board rotation ([`sensor_to_body`]). Instance k's gyro
+/// and accelerometer share `imu{k}` when they are one chip sampled together ([`same_device`])
+/// in the same frame, else they are `gyro{k}` and `accel{k}`. Without a rotation in the log
+/// the data stay in the sensor's axes and the name ends in [`BOARD_FRAME_SUFFIX`].
 pub fn read_sensor_imus(log: &ULog) -> Result<Vec<NamedRecording>, ImportError> {
     let ids: BTreeSet<u8> = log
         .instances("sensor_gyro")
@@ -149,31 +198,34 @@ pub fn read_sensor_imus(log: &ULog) -> Result<Vec<NamedRecording>, ImportError> 
         .collect();
     let mut out = Vec::new();
     for k in ids {
-        let gyro = log.topic("sensor_gyro", k).filter(|t| !t.is_empty());
-        let accel = log.topic("sensor_accel", k).filter(|t| !t.is_empty());
-        let gyro_t = gyro.map(|t| sample_times_s(log, t)).transpose()?;
-        let accel_t = accel.map(|t| sample_times_s(log, t)).transpose()?;
+        let gyro = RawSensor::new(log, SensorKind::Gyro, k)?;
+        let accel = RawSensor::new(log, SensorKind::Accel, k)?;
         let mut pieces: Vec<(String, ImuRecording)> = Vec::new();
-        match (gyro, accel, gyro_t, accel_t) {
-            (Some(g), Some(a), Some(gt), Some(at)) if same_device(g, a, &gt, &at) => {
+        match (gyro, accel) {
+            (Some(g), Some(a))
+                if same_device(g.topic, a.topic, &g.t_s, &a.t_s)
+                    && g.frame_suffix() == a.frame_suffix() =>
+            {
                 let mut rec = imu_recording(true, true);
-                rec.t_s = gt;
-                raw_axes(log, g, &mut rec.gyro_rad_s)?;
-                raw_axes(log, a, &mut rec.accel_m_s2)?;
-                pieces.push((format!("imu{k}"), rec));
+                g.axes_into(log, &mut rec.gyro_rad_s)?;
+                a.axes_into(log, &mut rec.accel_m_s2)?;
+                rec.t_s = g.t_s;
+                pieces.push((format!("imu{k}{}", a.frame_suffix()), rec));
             }
-            (g, a, gt, at) => {
-                if let (Some(g), Some(gt)) = (g, gt) {
+            (g, a) => {
+                if let Some(g) = g {
                     let mut rec = imu_recording(true, false);
-                    rec.t_s = gt;
-                    raw_axes(log, g, &mut rec.gyro_rad_s)?;
-                    pieces.push((format!("gyro{k}"), rec));
+                    g.axes_into(log, &mut rec.gyro_rad_s)?;
+                    let name = format!("gyro{k}{}", g.frame_suffix());
+                    rec.t_s = g.t_s;
+                    pieces.push((name, rec));
                 }
-                if let (Some(a), Some(at)) = (a, at) {
+                if let Some(a) = a {
                     let mut rec = imu_recording(false, true);
-                    rec.t_s = at;
-                    raw_axes(log, a, &mut rec.accel_m_s2)?;
-                    pieces.push((format!("accel{k}"), rec));
+                    a.axes_into(log, &mut rec.accel_m_s2)?;
+                    let name = format!("accel{k}{}", a.frame_suffix());
+                    rec.t_s = a.t_s;
+                    pieces.push((name, rec));
                 }
             }
         }
@@ -290,11 +342,20 @@ fn gps_position(log: &ULog, gps: &Topic, i: usize) -> Result<[f64; 3], ImportErr
     Ok([lat_deg.to_radians(), lon_deg.to_radians(), h_m])
 }
 
+/// The GPS topic the reference reads: instance 0 of the first of [`GPS_TOPICS`] with samples
+/// (else of the first subscribed, which gives no fix).
+pub fn gps_topic(log: &ULog) -> Option<&Topic> {
+    let subscribed = || GPS_TOPICS.iter().filter_map(|name| log.topic(name, 0));
+    subscribed()
+        .find(|t| !t.is_empty())
+        .or_else(|| subscribed().next())
+}
+
 /// The reference recording: 3D GPS fixes with NED velocity and the interpolated
 /// `vehicle_attitude` (see the parent module's documentation). `None` when the log has no GPS
 /// fix inside the attitude's span.
 pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
-    let Some(gps) = log.topic("vehicle_gps_position", 0) else {
+    let Some(gps) = gps_topic(log) else {
         return Ok(None);
     };
     let att = read_attitude(log)?;
@@ -306,7 +367,7 @@ pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
     };
     let mut previous = None;
     for i in 0..gps.len() {
-        if log.required(gps, i, "fix_type")? < GPS_FIX_3D
+        if !GPS_FIXES_3D.contains(&log.required(gps, i, "fix_type")?)
             || gps.value(i, "vel_ned_valid") == Some(0.0)
         {
             continue;

@@ -155,6 +155,7 @@ impl<'a> Parser<'a> {
                 info: BTreeMap::new(),
                 multi_info: BTreeMap::new(),
                 parameters: BTreeMap::new(),
+                parameter_offsets: BTreeMap::new(),
                 default_parameters: Vec::new(),
                 logged: Vec::new(),
                 dropouts: Vec::new(),
@@ -242,7 +243,7 @@ impl<'a> Parser<'a> {
             b'F' => self.format(at, p),
             b'I' => self.info(p),
             b'M' => self.multi_info(p),
-            b'P' => self.parameter(p),
+            b'P' => self.parameter(at, p),
             b'Q' => self.default_parameter(p),
             b'A' => return self.subscribe(at, p),
             b'R' => self.unsubscribe(p),
@@ -354,9 +355,14 @@ impl<'a> Parser<'a> {
         Ok(())
     }
 
-    fn parameter(&mut self, p: &[u8]) -> Result<(), String> {
+    fn parameter(&mut self, at: At, p: &[u8]) -> Result<(), String> {
         let (decl, value) = split_key(p, 0)?;
         let value = parameter_value(&decl, value)?;
+        self.log
+            .parameter_offsets
+            .entry(decl.name.clone())
+            .or_default()
+            .push(at.offset as u64);
         self.log
             .parameters
             .entry(decl.name)

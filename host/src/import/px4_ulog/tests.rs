@@ -67,6 +67,14 @@ impl Log {
         let (k, p) = Self::key(b'I', &[], key, value);
         self.push(k, &p)
     }
+    fn param_i32(&mut self, name: &str, value: i32) -> usize {
+        let (k, p) = Self::key(b'P', &[], &format!("int32_t {name}"), &value.to_le_bytes());
+        self.push(k, &p)
+    }
+    fn param_f32(&mut self, name: &str, value: f32) -> usize {
+        let (k, p) = Self::key(b'P', &[], &format!("float {name}"), &value.to_le_bytes());
+        self.push(k, &p)
+    }
     fn add(&mut self, multi_id: u8, msg_id: u16, name: &str) -> usize {
         let mut p = vec![multi_id];
         p.extend(msg_id.to_le_bytes());
@@ -145,8 +153,7 @@ fn definitions() -> Log {
         log.format(f);
     }
     log.info("char[3] sys_name", b"PX4");
-    let (k, p) = Log::key(b'P', &[], "int32_t SENS_BOARD_ROT", &4i32.to_le_bytes());
-    log.push(k, &p);
+    log.param_i32("SENS_BOARD_ROT", 4);
     log.add(0, 0, "sensor_gyro");
     log.add(1, 1, "sensor_gyro");
     log.add(0, 2, "sensor_accel");
@@ -504,8 +511,13 @@ fn imu_instances_pair_gyro_and_accel_of_one_chip() {
         [21.0, 22.0, 23.0],
         "timestamp_sample, not timestamp"
     );
-    assert_eq!(imu0.channel("gx").unwrap()[2], f64::from(0.02f32));
-    assert_eq!(imu0.channel("az").unwrap()[1], f64::from(-8.7f32));
+    // SENS_BOARD_ROT 4 (yaw 180 deg): x and y change sign, z stays (to the 1e-16 of
+    // sin(pi) in the matrix).
+    let close = |a: f64, b: f32| assert!((a - f64::from(b)).abs() < 1e-15, "{a} vs {b}");
+    close(imu0.channel("gx").unwrap()[2], -0.02);
+    close(imu0.channel("gy").unwrap()[2], 0.02);
+    close(imu0.channel("ax").unwrap()[0], -0.68);
+    close(imu0.channel("az").unwrap()[1], -8.7);
     assert_eq!(imus[1].1.channels(), ["gx", "gy", "gz"]);
     assert_eq!(imus[2].1.channels(), ["ax", "ay", "az"]);
     assert_eq!(imus[2].1.t_s, [21.000007, 22.000007, 23.000007]);
@@ -605,4 +617,341 @@ fn detects_the_magic() {
     assert!(is_ulog(&sample_log()[..7]));
     assert!(!is_ulog(b"ULog\x01\x12"));
     assert!(!is_ulog(&[0xA3, 0x95, 0x80]));
+}
+
+/// Asserts two matrices agree to `tol` in every entry.
+fn assert_matrix(actual: &nalgebra::Matrix3<f64>, expected: [[f64; 3]; 3], tol: f64) {
+    for (r, row) in expected.iter().enumerate() {
+        for (c, e) in row.iter().enumerate() {
+            assert!(
+                (actual[(r, c)] - e).abs() < tol,
+                "({r}, {c}): {} vs {e}\n{actual}",
+                actual[(r, c)]
+            );
+        }
+    }
+}
+
+#[test]
+fn board_rotations_match_hand_computed_matrices() {
+    let m = |rot: i64| *board::rotation_matrix(rot).unwrap().matrix();
+    let h = std::f64::consts::FRAC_1_SQRT_2;
+    assert_matrix(
+        &m(0),
+        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+        1e-15,
+    );
+    // YAW_45: x_body = (x - y) / sqrt 2, y_body = (x + y) / sqrt 2.
+    assert_matrix(&m(1), [[h, -h, 0.0], [h, h, 0.0], [0.0, 0.0, 1.0]], 1e-15);
+    assert_matrix(
+        &m(4),
+        [[-1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, 1.0]],
+        1e-15,
+    );
+    assert_matrix(
+        &m(8),
+        [[1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [0.0, 0.0, -1.0]],
+        1e-15,
+    );
+    // ROLL_90: (x, y, z) -> (x, -z, y); ROLL_90_YAW_90: -> (z, x, y).
+    assert_matrix(
+        &m(16),
+        [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]],
+        1e-15,
+    );
+    assert_matrix(
+        &m(18),
+        [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]],
+        1e-15,
+    );
+    // PITCH_90: (x, y, z) -> (z, y, -x); ROLL_90_PITCH_180_YAW_90: -> (z, -x, -y).
+    assert_matrix(
+        &m(24),
+        [[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]],
+        1e-15,
+    );
+    assert_matrix(
+        &m(36),
+        [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]],
+        1e-15,
+    );
+    // ROLL_90_PITCH_68_YAW_293 and ROLL_90_PITCH_315 against the matrices PX4's
+    // `rotate_3f` writes out (6 digits; the second's 0.707107 is 1 / sqrt 2).
+    assert_matrix(
+        &m(38),
+        [
+            [0.146371, 0.362280, -0.920505],
+            [-0.344827, -0.853477, -0.390731],
+            [-0.927184, 0.374607, 0.0],
+        ],
+        2e-6,
+    );
+    assert_matrix(&m(40), [[h, -h, 0.0], [0.0, 0.0, -1.0], [h, h, 0.0]], 1e-15);
+    // Every value PX4 defines is a proper rotation; nothing past ROTATION_MAX or below 0.
+    for rot in 0..48 {
+        let r = m(rot);
+        assert!((r.determinant() - 1.0).abs() < 1e-12, "{rot}");
+        assert_matrix(
+            &(r.transpose() * r),
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]],
+            1e-12,
+        );
+    }
+    assert!(board::rotation_matrix(48).is_none());
+    assert!(board::rotation_matrix(-1).is_none());
+    // The level trim comes after the board rotation: a yaw trim adds to YAW_180.
+    let trimmed = board::level_adjustment([0.0, 0.0, 30.0]) * board::rotation_matrix(4).unwrap();
+    let c = 210f64.to_radians().cos();
+    let s = 210f64.to_radians().sin();
+    assert_matrix(
+        trimmed.matrix(),
+        [[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]],
+        1e-12,
+    );
+}
+
+/// A log with one gyro and one accelerometer (same chip, device id 0x25000a) reading
+/// (1, 2, 3) and (4, 5, 6), and the parameters `params` (int32 and float) before the data.
+fn board_log(ints: &[(&str, i32)], floats: &[(&str, f32)]) -> Vec<u8> {
+    let mut log = Log::new();
+    log.format(GYRO_FORMAT);
+    log.format(ACCEL_FORMAT);
+    for (name, v) in ints {
+        log.param_i32(name, *v);
+    }
+    for (name, v) in floats {
+        log.param_f32(name, *v);
+    }
+    log.add(0, 0, "sensor_gyro");
+    log.add(0, 1, "sensor_accel");
+    log.data(0, &raw_sample(false, 1_000, 0x25000a, [1.0, 2.0, 3.0]));
+    log.data(1, &raw_sample(true, 1_000, 0x25000a, [4.0, 5.0, 6.0]));
+    log.bytes
+}
+
+/// The single row of gyro and accelerometer of the one raw IMU of `bytes`, and its name.
+fn board_imu(bytes: &[u8]) -> (String, [f64; 3], [f64; 3]) {
+    let mut imus = read_sensor_imus(&parse(bytes).unwrap()).unwrap();
+    assert_eq!(imus.len(), 1);
+    let (name, rec) = imus.remove(0);
+    let g = ["gx", "gy", "gz"].map(|c| rec.channel(c).unwrap()[0]);
+    let a = ["ax", "ay", "az"].map(|c| rec.channel(c).unwrap()[0]);
+    (name, g, a)
+}
+
+#[test]
+fn raw_imus_turn_into_the_body_frame_with_board_rotation_trims_and_external_rotation() {
+    let close = |a: [f64; 3], b: [f64; 3]| {
+        assert!((0..3).all(|i| (a[i] - b[i]).abs() < 1e-6), "{a:?} vs {b:?}")
+    };
+    // GIVEN ROLL_90_YAW_90 ((x, y, z) -> (z, x, y)) and a 2 deg roll trim
+    // WHEN the raw IMU is read THEN it is (z, x cos 2 - y sin 2, x sin 2 + y cos 2).
+    let bytes = board_log(&[("SENS_BOARD_ROT", 18)], &[("SENS_BOARD_X_OFF", 2.0)]);
+    let (name, g, a) = board_imu(&bytes);
+    assert_eq!(name, "imu0");
+    let (c, s) = (2f64.to_radians().cos(), 2f64.to_radians().sin());
+    close(g, [3.0, c - 2.0 * s, s + 2.0 * c]);
+    close(a, [6.0, 4.0 * c - 5.0 * s, 4.0 * s + 5.0 * c]);
+    let to_body = sensor_to_body(
+        &parse(&bytes).unwrap(),
+        SensorKind::Gyro,
+        Some(0x25000a as f64),
+    )
+    .unwrap()
+    .unwrap();
+    assert_eq!(
+        (to_body.rotation, to_body.rotation_parameter.as_str()),
+        (18, "SENS_BOARD_ROT")
+    );
+    assert_eq!(to_body.level_offsets_deg, [2.0, 0.0, 0.0]);
+
+    // GIVEN the accelerometer's calibration slot marks it external with YAW_90
+    // (CAL_ACC1_ROT 2; internal sensors have -1) THEN it uses that, the gyro the board's.
+    let bytes = board_log(
+        &[
+            ("SENS_BOARD_ROT", 4),
+            ("CAL_ACC0_ID", 0x111),
+            ("CAL_ACC0_ROT", -1),
+            ("CAL_ACC1_ID", 0x25000a),
+            ("CAL_ACC1_ROT", 2),
+            ("CAL_GYRO0_ID", 0x25000a),
+            ("CAL_GYRO0_ROT", -1),
+        ],
+        &[],
+    );
+    let (_, g, a) = board_imu(&bytes);
+    close(g, [-1.0, -2.0, 3.0]);
+    close(a, [-5.0, 4.0, 6.0]);
+
+    // GIVEN no SENS_BOARD_ROT THEN the data stay in the sensor's axes, and the name says so.
+    let (name, g, a) = board_imu(&board_log(&[], &[("SENS_BOARD_Z_OFF", 5.0)]));
+    assert_eq!(name, format!("imu0{BOARD_FRAME_SUFFIX}"));
+    assert_eq!((g, a), ([1.0, 2.0, 3.0], [4.0, 5.0, 6.0]));
+}
+
+#[test]
+fn an_unknown_or_changing_board_rotation_is_an_error_naming_its_parameter() {
+    let mut log = Log::new();
+    log.format(GYRO_FORMAT);
+    let at = log.param_i32("SENS_BOARD_ROT", 48);
+    log.add(0, 0, "sensor_gyro");
+    log.data(0, &raw_sample(false, 1_000, 7, [0.0; 3]));
+    let msg = read_sensor_imus(&parse(&log.bytes).unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains(&format!("byte offset {at}: parameter SENS_BOARD_ROT is 48, not a rotation PX4 defines (0 to 47)")),
+        "{msg}"
+    );
+
+    let mut log = Log::new();
+    log.format(GYRO_FORMAT);
+    log.param_i32("SENS_BOARD_ROT", 4);
+    log.add(0, 0, "sensor_gyro");
+    log.data(0, &raw_sample(false, 1_000, 7, [0.0; 3]));
+    let at = log.param_i32("SENS_BOARD_ROT", 0);
+    let msg = read_sensor_imus(&parse(&log.bytes).unwrap())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        msg.contains(&format!(
+            "byte offset {at}: parameter SENS_BOARD_ROT changes from 4 to 0 during the log"
+        )),
+        "{msg}"
+    );
+}
+
+/// The GPS format of PX4 v1.14 (`msg/SensorGps.msg`, fields in the logger's order by size)
+/// under topic name `name`: doubles for position, metres for heights.
+fn gps_v114_format(name: &str) -> String {
+    format!(
+        "{name}:uint64_t timestamp;uint64_t timestamp_sample;double latitude_deg;\
+         double longitude_deg;double altitude_msl_m;double altitude_ellipsoid_m;\
+         float s_variance_m_s;float c_variance_rad;float eph;float epv;float hdop;float vdop;\
+         int32_t noise_per_ms;int32_t jamming_indicator;float vel_m_s;float vel_n_m_s;\
+         float vel_e_m_s;float vel_d_m_s;float cog_rad;int32_t timestamp_time_relative;\
+         float heading;float heading_offset;float heading_accuracy;uint32_t device_id;\
+         uint16_t automatic_gain_control;uint8_t fix_type;uint8_t jamming_state;\
+         bool vel_ned_valid;uint8_t satellites_used;uint8_t[2] _padding0;"
+    )
+}
+
+/// A v1.14 GPS payload (trailing padding left out).
+fn gps_v114_sample(
+    t_us: u64,
+    fix_type: u8,
+    lat_lon_deg: [f64; 2],
+    h_m: f64,
+    vel: [f32; 3],
+) -> Vec<u8> {
+    let mut p = le!(
+        t_us,
+        t_us - 80_000,
+        lat_lon_deg[0],
+        lat_lon_deg[1],
+        h_m - 40.1,
+        h_m
+    );
+    p.extend(le!(
+        0.3f32, 0.1f32, 0.9f32, 1.4f32, 0.8f32, 1.1f32, 90i32, 40i32
+    ));
+    p.extend(le!(
+        0.28f32,
+        vel[0],
+        vel[1],
+        vel[2],
+        1.2f32,
+        0i32,
+        f32::NAN,
+        f32::NAN,
+        0.0f32
+    ));
+    p.extend(le!(0x0a0001u32, 1200u16));
+    p.extend([fix_type, 1, 1, 17]);
+    p
+}
+
+/// One GPS fix: time µs, `fix_type`, latitude and longitude deg, ellipsoidal height m, NED
+/// velocity m/s.
+type GpsFix = (u64, u8, [f64; 2], f64, [f32; 3]);
+
+/// A log with `vehicle_attitude` around t = 20.4-20.5 s and the given GPS topics: each name
+/// with its fixes (t_us, fix_type, lat/lon deg, ellipsoidal height m, NED velocity).
+fn gps_v114_log(topics: &[(&str, &[GpsFix])]) -> Vec<u8> {
+    let mut log = Log::new();
+    log.format(ATTITUDE_FORMAT);
+    log.add(0, 0, "vehicle_attitude");
+    for (k, (name, _)) in topics.iter().enumerate() {
+        log.format(&gps_v114_format(name));
+        log.add(0, 1 + k as u16, name);
+    }
+    let q = UnitQuaternion::from_euler_angles(0.02, -0.01, 0.3);
+    log.data(0, &attitude_sample(20_400_000, q));
+    log.data(0, &attitude_sample(20_500_000, q));
+    for (k, (_, fixes)) in topics.iter().enumerate() {
+        for &(t_us, fix, ll, h, v) in fixes.iter() {
+            log.data(1 + k as u16, &gps_v114_sample(t_us, fix, ll, h, v));
+        }
+    }
+    log.bytes
+}
+
+#[test]
+fn reference_reads_px4_v1_14_sensor_gps_in_float_degrees_and_metres() {
+    // GIVEN only `sensor_gps` (v1.14 names, double degrees), a 3D fix, an extrapolated one
+    // (fix_type 8) and an RTK fixed one (6).
+    let lat_deg = 63.417_062_212_345_67;
+    let lon_deg = -10.408_215_198_765_43;
+    let fixes = [
+        (
+            20_420_000,
+            3,
+            [lat_deg, lon_deg],
+            106.766,
+            [0.05f32, -0.13, 0.24],
+        ),
+        (20_440_000, 8, [lat_deg + 1e-4, lon_deg], 107.0, [0.0; 3]),
+        (
+            20_460_000,
+            6,
+            [lat_deg, lon_deg + 2e-7],
+            106.5,
+            [1.5, 0.0, -0.25],
+        ),
+    ];
+    let bytes = gps_v114_log(&[("sensor_gps", &fixes)]);
+    let ulog = parse(&bytes).unwrap();
+    assert_eq!(gps_topic(&ulog).unwrap().name, "sensor_gps");
+    // WHEN the reference is read THEN it holds the measured fixes, in rad, m and m/s.
+    let rec = read_reference(&ulog).unwrap().unwrap();
+    assert_eq!(rec.t_s, [20.42, 20.46]);
+    let p = rec.position.as_ref().unwrap();
+    // 63.41706221234567 deg = 1.106836... rad, to the last bits of the double.
+    assert!((p[0][0] - lat_deg * std::f64::consts::PI / 180.0).abs() < 1e-15);
+    assert!((p[1][0] - (-0.181657_f64)).abs() < 1e-6, "{}", p[1][0]);
+    assert!((p[1][1] - (lon_deg + 2e-7).to_radians()).abs() < 1e-15);
+    assert_eq!([p[2][0], p[2][1]], [106.766, 106.5], "ellipsoidal, not MSL");
+    let v = rec.velocity_ned_m_s.as_ref().unwrap();
+    assert_eq!(
+        [v[0][0], v[1][0], v[2][0]],
+        [0.05f32, -0.13, 0.24].map(f64::from)
+    );
+    assert_eq!([v[0][1], v[1][1], v[2][1]], [1.5, 0.0, -0.25]);
+    let att = rec.attitude_rad.as_ref().unwrap();
+    assert!((att[2][1] - 0.3).abs() < 1e-6);
+}
+
+#[test]
+fn reference_prefers_vehicle_gps_position_over_sensor_gps() {
+    let fix = |lat: f64| [(20_450_000u64, 3u8, [lat, 10.0], 100.0, [0.0f32; 3])];
+    // Both logged: the vehicle topic (the receiver PX4 selects) wins.
+    let vehicle = fix(45.0);
+    let sensor = fix(46.0);
+    let bytes = gps_v114_log(&[("sensor_gps", &sensor), ("vehicle_gps_position", &vehicle)]);
+    let rec = read_reference(&parse(&bytes).unwrap()).unwrap().unwrap();
+    assert_eq!(rec.position.as_ref().unwrap()[0], [45f64.to_radians()]);
+    // Subscribed but never logged: sensor_gps instead.
+    let bytes = gps_v114_log(&[("vehicle_gps_position", &[]), ("sensor_gps", &sensor)]);
+    let rec = read_reference(&parse(&bytes).unwrap()).unwrap().unwrap();
+    assert_eq!(rec.position.as_ref().unwrap()[0], [46f64.to_radians()]);
 }
