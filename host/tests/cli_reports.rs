@@ -71,7 +71,7 @@ fn each_commands_report_renders_in_a_browser_with_every_figure() {
         "--report",
         path(&report("fit")),
     ]);
-    dynacal(&[
+    let redundancy = dynacal(&[
         "redundancy",
         path(&unit(1)),
         path(&unit(2)),
@@ -81,7 +81,7 @@ fn each_commands_report_renders_in_a_browser_with_every_figure() {
         "--report",
         path(&report("redundancy")),
     ]);
-    dynacal(&[
+    let diagnose = dynacal(&[
         "diagnose",
         "--sensor",
         path(&unit(1)),
@@ -92,8 +92,13 @@ fn each_commands_report_renders_in_a_browser_with_every_figure() {
         "--report",
         path(&report("diagnose")),
     ]);
-    // The last line of `wv` and `fit` says what they wrote where.
-    for (out, name) in [(&wv, "wv"), (&fit, "fit")] {
+    // The last line of each says what it wrote where.
+    for (out, name) in [
+        (&wv, "wv"),
+        (&fit, "fit"),
+        (&redundancy, "redundancy"),
+        (&diagnose, "diagnose"),
+    ] {
         let last = out.lines().last().unwrap();
         assert!(
             last.starts_with("wrote ") && last.contains(&format!("{name}/report.html")),

@@ -54,7 +54,13 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         Some(target_dir) => build_replay_firmware(target_dir)?,
         None => replay_firmware_elf(scratch.path(), &workspace_root().join(FIRMWARE_TARGET_DIR))?,
     };
-    let run = run_replay_in_qemu(&elf, &args.input, &args.out, args.model.as_deref())?;
+    let bar = super::working(&format!(
+        "running {} on the board in QEMU",
+        args.input.display()
+    ));
+    let run = run_replay_in_qemu(&elf, &args.input, &args.out, args.model.as_deref());
+    bar.finish_and_clear();
+    let run = run?;
     for line in run.stderr.lines().filter(|l| l.contains("board model")) {
         println!("  {line}");
     }
@@ -105,5 +111,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             100.0 * steady / CORE_HZ
         );
     }
+    super::wrote(&[args.out.as_path()]);
     Ok(())
 }

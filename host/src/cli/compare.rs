@@ -66,5 +66,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     });
     dynacal::output::write_json_atomic(&args.json, &out)
         .with_context(|| format!("writing {}", args.json.display()))?;
+    super::wrote(&[args.json.as_path()]);
     Ok(())
 }

@@ -66,19 +66,28 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         alpha: args.alpha,
         ..Default::default()
     };
+    let bar = super::working(&format!(
+        "diagnosing {} ({} simulations per channel)",
+        args.sensor.display(),
+        args.replicates
+    ));
     let report = diagnose(&sensor, reference.as_ref(), baseline, &opts)
-        .with_context(|| format!("diagnosing {}", args.sensor.display()))?;
+        .with_context(|| format!("diagnosing {}", args.sensor.display()));
+    bar.finish_and_clear();
+    let report = report?;
+    let html = args
+        .report
+        .as_ref()
+        .map(|d| d.join(dynacal::report::REPORT_HTML));
     if let Some(dir) = &args.report {
-        let files = report::write_report(dir, &report)
+        report::write_report(dir, &report)
             .with_context(|| format!("writing the report into {}", dir.display()))?;
-        eprintln!(
-            "wrote the report ({} files: report.md, plots, extended model) into {}",
-            files.len(),
-            dir.display()
-        );
     }
     dynacal::output::write_json_atomic(&args.json, &report)
         .with_context(|| format!("writing {}", args.json.display()))?;
     print!("{}", report::markdown(&report, &report::Figures::default()));
+    let mut written = vec![args.json.as_path()];
+    written.extend(html.as_deref());
+    super::wrote(&written);
     Ok(())
 }

@@ -91,6 +91,8 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         }
     }
     println!();
-    println!("wrote {}", args.out.display());
+    let mut written = vec![args.out.as_path()];
+    written.extend(args.json.as_deref());
+    super::wrote(&written);
     Ok(())
 }

@@ -51,7 +51,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         replicates: args.bootstrap,
         seed: args.seed,
     });
-    let fits = fit_file(&args.file, &args.input, &choice, bootstrap)?;
+    let bar = super::working(&format!("fitting {}", args.file.display()));
+    let fits = fit_file(&args.file, &args.input, &choice, bootstrap);
+    bar.finish_and_clear();
+    let fits = fits?;
     for f in &fits {
         println!(
             "{}: {} objective {:.4e}, {} in {} iterations ({:?}), J-test p = {}",
@@ -98,17 +101,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     dynacal::output::write_json_atomic(&args.json, &model)
         .with_context(|| format!("writing {}", args.json.display()))?;
-    match (&args.report, &page) {
-        (Some(dir), Some(page)) => {
-            dynacal::report::write_html(dir, page)
-                .with_context(|| format!("writing the report into {}", dir.display()))?;
-            println!(
-                "wrote {} and {}",
-                args.json.display(),
-                dir.join(dynacal::report::REPORT_HTML).display()
-            );
-        }
-        _ => println!("wrote {}", args.json.display()),
+    let html = args
+        .report
+        .as_ref()
+        .map(|d| d.join(dynacal::report::REPORT_HTML));
+    if let (Some(dir), Some(page)) = (&args.report, &page) {
+        dynacal::report::write_html(dir, page)
+            .with_context(|| format!("writing the report into {}", dir.display()))?;
     }
+    let mut written = vec![args.json.as_path()];
+    written.extend(html.as_deref());
+    super::wrote(&written);
     Ok(())
 }

@@ -30,5 +30,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     for s in &report.skipped {
         println!("skipped {} (not a dataset)", s.display());
     }
+    println!(
+        "wrote {} interchange files to {}",
+        report.written.len(),
+        args.out.display()
+    );
     Ok(())
 }

@@ -67,6 +67,28 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// A spinner with `message` and the elapsed time on stderr while long work runs (hidden when
+/// stderr is not a terminal); finish it with `finish_and_clear`.
+pub(crate) fn working(message: &str) -> indicatif::ProgressBar {
+    let bar = indicatif::ProgressBar::new_spinner();
+    if let Ok(style) = indicatif::ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
+        bar.set_style(style);
+    }
+    bar.set_message(message.to_string());
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
+}
+
+/// The last line of a command: what it wrote where.
+pub(crate) fn wrote(paths: &[&std::path::Path]) {
+    let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+    match names.split_last() {
+        Some((last, [])) => println!("wrote {last}"),
+        Some((last, rest)) => println!("wrote {} and {last}", rest.join(", ")),
+        None => {}
+    }
+}
+
 mod board;
 mod compare;
 mod decode;

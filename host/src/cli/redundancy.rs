@@ -89,7 +89,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ranges: [args.gyro_range_rad_s, args.accel_range_m_s2],
         ..Default::default()
     };
-    let report = redundancy(&units, &opts).context("the redundancy analysis")?;
+    let bar = super::working(&format!("analysing {} units", units.len()));
+    let report = redundancy(&units, &opts).context("the redundancy analysis");
+    bar.finish_and_clear();
+    let report = report?;
     for (unit, level) in report.imus.iter().zip(&report.noise_level) {
         let s = |c: &str| unit.white_noise_sigma2[c].sqrt();
         eprintln!(
@@ -137,5 +140,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .with_context(|| format!("writing the report into {}", dir.display()))?;
     }
     dynacal::output::write_json_atomic(&args.json, &report)
-        .with_context(|| format!("writing {}", args.json.display()))
+        .with_context(|| format!("writing {}", args.json.display()))?;
+    let html = args
+        .report
+        .as_ref()
+        .map(|d| d.join(dynacal::report::REPORT_HTML));
+    let mut written = vec![args.json.as_path()];
+    written.extend(args.fused.as_deref());
+    written.extend(html.as_deref());
+    super::wrote(&written);
+    Ok(())
 }

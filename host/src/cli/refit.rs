@@ -46,7 +46,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             seed: args.seed,
         }),
     };
-    let result = refit(&log, &options).with_context(|| format!("{}", args.log.display()))?;
+    let bar = super::working(&format!("refitting {}", args.log.display()));
+    let result = refit(&log, &options).with_context(|| format!("{}", args.log.display()));
+    bar.finish_and_clear();
+    let result = result?;
     let mut blob = [0u8; MAX_BOARD_MODEL_LEN];
     let len = result
         .board_model

@@ -67,6 +67,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             .collect::<anyhow::Result<_>>()?;
         dynacal::output::write_json_atomic(out, &map)
             .with_context(|| format!("writing {}", out.display()))?;
+        super::wrote(&[out.as_path()]);
     }
     Ok(())
 }

@@ -103,17 +103,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             wv.scales_s.last().copied().unwrap_or(0.0)
         );
     }
-    match (&args.report, &page) {
-        (Some(dir), Some(page)) => {
-            dynacal::report::write_html(dir, page)
-                .with_context(|| format!("writing the report into {}", dir.display()))?;
-            println!(
-                "wrote {} and {}",
-                args.json.display(),
-                dir.join(dynacal::report::REPORT_HTML).display()
-            );
-        }
-        _ => println!("wrote {}", args.json.display()),
+    let html = args
+        .report
+        .as_ref()
+        .map(|d| d.join(dynacal::report::REPORT_HTML));
+    if let (Some(dir), Some(page)) = (&args.report, &page) {
+        dynacal::report::write_html(dir, page)
+            .with_context(|| format!("writing the report into {}", dir.display()))?;
     }
+    let mut written = vec![args.json.as_path()];
+    written.extend(html.as_deref());
+    super::wrote(&written);
     Ok(())
 }
