@@ -94,3 +94,49 @@ fn the_demo_finds_the_hidden_effect_and_its_report_renders_in_a_browser() {
         rendered.figures, rendered.figure_ink
     );
 }
+
+/// Measurement tool (BENCHMARKS.md, "The mission demo"): the default demo on fresh seeds,
+/// how often the hidden effect is named and how long a run takes.
+/// `cargo test -p dynacal --test cli_demo -- --ignored over_seeds --nocapture`
+/// (`DYNACAL_DEMO_SEEDS=first,count`, default 101,10).
+#[test]
+#[ignore = "a measurement: ten default demos, about six minutes"]
+fn over_seeds() {
+    if !qemu_or_skip() {
+        return;
+    }
+    let (first, count) = std::env::var("DYNACAL_DEMO_SEEDS")
+        .ok()
+        .and_then(|v| {
+            let (a, b) = v.split_once(',')?;
+            Some((a.parse::<u64>().ok()?, b.parse::<u64>().ok()?))
+        })
+        .unwrap_or((101, 10));
+    let mut found = 0;
+    for seed in first..first + count {
+        let dir = tempfile::tempdir().unwrap();
+        let started = std::time::Instant::now();
+        let out = Command::new(env!("CARGO_BIN_EXE_dynacal"))
+            .args(["demo", "--seed", &seed.to_string(), "--report"])
+            .arg(dir.path().join("demo"))
+            .output()
+            .unwrap();
+        let stdout = String::from_utf8_lossy(&out.stdout);
+        assert!(out.status.success(), "seed {seed}: {stdout}");
+        let verdict = stdout
+            .lines()
+            .find(|l| l.starts_with("hidden: "))
+            .unwrap_or("")
+            .to_string();
+        found += usize::from(verdict.ends_with("found: yes"));
+        let board = stdout
+            .lines()
+            .find(|l| l.contains("Board (QEMU"))
+            .unwrap_or("");
+        println!(
+            "seed {seed} ({:.0} s): {verdict}\n  {board}",
+            started.elapsed().as_secs_f64()
+        );
+    }
+    println!("found {found} of {count}");
+}

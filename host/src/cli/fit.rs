@@ -3,8 +3,6 @@
 
 use std::path::PathBuf;
 
-use anyhow::Context;
-
 use dynacal::gmwm::inference::{BootstrapOptions, ModelChoice};
 use dynacal::gmwm::model::Structure;
 use dynacal::input::InputArgs;
@@ -99,18 +97,5 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ),
         None => None,
     };
-    dynacal::output::write_json_atomic(&args.json, &model)
-        .with_context(|| format!("writing {}", args.json.display()))?;
-    let html = args
-        .report
-        .as_ref()
-        .map(|d| d.join(dynacal::report::REPORT_HTML));
-    if let (Some(dir), Some(page)) = (&args.report, &page) {
-        dynacal::report::write_html(dir, page)
-            .with_context(|| format!("writing the report into {}", dir.display()))?;
-    }
-    let mut written = vec![args.json.as_path()];
-    written.extend(html.as_deref());
-    super::wrote(&written);
-    Ok(())
+    super::write_json_and_report(&args.json, &model, args.report.as_deref(), page.as_ref())
 }

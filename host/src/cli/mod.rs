@@ -89,6 +89,29 @@ pub(crate) fn wrote(paths: &[&std::path::Path]) {
     }
 }
 
+/// Writes `json` (the command's JSON output) and, when `report_dir` is given, the HTML
+/// report `page` drew into it, then says what was written where. The page is drawn by the
+/// caller before anything is written, so a failure to draw leaves no output behind.
+pub(crate) fn write_json_and_report<T: serde::Serialize>(
+    json: &std::path::Path,
+    value: &T,
+    report_dir: Option<&std::path::Path>,
+    page: Option<&dynacal::report::HtmlReport>,
+) -> anyhow::Result<()> {
+    use anyhow::Context as _;
+    dynacal::output::write_json_atomic(json, value)
+        .with_context(|| format!("writing {}", json.display()))?;
+    let mut written = vec![json.to_path_buf()];
+    if let (Some(dir), Some(page)) = (report_dir, page) {
+        dynacal::report::write_html(dir, page)
+            .with_context(|| format!("writing the report into {}", dir.display()))?;
+        written.push(dir.join(dynacal::report::REPORT_HTML));
+    }
+    let paths: Vec<&std::path::Path> = written.iter().map(|p| p.as_path()).collect();
+    wrote(&paths);
+    Ok(())
+}
+
 mod board;
 mod compare;
 mod decode;

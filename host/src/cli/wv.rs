@@ -92,8 +92,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ),
         None => None,
     };
-    dynacal::output::write_json_atomic(&args.json, &report)
-        .with_context(|| format!("writing {}", args.json.display()))?;
     for (name, wv) in &report.channels {
         println!(
             "{name}: N = {}, {} levels, scales {:.4} .. {:.1} s",
@@ -103,16 +101,5 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             wv.scales_s.last().copied().unwrap_or(0.0)
         );
     }
-    let html = args
-        .report
-        .as_ref()
-        .map(|d| d.join(dynacal::report::REPORT_HTML));
-    if let (Some(dir), Some(page)) = (&args.report, &page) {
-        dynacal::report::write_html(dir, page)
-            .with_context(|| format!("writing the report into {}", dir.display()))?;
-    }
-    let mut written = vec![args.json.as_path()];
-    written.extend(html.as_deref());
-    super::wrote(&written);
-    Ok(())
+    super::write_json_and_report(&args.json, &report, args.report.as_deref(), page.as_ref())
 }

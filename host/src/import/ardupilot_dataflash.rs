@@ -481,21 +481,6 @@ fn read_attitude(log: &DataFlashLog) -> Result<Vec<(f64, UnitQuaternion<f64>)>, 
     Ok(out)
 }
 
-/// The attitude at `t` by slerp between the `ATT` samples around it, if they are at most
-/// [`MAX_ATT_GAP_S`] apart.
-fn attitude_at(att: &[(f64, UnitQuaternion<f64>)], t: f64) -> Option<UnitQuaternion<f64>> {
-    let after = att.partition_point(|s| s.0 < t);
-    let (t1, q1) = att.get(after)?;
-    if *t1 == t {
-        return Some(*q1);
-    }
-    let (t0, q0) = att.get(after.checked_sub(1)?)?;
-    if t1 - t0 > MAX_ATT_GAP_S {
-        return None;
-    }
-    Some(q0.slerp(q1, (t - t0) / (t1 - t0)))
-}
-
 /// The reference recording: GPS 3D fixes with NED velocity and the interpolated `ATT`
 /// attitude (see the module docs). `None` when the log has no `ATT` or no fix inside it.
 pub fn read_reference(log: &DataFlashLog) -> Result<Option<ImuRecording>, ImportError> {
@@ -515,7 +500,7 @@ pub fn read_reference(log: &DataFlashLog) -> Result<Option<ImuRecording>, Import
         let t = log.time_s(m, &GPS_BOOT_CLOCK)?;
         check_after(log, m, t, previous, "GPS fix")?;
         previous = Some(t);
-        let Some(q) = attitude_at(&att, t) else {
+        let Some(q) = crate::import::frames::attitude_at(&att, t, MAX_ATT_GAP_S) else {
             continue;
         };
         let (roll, pitch, yaw) = q.euler_angles();

@@ -7,8 +7,11 @@
 //! third (`ned = P enu`, `frd = P rfu`). `P` is its own inverse and a proper rotation
 //! (det +1: 180 degrees about (1, 1, 0)/sqrt 2), so rotation matrices convert by
 //! `C_frd^ned = P C_rfu^enu P`.
+//!
+//! Also the attitude between two logged samples ([`attitude_at`]), which the flight-log
+//! importers interpolate to their GPS fixes.
 
-use nalgebra::{Matrix3, Rotation3, Vector3};
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 
 /// The axis permutation `P` shared by ENU -> NED and RFU -> FRD (see the module docs).
 pub fn enu_ned_permutation() -> Matrix3<f64> {
@@ -56,6 +59,25 @@ pub fn euler_zyx_from_c_b_to_n(c_b_n: &Matrix3<f64>) -> [f64; 3] {
 /// computed through the rotation matrices so the derivation is the code.
 pub fn psins_attitude_to_ned(pitch_rad: f64, roll_rad: f64, yaw_rad: f64) -> [f64; 3] {
     euler_zyx_from_c_b_to_n(&psins_c_frd_to_ned(pitch_rad, roll_rad, yaw_rad))
+}
+
+/// The attitude (body to NED) at `t_s` by slerp between the samples `(t_s, q)` around it
+/// (sorted by time), if they are at most `max_gap_s` apart; a sample at `t_s` itself as is.
+pub(crate) fn attitude_at(
+    att: &[(f64, UnitQuaternion<f64>)],
+    t_s: f64,
+    max_gap_s: f64,
+) -> Option<UnitQuaternion<f64>> {
+    let after = att.partition_point(|s| s.0 < t_s);
+    let (t1, q1) = att.get(after)?;
+    if *t1 == t_s {
+        return Some(*q1);
+    }
+    let (t0, q0) = att.get(after.checked_sub(1)?)?;
+    if t1 - t0 > max_gap_s {
+        return None;
+    }
+    Some(q0.slerp(q1, (t_s - t0) / (t1 - t0)))
 }
 
 #[cfg(test)]

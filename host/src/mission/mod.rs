@@ -174,8 +174,9 @@ fn run_sim(
 }
 
 /// The baseline a user fits: `dynacal fit --model auto` on the static recording written as
-/// an interchange file, its model file written and read back as `diagnose --baseline` reads.
-fn fit_baseline(static_record: &ImuRecording, dir: &Path) -> Result<Baseline, MissionError> {
+/// an interchange file (`dir/static-mems0.csv`), its model file (`dir/baseline.json`)
+/// written and read back as `diagnose --baseline` reads it.
+pub fn fit_baseline(static_record: &ImuRecording, dir: &Path) -> Result<Baseline, MissionError> {
     let csv = dir.join("static-mems0.csv");
     static_record
         .write(&csv)

@@ -260,7 +260,7 @@ fn psins_sections(p: &Parts<'_>) -> Result<Vec<Section>, MissionError> {
 pub fn report(p: &Parts<'_>) -> Result<HtmlReport, MissionError> {
     let mut summary: Vec<String> = crate::diagnose::html::summary(p.diagnosis)
         .into_iter()
-        .map(|l| format!("mems0 {l}"))
+        .map(|l| format!("mems0: {l}"))
         .collect();
     summary.extend(crate::redundancy::report::html_summary(p.redundant));
     summary.push(board_summary(p.board));
@@ -268,7 +268,7 @@ pub fn report(p: &Parts<'_>) -> Result<HtmlReport, MissionError> {
         summary.extend(
             crate::diagnose::html::summary(&part.diagnosis)
                 .into_iter()
-                .map(|l| format!("PSINS MEMS {l}")),
+                .map(|l| format!("PSINS MEMS: {l}")),
         );
     }
     summary.push(verdict(p.hidden, p.named));

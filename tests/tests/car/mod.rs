@@ -7,11 +7,8 @@
 #![allow(dead_code)]
 
 use dynacal::diagnose::engine::{diagnose, Baseline, DiagnoseOptions, DiagnoseReport, Finding};
-use dynacal::gmwm::inference::ModelChoice;
-use dynacal::input::InputArgs;
 use dynacal::interchange::ImuRecording;
 use dynacal::model::Cause;
-use dynacal::model::{fit_file, fitted_model};
 use dynacal::sim::SimOptions;
 use dynacal::sim::{simulate, Scenario, SimModel, SimOutput};
 
@@ -37,13 +34,7 @@ pub fn fitted_baseline(seed: u64, seconds: f64) -> Baseline {
 /// file written and read back as `dynacal diagnose --baseline` reads it.
 pub fn baseline_fitted_on(static_record: &ImuRecording) -> Baseline {
     let dir = tempfile::tempdir().unwrap();
-    let csv = dir.path().join("static-mems.csv");
-    static_record.write(&csv).unwrap();
-    let fits = fit_file(&csv, &InputArgs::default(), &ModelChoice::Auto, None).unwrap();
-    let (file, _) = fitted_model(&csv, "auto", &fits).unwrap();
-    let path = dir.path().join("baseline.json");
-    std::fs::write(&path, serde_json::to_string(&file).unwrap()).unwrap();
-    Baseline::load(&path).unwrap()
+    dynacal::mission::fit_baseline(static_record, dir.path()).unwrap()
 }
 
 /// `model` simulated in `scenario` for `seconds` from `seed`, every effect on.

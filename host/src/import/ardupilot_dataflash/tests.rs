@@ -204,10 +204,18 @@ fn reference_has_fixes_with_ned_velocity_and_interpolated_attitude() {
 fn yaw_interpolates_across_north() {
     let q = |yaw_deg: f64| UnitQuaternion::from_euler_angles(0.0, 0.0, yaw_deg.to_radians());
     let att = [(1.0, q(350.0)), (1.1, q(10.0)), (2.0, q(20.0))];
-    let (_, _, yaw) = attitude_at(&att, 1.05).unwrap().euler_angles();
+    let (_, _, yaw) = crate::import::frames::attitude_at(&att, 1.05, MAX_ATT_GAP_S)
+        .unwrap()
+        .euler_angles();
     assert!(yaw.to_degrees().abs() < 1e-9, "{}", yaw.to_degrees());
-    assert!(attitude_at(&att, 1.5).is_none(), "ATT samples 0.9 s apart");
-    assert!(attitude_at(&att, 0.5).is_none() && attitude_at(&att, 2.5).is_none());
+    assert!(
+        crate::import::frames::attitude_at(&att, 1.5, MAX_ATT_GAP_S).is_none(),
+        "ATT samples 0.9 s apart"
+    );
+    assert!(
+        crate::import::frames::attitude_at(&att, 0.5, MAX_ATT_GAP_S).is_none()
+            && crate::import::frames::attitude_at(&att, 2.5, MAX_ATT_GAP_S).is_none()
+    );
 }
 
 #[test]

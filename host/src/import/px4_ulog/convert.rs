@@ -298,21 +298,6 @@ fn read_attitude(log: &ULog) -> Result<Vec<(f64, UnitQuaternion<f64>)>, ImportEr
     Ok(out)
 }
 
-/// The attitude at `t` by slerp between the samples around it, if they are at most
-/// [`MAX_ATTITUDE_GAP_S`] apart.
-fn attitude_at(att: &[(f64, UnitQuaternion<f64>)], t: f64) -> Option<UnitQuaternion<f64>> {
-    let after = att.partition_point(|s| s.0 < t);
-    let (t1, q1) = att.get(after)?;
-    if *t1 == t {
-        return Some(*q1);
-    }
-    let (t0, q0) = att.get(after.checked_sub(1)?)?;
-    if t1 - t0 > MAX_ATTITUDE_GAP_S {
-        return None;
-    }
-    Some(q0.slerp(q1, (t - t0) / (t1 - t0)))
-}
-
 /// Latitude, longitude (rad) and ellipsoidal height (m) of GPS sample `i`, from the
 /// integer fields (1e-7 deg, mm) or the newer float ones (deg, m).
 fn gps_position(log: &ULog, gps: &Topic, i: usize) -> Result<[f64; 3], ImportError> {
@@ -374,7 +359,7 @@ pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
         }
         let t = log.time_s(gps, i, "timestamp", previous)?;
         previous = Some(t);
-        let Some(q) = attitude_at(&att, t) else {
+        let Some(q) = crate::import::frames::attitude_at(&att, t, MAX_ATTITUDE_GAP_S) else {
             continue;
         };
         let (roll, pitch, yaw) = q.euler_angles();
