@@ -1,5 +1,5 @@
 //! The HTML reports as a user meets them, chained from `dynacal simulate` (three MEMS units
-//! beside the reference on a 120 s drive): `wv`, `fit`, `redundancy` and `diagnose` each
+//! beside the reference on a 60 s drive): `wv`, `fit`, `redundancy` and `diagnose` each
 //! with `--report DIR`, every report.html rendered by a real headless browser with all its
 //! figures drawn and nothing on its console, and each command ending with one line saying
 //! what it wrote where.
@@ -37,7 +37,7 @@ fn simulate(dir: &Path) -> PathBuf {
         "--model",
         path(&model),
         "--seconds",
-        "120",
+        "60",
         "--seed",
         "5",
         "--out",

@@ -16,9 +16,11 @@ use dynacal::sim::{simulate, Scenario, SimModel};
 
 /// Every seed: the hidden cause on the hidden channel, with the truth inside the reported
 /// interval taken to 99.9%. The 95% interval itself misses the truth in one run of twenty
-/// when it is calibrated, so over this suite's 26 checks a few would miss by chance (at
-/// 900 s: the step of bias_shift seed 2 by 2.9 sigma of the Gauss-Markov wander); the
-/// power harness below measures how often the 95% interval holds the truth.
+/// when it is calibrated, so over many checks a few would miss by chance (at 900 s: the step
+/// of bias_shift seed 2 by 2.9 sigma of the Gauss-Markov wander); the power harness below
+/// measures how often the 95% interval holds the truth. Each cause runs one seed here (1 or
+/// 2, alternating, so both drives are exercised) to keep the suite within CI's time; the
+/// rates over many fresh seeds per cause are `diagnosis_rates.rs`'s (BENCHMARKS.md).
 fn check(cause: &'static str, seeds: &[u64]) {
     for &seed in seeds {
         let (report, hidden) = run(&[(cause, None)], seed, SECONDS);
@@ -73,55 +75,55 @@ fn null_runs_name_nothing() {
 
 #[test]
 fn finds_scale_factor() {
-    check("scale_factor", &[1, 2]);
+    check("scale_factor", &[1]);
 }
 #[test]
 fn finds_cross_axis() {
-    check("cross_axis", &[1, 2]);
+    check("cross_axis", &[2]);
 }
 #[test]
 fn finds_g_sensitivity() {
-    check("g_sensitivity", &[1, 2]);
+    check("g_sensitivity", &[1]);
 }
 #[test]
 fn finds_angular_acceleration() {
-    check("angular_acceleration", &[1, 2]);
+    check("angular_acceleration", &[2]);
 }
 #[test]
 fn finds_jerk() {
-    check("jerk", &[1, 2]);
+    check("jerk", &[1]);
 }
 #[test]
 fn finds_time_offset() {
-    check("time_offset", &[1, 2]);
+    check("time_offset", &[2]);
 }
 #[test]
 fn finds_lever_arm() {
-    check("lever_arm", &[1, 2]);
+    check("lever_arm", &[1]);
 }
 #[test]
 fn finds_noise_scaling_with_dynamics() {
-    check("noise_scales_with_dynamics", &[1, 2]);
+    check("noise_scales_with_dynamics", &[2]);
 }
 #[test]
 fn finds_vibration() {
-    check("vibration", &[1, 2]);
+    check("vibration", &[1]);
 }
 #[test]
 fn finds_outliers() {
-    check("outliers", &[1, 2]);
+    check("outliers", &[2]);
 }
 #[test]
 fn finds_bias_shift() {
-    check("bias_shift", &[1, 2]);
+    check("bias_shift", &[1]);
 }
 #[test]
 fn finds_correlated_noise_change() {
-    check("correlated_noise_change", &[1, 2]);
+    check("correlated_noise_change", &[2]);
 }
 #[test]
 fn finds_quantization() {
-    check("quantization", &[1, 2]);
+    check("quantization", &[1]);
 }
 
 /// One hidden-effect run chosen from the environment, to look into a failure the power
