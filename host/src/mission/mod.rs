@@ -159,18 +159,7 @@ fn run_sim(
     seconds: f64,
     seed: u64,
 ) -> Result<SimOutput, MissionError> {
-    simulate(
-        model,
-        &SimOptions {
-            scenario,
-            seconds,
-            seed,
-            disabled: vec![],
-            keep_ideal: false,
-        },
-        &|_| {},
-    )
-    .map_err(stage("simulating"))
+    simulate(model, &SimOptions::run(scenario, seconds, seed), &|_| {}).map_err(stage("simulating"))
 }
 
 /// The baseline a user fits: `dynacal fit --model auto` on the static recording written as

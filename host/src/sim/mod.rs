@@ -41,6 +41,19 @@ pub struct SimOptions {
     pub keep_ideal: bool,
 }
 
+impl SimOptions {
+    /// A run of `scenario`, `seconds` long from `seed`, every effect on, no error-free copy.
+    pub fn run(scenario: Scenario, seconds: f64, seed: u64) -> Self {
+        Self {
+            scenario,
+            seconds,
+            seed,
+            disabled: Vec::new(),
+            keep_ideal: false,
+        }
+    }
+}
+
 /// Everything a simulation produced.
 #[derive(Debug, Clone)]
 pub struct SimOutput {

@@ -39,18 +39,7 @@ pub fn baseline_fitted_on(static_record: &ImuRecording) -> Baseline {
 
 /// `model` simulated in `scenario` for `seconds` from `seed`, every effect on.
 pub fn simulate_run(model: &SimModel, scenario: Scenario, seconds: f64, seed: u64) -> SimOutput {
-    simulate(
-        model,
-        &SimOptions {
-            scenario,
-            seconds,
-            seed,
-            disabled: vec![],
-            keep_ideal: false,
-        },
-        &|_| {},
-    )
-    .unwrap()
+    simulate(model, &SimOptions::run(scenario, seconds, seed), &|_| {}).unwrap()
 }
 
 /// A simulated car drive of `seconds` with the effects `hidden` (see [`hide`]), diagnosed
