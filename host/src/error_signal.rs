@@ -125,9 +125,14 @@ impl ErrorSignals {
         check_time_increasing(path, &t_s)?;
         let errors = ERROR_COLUMNS.map(|c| table.column(c).map(<[f64]>::to_vec));
         if errors.iter().all(Option::is_none) {
-            return Err(TableError::MissingColumn {
+            return Err(TableError::Csv {
                 path: path.to_path_buf(),
-                column: ERROR_COLUMNS.join("|"),
+                line: 1,
+                message: format!(
+                    "no error column ({} .. {}): not an error-signal file of `dynacal errors`",
+                    ERROR_COLUMNS[0],
+                    ERROR_COLUMNS[ERROR_COLUMNS.len() - 1]
+                ),
             });
         }
         let mut dynamics: [Vec<f64>; 15] = Default::default();

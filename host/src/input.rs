@@ -7,7 +7,8 @@
 //! - a dataset file `dynacal import` knows (imported to SI units first; with several sensors
 //!   in one file, channels are named `sensor/gx`); `--raw` reads it as a plain CSV instead;
 //! - any other CSV with a header row: its columns by name (an error-signal file of `dynacal
-//!   errors` contributes its six error columns by default), time from a `t_s` column or
+//!   errors` contributes its six error columns by default, any other its columns named as
+//!   channels or with a unit suffix; others by `--columns`), time from a `t_s` column or
 //!   from `--rate-hz`;
 //! - wavelet variances stored as JSON (only where a command takes them, see
 //!   [`load_wavelet_variances`]): the output of `dynacal wv`, the `wv.json` of `dynacal
@@ -272,7 +273,7 @@ pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputEr
     let interchange = has_time
         && header
             .iter()
-            .any(|h| Channel::ALL.iter().any(|c| c.column() == h));
+            .any(|h| crate::interchange::is_interchange_column(h));
     let mut series = if interchange {
         from_recordings(path, args, vec![(String::new(), ImuRecording::read(path)?)])?
     } else if let Some(dataset) = (!args.raw)
@@ -325,7 +326,13 @@ fn csv_header(path: &Path) -> Result<Vec<String>, InputError> {
         .from_reader(open_maybe_gz(path)?);
     Ok(reader
         .headers()
-        .map_err(|e| format_error(path, format!("cannot read the header: {e}")))?
+        .map_err(|e| match e.kind() {
+            csv::ErrorKind::Utf8 { .. } => format_error(
+                path,
+                "line 1: the header is not UTF-8 text (not a CSV file, or damaged)".into(),
+            ),
+            _ => format_error(path, format!("line 1: cannot read the header: {e}")),
+        })?
         .iter()
         .map(str::to_string)
         .collect())
@@ -385,6 +392,13 @@ fn select(
         .collect()
 }
 
+/// Whether a plain CSV's column is taken as a sensor channel without `--columns`: named as
+/// one (`gx` .. `az`, as the raw dataset files are) or with a unit suffix. Anything else
+/// (a temperature, a counter, a status word) is read only when asked for.
+fn is_sensor_column(name: &str) -> bool {
+    Channel::ALL.iter().any(|c| c.name() == name) || unit_from_suffix(name).is_some()
+}
+
 /// Unit of a column named with the project's unit suffix (`gy_err_rad_s` -> rad/s).
 fn unit_from_suffix(name: &str) -> Option<&'static str> {
     [
@@ -402,7 +416,9 @@ fn unit_from_suffix(name: &str) -> Option<&'static str> {
 
 /// The columns of a CSV that is not an interchange recording. Without `--columns`, an
 /// error-signal file contributes its six error columns (the dynamics columns beside them
-/// are regressors, not sensor errors) and any other file every column but `t_s`.
+/// are regressors, not sensor errors) and any other file its sensor columns
+/// ([`is_sensor_column`]), or every column but `t_s` when `--unit` or `--scale` says what
+/// they hold.
 fn from_columns(
     path: &Path,
     args: &InputArgs,
@@ -417,8 +433,28 @@ fn from_columns(
             .filter(|c| header.iter().any(|h| h == *c))
             .map(|c| c.to_string())
             .collect()
-    } else {
+    } else if !args.unit.is_empty() || !args.scale.is_empty() {
+        // The user says what the values are: every column is a channel.
         data_columns.iter().map(|h| h.to_string()).collect()
+    } else {
+        let sensor: Vec<String> = data_columns
+            .iter()
+            .filter(|h| is_sensor_column(h))
+            .map(|h| h.to_string())
+            .collect();
+        if sensor.is_empty() && !data_columns.is_empty() {
+            let list: Vec<&str> = data_columns.iter().map(|h| h.as_str()).collect();
+            return Err(format_error(
+                path,
+                format!(
+                    "line 1: no sensor column (columns: {}): a channel is named gx .. az or \
+                     carries a unit suffix (`_rad_s`, `_m_s2`, ..); choose others with \
+                     --columns and say their unit with --unit",
+                    list.join(", ")
+                ),
+            ));
+        }
+        sensor
     };
     if let Some(missing) = names.iter().find(|n| !data_columns.contains(n)) {
         let list: Vec<&str> = data_columns.iter().map(|h| h.as_str()).collect();

@@ -76,6 +76,15 @@ pub enum TableError {
         median_step_s: f64,
         measured_hz: f64,
     },
+    /// A value outside what its column can hold (a latitude beyond a pole).
+    #[error("{path}: column `{column}` at t = {t_s} s: {value} is outside {range} (degrees in a radian column?)")]
+    OutOfRange {
+        path: PathBuf,
+        column: &'static str,
+        t_s: f64,
+        value: f64,
+        range: &'static str,
+    },
     /// Columns of an in-memory recording have different lengths.
     #[error("{path}: column `{column}` has {len} values, expected {expected}")]
     LengthMismatch {
@@ -123,10 +132,44 @@ pub fn open_maybe_gz(path: &Path) -> Result<Box<dyn Read>, TableError> {
     if n == 2 && magic == [0x1f, 0x8b] {
         Ok(Box::new(BufReader::with_capacity(
             1 << 16,
-            flate2::read::MultiGzDecoder::new(BufReader::with_capacity(1 << 16, file)),
+            GzipText {
+                inner: flate2::read::MultiGzDecoder::new(BufReader::with_capacity(1 << 16, file)),
+                bytes: 0,
+                lines: 0,
+            },
         )))
     } else {
         Ok(Box::new(BufReader::with_capacity(1 << 16, file)))
+    }
+}
+
+/// A gzip decoder that says where its stream broke: flate2's "incomplete deflate stream"
+/// names neither the line nor the cause a user can act on (a file cut short in a copy or a
+/// download), so the error is restated with the line and the decompressed bytes read so far.
+struct GzipText<R> {
+    inner: R,
+    bytes: u64,
+    lines: u64,
+}
+
+impl<R: Read> Read for GzipText<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self.inner.read(buf) {
+            Ok(n) => {
+                self.bytes += n as u64;
+                self.lines += buf[..n].iter().filter(|&&b| b == b'\n').count() as u64;
+                Ok(n)
+            }
+            Err(e) => Err(std::io::Error::new(
+                e.kind(),
+                format!(
+                    "line {}: the gzip data end or break after {} decompressed bytes \
+                     (the file is cut short or damaged: {e})",
+                    self.lines + 1,
+                    self.bytes
+                ),
+            )),
+        }
     }
 }
 
@@ -143,6 +186,7 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
         .from_reader(reader);
     let csv_err = |e: csv::Error| {
         let line = e.position().map_or(0, |p| p.line());
+        let text = e.to_string();
         match e.into_kind() {
             csv::ErrorKind::Io(source) => TableError::Io {
                 path: path.to_path_buf(),
@@ -155,10 +199,15 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
                 line,
                 message: format!("{len} fields, expected {expected_len} as in the header"),
             },
-            other => TableError::Csv {
+            csv::ErrorKind::Utf8 { err, .. } => TableError::Csv {
                 path: path.to_path_buf(),
                 line,
-                message: format!("{other:?}"),
+                message: format!("field {} is not UTF-8 text", err.field() + 1),
+            },
+            _ => TableError::Csv {
+                path: path.to_path_buf(),
+                line,
+                message: text,
             },
         }
     };
@@ -322,6 +371,14 @@ pub const CHANNEL_COLUMNS: [&str; 6] = {
         all[5].column(),
     ]
 };
+
+/// Whether `name` is one of the format's columns other than `t_s` (a channel, attitude,
+/// position or velocity): a file with `t_s` and one of them is an interchange recording.
+pub fn is_interchange_column(name: &str) -> bool {
+    [GYRO, ACCEL, ATTITUDE, POSITION, VELOCITY]
+        .iter()
+        .any(|triplet| triplet.contains(&name))
+}
 
 const GYRO: [&str; 3] = ["gx_rad_s", "gy_rad_s", "gz_rad_s"];
 const ACCEL: [&str; 3] = ["ax_m_s2", "ay_m_s2", "az_m_s2"];
@@ -512,7 +569,33 @@ impl ImuRecording {
                 });
             }
         }
+        self.check_position_range(path)?;
         check_time_increasing(path, &self.t_s)
+    }
+
+    /// Latitude within the poles and longitude within two turns: a position in degrees
+    /// stored as radians fails here rather than as a navigation far off the Earth.
+    fn check_position_range(&self, path: &Path) -> Result<(), TableError> {
+        let Some([lat, lon, _]) = &self.position else {
+            return Ok(());
+        };
+        let half_pi = std::f64::consts::FRAC_PI_2;
+        let two_pi = std::f64::consts::TAU;
+        for (column, values, limit, range) in [
+            ("lat_rad", lat, half_pi, "[-pi/2, pi/2]"),
+            ("lon_rad", lon, two_pi, "[-2 pi, 2 pi]"),
+        ] {
+            if let Some(i) = values.iter().position(|v| v.abs() > limit) {
+                return Err(TableError::OutOfRange {
+                    path: path.to_path_buf(),
+                    column,
+                    t_s: self.t_s[i],
+                    value: values[i],
+                    range,
+                });
+            }
+        }
+        Ok(())
     }
 
     /// Reads an interchange CSV or CSV.gz.

@@ -564,6 +564,11 @@ pub fn run_replay_in_qemu(
     let wall_time = started.elapsed();
     let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
     if !output.status.success() {
+        // The firmware writes `LOG.part` and renames it only after a complete run; a failed
+        // run's partial log is not an output.
+        let mut partial = log.as_os_str().to_owned();
+        partial.push(".part");
+        let _ = std::fs::remove_file(partial);
         return Err(ReplayFileError::Tool(format!(
             "the replay firmware failed ({}):\n{stderr}",
             output.status

@@ -349,7 +349,7 @@ fn malformed_copies_of_real_files_fail_naming_file_and_line_and_write_nothing() 
             "{msg}"
         );
         assert_eq!(
-            std::fs::read_dir(&out).unwrap().count(),
+            std::fs::read_dir(&out).map_or(0, |d| d.count()),
             0,
             "nothing written for {name}"
         );
@@ -584,7 +584,7 @@ fn damaged_copies_of_the_real_log_fail_naming_the_byte_offset_and_write_nothing(
         "{msg}"
     );
     assert_eq!(
-        std::fs::read_dir(&out).unwrap().count(),
+        std::fs::read_dir(&out).map_or(0, |d| d.count()),
         0,
         "nothing written"
     );
@@ -1068,7 +1068,7 @@ fn damaged_copies_of_the_px4_log_fail_naming_the_byte_offset() {
         "{msg}"
     );
     assert_eq!(
-        std::fs::read_dir(&out).unwrap().count(),
+        std::fs::read_dir(&out).map_or(0, |d| d.count()),
         0,
         "nothing written"
     );

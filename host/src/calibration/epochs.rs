@@ -255,12 +255,19 @@ fn overlap_s(
     let start = sensor.t_s[0].max(reference.t_s[0]) + margin;
     let end = sensor.t_s[sensor.len() - 1].min(reference.t_s[reference.len() - 1]) - margin;
     if !(end - start >= MIN_OVERLAP_S) {
-        return Err(ErrorsError::NoOverlap {
-            overlap_s: (end - start).max(0.0),
-            needed_s: MIN_OVERLAP_S,
-        });
+        return Err(no_overlap(sensor, reference, (end - start).max(0.0)));
     }
     Ok((start, end))
+}
+
+fn no_overlap(sensor: &ImuRecording, reference: &ImuRecording, overlap_s: f64) -> ErrorsError {
+    let span = |r: &ImuRecording| [r.t_s[0], r.t_s[r.len() - 1]];
+    ErrorsError::NoOverlap {
+        overlap_s,
+        needed_s: MIN_OVERLAP_S,
+        sensor_s: span(sensor),
+        reference_s: span(reference),
+    }
 }
 
 /// The samples of `t_s` inside `[start, end]`: their times and indices.
@@ -353,10 +360,7 @@ impl<'a> EpochSource<'a> {
         let (start, end) = overlap_s(sensor, reference, opts)?;
         let too_few = |t_s: &[f64]| {
             if t_s.len() < MIN_EPOCHS {
-                Err(ErrorsError::NoOverlap {
-                    overlap_s: end - start,
-                    needed_s: MIN_OVERLAP_S,
-                })
+                Err(no_overlap(sensor, reference, end - start))
             } else {
                 Ok(())
             }

@@ -36,6 +36,7 @@ use serde::{Deserialize, Serialize};
 mod design;
 mod epochs;
 mod least_squares;
+pub(crate) mod motion;
 mod signals;
 
 pub use design::CalibrationDesign;
@@ -55,8 +56,22 @@ pub enum ErrorsError {
     #[error("reference recording needs {0}")]
     ReferenceIncomplete(&'static str),
     /// The recordings do not overlap in time long enough.
-    #[error("the recordings overlap for {overlap_s:.3} s, too short (need at least {needed_s} s)")]
-    NoOverlap { overlap_s: f64, needed_s: f64 },
+    #[error("the recordings overlap for {overlap_s:.3} s, too short (need at least {needed_s} s): the sensor covers {:.3} .. {:.3} s, the reference {:.3} .. {:.3} s", sensor_s[0], sensor_s[1], reference_s[0], reference_s[1])]
+    NoOverlap {
+        overlap_s: f64,
+        needed_s: f64,
+        sensor_s: [f64; 2],
+        reference_s: [f64; 2],
+    },
+    /// The two did not ride on one vehicle: their motions differ.
+    #[error("the sensor and the reference did not see the same motion: {reason} (the {quantity}'s 1 s averages change by {sensor_variation:.3e} {unit} in the sensor, {reference_variation:.3e} {unit} in the reference); were they recorded together on one vehicle?")]
+    DifferentMotion {
+        quantity: &'static str,
+        unit: &'static str,
+        sensor_variation: f64,
+        reference_variation: f64,
+        reason: String,
+    },
     /// The calibration is not observable from these data.
     #[error("calibration not observable from these data: {0}")]
     Unobservable(String),
@@ -145,6 +160,7 @@ pub fn build_error_signals_with_design(
         return Err(ErrorsError::SensorHasNoChannels);
     }
     let source = EpochSource::new(sensor, reference, opts)?;
+    motion::check_same_motion(&source.t_s, &source.at(0.0)?)?;
     let fit = least_squares::fit(&source, opts)?;
     // Final errors at the estimated boresight and time offset.
     let data = source.at(fit.shift_s)?.rotated(&fit.r_sb);

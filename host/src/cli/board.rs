@@ -21,8 +21,9 @@ pub struct Args {
     /// The log to write (written whole or not at all).
     #[arg(long)]
     pub out: PathBuf,
-    /// Board model for the fusion (`dynacal refit` writes board-model.bin); a model the
-    /// board refuses is named with its reason and the built-in model runs.
+    /// Board model for the fusion (`dynacal refit` writes board-model.bin); a blob the
+    /// board would refuse (and fall back to its built-in model) is an error here, named with
+    /// its reason, before anything runs.
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Build the replay firmware with cargo into this target folder instead of running the
@@ -40,6 +41,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             if !path.is_file() {
                 bail!("{}: {what} not found", path.display());
             }
+        }
+    }
+    if let Some(path) = &args.model {
+        let blob =
+            std::fs::read(path).with_context(|| format!("{}: cannot read", path.display()))?;
+        if let Err(reason) = dynacal_core::board_model::BoardModel::decode(&blob) {
+            bail!(
+                "{}: the board refuses this model ({reason}; the board itself would run its \
+                 built-in model instead); `dynacal refit` or `dynacal export --to board` \
+                 write one",
+                path.display()
+            );
         }
     }
     if !qemu_available() {

@@ -43,6 +43,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         let Some(fb) = b.iter().find(|f| f.channel == fa.channel) else {
             continue;
         };
+        if (fa.sample_rate_hz / fb.sample_rate_hz - 1.0).abs() > 0.01 {
+            anyhow::bail!(
+                "channel {}: {} is sampled at {} Hz, {} at {} Hz: one model's per-sample \
+                 parameters (white noise, quantization) do not compare across rates; \
+                 compare recordings at one rate",
+                fa.channel,
+                args.static_file.display(),
+                dynacal::interchange::shortest_rate_hz(fa.sample_rate_hz),
+                args.dynamic_file.display(),
+                dynacal::interchange::shortest_rate_hz(fb.sample_rate_hz)
+            );
+        }
         let rows = compare(fa, fb).with_context(|| format!("channel {}", fa.channel))?;
         println!("channel {} ({}):", fa.channel, fa.model);
         print!("{}", format_table(&rows));

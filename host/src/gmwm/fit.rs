@@ -43,6 +43,10 @@ pub enum FitError {
         params: usize,
         levels: usize,
     },
+    /// Model selection has no candidate: even white noise alone needs three levels (one
+    /// parameter, one degree of freedom for the J-test, one to spare).
+    #[error("the wavelet variance has only {levels} levels (a series of {n} samples): choosing a model needs at least 3 levels, 16 samples or more")]
+    TooFewLevelsToChoose { levels: usize, n: usize },
     #[error("wavelet variance has a bad sampling interval {dt_s} s")]
     BadSamplingInterval { dt_s: f64 },
 }

@@ -532,6 +532,12 @@ pub fn analyze(
         ModelChoice::Fixed(s) => (fit_structure(s, input, opts)?, None),
         ModelChoice::Auto => {
             let structures = auto_candidates(input.levels.len());
+            if structures.is_empty() {
+                return Err(FitError::TooFewLevelsToChoose {
+                    levels: input.levels.len(),
+                    n: input.n,
+                });
+            }
             let fits: Vec<Fit> = structures
                 .par_iter()
                 .map(|s| fit_structure(s, input, opts))

@@ -432,6 +432,17 @@ impl TryFrom<ModelSpecJson> for ModelSpec {
                        density: Option<f64>,
                        factor: f64|
          -> Result<f64, ModelError> {
+            for (field, value) in [("sigma2", sigma2), (density_name, density)] {
+                if let Some(value) = value.filter(|v| !(v.is_finite() && *v > 0.0)) {
+                    return Err(ModelError::BadValue {
+                        model: model.clone(),
+                        index,
+                        kind,
+                        field,
+                        value,
+                    });
+                }
+            }
             match (sigma2, density) {
                 (Some(s), None) => Ok(s),
                 (None, Some(d)) => Ok(d * d * factor),

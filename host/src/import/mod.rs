@@ -44,6 +44,13 @@ pub enum ImportError {
         offset: u64,
         message: String,
     },
+    /// An imported IMU's values cannot be in the units the dataset's format states.
+    #[error("{path}: {sensor}: {message}")]
+    Implausible {
+        path: PathBuf,
+        sensor: String,
+        message: String,
+    },
     /// The file (or no file in the folder) is a dataset this importer knows.
     #[error("{path}: not a dataset dynacal can import: {reason}")]
     UnknownDataset { path: PathBuf, reason: String },
@@ -200,6 +207,15 @@ pub struct ImportedSensor {
 
 /// Imports one dataset file into its sensors' recordings.
 pub fn import_file(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>, ImportError> {
+    let sensors = read_dataset(path, dataset)?;
+    for sensor in &sensors {
+        check_units(path, sensor)?;
+    }
+    Ok(sensors)
+}
+
+/// The sensors of `path` as its dataset's importer reads them.
+fn read_dataset(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>, ImportError> {
     let stem = file_stem(path);
     let one = |name: String, recording| vec![ImportedSensor { name, recording }];
     Ok(match dataset {
@@ -238,6 +254,48 @@ pub fn import_file(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>,
             })
             .collect(),
     })
+}
+
+/// Largest median |angular rate| an IMU's import is believed in, rad/s: 2000 deg/s, a MEMS
+/// gyro's widest range; more is a unit slip (deg/s or counts taken as rad/s).
+const MAX_MEDIAN_TURN_RATE_RAD_S: f64 = 35.0;
+/// The median |specific force| of a vehicle on Earth is about g whatever it does; outside
+/// this band, m/s^2 are not what the file holds (g, or counts).
+const MEDIAN_SPECIFIC_FORCE_M_S2: [f64; 2] = [2.0, 50.0];
+
+/// Refuses an imported IMU whose values cannot be in the units the importer states.
+fn check_units(path: &Path, sensor: &ImportedSensor) -> Result<(), ImportError> {
+    let median_norm = |triad: &[Vec<f64>; 3]| {
+        let mut norms: Vec<f64> = (0..triad[0].len())
+            .map(|i| (triad[0][i].powi(2) + triad[1][i].powi(2) + triad[2][i].powi(2)).sqrt())
+            .collect();
+        norms.sort_by(f64::total_cmp);
+        norms.get(norms.len() / 2).copied()
+    };
+    let r = &sensor.recording;
+    let implausible = |message: String| ImportError::Implausible {
+        path: path.to_path_buf(),
+        sensor: sensor.name.clone(),
+        message,
+    };
+    if let Some(w) = r.gyro_rad_s.as_ref().and_then(median_norm) {
+        if w > MAX_MEDIAN_TURN_RATE_RAD_S {
+            return Err(implausible(format!(
+                "the median angular rate is {w:.4} rad/s, beyond any MEMS gyro's range: \
+                 the file's values are not in the units this dataset's format states"
+            )));
+        }
+    }
+    if let Some(f) = r.accel_m_s2.as_ref().and_then(median_norm) {
+        let [low, high] = MEDIAN_SPECIFIC_FORCE_M_S2;
+        if !(low..=high).contains(&f) {
+            return Err(implausible(format!(
+                "the median specific force is {f:.4} m/s^2, not about g (9.81): the file's \
+                 values are not in the units this dataset's format states"
+            )));
+        }
+    }
+    Ok(())
 }
 
 /// The file name without directory and without `.gz` / `.csv` / `.imu` / `.bin` / `.ulg`
@@ -365,6 +423,22 @@ pub fn contents(rec: &ImuRecording) -> Vec<&'static str> {
 /// staging folder is removed and `out_dir` is left as it was.
 pub fn import_to_dir(input: &Path, out_dir: &Path) -> Result<ImportReport, ImportError> {
     let (datasets, skipped) = find_datasets(input)?;
+    let created = !out_dir.exists();
+    let result = import_datasets(datasets, skipped, out_dir);
+    if result.is_err() && created {
+        // A folder made for this import goes with it (it is empty: the staging folder,
+        // removed by now, held everything).
+        let _ = std::fs::remove_dir(out_dir);
+    }
+    result
+}
+
+/// [`import_to_dir`] once the inputs are found.
+fn import_datasets(
+    datasets: Vec<(PathBuf, Dataset)>,
+    skipped: Vec<PathBuf>,
+    out_dir: &Path,
+) -> Result<ImportReport, ImportError> {
     std::fs::create_dir_all(out_dir).map_err(|e| ImportError::io(out_dir, e))?;
     let staging = tempfile::Builder::new()
         .prefix(".dynacal-import-")
@@ -616,7 +690,10 @@ mod tests {
             msg.contains("session2.csv") && msg.contains("line 3"),
             "{msg}"
         );
-        assert_eq!(std::fs::read_dir(&out2).unwrap().count(), 0);
+        assert!(
+            !out2.exists(),
+            "a folder made for a failed import is removed"
+        );
     }
 
     #[test]

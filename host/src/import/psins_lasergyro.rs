@@ -79,9 +79,11 @@ pub fn read(path: &Path) -> Result<LaserGyroLog, ImportError> {
     let mut gyro: [Vec<f64>; 3] = Default::default();
     let mut accel: [Vec<f64>; 3] = Default::default();
     let mut line_no = 0u64;
-    for line in std::io::BufReader::new(reader).lines() {
+    for line in std::io::BufReader::new(reader).split(b'\n') {
         line_no += 1;
         let line = line.map_err(|e| ImportError::io(path, e))?;
+        let line = String::from_utf8(line)
+            .map_err(|_| ImportError::malformed(path, line_no, "not UTF-8 text"))?;
         let text = line.trim();
         if text.is_empty() || text.starts_with('%') {
             continue;

@@ -20,6 +20,8 @@ pub(super) struct Grid {
 
 /// Largest share of a unit's samples at times no other unit has.
 const LONELY_MAX: f64 = 0.01;
+/// Fewest samples the units must share: the wavelet variances' shortest record.
+const MIN_SHARED_SAMPLES: usize = 64;
 /// Smallest share of the grid a unit must cover.
 const COVERAGE_MIN: f64 = 0.5;
 
@@ -40,6 +42,17 @@ pub(super) fn common_grid(units: &[(String, ImuRecording)]) -> Result<Grid, Redu
         .iter()
         .map(|(_, r)| r.t_s[r.len() - 1])
         .fold(f64::INFINITY, f64::min);
+    if !(end_s - start_s >= MIN_SHARED_SAMPLES as f64 * dt_s) {
+        let spans: Vec<String> = units
+            .iter()
+            .map(|(name, r)| format!("{name} {} .. {} s", r.t_s[0], r.t_s[r.len() - 1]))
+            .collect();
+        return Err(RedundancyError::NoOverlap(format!(
+            "the units' recordings share {:.3} s, fewer than {MIN_SHARED_SAMPLES} samples: {}",
+            (end_s - start_s).max(0.0),
+            spans.join(", ")
+        )));
+    }
     let tolerance = 0.25 * dt_s;
     let mut stamps: Vec<(f64, usize, usize)> = units
         .iter()

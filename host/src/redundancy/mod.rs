@@ -44,6 +44,8 @@ pub enum RedundancyError {
     Units(usize),
     #[error("{name}: {message}")]
     Unit { name: String, message: String },
+    #[error("{0}")]
+    NoOverlap(String),
 }
 
 /// How a unit's rotation to the first unit was found.
@@ -167,6 +169,49 @@ fn check_units(units: &[(String, ImuRecording)]) -> Result<(), RedundancyError> 
         }
         if r.len() < 64 {
             return Err(fail(format!("{} samples: at least 64 are needed", r.len())));
+        }
+    }
+    Ok(())
+}
+
+/// Units sampled together ride on one platform: each must show the first unit's motion
+/// (a recording at rest among drives, or of another day on the same clock, is refused).
+fn check_same_motion(grid: &grid::Grid) -> Result<(), RedundancyError> {
+    use crate::calibration::motion::{same_motion, Quantity};
+    let vectors = |triad: &Option<[Vec<f64>; 3]>| -> Vec<nalgebra::Vector3<f64>> {
+        let [x, y, z] = triad.as_ref().expect("checked: both triads");
+        (0..x.len())
+            .map(|i| nalgebra::Vector3::new(x[i], y[i], z[i]))
+            .collect()
+    };
+    let (first_name, first) = &grid.filled[0];
+    let first_vectors = [vectors(&first.gyro_rad_s), vectors(&first.accel_m_s2)];
+    for (name, unit) in &grid.filled[1..] {
+        let unit_vectors = [vectors(&unit.gyro_rad_s), vectors(&unit.accel_m_s2)];
+        for (q, quantity) in [Quantity::TurnRate, Quantity::SpecificForce]
+            .into_iter()
+            .enumerate()
+        {
+            same_motion(
+                &grid.t_s,
+                &first_vectors[q],
+                &unit_vectors[q],
+                quantity,
+                [first_name, name],
+            )
+            .map_err(|m| RedundancyError::Unit {
+                name: name.clone(),
+                message: format!(
+                    "did not move with {first_name}: {} ({}'s 1 s averages change by {:.3e} {unit} \
+                     in {first_name}, {:.3e} {unit} in {name}); the units must ride on one \
+                     platform",
+                    m.reason,
+                    quantity.name(),
+                    m.variations[0],
+                    m.variations[1],
+                    unit = quantity.unit(),
+                ),
+            })?;
         }
     }
     Ok(())
@@ -363,6 +408,7 @@ pub fn redundancy(
 ) -> Result<RedundancyReport, RedundancyError> {
     check_units(units)?;
     let grid = grid::common_grid(units)?;
+    check_same_motion(&grid)?;
     let mut notes = vec![
         "what the units share (a common temperature drift, the same vibration) cancels in \
          every difference: these are the independent parts of the units' errors"
