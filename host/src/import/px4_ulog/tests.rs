@@ -955,3 +955,37 @@ fn reference_prefers_vehicle_gps_position_over_sensor_gps() {
     let rec = read_reference(&parse(&bytes).unwrap()).unwrap().unwrap();
     assert_eq!(rec.position.as_ref().unwrap()[0], [46f64.to_radians()]);
 }
+
+mod fuzz {
+    //! Damaged hand-built logs through `import::detect` and `import::import_file`
+    //! (`crate::import::fuzz` says what a clean answer is).
+
+    use super::sample_log;
+    use crate::import::fuzz::{arb_mutation, check_damaged, check_tail, config};
+    use crate::import::Dataset;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(config(256, 0xF0220201))]
+
+        #[test]
+        fn damaged_logs_are_read_or_refused_cleanly(
+            mutations in proptest::collection::vec(arb_mutation(), 1..6),
+        ) {
+            check_damaged(Dataset::Px4ULog, &sample_log(), &mutations)?;
+        }
+
+        /// Bytes after the last message keep every sample, or are refused where they are.
+        #[test]
+        fn a_damaged_tail_keeps_the_samples_before_it(
+            tail in proptest::collection::vec(any::<u8>(), 1..200),
+            kind in proptest::sample::select(&b"DFALOSIPQRBC"[..]),
+            size in 0u16..300,
+        ) {
+            // Most tails start with a message header of a real type, so the parser reads
+            // into them.
+            let tail = [&size.to_le_bytes()[..], &[kind], &tail].concat();
+            check_tail(Dataset::Px4ULog, &sample_log(), &tail)?;
+        }
+    }
+}
