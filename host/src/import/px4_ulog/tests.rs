@@ -956,6 +956,32 @@ fn reference_prefers_vehicle_gps_position_over_sensor_gps() {
     assert_eq!(rec.position.as_ref().unwrap()[0], [46f64.to_radians()]);
 }
 
+/// Regression (an array length in a format replaced by a large number, as the fuzzing
+/// harness's field mutation does): the
+/// format's field list was built one entry per element before any check, so
+/// `float[2147483648]` exhausted memory and a length near `usize::MAX` overflowed the size.
+/// A message holds at most 65,535 bytes, so a longer format is refused naming its offset.
+#[test]
+fn a_format_longer_than_any_message_is_an_error_naming_its_offset() {
+    for len in ["16384", "2147483648", "9223372036854775807"] {
+        let mut log = definitions();
+        let at = log.format(&format!("huge:uint64_t timestamp;float[{len}] x;"));
+        log.add(0, 8, "huge");
+        let msg = parse(&log.bytes).unwrap_err().to_string();
+        assert!(
+            msg.contains(&format!("byte offset {at}:")) && msg.contains("65535"),
+            "{len}: {msg}"
+        );
+    }
+    // Nested: 300 copies of a 300-byte format.
+    let mut log = definitions();
+    log.format("block:uint8_t[300] b;");
+    let at = log.format("nest:uint64_t timestamp;block[300] blocks;");
+    log.add(0, 8, "nest");
+    let msg = parse(&log.bytes).unwrap_err().to_string();
+    assert!(msg.contains(&format!("byte offset {at}:")), "{msg}");
+}
+
 mod fuzz {
     //! Damaged hand-built logs through `import::detect` and `import::import_file`
     //! (`crate::import::fuzz` says what a clean answer is).
