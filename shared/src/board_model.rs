@@ -98,17 +98,19 @@ impl core::fmt::Display for BoardModelError {
 }
 
 impl ChannelNoise {
-    /// Finite, non-negative variances and a positive correlation time where a Gauss-Markov
-    /// bias is given.
+    /// Finite, non-negative values and a positive correlation time where a Gauss-Markov
+    /// bias is given. An unused correlation time must be finite too: the fusion averages it
+    /// with the other axes' (`fusion::process_noise`), where a NaN would silently drop their
+    /// Gauss-Markov bias.
     fn is_valid(&self) -> bool {
-        let variances = [
+        let values = [
             self.white_psd,
             self.gauss_markov_sigma2,
+            self.gauss_markov_tau_s,
             self.random_walk_psd,
         ];
-        variances.iter().all(|v| v.is_finite() && *v >= 0.0)
-            && (self.gauss_markov_sigma2 == 0.0
-                || (self.gauss_markov_tau_s.is_finite() && self.gauss_markov_tau_s > 0.0))
+        values.iter().all(|v| v.is_finite() && *v >= 0.0)
+            && (self.gauss_markov_sigma2 == 0.0 || self.gauss_markov_tau_s > 0.0)
     }
 }
 
@@ -303,6 +305,26 @@ mod tests {
                 channel: None
             })
         );
+    }
+
+    /// Regression (review while fuzzing): a correlation time of NaN beside a zero
+    /// Gauss-Markov variance passed `validate()`, and the fusion's axis average then lost
+    /// the other axes' Gauss-Markov bias without a word.
+    #[test]
+    fn an_unused_correlation_time_that_is_not_finite_is_refused() {
+        for tau in [f32::NAN, f32::INFINITY, -1.0] {
+            let mut model = refitted();
+            model.units[2].channels[1].gauss_markov_sigma2 = 0.0;
+            model.units[2].channels[1].gauss_markov_tau_s = tau;
+            assert_eq!(
+                model.validate(),
+                Err(BoardModelError::Invalid {
+                    unit: 2,
+                    channel: Some(Channel::Gy)
+                }),
+                "tau {tau}"
+            );
+        }
     }
 
     /// Every single byte of a good blob changed to every other value: the blob is refused,
