@@ -70,6 +70,10 @@ pub(crate) fn config(cases: u32, seed: u64) -> ProptestConfig {
     }
 }
 
+/// A clean answer: each recording's sample count, or the error's message and (for damage)
+/// its byte offset.
+pub(crate) type Clean = Result<Vec<usize>, (String, Option<u64>)>;
+
 /// What importing `bytes` as the file `name` gave: the sample count of each recording, or
 /// the error (with its byte offset where it is damage). Fails the case when the answer is not
 /// clean: a recording that does not validate or holds a non-finite number, an error that
@@ -78,7 +82,7 @@ pub(crate) fn import_clean(
     name: &str,
     dataset: Dataset,
     bytes: &[u8],
-) -> Result<Result<Vec<usize>, (String, Option<u64>)>, TestCaseError> {
+) -> Result<Clean, TestCaseError> {
     let dir = tempfile::tempdir().map_err(|e| TestCaseError::fail(e.to_string()))?;
     let path = dir.path().join(name);
     std::fs::write(&path, bytes).map_err(|e| TestCaseError::fail(e.to_string()))?;
