@@ -1,11 +1,16 @@
 //! The decoder against damaged logs: random byte flips, truncation, inserted garbage,
 //! duplicated and deleted chunks. Every frame whose bytes (and a closing delimiter) survive
-//! intact must be decoded exactly, in order, and nothing else; no input may panic.
+//! intact must be decoded exactly, in order, and nothing else; no input may panic. Beyond the
+//! frames, the rest of what `dynacal decode` does with a damaged log or arbitrary bytes
+//! (validate, summary, recordings, wavelet variances, nav/noise/fault tables) must give a
+//! usable result or an error naming the file. Proptest is seeded, so failures reproduce.
 
 mod common;
+mod fuzz_common;
 
 use dynacal::decode::{decode_bytes, encode_log};
 use dynacal_core::log::{Frame, LogAccumulator};
+use fuzz_common::Outcome;
 use std::collections::HashMap;
 
 use proptest::prelude::*;
@@ -332,8 +337,74 @@ fn arb_mutation() -> impl Strategy<Value = Mutation> {
     ]
 }
 
+/// Seeded proptest settings (the project's rule: every failure reproduces). The regression
+/// file beside this test is still read first.
+fn seeded(cases: u32, seed: u64) -> ProptestConfig {
+    ProptestConfig {
+        cases,
+        rng_seed: proptest::test_runner::RngSeed::Fixed(seed),
+        ..ProptestConfig::default()
+    }
+}
+
+/// `bytes` as the board log `fuzzed.log` through what `dynacal decode` does with it
+/// (`fuzz_common::decode_outcome`): a usable result or an error naming the file.
+fn decode_command_is_clean(bytes: &[u8]) -> Result<(), TestCaseError> {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("fuzzed.log");
+    std::fs::write(&path, bytes).unwrap();
+    match fuzz_common::decode_outcome(&path) {
+        Outcome::Unclean(what) => Err(TestCaseError::fail(what)),
+        Outcome::Imported(_) | Outcome::Refused(_) => Ok(()),
+    }
+}
+
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(64))]
+    #![proptest_config(seeded(128, 0xF0220301))]
+
+    /// Arbitrary bytes are refused naming the file.
+    #[test]
+    fn arbitrary_bytes_are_refused_cleanly(
+        bytes in proptest::collection::vec(any::<u8>(), 0..3000),
+    ) {
+        decode_command_is_clean(&bytes)?;
+    }
+
+    /// A damaged log is decoded into usable outputs or refused naming the file.
+    #[test]
+    fn damaged_logs_decode_into_usable_outputs(
+        seed in 0u64..1000,
+        mutations in proptest::collection::vec(arb_mutation(), 1..8),
+    ) {
+        let (_, bytes, _) = clean_log(seed, 1);
+        let mut damaged = Tracked::new(bytes);
+        for m in &mutations {
+            damaged.apply(m);
+        }
+        decode_command_is_clean(&damaged.bytes)?;
+    }
+
+    /// Random bytes before and after a whole log (a board that logged noise before it
+    /// started, a sink that kept writing after it stopped) cost no frame of the log.
+    #[test]
+    fn garbage_before_and_after_a_log_costs_no_frame(
+        seed in 0u64..1000,
+        before in proptest::collection::vec(any::<u8>(), 0..400),
+        after in proptest::collection::vec(any::<u8>(), 0..400),
+        chunk in 1usize..3000,
+    ) {
+        let (frames, bytes, ranges) = clean_log(seed, 1);
+        let mut damaged = Tracked::new(bytes.clone());
+        let end = bytes.len();
+        damaged.apply(&Mutation::Insert { at: end, garbage: after });
+        damaged.apply(&Mutation::Insert { at: 0, garbage: before });
+        prop_assert_eq!(untouched_frames(&ranges, &damaged).len(), frames.len());
+        check_recovery(&frames, &bytes, &ranges, &damaged, chunk);
+    }
+}
+
+proptest! {
+    #![proptest_config(seeded(64, 0xF0220302))]
     #[test]
     fn proptest_damage_keeps_every_intact_frame(
         seed in 0u64..1000,

@@ -98,17 +98,19 @@ impl core::fmt::Display for BoardModelError {
 }
 
 impl ChannelNoise {
-    /// Finite, non-negative variances and a positive correlation time where a Gauss-Markov
-    /// bias is given.
+    /// Finite, non-negative values and a positive correlation time where a Gauss-Markov
+    /// bias is given. An unused correlation time must be finite too: the fusion averages it
+    /// with the other axes' (`fusion::process_noise`), where a NaN would silently drop their
+    /// Gauss-Markov bias.
     fn is_valid(&self) -> bool {
-        let variances = [
+        let values = [
             self.white_psd,
             self.gauss_markov_sigma2,
+            self.gauss_markov_tau_s,
             self.random_walk_psd,
         ];
-        variances.iter().all(|v| v.is_finite() && *v >= 0.0)
-            && (self.gauss_markov_sigma2 == 0.0
-                || (self.gauss_markov_tau_s.is_finite() && self.gauss_markov_tau_s > 0.0))
+        values.iter().all(|v| v.is_finite() && *v >= 0.0)
+            && (self.gauss_markov_sigma2 == 0.0 || self.gauss_markov_tau_s > 0.0)
     }
 }
 
@@ -303,6 +305,146 @@ mod tests {
                 channel: None
             })
         );
+    }
+
+    /// Regression (review while fuzzing): a correlation time of NaN beside a zero
+    /// Gauss-Markov variance passed `validate()`, and the fusion's axis average then lost
+    /// the other axes' Gauss-Markov bias without a word.
+    #[test]
+    fn an_unused_correlation_time_that_is_not_finite_is_refused() {
+        for tau in [f32::NAN, f32::INFINITY, -1.0] {
+            let mut model = refitted();
+            model.units[2].channels[1].gauss_markov_sigma2 = 0.0;
+            model.units[2].channels[1].gauss_markov_tau_s = tau;
+            assert_eq!(
+                model.validate(),
+                Err(BoardModelError::Invalid {
+                    unit: 2,
+                    channel: Some(Channel::Gy)
+                }),
+                "tau {tau}"
+            );
+        }
+    }
+
+    /// Every single byte of a good blob changed to every other value: the blob is refused,
+    /// or (never, with a CRC-32 over the payload, but the property is what the board needs)
+    /// it reads as a model that passes `validate()`. A refusal of a changed prefix names it.
+    #[test]
+    fn every_single_byte_change_is_refused_or_reads_a_runnable_model() {
+        let good = blob(&refitted());
+        let mut refused = 0usize;
+        for at in 0..good.len() {
+            for value in 0..=255u8 {
+                if value == good[at] {
+                    continue;
+                }
+                let mut bytes = good.clone();
+                bytes[at] = value;
+                match BoardModel::decode(&bytes) {
+                    Ok(model) => assert_eq!(model.validate(), Ok(()), "byte {at} = {value}"),
+                    Err(reason) => {
+                        refused += 1;
+                        let want = match at {
+                            0..4 => Some(BoardModelError::BadMagic),
+                            4..6 => {
+                                Some(BoardModelError::UnsupportedVersion(u16::from_le_bytes([
+                                    bytes[4], bytes[5],
+                                ])))
+                            }
+                            _ => None,
+                        };
+                        if let Some(want) = want {
+                            assert_eq!(reason, want, "byte {at} = {value}");
+                        }
+                    }
+                }
+            }
+        }
+        assert_eq!(refused, good.len() * 255);
+    }
+
+    /// Finite, non-negative noise values, and sometimes exactly zero (a term the model does
+    /// not have).
+    fn arb_noise() -> impl proptest::strategy::Strategy<Value = ChannelNoise> {
+        use proptest::strategy::Strategy;
+        let value =
+            || proptest::prop_oneof![1 => proptest::strategy::Just(0.0f32), 4 => 0.0f32..1e3];
+        (value(), value(), 1e-3f32..1e5, value()).prop_map(|(w, s2, tau, rw)| ChannelNoise {
+            white_psd: w,
+            gauss_markov_sigma2: s2,
+            gauss_markov_tau_s: tau,
+            random_walk_psd: rw,
+        })
+    }
+
+    fn arb_model() -> impl proptest::strategy::Strategy<Value = BoardModel> {
+        use proptest::strategy::Strategy;
+        let unit = (
+            proptest::num::u8::ANY,
+            proptest::array::uniform6(arb_noise()),
+            proptest::array::uniform3(-4.0f32..4.0),
+            proptest::array::uniform3(-2.0f32..2.0),
+        )
+            .prop_map(
+                |(imu_id, channels, rotation_rpy_rad, lever_arm_m)| UnitModel {
+                    imu_id,
+                    channels,
+                    rotation_rpy_rad,
+                    lever_arm_m,
+                },
+            );
+        proptest::collection::vec(unit, 0..=MAX_IMUS).prop_map(|units| BoardModel {
+            units: units.into_iter().collect(),
+        })
+    }
+
+    proptest::proptest! {
+
+
+        // Seeded: every failure reproduces (the project's rule for random generators).
+
+
+        #![proptest_config(proptest::test_runner::Config {
+
+
+            rng_seed: proptest::test_runner::RngSeed::Fixed(0x5eed0b02),
+
+
+            failure_persistence: Some(std::boxed::Box::new(
+
+
+                proptest::test_runner::FileFailurePersistence::Off
+
+
+            )),
+
+
+            ..proptest::test_runner::Config::default()
+
+
+        })]
+        /// Any runnable model comes back as it was, whatever bytes follow the blob (flash
+        /// beyond it holds anything); every shorter prefix of its blob is refused as
+        /// truncated, never read as a smaller model.
+        #[test]
+        fn any_model_round_trips_and_every_prefix_is_refused(
+            model in arb_model(),
+            tail in proptest::collection::vec(proptest::num::u8::ANY, 0..64),
+        ) {
+            let bytes = blob(&model);
+            proptest::prop_assert_eq!(BoardModel::decode(&bytes), Ok(model.clone()));
+            let mut followed = bytes.clone();
+            followed.extend_from_slice(&tail);
+            proptest::prop_assert_eq!(BoardModel::decode(&followed), Ok(model));
+            for len in 0..bytes.len() {
+                proptest::prop_assert_eq!(
+                    BoardModel::decode(&bytes[..len]),
+                    Err(BoardModelError::Truncated),
+                    "prefix of {} bytes", len
+                );
+            }
+        }
     }
 
     proptest::proptest! {

@@ -568,6 +568,49 @@ mod tests {
             proptest::prop_assert!(!got.is_empty());
         }
 
+        /// Solutions with arbitrary bytes before, between and after them, read in arbitrary
+        /// pieces, all come out, in order, and nothing else does: the noise may hold partial
+        /// or whole false headers, which cost the framer only bytes that are not frames.
+        #[test]
+        fn solutions_interleaved_with_noise_are_all_recovered(
+            gaps in proptest::collection::vec(
+                proptest::collection::vec(proptest::num::u8::ANY, 0..300),
+                1..8,
+            ),
+            header_in_noise in proptest::collection::vec(0usize..8, 0..8),
+            chunk in 1usize..250,
+        ) {
+            let mut bytes = std::vec::Vec::new();
+            let mut sent = std::vec::Vec::new();
+            for (k, gap) in gaps.iter().enumerate() {
+                bytes.extend_from_slice(gap);
+                // Some gaps end with the first bytes of a header (or all of one), the case
+                // where a framer that trusts a sync pair loses the real frame behind it.
+                if let Some(&n) = header_in_noise.get(k) {
+                    bytes.extend_from_slice(&NAV_PVT_HEADER[..n.min(NAV_PVT_HEADER.len())]);
+                }
+                let fix = GnssFix {
+                    t_us: 1_479_645_314_200_000 + k as u64 * 200_000,
+                    lat_rad: 0.811_911_46,
+                    lon_rad: -0.114_612_28,
+                    h_m: 400.0 + k as f32,
+                    vel_ned_m_s: [1.0, -2.0, 0.5],
+                    pos_sigma_m: 0.3,
+                    vel_sigma_m_s: 0.05,
+                    num_sats: 11,
+                    fix_type: 3,
+                };
+                bytes.extend_from_slice(&encode_nav_pvt(&fix, LEAP_SECONDS_2017));
+                sent.push(fix.t_us);
+            }
+            bytes.extend_from_slice(&gaps[0]);
+            let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
+            let got: std::vec::Vec<u64> =
+                fixes(&mut receiver, &bytes, chunk).iter().map(|f| f.t_us).collect();
+            proptest::prop_assert_eq!(&got, &sent);
+            proptest::prop_assert_eq!(receiver.counts().fixes as usize, sent.len());
+        }
+
         /// Frames damaged anywhere (a byte changed, as line noise does) never panic the
         /// receiver, whatever the damage makes of a length or a class.
         #[test]

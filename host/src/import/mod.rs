@@ -10,6 +10,8 @@
 pub mod adis16405;
 pub mod ardupilot_dataflash;
 pub mod frames;
+#[cfg(test)]
+mod fuzz;
 pub mod mpu9250_tetra;
 pub mod mtig;
 pub mod psins_fog_mems;

@@ -74,6 +74,18 @@ pub fn read_mems(path: &Path) -> Result<ImuRecording, ImportError> {
     for i in 0..n {
         let omega_rfu = [cols[1][i], cols[2][i], cols[3][i]].map(|d| d / MEMS_DT_S);
         let f_rfu = [cols[4][i], cols[5][i], cols[6][i]].map(|d| d / MEMS_DT_S);
+        // A finite increment near f64::MAX overflows when divided by dt (found by fuzzing).
+        if let Some(k) = omega_rfu.iter().chain(&f_rfu).position(|v| !v.is_finite()) {
+            return Err(ImportError::malformed(
+                path,
+                i as u64 + 2,
+                format!(
+                    "column `{}`: increment {} over {MEMS_DT_S} s is not a finite rate",
+                    MEMS_COLUMNS[1 + k],
+                    cols[1 + k][i]
+                ),
+            ));
+        }
         for (k, v) in rfu_to_frd(omega_rfu).into_iter().enumerate() {
             gyro[k].push(v);
         }
@@ -155,6 +167,25 @@ mod tests {
         let msg = read_mems(&path).unwrap_err().to_string();
         assert!(
             msg.contains("m.csv: line 3") && msg.contains("t_s"),
+            "{msg}"
+        );
+    }
+
+    /// Regression (fuzzing): a finite increment near f64::MAX became an infinite rate when
+    /// divided by dt and was imported without an error.
+    #[test]
+    fn an_increment_whose_rate_overflows_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.csv");
+        let header = MEMS_COLUMNS.join(",");
+        std::fs::write(
+            &path,
+            format!("{header}\n0,0,0,0,0,0,0\n0.01,0,0,0,0,-1e308,0\n"),
+        )
+        .unwrap();
+        let msg = read_mems(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("m.csv: line 3") && msg.contains("`dv_y_m_s`") && msg.contains("finite"),
             "{msg}"
         );
     }

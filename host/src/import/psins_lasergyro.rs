@@ -140,6 +140,14 @@ pub fn read(path: &Path) -> Result<LaserGyroLog, ImportError> {
         }
         let omega_rfu = [0, 1, 2].map(|k| counts[k] as f64 * gyro_scale[k]);
         let f_rfu = [0, 1, 2].map(|k| counts[3 + k] as f64 * accel_scale[k]);
+        // A huge count times a large (finite) scale overflows (found by fuzzing).
+        if let Some(k) = omega_rfu.iter().chain(&f_rfu).position(|v| !v.is_finite()) {
+            return Err(ImportError::malformed(
+                path,
+                line_no,
+                format!("field {}: count {} is not a finite rate", k + 1, counts[k]),
+            ));
+        }
         for (k, v) in rfu_to_frd(omega_rfu).into_iter().enumerate() {
             gyro[k].push(v);
         }
@@ -193,6 +201,18 @@ fn parse_header(path: &Path, line: u64, l: &[Vec<f64>]) -> Result<LaserGyroHeade
         .any(|s| *s <= 0.0)
     {
         Some("scale factors must be positive".to_string())
+    } else if header
+        .gyro_arcsec_per_count
+        .iter()
+        .chain(&header.accel_ug_s_per_count)
+        .any(|s| !(s / header.dt_s).is_finite())
+    {
+        // A subnormal interval passes the sign check but overflows every count's scale,
+        // which turned counts of 0 into NaN (found by fuzzing).
+        Some(format!(
+            "sampling interval {} ms is too small: the scale per count overflows",
+            l[1][4]
+        ))
     } else {
         None
     };
@@ -264,6 +284,36 @@ mod tests {
         let msg = read(&path).unwrap_err().to_string();
         assert!(
             msg.contains("line 2") && msg.contains("header line 2"),
+            "{msg}"
+        );
+    }
+
+    /// Regression (fuzzing): a subnormal interval passed the sign check and turned every
+    /// count into an infinite rate (0 counts into NaN), imported without an error; a huge
+    /// count times a large scale overflowed the same way.
+    #[test]
+    fn an_interval_or_count_that_overflows_the_rate_is_an_error() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("l.imu");
+        std::fs::write(
+            &path,
+            "0 0 0 0 0 0\n34 108 380 0 1e-320 9.78\n0.1 0.1 0.1 125 125 125\n0 0 0 0 0 0\n",
+        )
+        .unwrap();
+        let msg = read(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("l.imu: line 3") && msg.contains("too small"),
+            "{msg}"
+        );
+        std::fs::write(
+            &path,
+            "0 0 0 0 0 0\n34 108 380 0 1e-300 9.78\n0.1 0.1 0.1 125 125 125\n\
+             0 0 0 0 0 0\n0 9223372036854775807 0 0 0 0\n",
+        )
+        .unwrap();
+        let msg = read(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("l.imu: line 5") && msg.contains("field 2") && msg.contains("finite"),
             "{msg}"
         );
     }

@@ -73,6 +73,9 @@ pub const HEADER_LEN: usize = 16;
 pub const MESSAGE_HEADER_LEN: usize = 3;
 /// Highest file version byte this parser reads.
 pub const MAX_VERSION: u8 = 1;
+
+/// The most bytes a format can describe: a message's payload length is a u16.
+pub const MAX_FORMAT_BYTES: usize = u16::MAX as usize;
 /// The payload of a sync message (`S`).
 pub const SYNC_MAGIC: [u8; 8] = [0x2F, 0x73, 0x13, 0x20, 0x25, 0x0C, 0xBB, 0x12];
 /// Length of the flag-bits message's (`B`) payload, bytes: 8 compatible and 8 incompatible
@@ -324,22 +327,10 @@ fn flatten(
             None => decl.name.clone(),
         };
         let start = layout.size;
-        if let Some(kind) = BasicType::from_name(&decl.type_name) {
-            for i in 0..count {
-                if !decl.is_padding() {
-                    layout.push(item(i), start + i * kind.size(), kind);
-                }
-            }
-            layout.size += count * kind.size();
+        let (kind, inner) = if let Some(kind) = BasicType::from_name(&decl.type_name) {
+            (Some(kind), None)
         } else if formats.contains_key(&decl.type_name) {
-            let inner = flatten(formats, &decl.type_name, stack)?;
-            for i in 0..count {
-                for f in &inner.fields {
-                    let at = start + i * inner.size + f.offset;
-                    layout.push(format!("{}.{}", item(i), f.name), at, f.kind);
-                }
-            }
-            layout.size += count * inner.size;
+            (None, Some(flatten(formats, &decl.type_name, stack)?))
         } else {
             return Err((
                 format.offset,
@@ -348,7 +339,44 @@ fn flatten(
                     decl.name, decl.type_name
                 ),
             ));
+        };
+        let item_size = match (&kind, &inner) {
+            (Some(kind), _) => kind.size(),
+            (_, Some(inner)) => inner.size,
+            _ => 0,
+        };
+        // Checked before the fields are listed: a message holds at most MAX_FORMAT_BYTES, and
+        // a damaged array length (`float[2147483648]`) otherwise listed a field per element
+        // until memory ran out, or overflowed the size.
+        let Some(end) = count
+            .checked_mul(item_size)
+            .and_then(|n| n.checked_add(start))
+            .filter(|&end| end <= MAX_FORMAT_BYTES)
+        else {
+            return Err((
+                format.offset,
+                format!(
+                    "format `{name}`: field `{}` ({count} x {item_size} bytes from byte {start}) \
+                     makes it longer than a message can hold ({MAX_FORMAT_BYTES} bytes)",
+                    decl.name
+                ),
+            ));
+        };
+        for i in 0..count {
+            match (&kind, &inner) {
+                (Some(kind), _) if !decl.is_padding() => {
+                    layout.push(item(i), start + i * kind.size(), *kind)
+                }
+                (_, Some(inner)) => {
+                    for f in &inner.fields {
+                        let at = start + i * inner.size + f.offset;
+                        layout.push(format!("{}.{}", item(i), f.name), at, f.kind);
+                    }
+                }
+                _ => {}
+            }
         }
+        layout.size = end;
     }
     if let Some(last) = format.fields.last().filter(|f| f.is_padding()) {
         if let Some(kind) = BasicType::from_name(&last.type_name) {

@@ -362,3 +362,35 @@ fn four_x_layout_with_instance_field_and_float_degrees() {
     close(pitch.to_degrees(), -10.0);
     close(yaw.to_degrees(), -90.0); // 270 deg wrapped into (-180, 180]
 }
+
+mod fuzz {
+    //! Damaged hand-built logs through `import::detect` and `import::import_file`
+    //! (`crate::import::fuzz` says what a clean answer is).
+
+    use super::sample_log;
+    use crate::import::fuzz::{arb_mutation, check_damaged, check_tail, config};
+    use crate::import::Dataset;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(config(256, 0xF0220101))]
+
+        #[test]
+        fn damaged_logs_are_read_or_refused_cleanly(
+            mutations in proptest::collection::vec(arb_mutation(), 1..6),
+        ) {
+            check_damaged(Dataset::ArduPilotDataFlash, &sample_log(), &mutations)?;
+        }
+
+        /// Bytes after the last message keep every sample, or are refused where they are.
+        #[test]
+        fn a_damaged_tail_keeps_the_samples_before_it(
+            tail in proptest::collection::vec(any::<u8>(), 1..200),
+            header in any::<bool>(),
+        ) {
+            // Half the tails start as a message would, so the parser reads into them.
+            let tail = if header { [&[0xA3, 0x95][..], &tail].concat() } else { tail };
+            check_tail(Dataset::ArduPilotDataFlash, &sample_log(), &tail)?;
+        }
+    }
+}

@@ -955,3 +955,63 @@ fn reference_prefers_vehicle_gps_position_over_sensor_gps() {
     let rec = read_reference(&parse(&bytes).unwrap()).unwrap().unwrap();
     assert_eq!(rec.position.as_ref().unwrap()[0], [46f64.to_radians()]);
 }
+
+/// Regression (an array length in a format replaced by a large number, as the fuzzing
+/// harness's field mutation does): the
+/// format's field list was built one entry per element before any check, so
+/// `float[2147483648]` exhausted memory and a length near `usize::MAX` overflowed the size.
+/// A message holds at most 65,535 bytes, so a longer format is refused naming its offset.
+#[test]
+fn a_format_longer_than_any_message_is_an_error_naming_its_offset() {
+    for len in ["16384", "2147483648", "9223372036854775807"] {
+        let mut log = definitions();
+        let at = log.format(&format!("huge:uint64_t timestamp;float[{len}] x;"));
+        log.add(0, 8, "huge");
+        let msg = parse(&log.bytes).unwrap_err().to_string();
+        assert!(
+            msg.contains(&format!("byte offset {at}:")) && msg.contains("65535"),
+            "{len}: {msg}"
+        );
+    }
+    // Nested: 300 copies of a 300-byte format.
+    let mut log = definitions();
+    log.format("block:uint8_t[300] b;");
+    let at = log.format("nest:uint64_t timestamp;block[300] blocks;");
+    log.add(0, 8, "nest");
+    let msg = parse(&log.bytes).unwrap_err().to_string();
+    assert!(msg.contains(&format!("byte offset {at}:")), "{msg}");
+}
+
+mod fuzz {
+    //! Damaged hand-built logs through `import::detect` and `import::import_file`
+    //! (`crate::import::fuzz` says what a clean answer is).
+
+    use super::sample_log;
+    use crate::import::fuzz::{arb_mutation, check_damaged, check_tail, config};
+    use crate::import::Dataset;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(config(256, 0xF0220201))]
+
+        #[test]
+        fn damaged_logs_are_read_or_refused_cleanly(
+            mutations in proptest::collection::vec(arb_mutation(), 1..6),
+        ) {
+            check_damaged(Dataset::Px4ULog, &sample_log(), &mutations)?;
+        }
+
+        /// Bytes after the last message keep every sample, or are refused where they are.
+        #[test]
+        fn a_damaged_tail_keeps_the_samples_before_it(
+            tail in proptest::collection::vec(any::<u8>(), 1..200),
+            kind in proptest::sample::select(&b"DFALOSIPQRBC"[..]),
+            size in 0u16..300,
+        ) {
+            // Most tails start with a message header of a real type, so the parser reads
+            // into them.
+            let tail = [&size.to_le_bytes()[..], &[kind], &tail].concat();
+            check_tail(Dataset::Px4ULog, &sample_log(), &tail)?;
+        }
+    }
+}
