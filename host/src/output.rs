@@ -4,7 +4,8 @@
 //!   temporary file `.dynacal-partial-*` beside the target and are renamed over it only
 //!   once everything is written and flushed to disk, so a failure or a kill midway never
 //!   leaves a truncated file where a good one is expected: the target holds its previous
-//!   contents, or none, until the rename.
+//!   contents, or none, until the rename. (The replay firmware under QEMU does the same
+//!   with `LOG.part`, [`PartialPath`].)
 //! - **A set of files in one folder** ([`FileSet`]: `simulate`, `import`, `decode`,
 //!   `refit`, `fig1`, the report folders): every file is staged in a hidden folder
 //!   `.dynacal-partial-*` inside the output folder, and moved into place only once all are
@@ -266,6 +267,32 @@ impl Drop for FileSet {
             drop(staging);
             forget_partial(&mut partials(), &path);
         }
+    }
+}
+
+/// A partial output another process writes (the replay firmware's `LOG.part` under QEMU):
+/// removed on SIGINT, SIGTERM or SIGHUP like this process's own temporaries, and on drop if
+/// it is still there (the writer failed before moving it into place).
+pub struct PartialPath {
+    path: PathBuf,
+}
+
+impl PartialPath {
+    /// Takes `path` as a partial output from now on.
+    pub fn register(path: &Path) -> Self {
+        partials().push(path.to_path_buf());
+        Self {
+            path: path.to_path_buf(),
+        }
+    }
+}
+
+impl Drop for PartialPath {
+    fn drop(&mut self) {
+        let mut list = partials();
+        // Absent after a successful run: the writer moved it into place.
+        let _ = std::fs::remove_file(&self.path);
+        forget_partial(&mut list, &self.path);
     }
 }
 

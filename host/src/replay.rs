@@ -548,6 +548,11 @@ pub fn run_replay_in_qemu(
     if let Some(model) = model {
         semihosting.push_str(&format!(",arg={}", arg(model)));
     }
+    // The firmware writes LOG.part and renames it to LOG after a complete run; a signal
+    // or a failed run must not leave the part behind.
+    let mut part = log.as_os_str().to_owned();
+    part.push(".part");
+    let _part = crate::output::PartialPath::register(Path::new(&part));
     let started = Instant::now();
     let output = Command::new("qemu-system-arm")
         .args(QEMU_BOARD_ARGS)
