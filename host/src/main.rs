@@ -6,6 +6,9 @@ mod cli;
 use clap::Parser;
 
 fn main() -> std::process::ExitCode {
+    // SIGINT/SIGTERM/SIGHUP remove the partial outputs; without the handler (it could not be
+    // installed) they are still never mistaken for outputs, only left behind.
+    let _ = dynacal::output::remove_partials_on_signal();
     let args = cli::Cli::parse();
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -548,6 +548,11 @@ pub fn run_replay_in_qemu(
     if let Some(model) = model {
         semihosting.push_str(&format!(",arg={}", arg(model)));
     }
+    // The firmware writes LOG.part and renames it to LOG after a complete run; a signal
+    // or a failed run must not leave the part behind.
+    let mut part = log.as_os_str().to_owned();
+    part.push(".part");
+    let _part = crate::output::PartialPath::register(Path::new(&part));
     let started = Instant::now();
     let output = Command::new("qemu-system-arm")
         .args(QEMU_BOARD_ARGS)
@@ -564,11 +569,6 @@ pub fn run_replay_in_qemu(
     let wall_time = started.elapsed();
     let stderr = String::from_utf8_lossy(&output.stderr).into_owned();
     if !output.status.success() {
-        // The firmware writes `LOG.part` and renames it only after a complete run; a failed
-        // run's partial log is not an output.
-        let mut partial = log.as_os_str().to_owned();
-        partial.push(".part");
-        let _ = std::fs::remove_file(partial);
         return Err(ReplayFileError::Tool(format!(
             "the replay firmware failed ({}):\n{stderr}",
             output.status

@@ -9,7 +9,6 @@ use dynacal::model::SimModel;
 use dynacal::sim::board::board_recording;
 use dynacal::sim::trajectory::Scenario;
 use dynacal::sim::{simulate, SimOptions, SimOutput};
-use dynacal_core::board_model::BoardModel;
 use dynacal_core::fusion::{BoardFusion, FusionConfig, FusionOutput, UnitReading, UNITS};
 use dynacal_core::log::FilterState;
 use dynacal_core::recorder::{
@@ -17,72 +16,18 @@ use dynacal_core::recorder::{
 };
 use dynacal_core::replay::ReplayRecord;
 use nalgebra::RealField;
-use nalgebra::{Rotation3, Vector3};
+use nalgebra::Vector3;
+
+mod three_units;
+
+use three_units::{board_model, RATE_HZ};
 
 const SECONDS: f64 = 300.0;
-const RATE_HZ: f64 = 200.0;
 /// GNSS outages of 30 s while the car drives, s from the start.
 const OUTAGES: [[f64; 2]; 2] = [[60.0, 90.0], [230.0, 260.0]];
-/// Units 1 and 2: lever arm (m, body) and boresight (roll, pitch, yaw, deg) from unit 0.
-const MOUNTS: [([f64; 3], [f64; 3]); 2] = [
-    ([0.05, 0.03, 0.0], [0.0, 0.0, 90.0]),
-    ([-0.04, 0.06, 0.02], [180.0, 0.0, 20.0]),
-];
-
-fn unit(name: &str, lever: [f64; 3], boresight: [f64; 3]) -> String {
-    format!(
-        r#"{{"name": "{name}", "rate_hz": {RATE_HZ}, "lever_arm_b_m": {lever:?}, "boresight_rpy_deg": {boresight:?},
-  "gyro": {{"stochastic": {{"model": "WN+GM", "unit": "rad/s", "sample_rate_hz": {RATE_HZ},
-     "processes": [{{"kind": "white_noise", "sigma2": 2e-6}},
-                   {{"kind": "gauss_markov", "beta_per_s": 0.0033, "sigma2": 2.5e-7}}]}}}},
-  "accel": {{"stochastic": {{"model": "WN+GM", "unit": "m/s^2", "sample_rate_hz": {RATE_HZ},
-     "processes": [{{"kind": "white_noise", "sigma2": 4e-4}},
-                   {{"kind": "gauss_markov", "beta_per_s": 0.0033, "sigma2": 1e-4}}]}}}}}}"#
-    )
-}
 
 fn sim_model() -> SimModel {
-    let json = format!(
-        r#"{{"imus": [{}, {}, {}],
- "gnss": {{"rate_hz": 10, "lever_arm_b_m": [0, 0, 0], "position_sigma_ned_m": [0.5, 0.5, 1.0],
-   "velocity_sigma_ned_m_s": [0.05, 0.05, 0.1], "outages": [[{}, {}], [{}, {}]]}}}}"#,
-        unit("u0", [0.0; 3], [0.0; 3]),
-        unit("u1", MOUNTS[0].0, MOUNTS[0].1),
-        unit("u2", MOUNTS[1].0, MOUNTS[1].1),
-        OUTAGES[0][0],
-        OUTAGES[0][1],
-        OUTAGES[1][0],
-        OUTAGES[1][1]
-    );
-    SimModel::from_json(&json, std::path::Path::new("board-fusion.json")).unwrap()
-}
-
-/// The board model of the simulated mounts: unit k's rotation as roll, pitch, yaw of
-/// C_b^k (body to unit axes), its lever arm in body axes; the built-in noise, or the
-/// simulation's own (`true_noise`).
-fn board_model(true_noise: bool) -> BoardModel {
-    let mut model = BoardModel::built_in(&[0, 1, 2]);
-    if true_noise {
-        let dt = 1.0 / RATE_HZ as f32;
-        let noise = |white_sigma2: f32, gm_sigma2: f32| dynacal_core::board_model::ChannelNoise {
-            white_psd: white_sigma2 * dt,
-            gauss_markov_sigma2: gm_sigma2,
-            gauss_markov_tau_s: 1.0 / 0.0033,
-            random_walk_psd: 0.0,
-        };
-        for unit in model.units.iter_mut() {
-            let (g, a) = (noise(2e-6, 2.5e-7), noise(4e-4, 1e-4));
-            unit.channels = [g, g, g, a, a, a];
-        }
-    }
-    for (unit, (lever, rpy_deg)) in model.units[1..].iter_mut().zip(MOUNTS) {
-        let [r, p, y] = rpy_deg.map(f64::to_radians);
-        let c_b_k = Rotation3::from_euler_angles(r, p, y).transpose();
-        let (r, p, y) = c_b_k.euler_angles();
-        unit.rotation_rpy_rad = [r as f32, p as f32, y as f32];
-        unit.lever_arm_m = lever.map(|x| x as f32);
-    }
-    model
+    three_units::sim_model(&OUTAGES)
 }
 
 struct Events(std::vec::IntoIter<SourceEvent>);

@@ -8,7 +8,10 @@ use std::path::PathBuf;
 use anyhow::Context;
 use dynacal::board_log::{fault_entries, nav_csv, noise_csv};
 use dynacal::decode::{decode_file, imu_file_name};
-use dynacal::output::{write_atomic, write_json_atomic};
+use dynacal::output::{write_atomic, write_json_atomic, FileSet};
+
+/// The summary, the completion marker of the folder's set (written last).
+const SUMMARY: &str = "summary.json";
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -25,25 +28,21 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     log.validate(&args.log)?;
     let summary = log.summary();
 
-    std::fs::create_dir_all(&args.out)
+    // Every file is staged and moved into place only when all are complete, summary.json
+    // last as the set's completion marker (`dynacal::output::FileSet`).
+    let mut set = FileSet::create(&args.out, Some(SUMMARY))
         .with_context(|| format!("{}: cannot create output folder", args.out.display()))?;
-    // Everything is written into a staging folder first and moved into place only when all
-    // files are complete, so a failure leaves no partial set of outputs.
-    let staging = tempfile::Builder::new()
-        .prefix(".dynacal-decode-")
-        .tempdir_in(&args.out)
-        .with_context(|| format!("{}: cannot create staging folder", args.out.display()))?;
+    let cannot = |name: &str| format!("{}: cannot write", args.out.join(name).display());
     let mut files = Vec::new();
     for imu in log.imus.iter().filter(|imu| !imu.is_empty()) {
         let name = imu_file_name(imu.config.imu_id);
-        imu.to_recording().write(&staging.path().join(&name))?;
+        imu.to_recording().write(&set.path(&name))?;
         files.push(name);
     }
     let wv = log.wavelet_variance_si();
     if !wv.is_empty() {
         let name = "wv.json".to_string();
-        write_json_atomic(&staging.path().join(&name), &wv)
-            .with_context(|| format!("{}: cannot write", args.out.join(&name).display()))?;
+        write_json_atomic(&set.path(&name), &wv).with_context(|| cannot(&name))?;
         files.push(name);
     }
     let texts = [
@@ -55,29 +54,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     ];
     for (name, text) in texts {
         if let Some(text) = text {
-            write_atomic(&staging.path().join(name), text.as_bytes())
-                .with_context(|| format!("{}: cannot write", args.out.join(name).display()))?;
+            write_atomic(&set.path(name), text.as_bytes()).with_context(|| cannot(name))?;
             files.push(name.to_string());
         }
     }
     if let (Some(header), false) = (&log.header, log.noise.is_empty() && log.faults.is_empty()) {
         let name = "faults.json";
-        write_json_atomic(
-            &staging.path().join(name),
-            &fault_entries(header, &log.faults),
-        )
-        .with_context(|| format!("{}: cannot write", args.out.join(name).display()))?;
+        write_json_atomic(&set.path(name), &fault_entries(header, &log.faults))
+            .with_context(|| cannot(name))?;
         files.push(name.to_string());
     }
-    let name = "summary.json".to_string();
-    write_json_atomic(&staging.path().join(&name), &summary)
-        .with_context(|| format!("{}: cannot write", args.out.join(&name).display()))?;
-    files.push(name);
-    for name in &files {
-        let target = args.out.join(name);
-        std::fs::rename(staging.path().join(name), &target)
-            .with_context(|| format!("{}: cannot move into place", target.display()))?;
-    }
+    write_json_atomic(&set.path(SUMMARY), &summary).with_context(|| cannot(SUMMARY))?;
+    files.push(SUMMARY.to_string());
+    set.commit().context("moving the outputs into place")?;
 
     println!(
         "{}: {} frames decoded ({}), {} frames dropped, {} of {} bytes dropped; wrote {} to {}",

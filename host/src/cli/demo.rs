@@ -51,6 +51,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let started = Instant::now();
     std::fs::create_dir_all(&args.report)
         .with_context(|| format!("{}: cannot create folder", args.report.display()))?;
+    // report.html is the folder's completion marker (`dynacal::output`): the run replaces
+    // the other files one by one over minutes, so the previous report goes first, and a run
+    // stopped midway leaves a folder that says it is incomplete.
+    let previous = args.report.join(dynacal::report::REPORT_HTML);
+    match std::fs::remove_file(&previous) {
+        Err(e) if e.kind() != std::io::ErrorKind::NotFound => {
+            return Err(e).with_context(|| format!("{}: cannot remove", previous.display()));
+        }
+        _ => {}
+    }
     let elf = match &args.target_dir {
         Some(target_dir) => build_replay_firmware(target_dir)?,
         None => replay_firmware_elf(&args.report, &workspace_root().join(FIRMWARE_TARGET_DIR))?,

@@ -8,7 +8,7 @@ use anyhow::Context;
 
 use dynacal::figures::fig1::fig1;
 use dynacal::figures::plot::fig1_svg;
-use dynacal::output::{write_atomic, write_json_atomic};
+use dynacal::output::{write_atomic, write_json_atomic, FileSet};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -26,14 +26,18 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let run = fig1(args.seconds, args.seed)?;
     let svg = fig1_svg(&run)?;
-    std::fs::create_dir_all(&args.out)
+    // fig1.json last: the completion marker of the folder's set (`dynacal::output::FileSet`).
+    let mut set = FileSet::create(&args.out, Some("fig1.json"))
         .with_context(|| format!("creating {}", args.out.display()))?;
-    let svg_path = args.out.join("fig1-boresight-lever-arm.svg");
-    let json_path = args.out.join("fig1.json");
-    write_json_atomic(&json_path, &run.report)
-        .with_context(|| format!("writing {}", json_path.display()))?;
-    write_atomic(&svg_path, svg.as_bytes())
+    let (svg_path, json_path) = (
+        args.out.join("fig1-boresight-lever-arm.svg"),
+        args.out.join("fig1.json"),
+    );
+    write_atomic(&set.path("fig1-boresight-lever-arm.svg"), svg.as_bytes())
         .with_context(|| format!("writing {}", svg_path.display()))?;
+    write_json_atomic(&set.path("fig1.json"), &run.report)
+        .with_context(|| format!("writing {}", json_path.display()))?;
+    set.commit().context("moving the outputs into place")?;
     for imu in &run.report.imus {
         let f = &imu.filtered;
         let s = &imu.smoothed;

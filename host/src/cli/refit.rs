@@ -3,14 +3,14 @@
 //! `dynacal simulate`), `board-model.bin` (what the board runs: `dynacal board --model`, or
 //! flashed into the board's model sector) and `refit.json` (the check of the board's
 //! wavelet variances, each fit with its intervals, the alignments, notes). All three are
-//! written whole or none.
+//! written whole or none, `refit.json` last as the set's completion marker.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
 use dynacal::decode::decode_file;
 use dynacal::gmwm::inference::BootstrapOptions;
-use dynacal::output::{write_atomic, write_json_atomic};
+use dynacal::output::{write_atomic, write_json_atomic, FileSet};
 use dynacal::refit::{refit, typed_model, RefitOptions};
 use dynacal_core::board_model::MAX_BOARD_MODEL_LEN;
 
@@ -56,24 +56,16 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         .encode(&mut blob)
         .map_err(|e| anyhow::anyhow!("the refitted board model does not encode: {e}"))?;
 
-    std::fs::create_dir_all(&args.out)
+    // refit.json last: the completion marker of the folder's set (`dynacal::output::FileSet`).
+    let mut set = FileSet::create(&args.out, Some("refit.json"))
         .with_context(|| format!("{}: cannot create output folder", args.out.display()))?;
-    let staging = tempfile::Builder::new()
-        .prefix(".dynacal-refit-")
-        .tempdir_in(&args.out)
-        .with_context(|| format!("{}: cannot create staging folder", args.out.display()))?;
     let cannot = |name: &str| format!("{}: cannot write", args.out.join(name).display());
-    write_json_atomic(&staging.path().join("model.json"), &typed_model(&result))
+    write_json_atomic(&set.path("model.json"), &typed_model(&result))
         .with_context(|| cannot("model.json"))?;
-    write_atomic(&staging.path().join("board-model.bin"), &blob[..len])
+    write_atomic(&set.path("board-model.bin"), &blob[..len])
         .with_context(|| cannot("board-model.bin"))?;
-    write_json_atomic(&staging.path().join("refit.json"), &result)
-        .with_context(|| cannot("refit.json"))?;
-    for name in ["model.json", "board-model.bin", "refit.json"] {
-        let target = args.out.join(name);
-        std::fs::rename(staging.path().join(name), &target)
-            .with_context(|| format!("{}: cannot move into place", target.display()))?;
-    }
+    write_json_atomic(&set.path("refit.json"), &result).with_context(|| cannot("refit.json"))?;
+    set.commit().context("moving the outputs into place")?;
 
     let checked = result.agreement.len();
     println!(

@@ -24,7 +24,7 @@ use crate::figures::plot::{
     CategoryAxis, Decades, DrawError, Frame, Glyph, FONT, LEGEND_WIDTH_PX,
 };
 use crate::model::Channel;
-use crate::output::AtomicFile;
+use crate::output::{AtomicFile, FileSet};
 
 /// Why the report could not be produced.
 #[derive(Debug, thiserror::Error)]
@@ -137,47 +137,45 @@ pub fn write_report(dir: &Path, r: &DiagnoseReport) -> Result<Vec<ReportFile>, R
     Ok(files)
 }
 
-/// Writes `files` into `dir` (created if absent) whole or not at all: every file is first
-/// written and flushed to a temporary file beside its target, and only once all of them are
-/// staged are they renamed into place, in order. A failure while staging leaves `dir` as it
-/// was (and removes it again if this call created it); only a failing rename within one
-/// directory, after every byte is safely on disk, could leave part of a set in place, and the
-/// caller puts the index file (report.md) last so such a set is recognisably incomplete.
+/// Writes `files` into `dir` (created if absent) whole or not at all, as a set
+/// (`crate::output::FileSet`) whose completion marker is the last file (the index: the
+/// caller puts report.md or report.html last): every file is staged, and only once all are
+/// are they moved into place, the previous marker removed first and the new one moved in
+/// last. A failure while staging leaves `dir` as it was (and removes it again if this call
+/// created it).
 pub fn write_files(dir: &Path, files: &[ReportFile]) -> Result<(), ReportError> {
     let created = !dir.exists();
-    std::fs::create_dir_all(dir).map_err(|source| ReportError::CreateDir {
-        path: dir.to_path_buf(),
-        source,
-    })?;
     let result = stage_and_commit(dir, files);
     if result.is_err() && created {
-        // Only removes the directory if nothing is in it (the temporary files are gone).
+        // Only removes the directory if nothing is in it (the staging folder is gone).
         let _ = std::fs::remove_dir(dir);
     }
     result
 }
 
 fn stage_and_commit(dir: &Path, files: &[ReportFile]) -> Result<(), ReportError> {
-    let mut staged = Vec::with_capacity(files.len());
+    let marker = files.last().map(|f| f.name.as_str());
+    let mut set = FileSet::create(dir, marker).map_err(|source| ReportError::CreateDir {
+        path: dir.to_path_buf(),
+        source,
+    })?;
     for f in files {
-        let path = dir.join(&f.name);
         let write_err = |source| ReportError::Write {
-            path: path.clone(),
+            path: dir.join(&f.name),
             source,
         };
-        let mut atomic = AtomicFile::create(&path).map_err(write_err)?;
+        let mut atomic = AtomicFile::create(&set.path(&f.name)).map_err(write_err)?;
         {
             let mut w = atomic.writer();
             w.write_all(&f.bytes).map_err(write_err)?;
             w.flush().map_err(write_err)?;
         }
-        staged.push((path, atomic));
+        atomic.commit().map_err(write_err)?;
     }
-    for (path, atomic) in staged {
-        atomic
-            .commit()
-            .map_err(|source| ReportError::Write { path, source })?;
-    }
+    set.commit().map_err(|source| ReportError::Write {
+        path: dir.to_path_buf(),
+        source,
+    })?;
     Ok(())
 }
 

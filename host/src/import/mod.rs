@@ -24,6 +24,7 @@ use std::io::{BufRead, Read as _};
 use std::path::{Path, PathBuf};
 
 use crate::interchange::{open_maybe_gz, ImuRecording, TableError, CHANNELS};
+use crate::output::FileSet;
 
 /// Errors while importing. Each names the file, and the line (1-based) where there is one.
 #[derive(Debug, thiserror::Error)]
@@ -422,30 +423,11 @@ pub fn contents(rec: &ImuRecording) -> Vec<&'static str> {
 ///
 /// All or nothing: every file is first written into a private staging folder inside
 /// `out_dir`, and moved into place only once every input has imported; on any error the
-/// staging folder is removed and `out_dir` is left as it was.
+/// staging folder is removed and `out_dir` is left as it was (or absent, if it was).
 pub fn import_to_dir(input: &Path, out_dir: &Path) -> Result<ImportReport, ImportError> {
     let (datasets, skipped) = find_datasets(input)?;
-    let created = !out_dir.exists();
-    let result = import_datasets(datasets, skipped, out_dir);
-    if result.is_err() && created {
-        // A folder made for this import goes with it (it is empty: the staging folder,
-        // removed by now, held everything).
-        let _ = std::fs::remove_dir(out_dir);
-    }
-    result
-}
-
-/// [`import_to_dir`] once the inputs are found.
-fn import_datasets(
-    datasets: Vec<(PathBuf, Dataset)>,
-    skipped: Vec<PathBuf>,
-    out_dir: &Path,
-) -> Result<ImportReport, ImportError> {
-    std::fs::create_dir_all(out_dir).map_err(|e| ImportError::io(out_dir, e))?;
-    let staging = tempfile::Builder::new()
-        .prefix(".dynacal-import-")
-        .tempdir_in(out_dir)
-        .map_err(|e| ImportError::io(out_dir, e))?;
+    // No completion marker: each sensor's file is a recording on its own.
+    let mut set = FileSet::create(out_dir, None).map_err(|e| ImportError::io(out_dir, e))?;
     let mut sources: BTreeMap<String, PathBuf> = BTreeMap::new();
     let mut written = Vec::new();
     for (source, dataset) in datasets {
@@ -458,7 +440,7 @@ fn import_datasets(
                     second: source,
                 });
             }
-            sensor.recording.write(&staging.path().join(&file_name))?;
+            sensor.recording.write(&set.path(&file_name))?;
             let rec = &sensor.recording;
             written.push(WrittenFile {
                 path: out_dir.join(&file_name),
@@ -471,11 +453,7 @@ fn import_datasets(
             sources.insert(file_name, source.clone());
         }
     }
-    for file in &written {
-        let name = file.path.file_name().unwrap_or_default();
-        std::fs::rename(staging.path().join(name), &file.path)
-            .map_err(|e| ImportError::io(&file.path, e))?;
-    }
+    set.commit().map_err(|e| ImportError::io(out_dir, e))?;
     Ok(ImportReport { written, skipped })
 }
 

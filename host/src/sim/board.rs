@@ -205,33 +205,35 @@ pub fn board_recording(out: &SimOutput, model: &SimModel) -> Result<BoardRecordi
             .collect(),
         _ => Vec::new(),
     };
-    let gnss = match &out.gnss {
-        None => Vec::new(),
-        Some(g) => {
-            let horizontal_sigma_m = g.sigma_ned_m[0].hypot(g.sigma_ned_m[1]);
-            let v = g.sigma_v_ned_m_s;
-            let speed_sigma_m_s = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-            (0..g.t_s.len())
-                .map(|k| GnssFix {
-                    t_us: to_us(g.t_s[k]),
-                    lat_rad: g.position[0][k],
-                    lon_rad: g.position[1][k],
-                    h_m: g.position[2][k] as f32,
-                    vel_ned_m_s: [0, 1, 2].map(|a| g.velocity_ned_m_s[a][k] as f32),
-                    pos_sigma_m: horizontal_sigma_m as f32,
-                    vel_sigma_m_s: speed_sigma_m_s as f32,
-                    // The simulator has no constellation: satellites are not reported.
-                    num_sats: 0,
-                    fix_type: 3,
-                })
-                .collect()
-        }
-    };
+    let gnss = out.gnss.as_ref().map_or_else(Vec::new, gnss_fixes);
     Ok(BoardRecording {
         imus,
         pps_t_us,
         gnss,
     })
+}
+
+/// The simulated receiver's fixes as the board's GNSS frames: the stated horizontal sigma
+/// is the root sum of squares of the north and east ones, the speed sigma that of the three
+/// velocity axes (NAV-PVT reports one number for each).
+pub fn gnss_fixes(g: &super::gnss::GnssFixes) -> Vec<GnssFix> {
+    let horizontal_sigma_m = g.sigma_ned_m[0].hypot(g.sigma_ned_m[1]);
+    let v = g.sigma_v_ned_m_s;
+    let speed_sigma_m_s = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+    (0..g.t_s.len())
+        .map(|k| GnssFix {
+            t_us: to_us(g.t_s[k]),
+            lat_rad: g.position[0][k],
+            lon_rad: g.position[1][k],
+            h_m: g.position[2][k] as f32,
+            vel_ned_m_s: [0, 1, 2].map(|a| g.velocity_ned_m_s[a][k] as f32),
+            pos_sigma_m: horizontal_sigma_m as f32,
+            vel_sigma_m_s: speed_sigma_m_s as f32,
+            // The simulator has no constellation: satellites are not reported.
+            num_sats: 0,
+            fix_type: 3,
+        })
+        .collect()
 }
 
 /// One event of the merged, time-ordered stream.

@@ -3,8 +3,8 @@
 //! `<name>-ideal.csv` of each IMU, and on request the board's view of the MEMS IMUs
 //! (`board.replay`, the firmware replay input, and `board.log`, the board log; see
 //! [`super::board`]). Files are staged in a hidden folder inside the output
-//! folder and moved into place only when all are written, `truth.json` last, so a failed
-//! run leaves no partial set.
+//! folder and moved into place only when all are written, `truth.json` last as the set's
+//! completion marker (`crate::output`), so a failed or killed run leaves no partial set.
 
 use std::borrow::Cow;
 use std::fmt::Write as _;
@@ -17,7 +17,7 @@ use super::board::{BoardError, BoardRecording};
 use super::gnss::{GnssFixes, PpsTable};
 use super::SimOutput;
 use crate::interchange::{ImuRecording, TableError};
-use crate::output::{write_json_atomic, AtomicFile};
+use crate::output::{write_json_atomic, AtomicFile, FileSet};
 
 /// Errors writing a simulation's outputs.
 #[derive(Debug, thiserror::Error)]
@@ -43,6 +43,8 @@ pub enum SimWriteError {
 pub const REPLAY_FILE: &str = "board.replay";
 /// Name of the board log written with a board recording.
 pub const LOG_FILE: &str = "board.log";
+/// Name of the truth file, the completion marker of a simulation's set (written last).
+pub const TRUTH_FILE: &str = "truth.json";
 
 /// Writes `out` into `dir` (created if absent); returns the files written.
 pub fn write_outputs(
@@ -60,31 +62,21 @@ fn io_error(path: &Path) -> impl FnOnce(std::io::Error) -> SimWriteError {
     move |source| SimWriteError::Io { path, source }
 }
 
-/// The hidden folder inside the output folder the files are written to, and the names
-/// written so far (in the order they are moved into place).
-struct Stage<'a> {
-    dir: &'a Path,
-    temp: tempfile::TempDir,
-    names: Vec<String>,
+/// The set being written (`crate::output::FileSet`, `truth.json` its completion marker).
+struct Stage {
+    set: FileSet,
 }
 
-impl<'a> Stage<'a> {
+impl Stage {
     /// Creates `dir` if absent and a staging folder inside it.
-    fn new(dir: &'a Path) -> Result<Self, SimWriteError> {
-        std::fs::create_dir_all(dir).map_err(io_error(dir))?;
-        let temp = tempfile::Builder::new()
-            .prefix(".dynacal-partial-")
-            .tempdir_in(dir)
-            .map_err(io_error(dir))?;
-        Ok(Self {
-            dir,
-            temp,
-            names: Vec::new(),
-        })
+    fn new(dir: &Path) -> Result<Self, SimWriteError> {
+        let set = FileSet::create(dir, Some(TRUTH_FILE)).map_err(io_error(dir))?;
+        Ok(Self { set })
     }
 
-    fn path(&self, name: &str) -> PathBuf {
-        self.temp.path().join(name)
+    /// The staged path of `name`, which joins the set.
+    fn path(&mut self, name: &str) -> PathBuf {
+        self.set.path(name)
     }
 
     /// Writes the staged file `name` with `write` (compressed when the name ends in `.gz`).
@@ -100,21 +92,14 @@ impl<'a> Stage<'a> {
             write(&mut *w, &path)?;
             w.flush().map_err(io_error(&path))?;
         }
-        f.commit().map_err(io_error(&path))?;
-        self.names.push(name);
-        Ok(())
+        f.commit().map_err(io_error(&path))
     }
 
-    /// Moves every staged file into the output folder; returns their paths.
+    /// Moves every staged file into the output folder, `truth.json` last; returns their
+    /// paths.
     fn commit(self) -> Result<Vec<PathBuf>, SimWriteError> {
-        let mut written = Vec::new();
-        for name in &self.names {
-            let from = self.path(name);
-            let to = self.dir.join(name);
-            std::fs::rename(&from, &to).map_err(io_error(&to))?;
-            written.push(to);
-        }
-        Ok(written)
+        let dir = self.set.dir().to_path_buf();
+        self.set.commit().map_err(io_error(&dir))
     }
 }
 
@@ -204,10 +189,11 @@ pub fn write_outputs_with_board(
     let mut stage = Stage::new(dir)?;
     let ext = if gzip { "csv.gz" } else { "csv" };
     let imus = imu_files(out, ext, write_ideal);
+    let paths: Vec<PathBuf> = imus.iter().map(|(name, _)| stage.path(name)).collect();
     imus.par_iter()
-        .map(|(name, rec)| rec.write(&stage.path(name)))
+        .zip(&paths)
+        .map(|((_, rec), path)| rec.write(path))
         .collect::<Result<Vec<()>, _>>()?;
-    stage.names.extend(imus.iter().map(|(n, _)| n.clone()));
     if let Some(g) = &out.gnss {
         stage.write_file(format!("gnss.{ext}"), text_writer(gnss_text(g)))?;
     }
@@ -229,8 +215,7 @@ pub fn write_outputs_with_board(
             })?;
         }
     }
-    let truth_path = stage.path("truth.json");
+    let truth_path = stage.path(TRUTH_FILE);
     write_json_atomic(&truth_path, &out.truth).map_err(io_error(&truth_path))?;
-    stage.names.push("truth.json".into());
     stage.commit()
 }
