@@ -41,7 +41,9 @@ pub fn fit_file(
     bootstrap: Option<BootstrapOptions>,
 ) -> Result<Vec<ChannelFit>, FitFileError> {
     let channels = load_wavelet_variances(file, input, &WvOptions::default())?;
-    channels
+    // Collected in full before the first error is taken, so that the error named is the
+    // first channel's in file order, whichever thread finished first.
+    let fits: Vec<Result<ChannelFit, FitFileError>> = channels
         .par_iter()
         .map(|c| {
             let err = |source| FitFileError::Channel {
@@ -60,7 +62,8 @@ pub fn fit_file(
             )
             .map_err(err)
         })
-        .collect()
+        .collect();
+    fits.into_iter().collect()
 }
 
 /// What `dynacal fit` writes beside the model: the statistics of every channel's fit.
