@@ -2,8 +2,15 @@
 //! nine-point central stencil for signals sampled on their own (nearly even) grid, a plain
 //! central difference for derived epoch series (the calibration and the diagnosis), and a
 //! streaming sixth-order central difference for filters fed one sample at a time (Fig. 1).
+//! Also the median of a sample, used where a check must not move with a few outliers.
 
 use nalgebra::{RealField, Vector3};
+
+/// The median of `values` (the upper one of an even count); `None` when empty.
+pub fn median(mut values: Vec<f64>) -> Option<f64> {
+    values.sort_by(f64::total_cmp);
+    values.get(values.len() / 2).copied()
+}
 
 /// Derivative of `x` sampled at `t_s` by a nine-point central stencil (exact for polynomials
 /// of degree 8; at 200 Hz it keeps a 26 Hz engine vibration's derivative within 0.05%, where

@@ -10,6 +10,7 @@
 use nalgebra::Vector3;
 
 use super::epochs::EpochData;
+use super::signals::std_dev;
 use super::ErrorsError;
 
 /// Window of the averages, s: long against sensor noise, short against a manoeuvre.
@@ -199,9 +200,7 @@ fn unit_slip(
 }
 
 fn median_norm(v: &[Vector3<f64>]) -> f64 {
-    let mut norms: Vec<f64> = v.iter().map(|x| x.norm()).collect();
-    norms.sort_by(f64::total_cmp);
-    norms.get(norms.len() / 2).copied().unwrap_or(0.0)
+    crate::numeric::median(v.iter().map(|x| x.norm()).collect()).unwrap_or(0.0)
 }
 
 /// Changes of the means of |v| from each window of [`WINDOW_S`] to the next.
@@ -236,11 +235,6 @@ fn window_means(t_s: &[f64], v: &[Vector3<f64>]) -> Vec<f64> {
 
 fn mean(x: &[f64]) -> f64 {
     x.iter().sum::<f64>() / x.len() as f64
-}
-
-fn std_dev(x: &[f64]) -> f64 {
-    let m = mean(x);
-    (x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / x.len() as f64).sqrt()
 }
 
 fn correlation(a: &[f64], b: &[f64]) -> f64 {

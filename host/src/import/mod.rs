@@ -275,11 +275,11 @@ fn check_units(path: &Path, sensor: &ImportedSensor) -> Result<(), ImportError> 
         return Ok(());
     }
     let median_norm = |triad: &[Vec<f64>; 3]| {
-        let mut norms: Vec<f64> = (0..triad[0].len())
-            .map(|i| (triad[0][i].powi(2) + triad[1][i].powi(2) + triad[2][i].powi(2)).sqrt())
-            .collect();
-        norms.sort_by(f64::total_cmp);
-        norms.get(norms.len() / 2).copied()
+        crate::numeric::median(
+            (0..triad[0].len())
+                .map(|i| (triad[0][i].powi(2) + triad[1][i].powi(2) + triad[2][i].powi(2)).sqrt())
+                .collect(),
+        )
     };
     let r = &sensor.recording;
     let implausible = |message: String| ImportError::Implausible {
