@@ -11,6 +11,8 @@
 mod board;
 #[cfg(target_os = "none")]
 mod cost;
+#[cfg(all(target_os = "none", feature = "board-replay"))]
+mod soft_watchdog;
 #[cfg(target_os = "none")]
 mod stack;
 

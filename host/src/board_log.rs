@@ -1,8 +1,10 @@
 //! What the board's fusion logged, as files a user reads and the host's tools take:
 //! `nav.csv` (the filter's states, with the column names of the simulator's
 //! `reference.csv` plus one `sigma_*` column each, then the biases), `noise.csv` (each
-//! unit's own noise level and which units the fused output used) and `faults.json` (each
-//! fault the fusion confirmed and each unit it took back).
+//! unit's own noise level and which units the fused output used), `faults.json` (each
+//! fault the fusion confirmed and each unit it took back) and `health.json` (the board's
+//! own troubles from its Health frames: a failed or silent IMU, the log sink full, the PPS
+//! or the GNSS fix lost, each as an episode with its start and end).
 //!
 //! Times are GPS seconds as the log's microseconds give them (`decode::seconds_of_us`).
 //! Attitude sigmas: the filter's are about the north, east and down axes; roll and pitch
@@ -14,7 +16,7 @@
 use std::fmt::Write as _;
 
 use dynacal_core::fusion::FUSED_LANE_ID;
-use dynacal_core::log::{FaultFrame, FilterState, Header, NoiseFrame};
+use dynacal_core::log::{FaultFrame, FilterState, Header, Health, NoiseFrame};
 use dynacal_core::nav::ekf::position_innovation_ned_m;
 use dynacal_core::nav::strapdown::NavState;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
@@ -140,6 +142,65 @@ pub fn fault_entries(header: &Header, faults: &[FaultFrame]) -> Vec<FaultEntry> 
             kind: f.kind_name(),
         })
         .collect()
+}
+
+/// One stretch of Health reports that all show a trouble (`health.json`).
+#[derive(Debug, Clone, PartialEq, Serialize)]
+pub struct HealthEpisode {
+    /// `imu_fault` (a read failed or an IMU went quiet), `log_backpressure` (frames
+    /// dropped), `pps_unlocked`, `no_gnss_fix` or `time_not_gps`.
+    pub condition: &'static str,
+    /// The first report that shows it, s.
+    pub from_t_s: f64,
+    /// The first report after it that does not; None when it lasts to the last report.
+    pub to_t_s: Option<f64>,
+    /// Reports that show it.
+    pub reports: usize,
+    /// Frames dropped and IMU samples lost from the report before it to its end.
+    pub frames_dropped: u32,
+    pub samples_overrun: u32,
+}
+
+/// The troubles the Health reports show, each condition's episodes in time order.
+pub fn health_episodes(health: &[Health]) -> Vec<HealthEpisode> {
+    type Shows = fn(&Health) -> bool;
+    let conditions: [(&'static str, Shows); 5] = [
+        ("imu_fault", |h| h.flags & Health::FLAG_IMU_FAULT != 0),
+        ("log_backpressure", |h| {
+            h.flags & Health::FLAG_LOG_BACKPRESSURE != 0
+        }),
+        ("pps_unlocked", |h| h.flags & Health::FLAG_PPS_LOCKED == 0),
+        ("no_gnss_fix", |h| h.flags & Health::FLAG_GNSS_FIX == 0),
+        ("time_not_gps", |h| h.flags & Health::FLAG_TIME_GPS == 0),
+    ];
+    let mut episodes = Vec::new();
+    for (condition, shows) in conditions {
+        let mut open: Option<(usize, usize)> = None;
+        for i in 0..=health.len() {
+            let showing = health.get(i).is_some_and(shows);
+            match (open, showing) {
+                (None, true) => open = Some((i, i)),
+                (Some((first, _)), true) => open = Some((first, i)),
+                (Some((first, last)), false) => {
+                    let before = first.checked_sub(1).map(|b| &health[b]);
+                    let counts = |f: fn(&Health) -> u32| {
+                        f(&health[last]).saturating_sub(before.map_or(0, f))
+                    };
+                    episodes.push(HealthEpisode {
+                        condition,
+                        from_t_s: seconds_of_us(health[first].t_us),
+                        to_t_s: health.get(i).map(|h| seconds_of_us(h.t_us)),
+                        reports: last + 1 - first,
+                        frames_dropped: counts(|h| h.frames_dropped),
+                        samples_overrun: counts(|h| h.samples_overrun),
+                    });
+                    open = None;
+                }
+                (None, false) => {}
+            }
+        }
+    }
+    episodes
 }
 
 /// A filter state's error against a reference solution: true minus estimated position

@@ -286,6 +286,15 @@ impl DecodedLog {
             .fold(0.0, f64::max)
     }
 
+    /// Time of the earliest IMU sample, s (GPS seconds as the log gives them).
+    pub fn first_sample_s(&self) -> Option<f64> {
+        self.imus
+            .iter()
+            .filter_map(|imu| imu.t_us.first())
+            .min()
+            .map(|&t| seconds_of_us(t))
+    }
+
     fn count_error(&mut self, error: &LogError) {
         *self
             .dropped_by_error

@@ -420,6 +420,9 @@ pub fn build_firmware(target_dir: &Path, board_feature: &str) -> Result<PathBuf,
 pub struct RunReport {
     pub imu_sample_sets: u64,
     pub pps_edges: u64,
+    /// Receiver solutions logged, and receiver frames refused (corrupted bytes).
+    pub gnss_fixes: u64,
+    pub gnss_frames_refused: u64,
     pub health_reports: u64,
     /// Filter, Noise and Fault frames of the on-board fusion.
     pub filter_states: u64,
@@ -459,6 +462,8 @@ impl RunReport {
             let slot = match key {
                 "imu_sample_sets" => &mut report.imu_sample_sets,
                 "pps_edges" => &mut report.pps_edges,
+                "gnss_fixes" => &mut report.gnss_fixes,
+                "gnss_frames_refused" => &mut report.gnss_frames_refused,
                 "health_reports" => &mut report.health_reports,
                 "filter_states" => &mut report.filter_states,
                 "noise_reports" => &mut report.noise_reports,
@@ -479,7 +484,7 @@ impl RunReport {
             *slot = value.parse().ok()?;
             seen += 1;
         }
-        (seen == 17).then_some(report)
+        (seen == 19).then_some(report)
     }
 
     /// Instructions per IMU sample set in the application's own work (framing + sink).
@@ -521,6 +526,16 @@ pub struct QemuRun {
     pub wall_time: Duration,
 }
 
+impl QemuRun {
+    /// The firmware's refusal of the board model it was given (it then ran its built-in
+    /// one), if it refused it: the line `board model PATH refused: REASON; ...`.
+    pub fn model_refusal(&self) -> Option<&str> {
+        self.stderr
+            .lines()
+            .find(|l| l.starts_with("dynacal-firmware: board model ") && l.contains(" refused: "))
+    }
+}
+
 /// Runs the replay firmware `elf` in QEMU on `input`, writing the log to `log`, the fusion
 /// running `model` (a `board-model.bin`; None: the built-in model). Paths must not contain
 /// spaces: semihosting joins arguments with them. Fails unless the guest exits 0 and
@@ -531,7 +546,19 @@ pub fn run_replay_in_qemu(
     log: &Path,
     model: Option<&Path>,
 ) -> Result<QemuRun, ReplayFileError> {
-    for path in [elf, input, log].into_iter().chain(model) {
+    run_replay_with_faults_in_qemu(elf, input, log, model, None)
+}
+
+/// As [`run_replay_in_qemu`], with the board faults of the plan at `faults`
+/// (`dynacal_core::inject`) injected on the board.
+pub fn run_replay_with_faults_in_qemu(
+    elf: &Path,
+    input: &Path,
+    log: &Path,
+    model: Option<&Path>,
+    faults: Option<&Path>,
+) -> Result<QemuRun, ReplayFileError> {
+    for path in [elf, input, log].into_iter().chain(model).chain(faults) {
         if path.to_string_lossy().contains([' ', '\t']) {
             return Err(ReplayFileError::Tool(format!(
                 "{}: semihosting cannot pass a path containing a space",
@@ -547,6 +574,9 @@ pub fn run_replay_in_qemu(
     );
     if let Some(model) = model {
         semihosting.push_str(&format!(",arg={}", arg(model)));
+    }
+    if let Some(faults) = faults {
+        semihosting.push_str(&format!(",arg=--faults,arg={}", arg(faults)));
     }
     // The firmware writes LOG.part and renames it to LOG after a complete run; a signal
     // or a failed run must not leave the part behind.
@@ -918,7 +948,7 @@ mod tests {
     #[test]
     fn run_report_parses_only_a_complete_line() {
         let stderr = "noise\ndynacal-firmware: run-report board=x imu_sample_sets=6000 \
-            pps_edges=60 health_reports=60 filter_states=10 noise_reports=2 fault_reports=1 \
+            pps_edges=60 gnss_fixes=600 gnss_frames_refused=3 health_reports=60 filter_states=10 noise_reports=2 fault_reports=1 \
             frames_written=6121 bytes_written=200000 frames_dropped=0 \
             record_instructions=1200000 source_instructions=600000 total_instructions=1900000 \
             fusion_instructions=300000 navigating_fusion_instructions=200000 \
@@ -929,6 +959,7 @@ mod tests {
         assert_eq!(report.imu_sample_sets, 6000);
         assert_eq!(report.record_instructions_per_sample(), 200.0);
         assert_eq!((report.filter_states, report.fault_reports), (10, 1));
+        assert_eq!((report.gnss_fixes, report.gnss_frames_refused), (600, 3));
         // 900 000 recording instructions over 3 s, 200 fusion instructions a set at 1 kHz.
         assert_eq!(
             report.steady_instructions_per_second(3.0, 1000.0),

@@ -101,7 +101,33 @@ fn decode_writes_bit_exact_csvs_and_summary() {
         .map(|e| e.unwrap().file_name().into_string().unwrap())
         .collect();
     names.sort();
-    assert_eq!(names, ["imu0.csv", "imu2.csv", "summary.json"]);
+    assert_eq!(
+        names,
+        ["health.json", "imu0.csv", "imu2.csv", "summary.json"]
+    );
+    // The board's troubles from its Health frames: episodes in time order per condition.
+    let health: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("health.json")).unwrap()).unwrap();
+    for episode in health.as_array().unwrap() {
+        let condition = episode["condition"].as_str().unwrap();
+        assert!(
+            [
+                "imu_fault",
+                "log_backpressure",
+                "pps_unlocked",
+                "no_gnss_fix",
+                "time_not_gps"
+            ]
+            .contains(&condition),
+            "{episode}"
+        );
+        let from = episode["from_t_s"].as_f64().unwrap();
+        assert!(
+            episode["to_t_s"].as_f64().is_none_or(|to| to > from),
+            "{episode}"
+        );
+        assert!(episode["reports"].as_u64().unwrap() >= 1, "{episode}");
+    }
 }
 
 #[test]

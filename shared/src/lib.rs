@@ -10,6 +10,7 @@ pub mod channel;
 pub mod clock;
 pub mod fusion;
 pub mod gnss;
+pub mod inject;
 pub mod log;
 pub mod nav;
 pub mod recorder;

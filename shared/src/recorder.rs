@@ -86,13 +86,30 @@ pub trait SampleSource {
     fn samples_overrun(&self) -> u32 {
         0
     }
-    /// Whether any IMU failed its last read.
-    fn imu_fault(&self) -> bool {
+    /// Whether any IMU read failed since the previous call (asked once per health report).
+    fn imu_fault(&mut self) -> bool {
         false
     }
     /// Die temperature of each IMU in header order, degrees Celsius; NaN when not measured.
     fn imu_temperatures_deg_c(&mut self) -> [f32; MAX_IMUS] {
         [f32::NAN; MAX_IMUS]
+    }
+}
+
+/// A source borrowed (a board that keeps its source in a static hands the recorder this).
+impl<S: SampleSource + ?Sized> SampleSource for &mut S {
+    type Error = S::Error;
+    fn next_event(&mut self) -> Result<Option<SourceEvent>, Self::Error> {
+        (**self).next_event()
+    }
+    fn samples_overrun(&self) -> u32 {
+        (**self).samples_overrun()
+    }
+    fn imu_fault(&mut self) -> bool {
+        (**self).imu_fault()
+    }
+    fn imu_temperatures_deg_c(&mut self) -> [f32; MAX_IMUS] {
+        (**self).imu_temperatures_deg_c()
     }
 }
 
@@ -114,6 +131,17 @@ pub trait LogSink {
     fn flush(&mut self) -> Result<(), Self::Error>;
 }
 
+/// A sink borrowed (see the [`SampleSource`] impl for `&mut S`).
+impl<K: LogSink + ?Sized> LogSink for &mut K {
+    type Error = K::Error;
+    fn write_frame(&mut self, frame: &[u8]) -> Result<Accepted, Self::Error> {
+        (**self).write_frame(frame)
+    }
+    fn flush(&mut self) -> Result<(), Self::Error> {
+        (**self).flush()
+    }
+}
+
 /// A free-running tick counter used to measure the recorder's own cost.
 pub trait TickClock {
     /// Ticks since an arbitrary origin; never decreases.
@@ -129,6 +157,8 @@ pub struct RecorderStats {
     pub pps_edges: u64,
     /// GNSS solutions found in the receiver's bytes and logged.
     pub gnss_fixes: u64,
+    /// Receiver frames refused (bad checksum, bad length, malformed): corrupted bytes.
+    pub gnss_frames_refused: u32,
     /// Health frames produced (written or dropped).
     pub health_reports: u64,
     /// WaveletVariance frames produced (written or dropped).
@@ -163,6 +193,7 @@ impl RecorderStats {
         imu_sample_sets: [0; MAX_IMUS],
         pps_edges: 0,
         gnss_fixes: 0,
+        gnss_frames_refused: 0,
         health_reports: 0,
         wv_frames: 0,
         filter_states: 0,
@@ -208,6 +239,9 @@ pub struct Recorder {
     /// A PPS edge seen within this long before a health report sets `FLAG_PPS_LOCKED`, and a
     /// 3-D GNSS fix `FLAG_GNSS_FIX`.
     pub pps_lock_window_us: u64,
+    /// An IMU with no sample for this many of its sample intervals before a health report
+    /// has gone quiet (its data-ready line, its clock): the report sets `FLAG_IMU_FAULT`.
+    pub imu_silent_intervals: u32,
     /// Log time between two periodic rounds of WaveletVariance frames, microseconds (a live
     /// board never reaches the end-of-run round).
     pub wv_period_us: u64,
@@ -222,6 +256,7 @@ impl Recorder {
             header,
             health_period_us: 1_000_000,
             pps_lock_window_us: 2_000_000,
+            imu_silent_intervals: 10,
             wv_period_us: 60_000_000,
             fusion_model: None,
         }
@@ -298,6 +333,9 @@ impl Recorder {
         let mut next_wv_t_us: Option<u64> = None;
         let mut last_pps_t_us: Option<u64> = None;
         let mut last_fix_t_us: Option<u64> = None;
+        // Each IMU's latest sample (raw time), from the first event on: a unit that never
+        // answers goes quiet as one that stops.
+        let mut last_imu_t_us: [Option<u64>; MAX_IMUS] = [None; MAX_IMUS];
         let mut receiver = UbxReceiver::new(LEAP_SECONDS_2017);
         let mut tagger = TimeTagger::new(ClockConfig::microsecond_timer());
         // Whether the latest event's logged time is GPS time.
@@ -322,6 +360,9 @@ impl Recorder {
                 }
             }
             previous_t_us = Some(t_us);
+            for last in last_imu_t_us.iter_mut() {
+                last.get_or_insert(t_us);
+            }
             if let SourceEvent::Pps(_) = event {
                 tagger.on_pps(t_us);
             }
@@ -334,7 +375,11 @@ impl Recorder {
                     (t_us, log_t_us, time_gps),
                     source,
                     &run.stats,
-                    (last_pps_t_us, last_fix_t_us),
+                    (
+                        last_pps_t_us,
+                        last_fix_t_us,
+                        self.imu_silent(t_us, &last_imu_t_us),
+                    ),
                     dropped_at_last_health,
                     load_permille(
                         run.stats
@@ -378,6 +423,7 @@ impl Recorder {
                         t_us: log_t_us,
                         ..sample
                     };
+                    last_imu_t_us[index] = Some(t_us);
                     run.emit_with(|| Frame::Imu(sample))?;
                     run.stats.imu_sample_sets[index] += 1;
                     if let Some(channels) = run.wv.get_mut(index) {
@@ -426,6 +472,7 @@ impl Recorder {
             run.stats.record_ticks += clock.now_ticks().saturating_sub(fetched);
         }
 
+        run.stats.gnss_frames_refused = receiver.counts().malformed;
         let final_start = clock.now_ticks();
         if let Some(set) = run.fusion.first_mut().and_then(|f| f.sets.finish()) {
             run.fuse_set(set, clock)?;
@@ -436,7 +483,11 @@ impl Recorder {
             (last_t_us, tagger.time_of(last_t_us).0, time_gps),
             source,
             &run.stats,
-            (last_pps_t_us, last_fix_t_us),
+            (
+                last_pps_t_us,
+                last_fix_t_us,
+                self.imu_silent(last_t_us, &last_imu_t_us),
+            ),
             dropped_at_last_health,
             load_permille(
                 run.stats
@@ -461,7 +512,7 @@ impl Recorder {
         (t_us, log_t_us, time_gps): (u64, u64, bool),
         source: &mut Src,
         stats: &RecorderStats,
-        (last_pps_t_us, last_fix_t_us): (Option<u64>, Option<u64>),
+        (last_pps_t_us, last_fix_t_us, imu_silent): (Option<u64>, Option<u64>, bool),
         dropped_at_last_health: u32,
         cpu_load_permille: u16,
     ) -> Health {
@@ -477,7 +528,7 @@ impl Recorder {
         if recent(last_fix_t_us) {
             flags |= Health::FLAG_GNSS_FIX;
         }
-        if source.imu_fault() {
+        if source.imu_fault() || imu_silent {
             flags |= Health::FLAG_IMU_FAULT;
         }
         if stats.frames_dropped > dropped_at_last_health {
@@ -491,6 +542,22 @@ impl Recorder {
             cpu_load_permille,
             imu_temperature_deg_c: source.imu_temperatures_deg_c(),
         }
+    }
+}
+
+impl Recorder {
+    /// Whether a declared IMU has had no sample for [`Self::imu_silent_intervals`] of its
+    /// intervals at raw time `t_us`.
+    fn imu_silent(&self, t_us: u64, last_imu_t_us: &[Option<u64>; MAX_IMUS]) -> bool {
+        self.header
+            .imus
+            .iter()
+            .zip(last_imu_t_us)
+            .any(|(imu, last)| {
+                let interval_us = 1e6 / f64::from(imu.sample_rate_hz).max(1e-3);
+                let limit_us = (f64::from(self.imu_silent_intervals) * interval_us) as u64;
+                last.is_some_and(|last| t_us.saturating_sub(last) > limit_us)
+            })
     }
 }
 
@@ -957,6 +1024,53 @@ mod tests {
         assert!(health[3..]
             .iter()
             .all(|h| h.flags & Health::FLAG_TIME_GPS != 0));
+    }
+
+    /// An IMU that stops delivering (its data-ready line quiet) is flagged in the health
+    /// reports while it is quiet, and no longer once it is back.
+    #[test]
+    fn a_silent_imu_is_flagged_in_the_health_reports_while_it_is_quiet() {
+        // Two IMUs at 100 Hz for 5 s; IMU 7 gives nothing from 1.5 s to 3.2 s.
+        let mut events = std::vec::Vec::new();
+        for k in 0..500u64 {
+            if k % 100 == 0 {
+                events.push(SourceEvent::Pps(PpsEvent {
+                    t_us: k * 10_000,
+                    sequence: (k / 100) as u32,
+                }));
+            }
+            events.push(imu(k * 10_000, 4, k as i32));
+            if !(150..320).contains(&k) {
+                events.push(imu(k * 10_000 + 3, 7, -(k as i32)));
+            }
+        }
+        let recorder = Recorder::new(header(&[4, 7]));
+        let mut sink = BoundedSink::with_capacity(usize::MAX);
+        recorder
+            .run(
+                &mut VecSource(events.into_iter()),
+                &mut sink,
+                &mut StepClock(0),
+            )
+            .unwrap();
+        let flagged: std::vec::Vec<(u64, bool)> = decode(&sink.bytes)
+            .iter()
+            .filter_map(|f| match f {
+                Frame::Health(h) => Some((h.t_us, h.flags & Health::FLAG_IMU_FAULT != 0)),
+                _ => None,
+            })
+            .collect();
+        // Quiet for more than 10 intervals (100 ms) at the reports of 2 s and 3 s only.
+        assert_eq!(
+            flagged,
+            [
+                (1_000_000, false),
+                (2_000_000, true),
+                (3_000_000, true),
+                (4_000_000, false),
+                (4_990_003, false)
+            ]
+        );
     }
 
     #[test]

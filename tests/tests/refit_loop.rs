@@ -111,7 +111,7 @@ fn write_blob(result: &dynacal::refit::Refit, dir: &Path) -> (std::path::PathBuf
 fn run_with_blob(elf: &Path, input: &Path, blob_path: &Path, dir: &Path) -> DecodedLog {
     let log = dir.join("refitted.log");
     let run = run_replay_in_qemu(elf, input, &log, Some(blob_path)).unwrap();
-    assert!(!run.stderr.contains("refused"), "{}", run.stderr);
+    assert_eq!(run.model_refusal(), None, "{}", run.stderr);
     decode_file(&log).unwrap()
 }
 

@@ -12,6 +12,9 @@
 #[cfg(target_os = "none")]
 #[path = "../cost.rs"]
 mod cost;
+#[cfg(target_os = "none")]
+#[path = "../soft_watchdog.rs"]
+mod soft_watchdog;
 
 #[cfg(target_os = "none")]
 mod bare_metal {

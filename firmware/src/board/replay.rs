@@ -6,6 +6,10 @@
 //! model (`board-model.bin`, `dynacal_core::board_model`) the fusion runs. A model that does
 //! not read (damaged, truncated, another version) is refused with its reason on stderr and
 //! the built-in model runs; a model file that cannot be opened at all is a usage error.
+//! `--faults PLAN` (anywhere after the two paths) injects the board faults a plan lists
+//! (`dynacal_core::inject`): the source and the sink are wrapped in the plan's faults, and a
+//! planned hang stops the main loop, which the watchdog (`soft_watchdog`) catches. A plan
+//! that does not read is a usage error naming its line.
 //! `--panic-self-test` as the only argument panics on purpose, to show the fatal path, and
 //! `--stack-overflow-self-test` overflows the stack on purpose, to show it faults. Both are accessed with semihosting
 //! file calls; each call is a trap into QEMU, so input is read and output written in large
@@ -13,7 +17,7 @@
 //! so a failed run never leaves a log that looks whole. The run report (counts and the
 //! instruction cost measured with SysTick) is printed on semihosting stderr as one
 //! `key=value` line; QEMU's exit status is the guest's exit code:
-//! 0 success, 1 run failed (bad input, I/O), 2 usage, 101 panic, 102 HardFault.
+//! 0 success, 1 run failed (bad input, I/O), 2 usage, 101 panic, 102 HardFault, 103 watchdog.
 
 // Error messages are formatted into fixed buffers (no allocator), so `Result`s carry them
 // inline; they are built only on the way to exit.
@@ -23,6 +27,9 @@ use core::ffi::CStr;
 use core::fmt::Write as _;
 
 use dynacal_core::board_model::{BoardModel, MAX_BOARD_MODEL_LEN};
+use dynacal_core::inject::{
+    FaultPlan, InjectingSink, InjectingSource, InjectionClock, MAX_PLAN_LEN,
+};
 use dynacal_core::log::ImuSampleSet;
 use dynacal_core::log::{Header, ImuConfig, PpsEvent, IMU_MODEL_LEN, MAX_IMUS, PROTOCOL_VERSION};
 use dynacal_core::recorder::{
@@ -34,6 +41,7 @@ use dynacal_core::replay::{
 use heapless::String;
 use semihosting::fs::{File, OpenOptions};
 use semihosting::io::{Read as _, Write as _};
+use static_cell::StaticCell;
 
 use crate::cost::Calibration;
 // The defmt global logger: frames go to semihosting stdout (decode with defmt-print).
@@ -56,29 +64,69 @@ const EXIT_HARD_FAULT: i32 = 102;
 
 type Path = String<MAX_PATH>;
 
+/// The replay's time since its first event, shared by the fault plan's source and sink.
+static INJECTION_CLOCK: InjectionClock = InjectionClock::new();
+
+/// The source and the sink with the fault plan applied, in statics: the plan, its held
+/// samples and its generator are kilobytes that would otherwise sit in `main`'s frame, whose
+/// stack depth is the real board's bound too.
+static SOURCE: StaticCell<InjectingSource<'static, ReplaySource>> = StaticCell::new();
+static SINK: StaticCell<InjectingSink<'static, SemihostingSink>> = StaticCell::new();
+
 /// What `main` runs the recorder on.
 pub struct Parts {
     pub header: Header,
-    pub source: ReplaySource,
-    pub sink: SemihostingSink,
+    pub source: &'static mut InjectingSource<'static, ReplaySource>,
+    pub sink: &'static mut InjectingSink<'static, SemihostingSink>,
     /// The model the fusion runs.
     pub model: BoardModel,
+}
+
+/// The host paths on the command line.
+struct CommandLine {
+    input: Path,
+    output: Path,
+    model: Option<Path>,
+    faults: Option<Path>,
 }
 
 /// Reads the command line, opens both files and reads the replay header; on any failure
 /// prints why and exits.
 pub fn init() -> Parts {
-    let (input_path, output_path, model_path) = match command_line() {
+    let paths = match command_line() {
         Ok(paths) => paths,
         Err(message) => usage(&message),
     };
-    let mut parts = match open(input_path, output_path) {
+    let (header, mut source, sink) = match open(paths.input, paths.output) {
         Ok(parts) => parts,
         Err(message) => fail(&message),
     };
-    let blob = model_path.map(|path| match read_model(&path) {
-        Ok(blob) => (path, blob),
-        Err(message) => usage(&message),
+    let plan = match paths.faults.map(|path| read_plan(&path, header.imus.len())) {
+        Some(Ok(plan)) => plan,
+        Some(Err(message)) => usage(&message),
+        None => FaultPlan::default(),
+    };
+    source.hang_after_us = plan.hang_at_s().map(|s| (s * 1e6) as u64);
+    let sink = SINK.init(InjectingSink::new(sink, &plan, &INJECTION_CLOCK));
+    let source = SOURCE.init(InjectingSource::new(
+        source,
+        plan,
+        &header.imus,
+        &INJECTION_CLOCK,
+    ));
+    let mut parts = Parts {
+        header,
+        source,
+        sink,
+        model: BoardModel {
+            units: heapless::Vec::new(),
+        },
+    };
+    let blob = paths.model.map(|path| {
+        match read_file::<{ MAX_BOARD_MODEL_LEN + 1 }>(&path, "board model") {
+            Ok(blob) => (path, blob),
+            Err(message) => usage(&message),
+        }
     });
     let ids: heapless::Vec<u8, MAX_IMUS> = parts.header.imus.iter().map(|i| i.imu_id).collect();
     let (model, refused) =
@@ -98,17 +146,19 @@ pub fn init() -> Parts {
 
 fn usage(message: &Message) -> ! {
     semihosting::eprintln!("dynacal-firmware: {message}");
-    semihosting::eprintln!("usage: dynacal-firmware REPLAY_INPUT LOG_OUTPUT [BOARD_MODEL]");
+    semihosting::eprintln!(
+        "usage: dynacal-firmware REPLAY_INPUT LOG_OUTPUT [BOARD_MODEL] [--faults PLAN]"
+    );
     semihosting::process::exit(EXIT_USAGE)
 }
 
-/// The board model file's bytes (at most one byte more than the largest model, so an
-/// oversized file is seen as such by the decoder rather than read short).
-fn read_model(path: &Path) -> Result<heapless::Vec<u8, { MAX_BOARD_MODEL_LEN + 1 }>, Message> {
+/// A small file's bytes, up to `N` (one more than the largest a reader takes, so an
+/// oversized file is seen as such rather than read short).
+fn read_file<const N: usize>(path: &Path, what: &str) -> Result<heapless::Vec<u8, N>, Message> {
     let mut c_path = [0u8; MAX_PATH + 1];
     let mut file = File::open(c_str(path, &mut c_path))
-        .map_err(|e| message(format_args!("{path}: cannot open the board model: {e}")))?;
-    let mut buf = [0u8; MAX_BOARD_MODEL_LEN + 1];
+        .map_err(|e| message(format_args!("{path}: cannot open the {what}: {e}")))?;
+    let mut buf = [0u8; N];
     let mut len = 0;
     while len < buf.len() {
         match file.read(&mut buf[len..]) {
@@ -120,7 +170,15 @@ fn read_model(path: &Path) -> Result<heapless::Vec<u8, { MAX_BOARD_MODEL_LEN + 1
     Ok(buf[..len].iter().copied().collect())
 }
 
-fn command_line() -> Result<(Path, Path, Option<Path>), Message> {
+/// The fault plan at `path`, checked against the replay's `units` IMUs.
+fn read_plan(path: &Path, units: usize) -> Result<FaultPlan, Message> {
+    let text = read_file::<{ MAX_PLAN_LEN + 1 }>(path, "fault plan")?;
+    FaultPlan::parse(&text)
+        .and_then(|plan| plan.check_units(units).map(|()| plan))
+        .map_err(|e| message(format_args!("{path}: {e}")))
+}
+
+fn command_line() -> Result<CommandLine, Message> {
     let args = semihosting::experimental::env::args::<1024>().map_err(|e| {
         message(format_args!(
             "cannot read the semihosting command line: {e}"
@@ -155,11 +213,22 @@ fn command_line() -> Result<(Path, Path, Option<Path>), Message> {
         )));
     }
     let output = next_path("log output").ok_or_else(|| missing("log output"))??;
-    let model = next_path("board model").transpose()?;
-    if next_path("extra").is_some() {
-        return Err(message(format_args!("more than three paths given")));
+    let (mut model, mut faults) = (None, None);
+    while let Some(word) = next_path("argument").transpose()? {
+        if word == "--faults" {
+            faults = Some(next_path("fault plan").ok_or_else(|| missing("fault plan"))??);
+        } else if model.is_none() {
+            model = Some(word);
+        } else {
+            return Err(message(format_args!("more than three paths given")));
+        }
     }
-    Ok((input, output, model))
+    Ok(CommandLine {
+        input,
+        output,
+        model,
+        faults,
+    })
 }
 
 /// Recurses with a 1 KiB frame until the stack overflows (see `--stack-overflow-self-test`);
@@ -175,7 +244,10 @@ fn overflow_the_stack(depth: u32) -> u32 {
     overflow_the_stack(depth + 1) + u32::from(frame[0])
 }
 
-fn open(input_path: Path, output_path: Path) -> Result<Parts, Message> {
+fn open(
+    input_path: Path,
+    output_path: Path,
+) -> Result<(Header, ReplaySource, SemihostingSink), Message> {
     let mut c_path = [0u8; MAX_PATH + 1];
     let input = File::open(c_str(&input_path, &mut c_path))
         .map_err(|e| message(format_args!("{input_path}: cannot open: {e}")))?;
@@ -195,6 +267,8 @@ fn open(input_path: Path, output_path: Path) -> Result<Parts, Message> {
         imu_records: 0,
         pps_records: 0,
         ended: false,
+        first_t_us: None,
+        hang_after_us: None,
     };
     source.fill()?;
     let (replay_header, used) = loop {
@@ -226,20 +300,14 @@ fn open(input_path: Path, output_path: Path) -> Result<Parts, Message> {
         header.imus.len(),
         output_path.as_str()
     );
-    Ok(Parts {
-        header,
-        source,
-        sink: SemihostingSink {
-            file: Some(output),
-            part_path,
-            path: output_path,
-            buf: output_buf,
-            len: 0,
-        },
-        model: BoardModel {
-            units: heapless::Vec::new(),
-        },
-    })
+    let sink = SemihostingSink {
+        file: Some(output),
+        part_path,
+        path: output_path,
+        buf: output_buf,
+        len: 0,
+    };
+    Ok((header, source, sink))
 }
 
 /// The log header for the IMUs a replay file declares.
@@ -302,6 +370,9 @@ pub struct ReplaySource {
     imu_records: u64,
     pps_records: u64,
     ended: bool,
+    first_t_us: Option<u64>,
+    /// A planned hang: the main loop stops this long after the first event.
+    hang_after_us: Option<u64>,
 }
 
 impl ReplaySource {
@@ -341,7 +412,33 @@ impl ReplaySource {
 impl SampleSource for ReplaySource {
     type Error = Message;
 
+    /// Feeds the watchdog each time it is asked, as the real board does.
     fn next_event(&mut self) -> Result<Option<SourceEvent>, Message> {
+        let event = self.next_record()?;
+        if let Some(event) = &event {
+            let t_us = event.t_us();
+            crate::soft_watchdog::feed(crate::cost::wraps(), t_us);
+            let since_first = t_us - *self.first_t_us.get_or_insert(t_us);
+            if self.hang_after_us.is_some_and(|at| since_first >= at) {
+                hang();
+            }
+        }
+        Ok(event)
+    }
+}
+
+/// The main loop stuck for good (a transfer that never completes): it neither returns nor
+/// feeds the watchdog.
+fn hang() -> ! {
+    defmt::warn!("fault plan: the main loop hangs here");
+    loop {
+        cortex_m::asm::nop();
+    }
+}
+
+impl ReplaySource {
+    /// The next record as an event; None after the end record.
+    fn next_record(&mut self) -> Result<Option<SourceEvent>, Message> {
         if self.ended {
             return Ok(None);
         }
@@ -479,8 +576,9 @@ impl LogSink for SemihostingSink {
 pub fn finish(
     result: Result<RecorderStats, RecorderError<Message, Message>>,
     calibration: &Calibration,
-    sink: &mut SemihostingSink,
+    sink: &mut InjectingSink<'static, SemihostingSink>,
 ) -> ! {
+    let sink = sink.inner_mut();
     let stats = match result {
         Ok(stats) => stats,
         Err(RecorderError::Source(m)) | Err(RecorderError::Sink(m)) => fail(&m),
@@ -510,6 +608,7 @@ pub fn finish(
     let _ = write!(
         line,
         "dynacal-firmware: run-report board={NAME} imu_sample_sets={} pps_edges={} \
+         gnss_fixes={} gnss_frames_refused={} \
          health_reports={} filter_states={} noise_reports={} fault_reports={} \
          frames_written={} bytes_written={} frames_dropped={} \
          record_instructions={} source_instructions={} total_instructions={} \
@@ -518,6 +617,8 @@ pub fn finish(
          calibration_instructions={} calibration_ticks={}",
         stats.total_imu_sample_sets(),
         stats.pps_edges,
+        stats.gnss_fixes,
+        stats.gnss_frames_refused,
         stats.health_reports,
         stats.filter_states,
         stats.noise_reports,

@@ -541,7 +541,6 @@ impl CaptureSource {
         };
         match read {
             Ok(raw) => {
-                self.fault = false;
                 self.temperature_deg_c[usize::from(imu_id)] = raw.temperature_deg_c();
                 Some(SourceEvent::Imu(ImuSampleSet {
                     t_us: capture.t_us,
@@ -598,8 +597,8 @@ impl SampleSource for CaptureSource {
             .saturating_add(CAPTURES_LOST.load(Ordering::Relaxed))
     }
 
-    fn imu_fault(&self) -> bool {
-        self.fault
+    fn imu_fault(&mut self) -> bool {
+        core::mem::take(&mut self.fault)
     }
 
     fn imu_temperatures_deg_c(&mut self) -> [f32; MAX_IMUS] {

@@ -1,12 +1,13 @@
 //! `dynacal decode LOG --out DIR`: the board's log as one interchange CSV per IMU plus a
 //! `summary.json` of what was decoded and what was dropped; when the log holds them,
 //! `wv.json` (the latest wavelet-variance snapshot of each IMU channel in SI units) and what
-//! the board's fusion found: `nav.csv`, `noise.csv` and `faults.json` (`dynacal::board_log`).
+//! the board's fusion found: `nav.csv`, `noise.csv` and `faults.json`, and the board's own
+//! troubles from its Health frames, `health.json` (`dynacal::board_log`).
 
 use std::path::PathBuf;
 
 use anyhow::Context;
-use dynacal::board_log::{fault_entries, nav_csv, noise_csv};
+use dynacal::board_log::{fault_entries, health_episodes, nav_csv, noise_csv};
 use dynacal::decode::{decode_file, imu_file_name};
 use dynacal::output::{write_atomic, write_json_atomic, FileSet};
 
@@ -61,6 +62,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     if let (Some(header), false) = (&log.header, log.noise.is_empty() && log.faults.is_empty()) {
         let name = "faults.json";
         write_json_atomic(&set.path(name), &fault_entries(header, &log.faults))
+            .with_context(|| cannot(name))?;
+        files.push(name.to_string());
+    }
+    if !log.health.is_empty() {
+        let name = "health.json";
+        write_json_atomic(&set.path(name), &health_episodes(&log.health))
             .with_context(|| cannot(name))?;
         files.push(name.to_string());
     }

@@ -64,10 +64,10 @@ fn board_run(
     reference: &ImuRecording,
 ) -> Result<(BoardRun, DecodedLog), MissionError> {
     let run = run_replay_in_qemu(elf, input, log, blob).map_err(stage("the board under QEMU"))?;
-    if run.stderr.contains("refused") {
+    if let Some(refusal) = run.model_refusal() {
         return Err(MissionError::new(
             "the board under QEMU",
-            format!("the board refused its model: {}", run.stderr.trim()),
+            format!("the board refused its model: {refusal}"),
         ));
     }
     let decoded = decode_file(log).map_err(stage("decoding the board's log"))?;

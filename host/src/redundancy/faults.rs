@@ -149,18 +149,16 @@ fn monitor_n<const N: usize>(input: &MonitorInput) -> Monitoring {
                     }
                 })
             });
-            let repeated: [bool; N] = std::array::from_fn(|k| {
+            let repeated: [[bool; 3]; N] = std::array::from_fn(|k| {
                 let triad = if sensor == 0 {
                     &input.raw[k].1.gyro_rad_s
                 } else {
                     &input.raw[k].1.accel_m_s2
                 };
-                i > 0
-                    && input.present[k][i]
-                    && input.present[k][i - 1]
-                    && triad
-                        .as_ref()
-                        .is_some_and(|t| t.iter().all(|axis| axis[i] == axis[i - 1]))
+                let both = i > 0 && input.present[k][i] && input.present[k][i - 1];
+                std::array::from_fn(|a| {
+                    both && triad.as_ref().is_some_and(|t| t[a][i] == t[a][i - 1])
+                })
             });
             let step = monitor.push_marked(&samples, &repeated);
             for e in &step.confirmed {

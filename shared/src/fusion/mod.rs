@@ -463,13 +463,14 @@ impl<T: RealField + Copy> BoardFusion<T> {
     ) {
         // A stuck unit is seen in what it put out, per sensor: equal means.
         let previous = self.previous_means;
-        let repeated = |same: fn(&UnitReading, &UnitReading) -> bool| -> [bool; UNITS] {
-            core::array::from_fn(
-                |k| matches!((&means[k], &previous[k]), (Some(a), Some(b)) if same(a, b)),
-            )
+        let repeated = |triad: fn(&UnitReading) -> [f32; 3]| -> [[bool; 3]; UNITS] {
+            core::array::from_fn(|k| match (&means[k], &previous[k]) {
+                (Some(a), Some(b)) => core::array::from_fn(|i| triad(a)[i] == triad(b)[i]),
+                _ => [false; 3],
+            })
         };
-        let gyro_repeated = repeated(|a, b| a.gyro_rad_s == b.gyro_rad_s);
-        let accel_repeated = repeated(|a, b| a.accel_m_s2 == b.accel_m_s2);
+        let gyro_repeated = repeated(|r| r.gyro_rad_s);
+        let accel_repeated = repeated(|r| r.accel_m_s2);
         self.previous_means = *means;
         let gyro_body = gyro_in_body(means, alignment);
         let gyro_step = self.gyro_monitor.push_marked(&gyro_body, &gyro_repeated);

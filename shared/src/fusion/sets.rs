@@ -1,7 +1,10 @@
 //! Sample sets from samples that arrive one unit at a time: the units are triggered together,
-//! so one set's samples carry nearly the same time stamp, and a unit's next sample (or a
-//! stamp more than half an interval later) closes the set. A unit missing from a set is a
-//! dropout, which the fault monitors see.
+//! so one set's samples carry nearly the same time stamp, and a stamp more than half an
+//! interval after the set's closes it. A unit missing from a set is a dropout, which the
+//! fault monitors see. A unit that was late and catches up gives two samples within one set:
+//! the later replaces the earlier, which is stale; and a sample stamped within a set already
+//! closed is discarded. Closing a set for such a sample instead would make the healthy units
+//! look absent.
 
 use super::{UnitReading, UNITS};
 
@@ -13,7 +16,11 @@ pub type SampleSet = (u64, [Option<UnitReading>; UNITS]);
 pub struct SetAssembler {
     pending: [Option<UnitReading>; UNITS],
     set_t_us: Option<u64>,
+    /// The last closed set's time.
+    closed_t_us: Option<u64>,
     half_interval_us: u64,
+    /// Stale samples: replaced within their set, or arriving after it closed.
+    discarded: u32,
 }
 
 impl SetAssembler {
@@ -22,8 +29,15 @@ impl SetAssembler {
         Self {
             pending: [None; UNITS],
             set_t_us: None,
+            closed_t_us: None,
             half_interval_us: interval_us / 2,
+            discarded: 0,
         }
+    }
+
+    /// Stale samples discarded so far.
+    pub fn discarded(&self) -> u32 {
+        self.discarded
     }
 
     /// Unit `unit`'s sample at `t_us`; returns the set it completes or closes, if any.
@@ -31,10 +45,19 @@ impl SetAssembler {
         if unit >= UNITS {
             return None;
         }
+        let belongs_to_closed = self
+            .closed_t_us
+            .is_some_and(|t| t_us <= t.saturating_add(self.half_interval_us));
+        if self.set_t_us.is_none() && belongs_to_closed {
+            self.discarded = self.discarded.saturating_add(1);
+            return None;
+        }
         let mut closed = None;
         if let Some(t0) = self.set_t_us {
-            if self.pending[unit].is_some() || t_us > t0.saturating_add(self.half_interval_us) {
+            if t_us > t0.saturating_add(self.half_interval_us) {
                 closed = self.finish();
+            } else if self.pending[unit].is_some() {
+                self.discarded = self.discarded.saturating_add(1);
             }
         }
         self.set_t_us.get_or_insert(t_us);
@@ -48,6 +71,7 @@ impl SetAssembler {
     /// The set being gathered, closed as it is (at the end of the data).
     pub fn finish(&mut self) -> Option<SampleSet> {
         let t_us = self.set_t_us.take()?;
+        self.closed_t_us = Some(t_us);
         Some((t_us, core::mem::replace(&mut self.pending, [None; UNITS])))
     }
 }
@@ -74,7 +98,7 @@ mod tests {
             set,
             [Some(reading(0.0)), Some(reading(1.0)), Some(reading(2.0))]
         );
-        // Unit 1 misses the next set: its next sample, a set later, closes it.
+        // Unit 1 misses the next set: unit 0's next sample, a set later, closes it.
         assert_eq!(sets.push(0, 2000, reading(0.5)), None);
         assert_eq!(sets.push(2, 2002, reading(2.5)), None);
         let (t, set) = sets.push(0, 3000, reading(0.7)).unwrap();
@@ -88,5 +112,28 @@ mod tests {
         );
         assert_eq!(sets.finish(), None);
         assert_eq!(sets.push(3, 4000, reading(9.0)), None);
+    }
+
+    #[test]
+    fn a_late_unit_catching_up_is_discarded_not_a_set_of_its_own() {
+        let mut sets = SetAssembler::new(1000);
+        assert_eq!(sets.push(0, 1000, reading(0.0)), None);
+        assert_eq!(sets.push(2, 1000, reading(2.0)), None);
+        // Unit 1's late sample of the previous instant completes the set at 1000 ...
+        assert!(sets.push(1, 1000, reading(0.9)).is_some());
+        // ... and its own sample of 1000, stamped 1000 too, has no set left to join.
+        assert_eq!(sets.push(1, 1000, reading(1.0)), None);
+        assert_eq!(sets.discarded(), 1);
+        // Within an open set, the later of a unit's two samples is the one kept.
+        assert_eq!(sets.push(0, 2000, reading(0.0)), None);
+        assert_eq!(sets.push(1, 2000, reading(0.4)), None);
+        assert_eq!(sets.push(1, 2001, reading(0.5)), None);
+        let (t, set) = sets.push(2, 2002, reading(2.0)).unwrap();
+        assert_eq!(t, 2000);
+        assert_eq!(
+            set,
+            [Some(reading(0.0)), Some(reading(0.5)), Some(reading(2.0))]
+        );
+        assert_eq!(sets.discarded(), 2);
     }
 }

@@ -228,6 +228,12 @@ struct Unit {
     episode: Episode,
     clean_run: u32,
     stuck_run: u32,
+    /// Per raw axis: samples the axis has held one value while the others moved, and
+    /// whether it came to that value far from every other unit (a jump to a rail).
+    pinned_run: [u32; 3],
+    pinned_far: [bool; 3],
+    /// A direct fault (dropout, saturation, stuck) showed at the last sample set.
+    direct: bool,
     /// Own white-noise variance of first differences (2 s^2), slow.
     noise_slow: f32,
     /// Fast mean of the vector's length.
@@ -253,6 +259,9 @@ impl Default for Unit {
             episode: Episode::default(),
             clean_run: 0,
             stuck_run: 0,
+            pinned_run: [0; 3],
+            pinned_far: [false; 3],
+            direct: false,
             noise_slow: 0.0,
             norm: 0.0,
             step_spread: 0.0,
@@ -335,25 +344,31 @@ impl<const N: usize> FaultMonitor<N> {
 
     /// One set of samples (None: the unit's sample did not arrive), in the common frame.
     pub fn push(&mut self, samples: &[Option<[f32; 3]>; N]) -> Step {
-        let repeated = core::array::from_fn(
-            |k| matches!((samples[k], self.previous[k]), (Some(now), Some(before)) if now == before),
-        );
+        let repeated = core::array::from_fn(|k| match (samples[k], self.previous[k]) {
+            (Some(now), Some(before)) => core::array::from_fn(|a| now[a] == before[a]),
+            _ => [false; 3],
+        });
         self.push_marked(samples, &repeated)
     }
 
     /// As [`Self::push`], where the samples were transformed (a lever-arm correction moves
-    /// with the motion) and `repeated[k]` says whether unit k's raw output equals its
-    /// previous raw output: a stuck unit is seen in what it put out, not in what was made
-    /// of it.
-    pub fn push_marked(&mut self, samples: &[Option<[f32; 3]>; N], repeated: &[bool; N]) -> Step {
+    /// with the motion) and `repeated[k][a]` says whether axis a of unit k's raw output
+    /// equals its previous raw output: a stuck or clipped unit is seen in what it put out,
+    /// not in what was made of it.
+    pub fn push_marked(
+        &mut self,
+        samples: &[Option<[f32; 3]>; N],
+        repeated: &[[bool; 3]; N],
+    ) -> Step {
         let mut step = Step::default();
         let sample = self.sample;
         let present: [bool; N] = core::array::from_fn(|k| samples[k].is_some());
+        let scores = self.scores(samples);
         let mut direct: [Option<(FaultKind, Option<u8>)>; N] = [None; N];
         for (k, s) in samples.iter().enumerate() {
-            direct[k] = self.direct_fault(k, s, repeated, &present);
+            let far = self.far_from_all(k, &scores, &present);
+            direct[k] = self.direct_fault(k, s, repeated, &present, far);
         }
-        let scores = self.scores(samples);
         let jumped = self.jumps(samples);
         let mut triggers = self.statistical_triggers(&scores, &present, samples);
         let in_use = (0..N).filter(|&k| self.units[k].healthy && present[k]);
@@ -381,6 +396,9 @@ impl<const N: usize> FaultMonitor<N> {
         self.gather_evidence(samples, &scores, &mut step, sample);
         self.readmit(&scores, &present, &direct, &mut step);
         let direct_now: [bool; N] = core::array::from_fn(|k| direct[k].is_some());
+        for (unit, &now) in self.units.iter_mut().zip(&direct_now) {
+            unit.direct = now;
+        }
         self.learn(samples, &scores, &direct_now);
         self.previous = *samples;
         self.history[self.cursor] = *samples;
@@ -389,14 +407,20 @@ impl<const N: usize> FaultMonitor<N> {
         step
     }
 
-    /// Dropout, saturation or stuck output of unit k, from its own samples; `repeated[l]`:
-    /// unit l's output equals its previous one.
+    /// Dropout, saturation or stuck output of unit k, from its own samples; `repeated[l][a]`:
+    /// axis a of unit l's output equals its previous one; `far`: unit k's sample is beyond
+    /// the spike threshold from every healthy unit's.
+    ///
+    /// Saturation needs no range: a clipped axis jumps to its rail, far from the others,
+    /// and holds it exactly while they move; a frozen unit holds its last value, which
+    /// agreed with theirs, on all three axes (stuck).
     fn direct_fault(
         &mut self,
         k: usize,
         sample: &Option<[f32; 3]>,
-        repeated: &[bool; N],
+        repeated: &[[bool; 3]; N],
         present: &[bool; N],
+        far: bool,
     ) -> Option<(FaultKind, Option<u8>)> {
         let Some(s) = sample else {
             return Some((FaultKind::Dropout, None));
@@ -404,16 +428,37 @@ impl<const N: usize> FaultMonitor<N> {
         if let Some(a) = (0..3).find(|&a| s[a].abs() >= self.config.range[k]) {
             return Some((FaultKind::Saturation, Some(a as u8)));
         }
+        let unchanged = |l: usize| repeated[l].iter().all(|&r| r);
         let others_moved =
-            (0..N).any(|l| l != k && self.units[l].healthy && present[l] && !repeated[l]);
+            (0..N).any(|l| l != k && self.units[l].healthy && present[l] && !unchanged(l));
+        let held = self.config.samples(self.config.stuck_s).max(4);
         let unit = &mut self.units[k];
-        if !repeated[k] {
+        let pins = unit.pinned_run.iter_mut().zip(&mut unit.pinned_far);
+        for ((run, pinned_far), &same) in pins.zip(&repeated[k]) {
+            if !same {
+                *run = 0;
+                *pinned_far = far;
+            } else if others_moved {
+                *run += 1;
+            }
+        }
+        if let Some(a) = (0..3).find(|&a| unit.pinned_run[a] >= held && unit.pinned_far[a]) {
+            return Some((FaultKind::Saturation, Some(a as u8)));
+        }
+        if !unchanged(k) {
             unit.stuck_run = 0;
         } else if others_moved {
             unit.stuck_run += 1;
         }
-        (unit.stuck_run >= self.config.samples(self.config.stuck_s).max(4))
-            .then_some((FaultKind::Stuck, None))
+        (unit.stuck_run >= held).then_some((FaultKind::Stuck, None))
+    }
+
+    /// Whether unit k's sample fails the spike test against every other healthy unit
+    /// present (and there is one).
+    fn far_from_all(&self, k: usize, z: &Scores<N>, present: &[bool; N]) -> bool {
+        let mut others = (0..N).filter(|&l| l != k && present[l] && self.units[l].healthy);
+        let limit = self.config.spike_sigma;
+        others.clone().next().is_some() && others.all(|l| z[k][l].iter().any(|s| s.abs() > limit))
     }
 
     /// Which units' samples jumped from their previous ones (see `common_sigma`).
@@ -1026,16 +1071,17 @@ impl<const N: usize> FaultMonitor<N> {
             }
         }
         self.learn_noise(samples, alpha_spread, direct);
-        self.learn_offsets(samples, alpha_mean);
+        self.learn_offsets(samples, alpha_mean, direct);
     }
 
-    /// Moves every present unit's offset toward its sample less the fused output.
-    fn learn_offsets(&mut self, samples: &[Option<[f32; 3]>; N], alpha: f32) {
+    /// Moves every present unit's offset toward its sample less the fused output, but a
+    /// unit's under a direct fault: a rail or a frozen value is no bias to return with.
+    fn learn_offsets(&mut self, samples: &[Option<[f32; 3]>; N], alpha: f32, direct: &[bool; N]) {
         let Some(fused) = self.fused(samples) else {
             return;
         };
-        for (unit, s) in self.units.iter_mut().zip(samples) {
-            if let Some(s) = s {
+        for ((unit, s), &direct) in self.units.iter_mut().zip(samples).zip(direct) {
+            if let (Some(s), false) = (s, direct) {
                 for a in 0..3 {
                     unit.offset[a] += alpha * (s[a] - fused[a] - unit.offset[a]);
                 }
@@ -1118,14 +1164,27 @@ impl<const N: usize> FaultMonitor<N> {
     /// The fused sample: the mean of the healthy present units, each less its bias relative
     /// to the set, weighted by the inverse of its own noise variance; None when no healthy
     /// unit is present.
+    ///
+    /// With no healthy unit present (faults that overlap, a unit slow to be readmitted),
+    /// the units present without a direct fault stand in: a suspected unit is a worse
+    /// output than none only where its fault is gross, and those are the direct ones; a
+    /// board left without a fused output loses its navigation until it can align again.
     pub fn fused(&self, samples: &[Option<[f32; 3]>; N]) -> Option<[f32; 3]> {
         let mut sum = [0.0f32; 3];
         let mut weights = 0.0;
-        let in_use = |k: usize| self.units[k].healthy && samples[k].is_some();
+        let any_healthy = (0..N).any(|k| self.units[k].healthy && samples[k].is_some());
+        let in_use = |k: usize| {
+            samples[k].is_some()
+                && if any_healthy {
+                    self.units[k].healthy
+                } else {
+                    !self.units[k].direct
+                }
+        };
         // Equal weights until every unit in use has a noise level.
         let levels_known = (0..N).all(|k| !in_use(k) || self.noise_variance(k) > 0.0);
         for (k, s) in samples.iter().enumerate() {
-            let Some(s) = s.filter(|_| self.units[k].healthy) else {
+            let Some(s) = s.filter(|_| in_use(k)) else {
                 continue;
             };
             let w = if levels_known {
@@ -1308,6 +1367,33 @@ mod tests {
             assert_isolated(&events, kind, latency);
             assert!(worst < 0.01, "{name}: fused error {worst}");
         }
+    }
+
+    /// With no range configured, a unit whose output jumps to a rail and holds it is
+    /// saturated (on the pinned axis), and one that freezes where it was is stuck.
+    #[test]
+    fn a_unit_pinned_at_a_rail_is_saturated_without_a_range_and_a_frozen_one_stuck() {
+        let rail: Fault = |i, s, _| {
+            Some(if (ONSET..ONSET + 100).contains(&i) {
+                [s[0], s[1], 34.9]
+            } else {
+                s
+            })
+        };
+        let (events, _, worst) = run(7, 120, rail, config());
+        assert_isolated(&events, FaultKind::Saturation, 12);
+        assert_eq!(events[0].axis, Some(2), "{events:?}");
+        assert!(worst < 0.01, "fused error {worst}");
+        // A unit frozen at its last value: every axis held, none far from the others.
+        let frozen: Fault = |i, s, _| {
+            Some(if (ONSET..ONSET + 100).contains(&i) {
+                motion(ONSET)
+            } else {
+                s
+            })
+        };
+        let (events, _, _) = run(7, 120, frozen, config());
+        assert_isolated(&events, FaultKind::Stuck, 12);
     }
 
     #[test]
