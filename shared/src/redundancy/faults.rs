@@ -1040,12 +1040,36 @@ impl<const N: usize> FaultMonitor<N> {
                     let p = &mut self.pairs[k][l][axis];
                     let u = a[axis] - b[axis] - p.mean;
                     if relearn {
-                        p.mean += alpha_mean * u;
+                        // (max/min, not clamp: clamp's panic would bring the formatting
+                        // machinery into the board's flash.)
+                        // Clipped at the spike threshold: the few samples of a gross fault
+                        // before a direct test confirms it (a rail, 7000 spreads away) would
+                        // otherwise move the mean by many spreads, and the unit, sound
+                        // again, would fail its pairs for a mean time constant. A real
+                        // bias step is still learned, at up to that rate.
+                        let limit = if p.spread > 0.0 {
+                            c.spike_sigma * p.spread.sqrt()
+                        } else {
+                            f32::INFINITY
+                        };
+                        p.mean += alpha_mean * u.max(-limit).min(limit);
                     }
                     if !jolt {
-                        p.shift += alpha_fast * (z[k][l][axis] - p.shift);
+                        // Clipped as the mean is: a rail's z-scores of thousands would take
+                        // the shift statistic ten time constants to forget.
+                        let spike = c.spike_sigma;
+                        p.shift += alpha_fast * (z[k][l][axis].max(-spike).min(spike) - p.shift);
                     }
-                    if relearn && !jolt {
+                    if !relearn {
+                        // A direct fault's samples (a rail, a frozen value) say nothing of
+                        // the pair's noise or timing, and neither do the few before its test
+                        // confirmed it: the fast statistics start again from rest, so a unit
+                        // sound again is judged on its own samples, not for tens of seconds
+                        // on a rail's.
+                        p.shift = 0.0;
+                        p.fast_spread = p.spread;
+                        p.slip_cross = 0.0;
+                    } else if !jolt {
                         p.fast_spread += alpha_burst * (u * u - p.fast_spread);
                         if let (Some(pa), Some(pb)) = (self.previous[k], self.previous[l]) {
                             let v = (a[axis] + b[axis] - pa[axis] - pb[axis]) / 2.0;
@@ -1080,10 +1104,19 @@ impl<const N: usize> FaultMonitor<N> {
         let Some(fused) = self.fused(samples) else {
             return;
         };
+        let spike = self.config.spike_sigma;
         for ((unit, s), &direct) in self.units.iter_mut().zip(samples).zip(direct) {
             if let (Some(s), false) = (s, direct) {
+                // Clipped as the pairs' means are, at the spike threshold of the unit's
+                // own noise: a gross fault's first samples are no bias to come back with.
+                let limit = if unit.noise_slow > 0.0 {
+                    spike * unit.noise_slow.sqrt()
+                } else {
+                    f32::INFINITY
+                };
                 for a in 0..3 {
-                    unit.offset[a] += alpha * (s[a] - fused[a] - unit.offset[a]);
+                    let u = s[a] - fused[a] - unit.offset[a];
+                    unit.offset[a] += alpha * u.max(-limit).min(limit);
                 }
             }
         }
@@ -1394,6 +1427,39 @@ mod tests {
         };
         let (events, _, _) = run(7, 120, frozen, config());
         assert_isolated(&events, FaultKind::Stuck, 12);
+    }
+
+    /// A unit back from a direct fault (10 s frozen, 2 s at a rail) is readmitted within
+    /// a few seconds of its clean period, and the fused output is sound meanwhile.
+    #[test]
+    fn a_unit_back_from_a_direct_fault_is_readmitted() {
+        let frozen: Fault = |i, s, _| {
+            Some(if (ONSET..ONSET + 1000).contains(&i) {
+                motion(ONSET)
+            } else {
+                s
+            })
+        };
+        let rail: Fault = |i, s, _| {
+            Some(if (ONSET..ONSET + 200).contains(&i) {
+                [s[0], s[1], 34.9]
+            } else {
+                s
+            })
+        };
+        for (name, fault, end) in [
+            ("frozen", frozen, ONSET + 1000),
+            ("rail", rail, ONSET + 200),
+        ] {
+            let (events, readmitted, worst) = run(3, 180, fault, config());
+            eprintln!("{name}: {events:?} readmitted {readmitted:?} worst {worst}");
+            let back = readmitted.first().copied();
+            assert!(
+                back.is_some_and(|b| b > end && b <= end + 1000),
+                "{name}: readmitted at {back:?}, the fault ended at {end}"
+            );
+            assert!(worst < 0.01, "{name}: fused error {worst}");
+        }
     }
 
     #[test]
