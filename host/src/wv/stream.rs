@@ -164,7 +164,7 @@ impl HaarWvStream {
         let first_level = self.full_levels + 1;
         for (index, level) in self.decimated.iter_mut().enumerate() {
             let h = 1u64 << (first_level + index as u32 - 1);
-            if k % h != 0 {
+            if !k.is_multiple_of(h) {
                 break;
             }
             // previous starts as [S_0, S_0] = [0, 0]: the first coefficient is at k = 2h.
