@@ -22,6 +22,8 @@
 
 use std::path::{Path, PathBuf};
 
+pub mod stream;
+
 use crate::decode::BoardChannelWv;
 use crate::error_signal::ERROR_COLUMNS;
 use crate::import::ImportError;

@@ -21,6 +21,8 @@
 
 use std::path::{Path, PathBuf};
 
+pub mod stream;
+
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{ChiSquared, Continuous, ContinuousCDF};

@@ -10,12 +10,23 @@
 //! gx=0.05,gy=0.05,gz=0.05,ax=0.00333,ay=0.00333,az=0.00333` gives deg/s and g, the reference
 //! WV's units. Columns holding only integers are processed exactly as counts. Values keep the
 //! input's unit times `--scale`; variances are in its square.
+//!
+//! Long recordings are streamed (`--stream auto`, the default: an interchange file larger than
+//! 256 MiB on disk, [`dynacal::input::stream::STREAM_THRESHOLD_BYTES`], plain or gzip, whose
+//! rate is stated or given): read once, row by row, in memory that does not grow with the
+//! length (about 4 MiB per channel). Levels 1..=18 are then the batch estimator's to ~1e-12;
+//! higher levels (recordings of 2^20 samples or more) are decimated as on the board, every
+//! 2^{j-1}-th coefficient, with intervals 9/4 as wide in variance; the JSON says so in
+//! `streamed`. `--stream always` streams any file that allows it (else an error saying why),
+//! `--stream never` loads it whole. `--robust` is never streamed.
 
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
+use dynacal::input::stream::{stream_wavelet_variances, StreamedWv, STREAM_THRESHOLD_BYTES};
 use dynacal::input::{load_series, InputArgs};
+use dynacal::wv::stream::HaarWvStream;
 use dynacal::wv::{WaveletVariance, WvOptions};
 use serde::Serialize;
 
@@ -34,12 +45,27 @@ pub struct Args {
     /// Highest level J (default floor(log2 N) - 1, as the `wv` R package).
     #[arg(long)]
     pub max_level: Option<u32>,
+    /// Read the file once, row by row, in bounded memory: `auto` above 256 MiB on disk,
+    /// `always`, or `never` (load it whole).
+    #[arg(long, value_enum, default_value_t = StreamMode::Auto)]
+    pub stream: StreamMode,
     /// Output JSON file (written whole or not at all).
     #[arg(long)]
     pub json: PathBuf,
     /// Also write DIR/report.html: the figures and tables, one self-contained page.
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
+}
+
+/// When `dynacal wv` streams its input.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum StreamMode {
+    /// Stream interchange files larger than 256 MiB on disk whose rate is known.
+    Auto,
+    /// Stream, or fail saying why the file does not allow it.
+    Always,
+    /// Load the whole file.
+    Never,
 }
 
 /// The JSON document written by `dynacal wv`.
@@ -49,33 +75,47 @@ struct Report {
     dt_s: f64,
     /// How the maximum level was chosen.
     max_level_rule: String,
+    /// Present when the file was streamed: which levels are decimated.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    streamed: Option<StreamNote>,
     /// One wavelet variance per channel, keyed by channel name.
     channels: BTreeMap<String, WaveletVariance>,
 }
 
+/// What streaming changed in the estimates.
+#[derive(Debug, Serialize)]
+struct StreamNote {
+    /// Levels 1..=full_levels use every (overlapping) coefficient: the batch estimator.
+    full_levels: u32,
+    /// What the levels above are.
+    decimated_levels: String,
+}
+
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let series = load_series(&args.file, &args.input)?;
     let opts = WvOptions {
         max_level: args.max_level,
         robust: args.robust,
         efficiency: args.efficiency,
     };
-    let dt_s = series[0].dt_s;
-    let mut channels = BTreeMap::new();
-    for s in &series {
-        if (s.dt_s - dt_s).abs() > 1e-9 * dt_s {
-            bail!(
-                "{}: channel `{}` has another sample interval ({} s, not {dt_s} s)",
-                args.file.display(),
-                s.name,
-                s.dt_s
-            );
+    let (dt_s, channels, streamed) = match streamed(&args, &opts)? {
+        Some(s) => {
+            let channels = s.channels.into_iter().map(|c| (c.channel, c.wv)).collect();
+            let note = StreamNote {
+                full_levels: s.full_levels,
+                decimated_levels: format!(
+                    "levels above {} use every 2^(j-1)-th coefficient (as the board's \
+                     streaming accumulator); their intervals have 4/9 of the degrees of \
+                     freedom of that many overlapping coefficients",
+                    s.full_levels
+                ),
+            };
+            (s.dt_s, channels, Some(note))
         }
-        let wv = s
-            .wavelet_variance(&opts)
-            .with_context(|| format!("{}: column `{}`", args.file.display(), s.name))?;
-        channels.insert(s.name.clone(), wv);
-    }
+        None => {
+            let (dt_s, channels) = batch(&args, &opts)?;
+            (dt_s, channels, None)
+        }
+    };
     let report = Report {
         file: args.file.display().to_string(),
         dt_s,
@@ -83,6 +123,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             Some(j) => format!("--max-level {j}"),
             None => "floor(log2 N) - 1".into(),
         },
+        streamed,
         channels,
     };
     let page = match &args.report {
@@ -102,4 +143,53 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     super::write_json_and_report(&args.json, &report, args.report.as_deref(), page.as_ref())
+}
+
+/// The streamed result when `--stream` and the file call for it.
+fn streamed(args: &Args, opts: &WvOptions) -> anyhow::Result<Option<StreamedWv>> {
+    let large = || std::fs::metadata(&args.file).is_ok_and(|m| m.len() > STREAM_THRESHOLD_BYTES);
+    let wanted = match args.stream {
+        StreamMode::Never => false,
+        StreamMode::Always => true,
+        StreamMode::Auto => large(),
+    };
+    if !wanted {
+        return Ok(None);
+    }
+    let full_levels = HaarWvStream::DEFAULT_FULL_LEVELS;
+    match stream_wavelet_variances(&args.file, &args.input, opts, full_levels)? {
+        Ok(streamed) => Ok(Some(streamed)),
+        Err(reason) if args.stream == StreamMode::Always => {
+            bail!("{}: cannot stream: {reason}", args.file.display())
+        }
+        Err(reason) => {
+            eprintln!("{}: loaded whole ({reason})", args.file.display());
+            Ok(None)
+        }
+    }
+}
+
+/// The whole file loaded and every channel's batch estimate.
+fn batch(
+    args: &Args,
+    opts: &WvOptions,
+) -> anyhow::Result<(f64, BTreeMap<String, WaveletVariance>)> {
+    let series = load_series(&args.file, &args.input)?;
+    let dt_s = series[0].dt_s;
+    let mut channels = BTreeMap::new();
+    for s in &series {
+        if (s.dt_s - dt_s).abs() > 1e-9 * dt_s {
+            bail!(
+                "{}: channel `{}` has another sample interval ({} s, not {dt_s} s)",
+                args.file.display(),
+                s.name,
+                s.dt_s
+            );
+        }
+        let wv = s
+            .wavelet_variance(opts)
+            .with_context(|| format!("{}: column `{}`", args.file.display(), s.name))?;
+        channels.insert(s.name.clone(), wv);
+    }
+    Ok((dt_s, channels))
 }

@@ -1,0 +1,355 @@
+//! The wavelet variance of an interchange recording read in one pass, row by row, in memory
+//! that does not grow with its length: what `dynacal wv` does with recordings too long to
+//! load whole (`--stream`, chosen automatically above [`STREAM_THRESHOLD_BYTES`]).
+//!
+//! It validates as the whole-file reader does (every parsed field a finite number, the field
+//! count, `t_s` strictly increasing, each error naming the file and the line) and applies the
+//! same gap policy, with one difference forced by reading once: the sample interval must be
+//! known before the first row, so it is the rate the file states (`# sample_rate_hz:`) or
+//! `--rate-hz`; a step more than half of it away is a gap, and the mean step must agree with
+//! it to 1% (the whole-file reader compares the median step). A file stating no rate, given
+//! none, any other input (a plain CSV, a dataset file) and `--robust` (which needs all
+//! coefficients of a level at once) are not streamed. Each channel's wavelet variance is
+//! accumulated by [`HaarWvStream`]: its full levels equal the batch estimator's.
+
+use std::io::BufRead;
+use std::path::Path;
+
+use super::{format_error, per_channel, ChannelWv, InputArgs, InputError};
+use crate::interchange::{is_interchange_column, open_maybe_gz, TableError};
+use crate::model::Channel;
+use crate::wv::stream::HaarWvStream;
+use crate::wv::{WaveletVariance, WvOptions};
+
+/// Files larger than this on disk (256 MiB: about ten million rows of a one-channel text
+/// interchange file) are streamed by `dynacal wv` unless told otherwise; smaller ones are
+/// loaded whole, which is faster (the batch estimator runs on every core).
+pub const STREAM_THRESHOLD_BYTES: u64 = 256 << 20;
+
+/// The streamed wavelet variances of a file's channels and their sample interval.
+#[derive(Debug, Clone)]
+pub struct StreamedWv {
+    /// Sample interval, s (the stated or given rate's).
+    pub dt_s: f64,
+    /// Levels 1..=`full_levels` are the batch estimator's; higher ones are decimated.
+    pub full_levels: u32,
+    pub channels: Vec<ChannelWv>,
+}
+
+/// Why a file is not streamed (it is then loaded whole).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum NotStreamable {
+    /// Not an interchange recording (no `t_s`, or no interchange column).
+    NotInterchange,
+    /// Neither a stated `# sample_rate_hz:` nor `--rate-hz`.
+    NoRate,
+    /// `--robust` needs every coefficient of a level.
+    Robust,
+}
+
+impl std::fmt::Display for NotStreamable {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Self::NotInterchange => "only an interchange recording is streamed",
+            Self::NoRate => {
+                "streaming needs the sample rate before the first row: the file states none \
+                 (`# sample_rate_hz:`); give `--rate-hz`"
+            }
+            Self::Robust => "the robust wavelet variance needs every coefficient at once",
+        })
+    }
+}
+
+/// The wavelet variance of every wanted channel of an interchange file, read once, row by
+/// row; `Ok(Err(reason))` when the file or the options do not allow streaming.
+pub fn stream_wavelet_variances(
+    path: &Path,
+    args: &InputArgs,
+    opts: &WvOptions,
+    full_levels: u32,
+) -> Result<Result<StreamedWv, NotStreamable>, InputError> {
+    if opts.robust {
+        return Ok(Err(NotStreamable::Robust));
+    }
+    let mut csv = csv::ReaderBuilder::new()
+        .trim(csv::Trim::All)
+        .comment(Some(b'#'))
+        .from_reader(open_maybe_gz(path)?);
+    let header: Vec<String> = match csv.headers() {
+        Ok(h) => h.iter().map(str::to_string).collect(),
+        Err(_) => return Ok(Err(NotStreamable::NotInterchange)),
+    };
+    let Some(time_column) = header.iter().position(|h| h == "t_s") else {
+        return Ok(Err(NotStreamable::NotInterchange));
+    };
+    if !header.iter().any(|h| is_interchange_column(h)) {
+        return Ok(Err(NotStreamable::NotInterchange));
+    }
+    let Some(rate_hz) = args.rate_hz.or(stated_rate_hz(path)?) else {
+        return Ok(Err(NotStreamable::NoRate));
+    };
+    if !(rate_hz.is_finite() && rate_hz > 0.0) {
+        return Err(format_error(
+            path,
+            format!("the sample rate must be a positive number of Hz, got {rate_hz}"),
+        ));
+    }
+    let dt_s = 1.0 / rate_hz;
+    let columns = imu_columns(path, &header)?;
+    let wanted = wanted_channels(path, &columns, &args.columns)?;
+    let names: Vec<String> = wanted.iter().map(|&i| columns[i].0.name().into()).collect();
+    let scales = per_channel::<f64>(&args.scale, "--scale", &names)?;
+    let units = per_channel::<String>(&args.unit, "--unit", &names)?;
+    let mut streams: Vec<HaarWvStream> = wanted
+        .iter()
+        .map(|_| HaarWvStream::new(full_levels))
+        .collect();
+    let mut rows = RowChecker::new(path, dt_s);
+    let mut record = csv::ByteRecord::new();
+    let mut values = vec![0.0; columns.len()];
+    loop {
+        match csv.read_byte_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => return Err(csv_error(path, e)),
+        }
+        let line = record.position().map_or(0, |p| p.line());
+        let t_s = parse_field(path, &record, time_column, "t_s", line)?;
+        for (value, (channel, index)) in values.iter_mut().zip(&columns) {
+            *value = parse_field(path, &record, *index, channel.column(), line)?;
+        }
+        rows.check(t_s, line)?;
+        for (stream, &i) in streams.iter_mut().zip(&wanted) {
+            stream.push(values[i]);
+        }
+    }
+    rows.finish(rate_hz)?;
+    let mut channels = Vec::with_capacity(wanted.len());
+    for (((stream, &i), scale), unit) in streams.iter().zip(&wanted).zip(scales).zip(units) {
+        let channel = columns[i].0;
+        let scale = checked_scale(scale)?;
+        let wv: WaveletVariance = stream
+            .wavelet_variance(opts.max_level, scale, dt_s)
+            .map_err(|source| InputError::Wv {
+                path: path.to_path_buf(),
+                channel: channel.name().into(),
+                source,
+            })?;
+        channels.push(ChannelWv {
+            channel: channel.name().into(),
+            unit: unit.unwrap_or_else(|| channel.si_unit().into()),
+            wv,
+        });
+    }
+    Ok(Ok(StreamedWv {
+        dt_s,
+        full_levels,
+        channels,
+    }))
+}
+
+fn checked_scale(scale: Option<f64>) -> Result<f64, InputError> {
+    match scale {
+        None => Ok(1.0),
+        Some(s) if s.is_finite() && s != 0.0 => Ok(s),
+        Some(s) => Err(InputError::Flag {
+            flag: "--scale",
+            value: s.to_string(),
+            message: "not a finite non-zero number".into(),
+        }),
+    }
+}
+
+/// The IMU channels present, with their column index; two of a triplet's three is an error
+/// (a misspelt column far more often than a two-axis sensor), as the whole-file reader says.
+fn imu_columns(path: &Path, header: &[String]) -> Result<Vec<(Channel, usize)>, InputError> {
+    let columns: Vec<(Channel, usize)> = Channel::ALL
+        .iter()
+        .filter_map(|&c| header.iter().position(|h| h == c.column()).map(|i| (c, i)))
+        .collect();
+    for triplet in Channel::ALL.chunks(3) {
+        let present: Vec<&Channel> = triplet
+            .iter()
+            .filter(|c| columns.iter().any(|(p, _)| p == *c))
+            .collect();
+        if present.len() == 2 {
+            let missing = triplet.iter().find(|c| !present.contains(c)).unwrap();
+            return Err(TableError::IncompleteTriplet {
+                path: path.to_path_buf(),
+                present: present[0].column().into(),
+                missing: missing.column().into(),
+            }
+            .into());
+        }
+    }
+    if columns.is_empty() {
+        return Err(format_error(path, "no sensor channel".into()));
+    }
+    Ok(columns)
+}
+
+/// Indices into `columns` of the channels named by `--columns` (in that order), or all.
+fn wanted_channels(
+    path: &Path,
+    columns: &[(Channel, usize)],
+    wanted: &[String],
+) -> Result<Vec<usize>, InputError> {
+    if wanted.is_empty() {
+        return Ok((0..columns.len()).collect());
+    }
+    let names: Vec<&str> = columns.iter().map(|(c, _)| c.name()).collect();
+    wanted
+        .iter()
+        .map(|w| {
+            names.iter().position(|n| n == w).ok_or_else(|| {
+                format_error(
+                    path,
+                    format!("no channel `{w}` (available: {})", names.join(", ")),
+                )
+            })
+        })
+        .collect()
+}
+
+/// The time column's checks, one row at a time.
+struct RowChecker<'a> {
+    path: &'a Path,
+    dt_s: f64,
+    first_t_s: f64,
+    previous_t_s: f64,
+    rows: u64,
+}
+
+impl<'a> RowChecker<'a> {
+    fn new(path: &'a Path, dt_s: f64) -> Self {
+        Self {
+            path,
+            dt_s,
+            first_t_s: 0.0,
+            previous_t_s: 0.0,
+            rows: 0,
+        }
+    }
+
+    fn check(&mut self, t_s: f64, line: u64) -> Result<(), InputError> {
+        if self.rows > 0 {
+            let step = t_s - self.previous_t_s;
+            if step <= 0.0 {
+                return Err(TableError::TimeNotIncreasing {
+                    path: self.path.to_path_buf(),
+                    line,
+                    t_s,
+                    previous_t_s: self.previous_t_s,
+                }
+                .into());
+            }
+            if (step - self.dt_s).abs() > 0.5 * self.dt_s {
+                return Err(format_error(
+                    self.path,
+                    format!(
+                        "line {line}, column `t_s`: step {step} s differs from the sample \
+                         interval {} s (the wavelet variance needs evenly spaced samples)",
+                        self.dt_s
+                    ),
+                ));
+            }
+        } else {
+            self.first_t_s = t_s;
+        }
+        self.previous_t_s = t_s;
+        self.rows += 1;
+        Ok(())
+    }
+
+    /// The whole file read: some rows, and a mean step within 1% of the stated interval.
+    fn finish(&self, rate_hz: f64) -> Result<(), InputError> {
+        if self.rows == 0 {
+            return Err(TableError::Empty {
+                path: self.path.to_path_buf(),
+            }
+            .into());
+        }
+        if self.rows < 2 {
+            return Ok(());
+        }
+        let mean_step_s = (self.previous_t_s - self.first_t_s) / (self.rows - 1) as f64;
+        if (mean_step_s / self.dt_s - 1.0).abs() > 0.01 {
+            return Err(format_error(
+                self.path,
+                format!(
+                    "the sample rate {rate_hz} Hz disagrees with the time column `t_s` (mean \
+                     step {mean_step_s} s, {:.6} Hz)",
+                    1.0 / mean_step_s
+                ),
+            ));
+        }
+        Ok(())
+    }
+}
+
+fn parse_field(
+    path: &Path,
+    record: &csv::ByteRecord,
+    index: usize,
+    column: &str,
+    line: u64,
+) -> Result<f64, InputError> {
+    let raw = record.get(index).unwrap_or(b"");
+    std::str::from_utf8(raw)
+        .ok()
+        .and_then(|s| s.parse::<f64>().ok())
+        .filter(|v| v.is_finite())
+        .ok_or_else(|| {
+            TableError::NotANumber {
+                path: path.to_path_buf(),
+                line,
+                column: column.into(),
+                value: String::from_utf8_lossy(raw).into_owned(),
+            }
+            .into()
+        })
+}
+
+fn csv_error(path: &Path, e: csv::Error) -> InputError {
+    let line = e.position().map_or(0, |p| p.line());
+    let message = match e.kind() {
+        csv::ErrorKind::UnequalLengths {
+            expected_len, len, ..
+        } => format!("{len} fields, expected {expected_len} as in the header"),
+        csv::ErrorKind::Io(source) => source.to_string(),
+        _ => e.to_string(),
+    };
+    TableError::Csv {
+        path: path.to_path_buf(),
+        line,
+        message,
+    }
+    .into()
+}
+
+/// The rate stated in the `#` lines before the header (`# sample_rate_hz: 100`).
+fn stated_rate_hz(path: &Path) -> Result<Option<f64>, InputError> {
+    let reader = std::io::BufReader::new(std::io::Read::take(open_maybe_gz(path)?, 1 << 16));
+    for (i, line) in reader.lines().enumerate() {
+        let Ok(line) = line else { break };
+        let Some(comment) = line.strip_prefix('#') else {
+            break;
+        };
+        let Some(value) = comment.trim().strip_prefix("sample_rate_hz:") else {
+            continue;
+        };
+        return match value.trim().parse::<f64>() {
+            Ok(rate) if rate.is_finite() && rate > 0.0 => Ok(Some(rate)),
+            _ => Err(TableError::Csv {
+                path: path.to_path_buf(),
+                line: i as u64 + 1,
+                message: format!(
+                    "`sample_rate_hz`: `{}` is not a positive number of Hz",
+                    value.trim()
+                ),
+            }
+            .into()),
+        };
+    }
+    Ok(None)
+}

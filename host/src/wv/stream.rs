@@ -1,0 +1,339 @@
+//! Streaming Haar wavelet variance of one channel of an arbitrarily long float series: one
+//! sample at a time, in memory fixed by the number of full levels, for `dynacal wv` on
+//! recordings too long to hold (`crate::input::stream`).
+//!
+//! Levels `1..=full_levels` are the batch estimator ([`super::haar_wv`]) itself: every
+//! overlapping (MODWT) coefficient, from a ring of the last 2^full_levels prefix sums, so
+//! their variances equal the batch ones (to rounding, ~1e-12 relative) and get the same
+//! eta3 intervals. Higher levels are decimated as the board's
+//! [`dynacal_core::wavelet::HaarStream`] decimates them: level j uses only the coefficients at
+//! sample counts that are multiples of its half-width h = 2^{j-1}, and gets eta =
+//! max(2K/9, 1) degrees of freedom from K coefficients (4/9 of what K h overlapping
+//! coefficients would give: see `dynacal_core::wavelet` for the measured cost).
+//!
+//! Numerics: prefix sums of 1e8 samples in plain f64 would lose the digits the Haar
+//! differences live in, so each sample minus the first is added exactly (TwoSum) into a
+//! double-double running sum. For integer counts below 2^53 every prefix sum, and hence every
+//! Haar difference, is exact, as in [`super::haar_wv_counts`]; for floats each sample enters
+//! exactly and the sums keep about 32 digits. The squared differences are summed with a
+//! TwoSum compensation per level.
+
+use super::{eta3, two_sum, WaveletVariance, WvError};
+
+/// A double-double number: the unevaluated sum hi + lo, |lo| <= ulp(hi) / 2.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+struct DoubleDouble {
+    hi: f64,
+    lo: f64,
+}
+
+impl DoubleDouble {
+    fn add_f64(self, b: f64) -> Self {
+        let (s, e) = two_sum(self.hi, b);
+        let (hi, lo) = fast_two_sum(s, e + self.lo);
+        Self { hi, lo }
+    }
+
+    /// self - other as the nearest f64 (the operands are within a few rounding errors of
+    /// exact, their difference is at the noise level).
+    fn minus(self, other: Self) -> Self {
+        let (s, e) = two_sum(self.hi, -other.hi);
+        let (hi, lo) = fast_two_sum(s, e + (self.lo - other.lo));
+        Self { hi, lo }
+    }
+}
+
+/// Dekker's FastTwoSum, |a| >= |b|: a + b = s + e exactly.
+fn fast_two_sum(a: f64, b: f64) -> (f64, f64) {
+    let s = a + b;
+    (s, b - (s - a))
+}
+
+/// A running sum of many positive terms with its compensation (Kahan-Babuska via TwoSum).
+#[derive(Debug, Clone, Copy, Default)]
+struct CompensatedSum {
+    sum: f64,
+    compensation: f64,
+}
+
+impl CompensatedSum {
+    fn add(&mut self, value: f64) {
+        let (s, e) = two_sum(self.sum, value);
+        self.sum = s;
+        self.compensation += e;
+    }
+
+    fn value(&self) -> f64 {
+        self.sum + self.compensation
+    }
+}
+
+/// One decimated level's last two prefix sums at multiples of its half-width.
+#[derive(Debug, Clone, Copy, Default)]
+struct DecimatedLevel {
+    /// S_{k-h} and S_{k-2h} for the next multiple k of h.
+    previous: [DoubleDouble; 2],
+    /// Multiples of h passed (S_0 not counted).
+    seen: u64,
+    squares: CompensatedSum,
+    count: u64,
+}
+
+/// The streaming Haar wavelet variance of one channel (see the module documentation).
+///
+/// Memory: 16 bytes per sample of the ring (2^full_levels of them) plus about 64 bytes per
+/// level: 4 MiB for the default [`Self::DEFAULT_FULL_LEVELS`] = 18.
+#[derive(Debug, Clone)]
+pub struct HaarWvStream {
+    full_levels: u32,
+    /// ring[k mod 2^full_levels] = S_k, k = number of samples summed.
+    ring: Vec<DoubleDouble>,
+    sum: DoubleDouble,
+    /// The first sample: subtracted from every sample so the sums stay small (the Haar
+    /// filter ignores any constant).
+    origin: Option<f64>,
+    n: u64,
+    full: Vec<(CompensatedSum, u64)>,
+    decimated: Vec<DecimatedLevel>,
+}
+
+impl HaarWvStream {
+    /// Full levels 1..=18: every level of a recording under 2^20 samples at the default
+    /// maximum level floor(log2 N) - 1, so such recordings get the batch estimator whole.
+    pub const DEFAULT_FULL_LEVELS: u32 = 18;
+
+    /// Levels the stream can hold: enough for 2^62 samples.
+    const MAX_LEVELS: u32 = 62;
+
+    /// A stream with `full_levels` overlapping levels (1..=30) and decimated ones above, up
+    /// to level 62.
+    pub fn new(full_levels: u32) -> Self {
+        let full_levels = full_levels.clamp(1, 30);
+        Self {
+            full_levels,
+            ring: vec![DoubleDouble::default(); 1 << full_levels],
+            sum: DoubleDouble::default(),
+            origin: None,
+            n: 0,
+            full: vec![(CompensatedSum::default(), 0); full_levels as usize],
+            decimated: vec![DecimatedLevel::default(); (Self::MAX_LEVELS - full_levels) as usize],
+        }
+    }
+
+    /// Samples pushed so far.
+    pub fn len(&self) -> u64 {
+        self.n
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// Adds one sample (any unit; finite, checked by the reader).
+    pub fn push(&mut self, value: f64) {
+        let origin = *self.origin.get_or_insert(value);
+        // value - origin exactly, as a double-double (both parts enter the running sum).
+        let (difference, rounding) = two_sum(value, -origin);
+        self.sum = self.sum.add_f64(difference).add_f64(rounding);
+        self.n += 1;
+        let k = self.n;
+        let mask = self.ring.len() as u64 - 1;
+        // S_k is stored after the levels have read S_{k-2h}: for the widest full level
+        // k - 2h = k - 2^full_levels, the very slot S_k goes into.
+        for (index, (squares, count)) in self.full.iter_mut().enumerate() {
+            let h = 1u64 << index;
+            if k < 2 * h {
+                break;
+            }
+            let recent = self.sum.minus(self.ring[((k - h) & mask) as usize]);
+            let older = self.ring[((k - h) & mask) as usize]
+                .minus(self.ring[((k - 2 * h) & mask) as usize]);
+            let d = recent.minus(older).hi;
+            squares.add(d * d);
+            *count += 1;
+        }
+        self.ring[(k & mask) as usize] = self.sum;
+        if k & mask == 0 {
+            self.push_decimated(k);
+        }
+    }
+
+    /// The decimated levels at a multiple k of 2^full_levels: level j takes the coefficient at
+    /// k when h = 2^{j-1} divides k.
+    fn push_decimated(&mut self, k: u64) {
+        let first_level = self.full_levels + 1;
+        for (index, level) in self.decimated.iter_mut().enumerate() {
+            let h = 1u64 << (first_level + index as u32 - 1);
+            if !k.is_multiple_of(h) {
+                break;
+            }
+            // previous starts as [S_0, S_0] = [0, 0]: the first coefficient is at k = 2h.
+            if level.seen >= 1 {
+                let recent = self.sum.minus(level.previous[0]);
+                let older = level.previous[0].minus(level.previous[1]);
+                let d = recent.minus(older).hi;
+                level.squares.add(d * d);
+                level.count += 1;
+            }
+            level.previous = [self.sum, level.previous[0]];
+            level.seen += 1;
+        }
+    }
+
+    /// The wavelet variance of levels 1..=`max_level` in the square of `unit` (physical units
+    /// per input unit) with `dt_s` seconds per sample; `max_level` `None` is the batch
+    /// default floor(log2 N) - 1. Levels beyond `full_levels` are the decimated estimates,
+    /// with their wider intervals; `n_coefficients` holds the coefficients actually used.
+    pub fn wavelet_variance(
+        &self,
+        max_level: Option<u32>,
+        unit: f64,
+        dt_s: f64,
+    ) -> Result<WaveletVariance, WvError> {
+        if !(dt_s.is_finite() && dt_s > 0.0) {
+            return Err(WvError::BadInterval { dt_s });
+        }
+        let n = self.n as usize;
+        if n < 4 {
+            return Err(WvError::TooShort { n });
+        }
+        let top = n.ilog2();
+        let j_max = match max_level {
+            None => super::default_max_level(n),
+            Some(j) if (1..=top).contains(&j) => j,
+            Some(j) => {
+                return Err(WvError::BadLevel {
+                    requested: j,
+                    max: top,
+                    n,
+                })
+            }
+        };
+        let (mut levels, mut variance, mut m, mut eta) = (vec![], vec![], vec![], vec![]);
+        for j in 1..=j_max {
+            let (squares, count, dof) = if j <= self.full_levels {
+                let (squares, count) = self.full[j as usize - 1];
+                (squares, count, eta3(count as usize, j))
+            } else {
+                let level = &self.decimated[(j - self.full_levels - 1) as usize];
+                let dof = (2.0 * level.count as f64 / 9.0).max(1.0);
+                (level.squares, level.count, dof)
+            };
+            if count == 0 {
+                // A decimated level wider than half the series has no coefficient yet.
+                break;
+            }
+            let width = (1u64 << j) as f64;
+            levels.push(j);
+            variance.push(squares.value() / (width * width) / count as f64 * unit * unit);
+            m.push(count as usize);
+            eta.push(dof);
+        }
+        Ok(WaveletVariance::from_levels(
+            levels, variance, m, eta, n, dt_s, false,
+        ))
+    }
+
+    /// Number of full (overlapping, batch-equal) levels; higher ones are decimated.
+    pub fn full_levels(&self) -> u32 {
+        self.full_levels
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::super::{haar_wv, haar_wv_counts, WvOptions};
+    use super::*;
+    use rand::SeedableRng;
+    use rand_chacha::ChaCha8Rng;
+    use rand_distr::{Distribution, Normal};
+
+    /// White noise plus a random walk on a large offset.
+    fn drifting(seed: u64, n: usize, offset: f64) -> Vec<f64> {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let noise = Normal::new(0.0, 1.0).unwrap();
+        let step = Normal::new(0.0, 0.01).unwrap();
+        let mut walk = 0.0;
+        (0..n)
+            .map(|_| {
+                walk += step.sample(&mut rng);
+                offset + walk + noise.sample(&mut rng)
+            })
+            .collect()
+    }
+
+    #[test]
+    fn full_levels_equal_the_batch_estimator_on_floats() {
+        let x = drifting(11, 50_000, 1e4);
+        let batch = haar_wv(&x, 0.01, &WvOptions::default()).unwrap();
+        let mut stream = HaarWvStream::new(20);
+        x.iter().for_each(|&v| stream.push(v));
+        let streamed = stream.wavelet_variance(None, 1.0, 0.01).unwrap();
+        assert_eq!(streamed.levels, batch.levels);
+        assert_eq!(streamed.n_coefficients, batch.n_coefficients);
+        for i in 0..batch.len() {
+            let relative = (streamed.variance[i] / batch.variance[i] - 1.0).abs();
+            assert!(relative < 1e-12, "level {}: {relative:e}", i + 1);
+            assert!((streamed.ci_low[i] / batch.ci_low[i] - 1.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn integer_counts_equal_the_exact_batch_sums() {
+        let counts: Vec<i32> = drifting(12, 40_000, 2e6)
+            .iter()
+            .map(|v| (v * 100.0).round() as i32)
+            .collect();
+        let batch = haar_wv_counts(&counts, 1e-3, 0.01, &WvOptions::default()).unwrap();
+        let mut stream = HaarWvStream::new(18);
+        counts.iter().for_each(|&c| stream.push(c as f64));
+        let streamed = stream.wavelet_variance(None, 1e-3, 0.01).unwrap();
+        for i in 0..batch.len() {
+            let relative = (streamed.variance[i] / batch.variance[i] - 1.0).abs();
+            assert!(relative < 1e-13, "level {}: {relative:e}", i + 1);
+        }
+    }
+
+    #[test]
+    fn decimated_levels_match_the_board_stream_and_have_wider_intervals() {
+        // The board's integer stream with 4 full levels is the reference for the decimated
+        // sums: same coefficients, so the same variance, counts and degrees of freedom.
+        let counts: Vec<i32> = drifting(13, 1 << 14, 0.0)
+            .iter()
+            .map(|v| (v * 1000.0).round() as i32)
+            .collect();
+        let mut board = dynacal_core::wavelet::HaarStream::<4, 16, 12>::new();
+        let mut stream = HaarWvStream::new(4);
+        for &c in &counts {
+            board.push(c);
+            stream.push(c as f64);
+        }
+        let reference =
+            WaveletVariance::from_stream_snapshot(&board.snapshot(), 1.0, 0.01).unwrap();
+        let streamed = stream.wavelet_variance(Some(12), 1.0, 0.01).unwrap();
+        assert_eq!(streamed.levels, reference.levels[..streamed.len()]);
+        for i in 0..streamed.len() {
+            assert_eq!(
+                streamed.n_coefficients[i],
+                reference.n_coefficients[i],
+                "level {}",
+                i + 1
+            );
+            let relative = (streamed.variance[i] / reference.variance[i] - 1.0).abs();
+            assert!(relative < 1e-12, "level {}: {relative:e}", i + 1);
+            assert!((streamed.ci_high[i] / reference.ci_high[i] - 1.0).abs() < 1e-9);
+        }
+        let batch = haar_wv_counts(
+            &counts,
+            1.0,
+            0.01,
+            &WvOptions {
+                max_level: Some(12),
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let width = |w: &WaveletVariance, i: usize| (w.ci_high[i] - w.ci_low[i]) / w.variance[i];
+        assert!(width(&streamed, 6) > 1.3 * width(&batch, 6));
+    }
+}

@@ -1,0 +1,99 @@
+//! The measurement behind "memory stays bounded on a 1e8-sample input" (issue 21, part 5):
+//! seeded single-channel interchange recordings of 1e6, 1e7 and 1e8 rows are written into a
+//! temporary folder (the largest about 3 GB, removed afterwards) and the release `dynacal wv`
+//! is run on each under `/usr/bin/time -v`, streamed, and loaded whole at 1e7 rows for
+//! comparison. Ignored: it runs for minutes and needs the disk. Run with
+//! `cargo test --release -p dynacal --test wv_stream_memory -- --ignored --nocapture`.
+
+use std::io::Write;
+use std::path::Path;
+use std::process::Command;
+
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+use rand_distr::{Distribution, Normal};
+
+/// A 100 Hz one-axis gyro: 1e-3 rad/s white noise on a random walk on a 0.5 rad/s offset.
+fn write_recording(path: &Path, rows: u64) {
+    let file = std::fs::File::create(path).unwrap();
+    let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+    let mut rng = ChaCha8Rng::seed_from_u64(rows);
+    let white = Normal::new(0.0, 1e-3).unwrap();
+    let step = Normal::new(0.0, 1e-6).unwrap();
+    let mut walk = 0.0;
+    writeln!(out, "# sample_rate_hz: 100\nt_s,gx_rad_s").unwrap();
+    for i in 0..rows {
+        walk += step.sample(&mut rng);
+        let gx = 0.5 + walk + white.sample(&mut rng);
+        writeln!(out, "{},{gx}", i as f64 * 0.01).unwrap();
+    }
+    out.flush().unwrap();
+}
+
+/// Peak resident memory (MiB) and wall time (s) of `dynacal wv` on `input`.
+fn measure(input: &Path, stream: &str, json: &Path) -> (f64, f64) {
+    let o = Command::new("/usr/bin/time")
+        .arg("-v")
+        .arg(env!("CARGO_BIN_EXE_dynacal"))
+        .args(["wv", input.to_str().unwrap(), "--stream", stream, "--json"])
+        .arg(json)
+        .output()
+        .expect("/usr/bin/time (apt-get install time)");
+    let report = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{report}");
+    let field = |name: &str| {
+        report
+            .lines()
+            .find_map(|l| l.trim().strip_prefix(name))
+            .unwrap_or_else(|| panic!("no `{name}` in {report}"))
+            .trim()
+            .to_string()
+    };
+    let rss_mib = field("Maximum resident set size (kbytes):")
+        .parse::<f64>()
+        .unwrap()
+        / 1024.0;
+    let wall_s = field("Elapsed (wall clock) time (h:mm:ss or m:ss):")
+        .split(':')
+        .fold(0.0, |acc, part| acc * 60.0 + part.parse::<f64>().unwrap());
+    (rss_mib, wall_s)
+}
+
+#[test]
+#[ignore = "minutes and ~3 GB of temporary disk; run by hand for the benchmark"]
+fn memory_is_flat_from_1e6_to_1e8_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("wv.json");
+    println!("| rows | file MB | mode | peak RSS MiB | wall s |\n|---|---|---|---|---|");
+    let mut streamed_rss = vec![];
+    for rows in [1_000_000u64, 10_000_000, 100_000_000] {
+        let input = dir.path().join(format!("gyro-{rows}.csv"));
+        write_recording(&input, rows);
+        let mb = std::fs::metadata(&input).unwrap().len() as f64 / 1e6;
+        let modes: &[&str] = if rows == 10_000_000 {
+            &["always", "never"]
+        } else {
+            &["always"]
+        };
+        for &mode in modes {
+            let (rss, wall) = measure(&input, mode, &json);
+            let label = if mode == "always" {
+                "streamed"
+            } else {
+                "loaded whole"
+            };
+            println!("| {rows:.0e} | {mb:.0} | {label} | {rss:.1} | {wall:.1} |");
+            if mode == "always" {
+                streamed_rss.push(rss);
+            }
+        }
+        std::fs::remove_file(&input).unwrap();
+    }
+    let spread = streamed_rss.iter().cloned().fold(f64::MIN, f64::max)
+        - streamed_rss.iter().cloned().fold(f64::MAX, f64::min);
+    println!("streamed peak RSS spread from 1e6 to 1e8 rows: {spread:.1} MiB");
+    assert!(
+        spread < 16.0,
+        "memory grows with the length: {streamed_rss:?}"
+    );
+}
