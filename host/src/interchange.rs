@@ -277,7 +277,7 @@ pub fn median_step_s(t_s: &[f64]) -> Option<f64> {
 const RATE_LINE_PREFIX: &str = "# sample_rate_hz: ";
 
 /// The sample rate stated in the `#` lines before the header, with its 1-based line.
-fn read_stated_rate(path: &Path) -> Result<Option<(u64, f64)>, TableError> {
+pub(crate) fn read_stated_rate(path: &Path) -> Result<Option<(u64, f64)>, TableError> {
     use std::io::BufRead;
     let reader = std::io::BufReader::new(open_maybe_gz(path)?.take(1 << 16));
     for (i, line) in reader.lines().enumerate() {

@@ -12,11 +12,10 @@
 //! coefficients of a level at once) are not streamed. Each channel's wavelet variance is
 //! accumulated by [`HaarWvStream`]: its full levels equal the batch estimator's.
 
-use std::io::BufRead;
 use std::path::Path;
 
 use super::{format_error, per_channel, ChannelWv, InputArgs, InputError};
-use crate::interchange::{is_interchange_column, open_maybe_gz, TableError};
+use crate::interchange::{is_interchange_column, open_maybe_gz, read_stated_rate, TableError};
 use crate::model::Channel;
 use crate::wv::stream::HaarWvStream;
 use crate::wv::{WaveletVariance, WvOptions};
@@ -329,27 +328,5 @@ fn csv_error(path: &Path, e: csv::Error) -> InputError {
 
 /// The rate stated in the `#` lines before the header (`# sample_rate_hz: 100`).
 fn stated_rate_hz(path: &Path) -> Result<Option<f64>, InputError> {
-    let reader = std::io::BufReader::new(std::io::Read::take(open_maybe_gz(path)?, 1 << 16));
-    for (i, line) in reader.lines().enumerate() {
-        let Ok(line) = line else { break };
-        let Some(comment) = line.strip_prefix('#') else {
-            break;
-        };
-        let Some(value) = comment.trim().strip_prefix("sample_rate_hz:") else {
-            continue;
-        };
-        return match value.trim().parse::<f64>() {
-            Ok(rate) if rate.is_finite() && rate > 0.0 => Ok(Some(rate)),
-            _ => Err(TableError::Csv {
-                path: path.to_path_buf(),
-                line: i as u64 + 1,
-                message: format!(
-                    "`sample_rate_hz`: `{}` is not a positive number of Hz",
-                    value.trim()
-                ),
-            }
-            .into()),
-        };
-    }
-    Ok(None)
+    Ok(read_stated_rate(path)?.map(|(_, rate_hz)| rate_hz))
 }
