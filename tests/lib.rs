@@ -102,3 +102,96 @@ pub fn simulated_drive(
     std::fs::write(&input, board.replay_bytes().expect("replay bytes")).expect("write input");
     (sim, input)
 }
+
+/// The board's recorder with its fusion on (`model`), run natively on replay `records`:
+/// the firmware's own code without the emulator, for sweeps over many drives that QEMU
+/// would take hours for. A fault plan (`dynacal_core::inject`'s text), when given, wraps
+/// the source and the sink as the replay board's `--faults` does. The log's bytes and the
+/// run's statistics.
+pub fn run_board_natively(
+    header: dynacal_core::log::Header,
+    records: &[dynacal_core::replay::ReplayRecord],
+    model: dynacal_core::board_model::BoardModel,
+    plan: Option<&str>,
+) -> (Vec<u8>, dynacal_core::recorder::RecorderStats) {
+    use dynacal_core::inject::{FaultPlan, InjectingSink, InjectingSource, InjectionClock};
+    use dynacal_core::recorder::Recorder;
+    let events: Vec<_> = records.iter().filter_map(native::event_of).collect();
+    let plan = FaultPlan::parse(plan.unwrap_or("").as_bytes()).expect("a fault plan that reads");
+    let clock = InjectionClock::new();
+    let mut source = InjectingSource::new(
+        native::Events(events.into_iter()),
+        plan.clone(),
+        &header.imus,
+        &clock,
+    );
+    let mut sink = InjectingSink::new(native::Bytes::default(), &plan, &clock);
+    let recorder = Recorder::new(header).with_fusion(model);
+    let stats = recorder
+        .run(&mut source, &mut sink, &mut native::NoClock)
+        .expect("the recorder runs to the end");
+    (std::mem::take(&mut sink.inner_mut().0), stats)
+}
+
+/// The plain source, sink and clock the native board runs with.
+mod native {
+    use dynacal_core::log::{ImuSampleSet, PpsEvent};
+    use dynacal_core::recorder::{
+        Accepted, GnssChunk, LogSink, SampleSource, SourceEvent, TickClock,
+    };
+    use dynacal_core::replay::ReplayRecord;
+
+    pub struct Events(pub std::vec::IntoIter<SourceEvent>);
+
+    impl SampleSource for Events {
+        type Error = ();
+        fn next_event(&mut self) -> Result<Option<SourceEvent>, ()> {
+            Ok(self.0.next())
+        }
+    }
+
+    #[derive(Default)]
+    pub struct Bytes(pub Vec<u8>);
+
+    impl LogSink for Bytes {
+        type Error = ();
+        fn write_frame(&mut self, frame: &[u8]) -> Result<Accepted, ()> {
+            self.0.extend_from_slice(frame);
+            Ok(Accepted::Written)
+        }
+        fn flush(&mut self) -> Result<(), ()> {
+            Ok(())
+        }
+    }
+
+    /// No cycle counter off the board: the run's cost figures are zero.
+    pub struct NoClock;
+
+    impl TickClock for NoClock {
+        fn now_ticks(&mut self) -> u64 {
+            0
+        }
+    }
+
+    /// The source event of a replay record (none for its end).
+    pub fn event_of(record: &ReplayRecord) -> Option<SourceEvent> {
+        match *record {
+            ReplayRecord::Imu {
+                t_us,
+                imu_id,
+                gyro_counts,
+                accel_counts,
+            } => Some(SourceEvent::Imu(ImuSampleSet {
+                t_us,
+                imu_id,
+                gyro_counts,
+                accel_counts,
+            })),
+            ReplayRecord::Pps { t_us } => Some(SourceEvent::Pps(PpsEvent { t_us, sequence: 0 })),
+            ReplayRecord::Gnss { t_us, len, data } => {
+                Some(SourceEvent::Gnss(GnssChunk { t_us, len, data }))
+            }
+            ReplayRecord::End { .. } => None,
+        }
+    }
+}

@@ -5,14 +5,21 @@
 //! run must end normally; each fault must show in the log at its time (the Health frames'
 //! episodes, `dynacal::board_log::health_episodes`, and the fusion's Fault frames), with no
 //! fault reported outside the plan's windows; no corrupted fix may reach the log; the
-//! logged times must hold through the PPS loss; and the fused output must go on to the end.
-//! Its navigation error is measured against the truth and printed (BENCHMARKS.md); it is
-//! not yet within a bound. A planned hang must be ended by the watchdog.
+//! logged times must hold through the PPS loss; the fused output must go on to the end; and
+//! its navigation must stay within the stated bounds: with fixes, within
+//! [`WITH_FIXES_BOUND_M`] and [`WITH_FIXES_VELOCITY_BOUND_M_S`] of the truth; through the
+//! 30 s without fixes, within [`OUTAGE_EXCESS_BOUND_M`] of what the same drive does with the
+//! outage alone (run natively: the firmware's code without the emulator). A planned hang
+//! must be ended by the watchdog.
+//!
+//! The ignored `the_fault_plan_over_many_drives` runs the same checks natively over 40
+//! drives (or any range of seeds) for the error rates in BENCHMARKS.md ("Board faults
+//! under emulation").
 //!
 //! Skips with a message when qemu-system-arm is absent, except in CI.
 
 use dynacal::board_log::{health_episodes, state_error, HealthEpisode};
-use dynacal::decode::{decode_file, seconds_of_us, DecodedLog};
+use dynacal::decode::{decode_bytes, decode_file, seconds_of_us, DecodedLog};
 use dynacal::replay::{
     build_replay_firmware, run_replay_with_faults_in_qemu, workspace_root, FIRMWARE_TARGET_DIR,
     QEMU_BOARD_ARGS,
@@ -26,10 +33,7 @@ use dynacal_core::replay::ReplayRecord;
 mod three_units;
 
 const SECONDS: f64 = 240.0;
-/// The drives the plan runs on (`DYNACAL_FAULTS_SEEDS=a,b,...` for others). Seed 21 is not
-/// among them: on it the filter's start fails with no fault at all (a heading 112 degrees
-/// off at 36 s, errors of metres with GNSS; BENCHMARKS.md), which no fault handling can
-/// be judged on.
+/// The drives the plan runs on in QEMU (`DYNACAL_FAULTS_SEEDS=a,b,...` for others).
 const SEEDS: [u64; 2] = [1, 2];
 
 /// The plan, times in seconds from the replay's first event.
@@ -44,6 +48,34 @@ gnss-absent   from=150 to=180
 gnss-corrupt  from=190 to=220 rate=0.003
 log-full      from=225 to=228
 ";
+
+/// The plan the tests run: [`PLAN`], or the file `DYNACAL_FAULTS_PLAN` names (to look into
+/// one fault alone; the checks then fail where that plan differs).
+fn plan() -> String {
+    match std::env::var("DYNACAL_FAULTS_PLAN") {
+        Ok(path) => std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{path}: {e}")),
+        Err(_) => PLAN.to_string(),
+    }
+}
+
+/// The plan's outage alone: the baseline its navigation is judged against.
+const OUTAGE_ALONE: &str = "seed=5\ngnss-absent from=150 to=180\n";
+
+/// Worst horizontal position error (m) and velocity error (m/s) against the truth while
+/// fixes come, outside [`WITHOUT_FIXES_S`]; over 300 drives the plan's worst were 1.5 m
+/// and 0.63 m/s (a rail's first sample, 5 ms at 16 g, reaches the fused output when only
+/// two units are left or a jolt holds the tests; BENCHMARKS.md).
+const WITH_FIXES_BOUND_M: f64 = 2.0;
+const WITH_FIXES_VELOCITY_BOUND_M_S: f64 = 1.0;
+/// The outage and the 15 s the filter takes to converge after it, s of the plan.
+const WITHOUT_FIXES_S: [f64; 2] = [150.0, 195.0];
+/// How much worse the plan's worst horizontal error may be than the same drive's with the
+/// outage alone, m. A unit lost and readmitted changes the fused output's error by its share
+/// of the units' differences (bias, scale factor times gravity: 0.005 m/s^2 is 2 m over
+/// 30 s), and the first samples of a rail turn the attitude by a milliradian or so (4 m),
+/// which the filter is still learning when the fixes stop. Over 300 drives the plan added
+/// at most 8.8 m (BENCHMARKS.md).
+const OUTAGE_EXCESS_BOUND_M: f64 = 15.0;
 
 /// Per planned unit fault: unit, window (s), and the fault kinds that explain it.
 const UNIT_FAULTS: [(u8, [f64; 2], &[&str]); 5] = [
@@ -62,9 +94,18 @@ struct Run {
     log: DecodedLog,
     /// Receiver frames the board refused (the run report's).
     refused: u64,
+    /// The worst horizontal error of the same drive with the outage alone, m.
+    outage_alone_worst_m: f64,
 }
 
-fn faulty_run(dir: &std::path::Path, seed: u64) -> Run {
+/// A simulated drive: the simulation, the board's log header and its replay input.
+struct Drive {
+    sim: SimOutput,
+    header: dynacal_core::log::Header,
+    input: dynacal::replay::ReplayInput,
+}
+
+fn drive(seed: u64) -> Drive {
     let model = three_units::sim_model(&[]);
     let opts = SimOptions {
         scenario: Scenario::Car,
@@ -75,19 +116,52 @@ fn faulty_run(dir: &std::path::Path, seed: u64) -> Run {
     };
     let sim = simulate(&model, &opts, &|_| {}).unwrap();
     let board = board_recording(&sim, &model).unwrap();
-    let input = board.to_replay_input().unwrap();
+    Drive {
+        header: board.log_header(),
+        input: board.to_replay_input().unwrap(),
+        sim,
+    }
+}
+
+impl Drive {
+    /// The drive's log and run report with `plan` on the board run natively.
+    fn native(&self, plan: &str) -> (DecodedLog, u64) {
+        let (bytes, stats) = dynacal_tests::run_board_natively(
+            self.header.clone(),
+            &self.input.records,
+            three_units::board_model(true),
+            Some(plan),
+        );
+        (decode_bytes(&bytes), stats.gnss_frames_refused.into())
+    }
+
+    fn into_run(self, log: DecodedLog, refused: u64) -> Run {
+        let first = self.input.records.iter().map(record_t_us).min().unwrap();
+        let start_s = seconds_of_us(first);
+        let (outage_log, _) = self.native(OUTAGE_ALONE);
+        let outage_alone_worst_m = navigation_errors(&self.sim, &outage_log, start_s).worst_m;
+        Run {
+            sim: self.sim,
+            start_s,
+            records: self.input.records,
+            log,
+            refused,
+            outage_alone_worst_m,
+        }
+    }
+}
+
+/// The plan run in QEMU on the replay board.
+fn faulty_run(dir: &std::path::Path, seed: u64) -> Run {
+    let drive = drive(seed);
     let input_path = dir.join("drive.replay");
-    input.write(&input_path).unwrap();
+    drive.input.write(&input_path).unwrap();
     let model_path = dir.join("board-model.bin");
     let mut blob = [0u8; dynacal_core::board_model::MAX_BOARD_MODEL_LEN];
     let len = three_units::board_model(true).encode(&mut blob).unwrap();
     std::fs::write(&model_path, &blob[..len]).unwrap();
     let plan_path = dir.join("faults.txt");
-    // DYNACAL_FAULTS_PLAN=FILE runs another plan (to look into one fault alone).
-    match std::env::var("DYNACAL_FAULTS_PLAN") {
-        Ok(other) => std::fs::copy(other, &plan_path).map(|_| ()).unwrap(),
-        Err(_) => std::fs::write(&plan_path, PLAN).unwrap(),
-    }
+    std::fs::write(&plan_path, plan()).unwrap();
     let elf = build_replay_firmware(&workspace_root().join(FIRMWARE_TARGET_DIR)).unwrap();
     let log_path = dir.join("board.log");
     let run = run_replay_with_faults_in_qemu(
@@ -102,14 +176,10 @@ fn faulty_run(dir: &std::path::Path, seed: u64) -> Run {
     if std::env::var("DYNACAL_FAULTS_TRACE").is_ok() {
         println!("{}", run.stderr);
     }
-    let first = input.records.iter().map(record_t_us).min().unwrap();
-    Run {
-        sim,
-        start_s: seconds_of_us(first),
-        records: input.records,
-        log: decode_file(&log_path).unwrap(),
-        refused: run.report.gnss_frames_refused,
-    }
+    drive.into_run(
+        decode_file(&log_path).unwrap(),
+        run.report.gnss_frames_refused,
+    )
 }
 
 fn record_t_us(r: &ReplayRecord) -> u64 {
@@ -159,7 +229,6 @@ fn board_faults_are_flagged_at_their_time_and_the_fused_output_goes_on() {
 /// Every check of one faulted drive.
 fn check_faulty_run(run: &Run) {
     let start_s = run.start_s;
-    let worst_navigation = navigation_errors(run);
     let health = health_episodes(&run.log.health);
     let spans = |condition: &str| -> Vec<[f64; 2]> {
         episodes(&health, condition)
@@ -263,9 +332,37 @@ fn check_faulty_run(run: &Run) {
         "a gap of {gap} s in the fused output"
     );
     assert!(times[times.len() - 1] - start_s > SECONDS - 1.0);
-    // Its error against the truth is measured, not yet bounded: BENCHMARKS.md ("Board
-    // faults under emulation") has the figures, and issue 21 stays open for them.
-    let _ = worst_navigation;
+    check_navigation(run);
+}
+
+/// The fused navigation within its bounds against the truth: with fixes, and through the
+/// outage against the same drive with the outage alone.
+fn check_navigation(run: &Run) {
+    let errors = navigation_errors(&run.sim, &run.log, run.start_s);
+    println!(
+        "fused navigation: worst horizontal error {:.2} m ({:.2} m with the outage alone); \
+         with fixes {:.2} m, {:.3} m/s",
+        errors.worst_m,
+        run.outage_alone_worst_m,
+        errors.worst_with_fixes_m,
+        errors.worst_velocity_with_fixes_m_s
+    );
+    assert!(
+        errors.worst_with_fixes_m <= WITH_FIXES_BOUND_M,
+        "{} m with fixes",
+        errors.worst_with_fixes_m
+    );
+    assert!(
+        errors.worst_velocity_with_fixes_m_s <= WITH_FIXES_VELOCITY_BOUND_M_S,
+        "{} m/s with fixes",
+        errors.worst_velocity_with_fixes_m_s
+    );
+    assert!(
+        errors.worst_m <= run.outage_alone_worst_m + OUTAGE_EXCESS_BOUND_M,
+        "{} m through the outage, {} m with it alone",
+        errors.worst_m,
+        run.outage_alone_worst_m
+    );
 }
 
 /// The logged times hold through the PPS loss (holdover), and the corrupted bytes gave no
@@ -337,45 +434,96 @@ fn check_times_and_fixes(run: &Run) {
     );
 }
 
-/// The fused navigation's worst horizontal position error against the truth (m), and the
-/// worst horizontal position and velocity errors in their stated sigmas.
-fn navigation_errors(run: &Run) -> (f64, f64, f64) {
-    let reference = &run.sim.reference.recording;
-    let mut worst = (0.0f64, 0.0f64, 0.0f64);
-    for s in &run.log.filter {
+/// The fused navigation's errors against the truth.
+struct NavigationErrors {
+    /// Worst horizontal position error, m.
+    worst_m: f64,
+    /// Worst horizontal position (m) and velocity (m/s) errors outside [`WITHOUT_FIXES_S`].
+    worst_with_fixes_m: f64,
+    worst_velocity_with_fixes_m_s: f64,
+}
+
+/// The errors of a log's Filter states against the simulation's truth; `start_s` is the
+/// plan's zero.
+fn navigation_errors(sim: &SimOutput, log: &DecodedLog, start_s: f64) -> NavigationErrors {
+    let reference = &sim.reference.recording;
+    let mut errors = NavigationErrors {
+        worst_m: 0.0,
+        worst_with_fixes_m: 0.0,
+        worst_velocity_with_fixes_m_s: 0.0,
+    };
+    let trace = std::env::var("DYNACAL_FAULTS_TRACE").is_ok();
+    for s in &log.filter {
         let e = state_error(reference, s).unwrap();
         let horizontal = e.position_ned_m.xy().norm();
-        let sigma = e.sigma_position_m.xy().norm();
-        let v = e.velocity_ned_m_s.xy().norm() / e.sigma_velocity_m_s.xy().norm();
-        worst = (
-            worst.0.max(horizontal),
-            worst.1.max(horizontal / sigma),
-            worst.2.max(v),
-        );
-        if std::env::var("DYNACAL_FAULTS_TRACE").is_ok() && (s.t_us / 100_000) % 20 == 0 {
+        let velocity = e.velocity_ned_m_s.xy().norm();
+        let t = seconds_of_us(s.t_us) - start_s;
+        errors.worst_m = errors.worst_m.max(horizontal);
+        if !(WITHOUT_FIXES_S[0]..WITHOUT_FIXES_S[1]).contains(&t) {
+            errors.worst_with_fixes_m = errors.worst_with_fixes_m.max(horizontal);
+            errors.worst_velocity_with_fixes_m_s =
+                errors.worst_velocity_with_fixes_m_s.max(velocity);
+        }
+        if trace && (s.t_us / 100_000) % 20 == 0 {
             println!(
-                "t {:6.1} horizontal {horizontal:8.2} m sigma {sigma:6.2} velocity {:6.3} sigma {:6.3}",
-                seconds_of_us(s.t_us) - run.start_s,
-                e.velocity_ned_m_s.xy().norm(),
+                "t {t:6.1} horizontal {horizontal:8.2} m sigma {:6.2} velocity {velocity:6.3} sigma {:6.3}",
+                e.sigma_position_m.xy().norm(),
                 e.sigma_velocity_m_s.xy().norm()
             );
         }
     }
-    if std::env::var("DYNACAL_FAULTS_TRACE").is_ok() {
-        let still: Vec<String> = run
-            .log
-            .noise
-            .iter()
-            .filter(|n| n.still)
-            .map(|n| format!("{:.0}", seconds_of_us(n.t_us) - run.start_s))
-            .collect();
-        println!("still at {}", still.join(" "));
+    errors
+}
+
+/// The plan natively over many drives (`DYNACAL_FAULTS_SWEEP=first-last`, 1-40 unless
+/// set), each under every check of the QEMU test: how many pass, and the navigation's
+/// errors (BENCHMARKS.md, "Board faults under emulation"). Run with `--ignored --nocapture`
+/// in release.
+#[test]
+#[ignore = "a measurement over 40 drives: its figures are in BENCHMARKS.md"]
+fn the_fault_plan_over_many_drives() {
+    let range = std::env::var("DYNACAL_FAULTS_SWEEP").unwrap_or_else(|_| "1-40".into());
+    let (first, last) = range
+        .split_once('-')
+        .expect("DYNACAL_FAULTS_SWEEP=first-last");
+    let seeds: Vec<u64> = (first.parse().unwrap()..=last.parse().unwrap()).collect();
+    let mut failed = Vec::new();
+    let mut excess = Vec::new();
+    for &seed in &seeds {
+        let drive = drive(seed);
+        let (log, refused) = drive.native(&plan());
+        let run = drive.into_run(log, refused);
+        let errors = navigation_errors(&run.sim, &run.log, run.start_s);
+        excess.push(errors.worst_m - run.outage_alone_worst_m);
+        println!(
+            "seed {seed:3}: worst {:6.2} m, outage alone {:6.2} m, with fixes {:5.2} m {:5.3} m/s",
+            errors.worst_m,
+            run.outage_alone_worst_m,
+            errors.worst_with_fixes_m,
+            errors.worst_velocity_with_fixes_m_s
+        );
+        if let Err(panic) = std::panic::catch_unwind(|| check_faulty_run(&run)) {
+            let why = panic
+                .downcast_ref::<String>()
+                .cloned()
+                .unwrap_or_else(|| "a failed check".into());
+            failed.push((seed, why));
+        }
     }
+    excess.sort_by(f64::total_cmp);
     println!(
-        "fused navigation: worst horizontal error {:.2} m, {:.2} sigma; velocity {:.2} sigma",
-        worst.0, worst.1, worst.2
+        "{} of {} drives pass every check; the plan's excess over the outage alone: median \
+         {:.2} m, worst {:.2} m",
+        seeds.len() - failed.len(),
+        seeds.len(),
+        excess[excess.len() / 2],
+        excess[excess.len() - 1]
     );
-    worst
+    for (seed, why) in &failed {
+        println!("seed {seed} failed: {why}");
+    }
+    // The rate BENCHMARKS.md states: at most 2 drives in 100 fail a check.
+    assert!(failed.len() * 50 <= seeds.len(), "{} failed", failed.len());
 }
 
 /// A main loop that hangs (a transfer that never completes) is ended by the watchdog, with

@@ -11,10 +11,6 @@ use dynacal::sim::trajectory::Scenario;
 use dynacal::sim::{simulate, SimOptions, SimOutput};
 use dynacal_core::fusion::{BoardFusion, FusionConfig, FusionOutput, UnitReading, UNITS};
 use dynacal_core::log::FilterState;
-use dynacal_core::recorder::{
-    Accepted, GnssChunk, LogSink, Recorder, SampleSource, SourceEvent, TickClock,
-};
-use dynacal_core::replay::ReplayRecord;
 use nalgebra::RealField;
 use nalgebra::Vector3;
 
@@ -30,60 +26,6 @@ fn sim_model() -> SimModel {
     three_units::sim_model(&OUTAGES)
 }
 
-struct Events(std::vec::IntoIter<SourceEvent>);
-
-impl SampleSource for Events {
-    type Error = ();
-    fn next_event(&mut self) -> Result<Option<SourceEvent>, ()> {
-        Ok(self.0.next())
-    }
-}
-
-#[derive(Default)]
-struct Bytes(Vec<u8>);
-
-impl LogSink for Bytes {
-    type Error = ();
-    fn write_frame(&mut self, frame: &[u8]) -> Result<Accepted, ()> {
-        self.0.extend_from_slice(frame);
-        Ok(Accepted::Written)
-    }
-    fn flush(&mut self) -> Result<(), ()> {
-        Ok(())
-    }
-}
-
-struct NoClock;
-
-impl TickClock for NoClock {
-    fn now_ticks(&mut self) -> u64 {
-        0
-    }
-}
-
-/// The source events of a replay record.
-fn event_of(record: &ReplayRecord) -> Option<SourceEvent> {
-    use dynacal_core::log::{ImuSampleSet, PpsEvent};
-    match *record {
-        ReplayRecord::Imu {
-            t_us,
-            imu_id,
-            gyro_counts,
-            accel_counts,
-        } => Some(SourceEvent::Imu(ImuSampleSet {
-            t_us,
-            imu_id,
-            gyro_counts,
-            accel_counts,
-        })),
-        ReplayRecord::Pps { t_us } => Some(SourceEvent::Pps(PpsEvent { t_us, sequence: 0 })),
-        ReplayRecord::Gnss { t_us, len, data } => {
-            Some(SourceEvent::Gnss(GnssChunk { t_us, len, data }))
-        }
-        _ => None,
-    }
-}
-
 /// The simulation, and the frames the board logged running it with the fusion on.
 fn board_run(seed: u64, true_noise: bool) -> (SimOutput, DecodedLog) {
     let model = sim_model();
@@ -97,14 +39,14 @@ fn board_run(seed: u64, true_noise: bool) -> (SimOutput, DecodedLog) {
     let sim = simulate(&model, &opts, &|_| {}).unwrap();
     let board = board_recording(&sim, &model).unwrap();
     let input = board.to_replay_input().unwrap();
-    let events: Vec<SourceEvent> = input.records.iter().filter_map(event_of).collect();
-    let recorder = Recorder::new(board.log_header()).with_fusion(board_model(true_noise));
-    let mut sink = Bytes::default();
-    let stats = recorder
-        .run(&mut Events(events.into_iter()), &mut sink, &mut NoClock)
-        .unwrap();
+    let (bytes, stats) = dynacal_tests::run_board_natively(
+        board.log_header(),
+        &input.records,
+        board_model(true_noise),
+        None,
+    );
     assert!(stats.filter_states > 0, "{stats:?}");
-    let log = dynacal::decode::decode_bytes(&sink.0);
+    let log = dynacal::decode::decode_bytes(&bytes);
     (sim, log)
 }
 

@@ -530,7 +530,7 @@ impl<T: RealField + Copy> BoardFusion<T> {
         if self.filter.is_some() {
             self.navigate(t_us, interval, dt_s, out);
         } else {
-            self.alignment.push(mean_rate, mean_force, dt_s, self.still);
+            self.alignment.push(mean_rate, mean_force, dt_s);
         }
         if self
             .counts
@@ -717,7 +717,7 @@ impl<T: RealField + Copy> BoardFusion<T> {
             return;
         }
         let Some(filter) = &mut self.filter else {
-            if let Some(start) = self.alignment.on_fix(fix, self.still) {
+            if let Some(start) = self.alignment.on_fix(fix) {
                 self.start(&start);
             }
             self.counts.gnss_skipped += 1;

@@ -11,4 +11,4 @@ pub use earth::{
     earth_rate_ned_rad_s, gravity_ned_m_s2, normal_gravity_m_s2, position_rates, radii,
     transport_rate_ned_rad_s, Radii,
 };
-pub use strapdown::{NavFault, NavState, Strapdown};
+pub use strapdown::{rotation_of, NavFault, NavState, Strapdown};

@@ -248,8 +248,8 @@ impl<T: RealField + Copy> Strapdown<T> {
         let (lat_rate, lon_rate, h_rate) = latitude
             .position_rates(h_mid, &v_avg)
             .ok_or(NavFault::NearPole)?;
-        let q_body = UnitQuaternion::from_scaled_axis(rotation_vector_b);
-        let q_nav = UnitQuaternion::from_scaled_axis(-zeta_n);
+        let q_body = rotation_of(rotation_vector_b);
+        let q_nav = rotation_of(-zeta_n);
         let mut q_nb = q_nav * s.q_nb * q_body;
         q_nb.renormalize();
         let next = NavState {
@@ -270,6 +270,23 @@ impl<T: RealField + Copy> Strapdown<T> {
         self.state = next;
         Ok(())
     }
+}
+
+/// The rotation by a rotation vector (axis times angle, rad): `UnitQuaternion::
+/// from_scaled_axis`, with one `sin_cos` of the half angle where nalgebra calls `sin` and
+/// `cos` apart. On the board each is its own software routine of 1.6 KB of flash, and the
+/// filter needs no other plain `sin` or `cos`.
+pub fn rotation_of<T: RealField + Copy>(rotation_vector: Vector3<T>) -> UnitQuaternion<T> {
+    let angle = rotation_vector.norm();
+    let half: T = c(0.5);
+    if angle <= T::default_epsilon() {
+        // sin(a/2)/a -> 1/2 as a -> 0.
+        let v = rotation_vector * half;
+        return UnitQuaternion::new_normalize(nalgebra::Quaternion::new(T::one(), v.x, v.y, v.z));
+    }
+    let (sin, cos) = (angle * half).sin_cos();
+    let v = rotation_vector * (sin / angle);
+    UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(cos, v.x, v.y, v.z))
 }
 
 fn all_finite<T: RealField + Copy>(v: &Vector3<T>) -> bool {

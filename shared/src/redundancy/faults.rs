@@ -199,6 +199,10 @@ struct Episode {
     unlagged: f32,
 }
 
+/// How many spike thresholds from every other unit a held value is a rail (see
+/// [`FaultMonitor::at_rail`]).
+const RAIL_SPIKES: f32 = 10.0;
+
 /// Most samples a unit's time slip is sought over, each way.
 const SLIP_LAGS: usize = 8;
 
@@ -365,20 +369,13 @@ impl<const N: usize> FaultMonitor<N> {
         let present: [bool; N] = core::array::from_fn(|k| samples[k].is_some());
         let scores = self.scores(samples);
         let mut direct: [Option<(FaultKind, Option<u8>)>; N] = [None; N];
+        let mut rail = [false; N];
         for (k, s) in samples.iter().enumerate() {
             let far = self.far_from_all(k, &scores, &present);
             direct[k] = self.direct_fault(k, s, repeated, &present, far);
+            rail[k] = self.at_rail(k, &scores, &present, &repeated[k]);
         }
-        let jumped = self.jumps(samples);
-        let mut triggers = self.statistical_triggers(&scores, &present, samples);
-        let in_use = (0..N).filter(|&k| self.units[k].healthy && present[k]);
-        let with = in_use.clone().filter(|&k| jumped[k]).count();
-        if with >= 2 && 2 * with >= in_use.count() {
-            self.hold_until = sample + self.config.samples(self.config.common_hold_s);
-        }
-        if sample < self.hold_until {
-            triggers = [None; N];
-        }
+        let triggers = self.screened_triggers(samples, &scores, &present, &rail);
         for k in 0..N {
             if let Some((kind, axis)) = direct[k] {
                 self.confirm_now(k, kind, axis, sample, &mut step);
@@ -461,6 +458,21 @@ impl<const N: usize> FaultMonitor<N> {
         others.clone().next().is_some() && others.all(|l| z[k][l].iter().any(|s| s.abs() > limit))
     }
 
+    /// Whether an axis of unit k holds a value it came to far from every other healthy unit
+    /// (it repeated its previous raw value) and is still beyond [`RAIL_SPIKES`] spike
+    /// thresholds from each of them: a rail. A quantized unit that stays put while a knock
+    /// moves the others holds a value it came to in agreement, which is no rail; a static
+    /// unit's glitch that repeats a sample is tens of spreads off, a range's rail thousands.
+    fn at_rail(&self, k: usize, z: &Scores<N>, present: &[bool; N], repeated: &[bool; 3]) -> bool {
+        let others = (0..N).filter(|&l| l != k && present[l] && self.units[l].healthy);
+        let limit = RAIL_SPIKES * self.config.spike_sigma;
+        let pinned_far = &self.units[k].pinned_far;
+        others.clone().next().is_some()
+            && (0..3).any(|a| {
+                repeated[a] && pinned_far[a] && others.clone().all(|l| z[k][l][a].abs() > limit)
+            })
+    }
+
     /// Which units' samples jumped from their previous ones (see `common_sigma`).
     fn jumps(&self, samples: &[Option<[f32; 3]>; N]) -> [bool; N] {
         core::array::from_fn(|k| match (samples[k], self.previous[k]) {
@@ -470,6 +482,44 @@ impl<const N: usize> FaultMonitor<N> {
             }
             _ => false,
         })
+    }
+
+    /// The statistical tests' suspects, screened for a jolt of the platform, and units at a
+    /// rail (`rail[k]`, [`Self::at_rail`]).
+    ///
+    /// A jolt (two or more and at least half of the healthy units jumping together) holds
+    /// the tests for `common_hold_s`, but not for a unit at a rail, which is suspected
+    /// whatever the others do: a jolted unit moves, a rail holds. So is one at a rail when
+    /// only two healthy units are left, whose disagreement alone cannot say which is wrong.
+    /// Without this, a gross fault's samples reach the fused output until a direct test
+    /// confirms it (a rail held for `stuck_s`, 0.1 s: a 16 g rail among three units is
+    /// 5 m/s of velocity); now its first sample does (a unit that merely jumped while the
+    /// others did not is not blamed: in a copter's vibration, or a knock on a static rig,
+    /// one unit's samples jump alone far more often than units fail).
+    fn screened_triggers(
+        &mut self,
+        samples: &[Option<[f32; 3]>; N],
+        z: &Scores<N>,
+        present: &[bool; N],
+        rail: &[bool; N],
+    ) -> [Option<Trigger>; N] {
+        let sample = self.sample;
+        let jumped = self.jumps(samples);
+        let mut triggers = self.statistical_triggers(z, present, samples);
+        let in_use = (0..N).filter(|&k| self.units[k].healthy && present[k]);
+        let with = in_use.clone().filter(|&k| jumped[k]).count();
+        if with >= 2 && 2 * with >= in_use.count() {
+            self.hold_until = sample + self.config.samples(self.config.common_hold_s);
+        }
+        let held = sample < self.hold_until;
+        for (trigger, &rail) in triggers.iter_mut().zip(rail) {
+            if rail {
+                *trigger = Some(Trigger::Spike);
+            } else if held {
+                *trigger = None;
+            }
+        }
+        triggers
     }
 
     /// The mean spread over the pairs and axes of healthy units other than `excluding`.
@@ -586,6 +636,11 @@ impl<const N: usize> FaultMonitor<N> {
     /// The shift test's statistic of pair (k, l) after this sample: the updated fast mean of
     /// the z-score over its learned spread, largest over the axes.
     fn shift_score(&self, k: usize, l: usize, z: &Scores<N>) -> f32 {
+        self.shift_score_above(k, l, z, &[0.0; 3])
+    }
+
+    /// As [`Self::shift_score`], the learned spread per axis no lower than `least`.
+    fn shift_score_above(&self, k: usize, l: usize, z: &Scores<N>, least: &[f32; 3]) -> f32 {
         let (i, j) = if k < l { (k, l) } else { (l, k) };
         let alpha = self.config.alpha(self.config.fast_time_constant_s);
         let floor = alpha / (2.0 - alpha);
@@ -593,7 +648,7 @@ impl<const N: usize> FaultMonitor<N> {
             .map(|a| {
                 let p = &self.pairs[i][j][a];
                 let shift = p.shift + alpha * (z[i][j][a] - p.shift);
-                shift.abs() / p.shift_spread.max(floor).sqrt()
+                shift.abs() / p.shift_spread.max(floor).max(least[a]).sqrt()
             })
             .fold(0.0, f32::max)
     }
@@ -627,6 +682,11 @@ impl<const N: usize> FaultMonitor<N> {
     /// correlation's learned spread, largest over the axes. A unit whose samples are d late
     /// reads x(t - d) - x(t), about -d times the change: correlated near 1.
     fn slip_score(&self, k: usize, l: usize) -> f32 {
+        self.slip_score_above(k, l, &[0.0; 3])
+    }
+
+    /// As [`Self::slip_score`], the learned spread per axis no lower than `least`.
+    fn slip_score_above(&self, k: usize, l: usize, least: &[f32; 3]) -> f32 {
         if self.sample < self.config.samples(self.config.spread_time_constant_s) {
             return 0.0;
         }
@@ -635,7 +695,7 @@ impl<const N: usize> FaultMonitor<N> {
         (0..3)
             .map(|a| {
                 let p = &self.pairs[i][j][a];
-                p.slip_correlation().abs() / p.slip_spread.max(floor).sqrt()
+                p.slip_correlation().abs() / p.slip_spread.max(floor).max(least[a]).sqrt()
             })
             .fold(0.0, f32::max)
     }
@@ -868,6 +928,9 @@ impl<const N: usize> FaultMonitor<N> {
 
     /// Readmits confirmed faulty units after a clean period: present, no direct fault, and
     /// its pairs with at least half the healthy units within half of every test's threshold.
+    /// With no healthy unit present (overlapping faults), the units out are judged against
+    /// each other instead, and those that agree come back together: otherwise none could
+    /// ever return.
     fn readmit(
         &mut self,
         z: &Scores<N>,
@@ -876,27 +939,29 @@ impl<const N: usize> FaultMonitor<N> {
         step: &mut Step,
     ) {
         let needed = self.config.samples(self.config.clean_s);
-        for k in 0..N {
+        let healthy: [bool; N] = core::array::from_fn(|k| present[k] && self.units[k].healthy);
+        let candidate: [bool; N] = core::array::from_fn(|k| {
             let unit = &self.units[k];
-            if unit.healthy || unit.suspected.is_some() {
+            !unit.healthy && unit.suspected.is_none() && present[k] && direct[k].is_none()
+        });
+        let judges = if healthy.contains(&true) {
+            healthy
+        } else {
+            candidate
+        };
+        let (shift_least, slip_least) = self.healthy_colour();
+        for (k, &is_candidate) in candidate.iter().enumerate() {
+            if self.units[k].healthy || self.units[k].suspected.is_some() {
                 continue;
             }
-            let others = (0..N).filter(|&l| l != k && present[l] && self.units[l].healthy);
+            let others = (0..N).filter(|&l| l != k && judges[l]);
             let agreeing = others
                 .clone()
-                .filter(|&l| {
-                    largest(&z[k][l]) < self.config.spike_sigma / 2.0
-                        && self.shift_score(k, l, z) < self.config.shift_sigma / 2.0
-                        && self.burst_score(k, l) < self.config.burst_ratio / 2.0
-                        && self.slip_score(k, l) < self.config.slip_sigma / 2.0
-                })
+                .filter(|&l| self.agrees(k, l, z, &shift_least, &slip_least))
                 .count();
             // Clean with at least half the healthy units: where two healthy units disagree
             // (one noisier in flight), agreeing with one of them is what a sound unit can do.
-            let clean = present[k]
-                && direct[k].is_none()
-                && agreeing >= 1
-                && 2 * agreeing >= others.count();
+            let clean = is_candidate && agreeing >= 1 && 2 * agreeing >= others.count();
             let factor = self.dynamics_factor(k);
             let unit = &mut self.units[k];
             unit.clean_run = if clean { unit.clean_run + 1 } else { 0 };
@@ -914,6 +979,44 @@ impl<const N: usize> FaultMonitor<N> {
                 }
             }
         }
+    }
+
+    /// Whether unit k's pair with unit l is within half of every test's threshold, the
+    /// shift and slip statistics' spreads no lower than `shift_least` and `slip_least`.
+    fn agrees(
+        &self,
+        k: usize,
+        l: usize,
+        z: &Scores<N>,
+        shift_least: &[f32; 3],
+        slip_least: &[f32; 3],
+    ) -> bool {
+        let c = &self.config;
+        largest(&z[k][l]) < c.spike_sigma / 2.0
+            && self.shift_score_above(k, l, z, shift_least) < c.shift_sigma / 2.0
+            && self.burst_score(k, l) < c.burst_ratio / 2.0
+            && self.slip_score_above(k, l, slip_least) < c.slip_sigma / 2.0
+    }
+
+    /// The mean learned spreads of the shift and slip statistics per axis over the pairs of
+    /// healthy units (zero where there is no such pair). A unit that is out learns none for
+    /// its pairs, and these statistics follow the dynamics' colour more than their level: a
+    /// manoeuvre's slow residuals of misalignment and lever arm move a quarter second's mean
+    /// z-score by a spread where, parked, it moves by a tenth; so a sound unit coming back
+    /// in a manoeuvre is judged by what the healthy pairs show now.
+    fn healthy_colour(&self) -> ([f32; 3], [f32; 3]) {
+        let (mut shift, mut slip, mut pairs) = ([0.0f32; 3], [0.0f32; 3], 0);
+        for k in (0..N).filter(|&k| self.units[k].healthy) {
+            for l in (k + 1..N).filter(|&l| self.units[l].healthy) {
+                for (a, p) in self.pairs[k][l].iter().enumerate() {
+                    shift[a] += p.shift_spread;
+                    slip[a] += p.slip_spread;
+                }
+                pairs += 1;
+            }
+        }
+        let n = pairs.max(1) as f32;
+        (shift.map(|v| v / n), slip.map(|v| v / n))
     }
 }
 
@@ -1512,13 +1615,107 @@ mod tests {
         assert!(events.is_empty(), "{events:?}");
     }
 
+    /// Three units over `seconds`, each unit k's sample at i read through `read(i, k, x)`:
+    /// the events, the sample each unit was last readmitted at, and the largest error of
+    /// the fused output (less the units' mean bias) from `from` on.
+    fn run_each(
+        seconds: u32,
+        read: impl Fn(u32, usize, [f32; 3]) -> Option<[f32; 3]>,
+        from: u32,
+    ) -> (Vec<FaultEvent>, [Option<u32>; 3], f32) {
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        let mut monitor = FaultMonitor::<3>::new(config());
+        let (mut events, mut back, mut worst) = (Vec::new(), [None; 3], 0.0f32);
+        let mean_bias = BIAS.iter().sum::<f32>() / 3.0;
+        for i in 0..(seconds * RATE_HZ as u32) {
+            let truth = motion(i);
+            let samples: [Option<[f32; 3]>; 3] = core::array::from_fn(|k| {
+                let x = core::array::from_fn(|a| {
+                    let z: f32 = StandardNormal.sample(&mut rng);
+                    truth[a] + BIAS[k] + NOISE[k] * z
+                });
+                read(i, k, x)
+            });
+            let step = monitor.push(&samples);
+            events.extend(step.confirmed.iter().copied());
+            for (k, b) in back.iter_mut().enumerate() {
+                if step.readmitted & (1 << k) != 0 {
+                    *b = Some(i);
+                }
+            }
+            if let Some(f) = monitor.fused(&samples).filter(|_| i >= from) {
+                worst = worst.max(largest(&core::array::from_fn(|a| {
+                    f[a] - truth[a] - mean_bias
+                })));
+            }
+        }
+        (events, back, worst)
+    }
+
+    /// A unit that goes to a rail while the platform is jolted (every unit jumping, which
+    /// holds the statistical tests) leaves the fused output at its second sample there: a
+    /// jolted unit moves, a rail holds.
     #[test]
-    fn with_two_units_left_a_disagreement_is_detected_but_not_isolated() {
-        // Unit 1 drops out for good at 60 s; a spike on unit 0 then cannot be placed.
+    fn a_rail_during_a_jolt_leaves_the_fused_output_at_once() {
+        let jolt = |i: u32| {
+            if (ONSET..ONSET + 5).contains(&i) {
+                1.0
+            } else {
+                0.0
+            }
+        };
+        let (events, _, worst) = run_each(
+            70,
+            |i, k, x| {
+                let size = [1.0, 1.2, 2.0][k];
+                let mut x = x.map(|v| v + size * jolt(i));
+                if k == 1 && (ONSET + 2..ONSET + 100).contains(&i) {
+                    x[0] = 8.0;
+                }
+                Some(x)
+            },
+            ONSET + 5,
+        );
+        let rail = events
+            .iter()
+            .find(|e| e.unit == Some(1))
+            .expect("the rail found");
+        assert_eq!(rail.kind, FaultKind::Saturation, "{events:?}");
+        assert_eq!(rail.detected_sample, ONSET + 3, "{events:?}");
+        // The jolt's own samples aside, the fused output is the others'.
+        assert!(worst < 0.05, "{worst}");
+    }
+
+    /// Overlapping dropouts leave no unit healthy; once all are back and agree, they are
+    /// readmitted together after the clean period, not left out for good.
+    #[test]
+    fn with_every_unit_out_those_that_agree_come_back_together() {
+        let (events, back, _) = run_each(
+            100,
+            |i, k, x| {
+                let out_from = ONSET + 200 * k as u32;
+                (!(out_from..ONSET + 2000).contains(&i)).then_some(x)
+            },
+            0,
+        );
+        assert_eq!(events.len(), 3, "{events:?}");
+        let clean = config().samples(config().clean_s);
+        for (k, b) in back.iter().enumerate() {
+            let b = b.unwrap_or_else(|| panic!("unit {k} never back: {back:?}"));
+            assert!(
+                (ONSET + 2000 + clean - 1..ONSET + 2000 + clean + 100).contains(&b),
+                "{k}: {b}"
+            );
+        }
+    }
+
+    /// Unit 1 drops out for good at 60 s; unit 0's sample i is read through `fault(i, x)`.
+    /// The events and whether units 0 and 2 are healthy at the end.
+    fn two_left(fault: impl Fn(u32, [f32; 3]) -> [f32; 3]) -> (Vec<FaultEvent>, bool, bool) {
         let mut rng = ChaCha8Rng::seed_from_u64(9);
         let mut monitor = FaultMonitor::<3>::new(config());
         let mut events = Vec::new();
-        for i in 0..9000u32 {
+        for i in 0..10000u32 {
             let truth = motion(i);
             let mut s: [Option<[f32; 3]>; 3] = core::array::from_fn(|k| {
                 Some(core::array::from_fn(|a| {
@@ -1533,17 +1730,47 @@ mod tests {
             if i >= ONSET {
                 s[1] = None;
             }
-            if i == 8000 {
-                s[0] = s[0].map(|v| v.map(|x| x + 0.2));
-            }
+            s[0] = s[0].map(|x| fault(i, x));
             events.extend(monitor.push(&s).confirmed.iter().copied());
         }
-        assert_eq!(events.len(), 2, "{events:?}");
-        assert_eq!(
-            (events[0].unit, events[0].kind),
-            (Some(1), FaultKind::Dropout)
-        );
+        (events, monitor.healthy(0), monitor.healthy(2))
+    }
+
+    /// With two units left, a disagreement (a spike, a drift) is detected but cannot be
+    /// placed; a unit that goes to a rail can: it holds a value it came to far from the
+    /// other, which moves.
+    #[test]
+    fn with_two_units_left_a_disagreement_is_detected_and_a_rail_placed() {
+        for (name, fault) in [
+            (
+                "spike",
+                (|i| if i == 8000 { 2.0 } else { 0.0 }) as fn(u32) -> f32,
+            ),
+            ("drift", |i| 5e-5 * i.saturating_sub(8000) as f32),
+        ] {
+            let (events, healthy_0, _) = two_left(|i, x| x.map(|v| v + fault(i)));
+            assert_eq!(events.len(), 2, "{name}: {events:?}");
+            assert_eq!(
+                (events[0].unit, events[0].kind),
+                (Some(1), FaultKind::Dropout)
+            );
+            assert_eq!(events[1].unit, None, "{name}: {events:?}");
+            assert!(events[1].detected_sample >= 8000, "{name}: {events:?}");
+            assert!(healthy_0, "{name}: unit 0 never left");
+        }
+        let (events, healthy_0, healthy_2) = two_left(|i, mut x| {
+            if (8000..8300).contains(&i) {
+                x[0] = 8.0;
+            }
+            x
+        });
+        // Its first sample there is a disagreement not yet placed; its second is the rail.
+        assert_eq!(events.len(), 3, "{events:?}");
         assert_eq!((events[1].unit, events[1].detected_sample), (None, 8000));
-        assert!(monitor.healthy(0) && monitor.healthy(2));
+        assert_eq!(
+            (events[2].unit, events[2].kind, events[2].detected_sample),
+            (Some(0), FaultKind::Saturation, 8001)
+        );
+        assert!(healthy_0 && healthy_2, "unit 0 back after the rail");
     }
 }

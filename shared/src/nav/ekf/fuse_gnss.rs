@@ -2,7 +2,7 @@
 //! sequential scalar updates on the NED position or velocity error states.
 
 use super::{tally, BatchOutcome, ErrorStateEkf, SparseRow, POS, VEL};
-use crate::nav::earth::radii;
+use crate::nav::earth::Latitude;
 use crate::nav::strapdown::NavState;
 use nalgebra::{RealField, Vector3};
 
@@ -17,11 +17,11 @@ pub fn position_innovation_ned_m<T: RealField + Copy>(
     nominal: &NavState<T>,
 ) -> Vector3<T> {
     let c = |x: f64| nalgebra::convert::<f64, T>(x);
-    let lat = nominal.lat();
-    let r = radii(lat);
+    let latitude = Latitude::new(nominal.lat());
+    let r = latitude.radii;
     Vector3::new(
         c(measured_lat_rad - nominal.lat_rad) * (r.meridian_m + nominal.h_m),
-        c(measured_lon_rad - nominal.lon_rad) * (r.transverse_m + nominal.h_m) * lat.cos(),
+        c(measured_lon_rad - nominal.lon_rad) * (r.transverse_m + nominal.h_m) * latitude.cos,
         nominal.h_m - measured_h_m,
     )
 }

@@ -10,7 +10,7 @@ use super::{
     position_innovation_ned_m, small_rotation, BatchOutcome, ErrorStateEkf, InterImuSample,
     NavCorrection, NavLinearization,
 };
-use crate::nav::earth::radii;
+use crate::nav::earth::Latitude;
 use crate::nav::strapdown::{to_f64, NavFault, NavState, Strapdown};
 use nalgebra::{RealField, Vector3};
 
@@ -34,9 +34,9 @@ pub fn apply_correction<T: RealField + Copy>(
     state: &mut NavState<T>,
     correction: &NavCorrection<T>,
 ) {
-    let r = radii(state.lat());
+    let latitude = Latitude::new(state.lat());
+    let (r, cos_lat) = (latitude.radii, latitude.cos);
     let d = correction.position_ned_m;
-    let cos_lat = state.lat().cos();
     state.lat_rad += to_f64(d.x / (r.meridian_m + state.h_m));
     if cos_lat.abs() > nalgebra::convert(1e-9) {
         state.lon_rad += to_f64(d.y / ((r.transverse_m + state.h_m) * cos_lat));
