@@ -216,3 +216,122 @@ fn a_file_without_a_rate_streams_only_with_one_given() {
         NotStreamable::Robust
     );
 }
+
+fn dynacal_fit(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_dynacal"))
+        .arg("fit")
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// The parameter values of the first channel's fit in a `dynacal fit` model file, the first
+/// of each process (its variance).
+fn fitted_values(json: &Path) -> Vec<(String, f64)> {
+    let model: serde_json::Value = serde_json::from_slice(&std::fs::read(json).unwrap()).unwrap();
+    model["fit"]["channels"][0]["parameters"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| {
+            (
+                p["process"].as_str().unwrap().to_string(),
+                p["value"].as_f64().unwrap(),
+            )
+        })
+        .fold(Vec::new(), |mut first, (process, value)| {
+            if !first.iter().any(|(p, _)| *p == process) {
+                first.push((process, value));
+            }
+            first
+        })
+}
+
+/// `dynacal fit --stream always` on 2^20 + 50 000 rows (its top level decimated) recovers
+/// the white noise and random walk the batch fit does, and those simulated: the fit needs
+/// only the wavelet variances, which stream in bounded memory. A file that cannot be
+/// streamed is refused under `always`, naming it and why.
+#[test]
+fn a_streamed_fit_recovers_the_batch_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    let input = dir.path().join("long.csv");
+    let (white_sigma, step_sigma) = (1e-3, 1e-5);
+    let mut rng = ChaCha8Rng::seed_from_u64(8);
+    let white = Normal::new(0.0, white_sigma).unwrap();
+    let step = Normal::new(0.0, step_sigma).unwrap();
+    let mut file = std::io::BufWriter::new(std::fs::File::create(&input).unwrap());
+    writeln!(file, "# sample_rate_hz: 100\nt_s,gx_rad_s").unwrap();
+    let mut walk = 0.0f64;
+    for i in 0..(1usize << 20) + 50_000 {
+        walk += step.sample(&mut rng);
+        writeln!(
+            file,
+            "{:.2},{:.7e}",
+            i as f64 * 0.01,
+            walk + white.sample(&mut rng)
+        )
+        .unwrap();
+    }
+    file.flush().unwrap();
+    drop(file);
+    let fit = |stream: &str| {
+        let json = dir.path().join(format!("{stream}.json"));
+        let input = input.to_str().unwrap();
+        let o = dynacal_fit(&[
+            input,
+            "--model",
+            "WN+RW",
+            "--stream",
+            stream,
+            "--json",
+            json.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+        fitted_values(&json)
+    };
+    let (streamed, batch) = (fit("always"), fit("never"));
+    assert_eq!(streamed.len(), 2, "{streamed:?}");
+    let truth = [
+        ("WN", white_sigma * white_sigma),
+        ("RW", step_sigma * step_sigma),
+    ];
+    for ((process, s), (_, b)) in streamed.iter().zip(&batch) {
+        let want = truth.iter().find(|t| t.0 == process).unwrap().1;
+        // The white noise is set by the finest levels, which are the batch estimator's.
+        let (against_batch, against_truth) = if process == "WN" {
+            (1e-3, 0.02)
+        } else {
+            (0.1, 0.2)
+        };
+        assert!(
+            (s / b - 1.0).abs() < against_batch,
+            "{process}: streamed {s:e}, batch {b:e}"
+        );
+        assert!(
+            (s / want - 1.0).abs() < against_truth,
+            "{process}: {s:e} against {want:e}"
+        );
+    }
+
+    let no_rate = dir.path().join("no-rate.csv");
+    std::fs::write(
+        &no_rate,
+        "t_s,gx_rad_s\n0,1\n0.01,2\n0.02,3\n0.03,4\n0.04,5\n",
+    )
+    .unwrap();
+    let json = dir.path().join("refused.json");
+    let o = dynacal_fit(&[
+        no_rate.to_str().unwrap(),
+        "--stream",
+        "always",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success());
+    assert!(
+        err.contains("no-rate.csv") && err.contains("cannot stream"),
+        "{err}"
+    );
+    assert!(!json.exists());
+}

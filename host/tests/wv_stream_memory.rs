@@ -1,8 +1,8 @@
 //! The measurement behind "memory stays bounded on a 1e8-sample input" (issue 21, part 5):
 //! seeded single-channel interchange recordings of 1e6, 1e7 and 1e8 rows are written into a
 //! temporary folder (the largest about 3 GB, removed afterwards) and the release `dynacal wv`
-//! is run on each under `/usr/bin/time -v`, streamed, and loaded whole at 1e7 rows for
-//! comparison. Ignored: it runs for minutes and needs the disk. Run with
+//! and `dynacal fit --model WN+RW` are run on each under `/usr/bin/time -v`, streamed, and
+//! loaded whole at 1e7 rows for comparison. Ignored: it runs for minutes and needs the disk. Run with
 //! `cargo test --release -p dynacal --test wv_stream_memory -- --ignored --nocapture`.
 
 use std::io::Write;
@@ -30,12 +30,13 @@ fn write_recording(path: &Path, rows: u64) {
     out.flush().unwrap();
 }
 
-/// Peak resident memory (MiB) and wall time (s) of `dynacal wv` on `input`.
-fn measure(input: &Path, stream: &str, json: &Path) -> (f64, f64) {
+/// Peak resident memory (MiB) and wall time (s) of `dynacal COMMAND` on `input`.
+fn measure(command: &[&str], input: &Path, stream: &str, json: &Path) -> (f64, f64) {
     let o = Command::new("/usr/bin/time")
         .arg("-v")
         .arg(env!("CARGO_BIN_EXE_dynacal"))
-        .args(["wv", input.to_str().unwrap(), "--stream", stream, "--json"])
+        .args(command)
+        .args([input.to_str().unwrap(), "--stream", stream, "--json"])
         .arg(json)
         .output()
         .expect("/usr/bin/time (apt-get install time)");
@@ -64,7 +65,9 @@ fn measure(input: &Path, stream: &str, json: &Path) -> (f64, f64) {
 fn memory_is_flat_from_1e6_to_1e8_rows() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("wv.json");
-    println!("| rows | file MB | mode | peak RSS MiB | wall s |\n|---|---|---|---|---|");
+    println!(
+        "| rows | file MB | command | mode | peak RSS MiB | wall s |\n|---|---|---|---|---|---|"
+    );
     let mut streamed_rss = vec![];
     for rows in [1_000_000u64, 10_000_000, 100_000_000] {
         let input = dir.path().join(format!("gyro-{rows}.csv"));
@@ -75,25 +78,35 @@ fn memory_is_flat_from_1e6_to_1e8_rows() {
         } else {
             &["always"]
         };
-        for &mode in modes {
-            let (rss, wall) = measure(&input, mode, &json);
-            let label = if mode == "always" {
-                "streamed"
-            } else {
-                "loaded whole"
-            };
-            println!("| {rows:.0e} | {mb:.0} | {label} | {rss:.1} | {wall:.1} |");
-            if mode == "always" {
-                streamed_rss.push(rss);
+        for command in [&["wv"][..], &["fit", "--model", "WN+RW"]] {
+            for &mode in modes {
+                let (rss, wall) = measure(command, &input, mode, &json);
+                let label = if mode == "always" {
+                    "streamed"
+                } else {
+                    "loaded whole"
+                };
+                let name = command.join(" ");
+                println!("| {rows:.0e} | {mb:.0} | {name} | {label} | {rss:.1} | {wall:.1} |");
+                if mode == "always" {
+                    streamed_rss.push((name, rss));
+                }
             }
         }
         std::fs::remove_file(&input).unwrap();
     }
-    let spread = streamed_rss.iter().cloned().fold(f64::MIN, f64::max)
-        - streamed_rss.iter().cloned().fold(f64::MAX, f64::min);
-    println!("streamed peak RSS spread from 1e6 to 1e8 rows: {spread:.1} MiB");
-    assert!(
-        spread < 16.0,
-        "memory grows with the length: {streamed_rss:?}"
-    );
+    for command in ["wv", "fit --model WN+RW"] {
+        let rss: Vec<f64> = streamed_rss
+            .iter()
+            .filter(|(name, _)| name == command)
+            .map(|(_, rss)| *rss)
+            .collect();
+        let spread = rss.iter().cloned().fold(f64::MIN, f64::max)
+            - rss.iter().cloned().fold(f64::MAX, f64::min);
+        println!("`{command}` streamed: peak RSS spread from 1e6 to 1e8 rows {spread:.1} MiB");
+        assert!(
+            spread < 16.0,
+            "`{command}`'s memory grows with the length: {rss:?}"
+        );
+    }
 }

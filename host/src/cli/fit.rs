@@ -1,12 +1,15 @@
 //! `dynacal fit FILE --model M|auto --json OUT`: GMWM fit of every channel of a recording or
-//! of stored wavelet variances, with intervals, J-test and (for auto) ranked candidates.
+//! of stored wavelet variances, with intervals, J-test and (for auto) ranked candidates. A
+//! long interchange recording is read once in bounded memory (`--stream`, as `dynacal wv`):
+//! the fit needs only its wavelet variances.
 
 use std::path::PathBuf;
 
 use dynacal::gmwm::inference::{BootstrapOptions, ModelChoice};
 use dynacal::gmwm::model::Structure;
+use dynacal::input::stream::StreamMode;
 use dynacal::input::InputArgs;
-use dynacal::model::{fit_file, fitted_model};
+use dynacal::model::{fit_file_as, fitted_model};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -25,6 +28,11 @@ pub struct Args {
     /// Seed of the bootstrap.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Read the file once, row by row, in bounded memory: `auto` above 256 MiB on disk,
+    /// `always`, or `never` (load it whole). Levels above 18 are then decimated, as
+    /// `dynacal wv` says.
+    #[arg(long, value_enum, default_value_t = StreamMode::Auto)]
+    pub stream: StreamMode,
     /// Output: the model file (`docs/formats.md`: loads in `dynacal simulate --model` and
     /// `dynacal diagnose --baseline`) with the fit statistics beside it; written whole or
     /// not at all.
@@ -50,7 +58,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         seed: args.seed,
     });
     let bar = super::working(&format!("fitting {}", args.file.display()));
-    let fits = fit_file(&args.file, &args.input, &choice, bootstrap);
+    let fits = fit_file_as(&args.file, &args.input, &choice, bootstrap, args.stream);
     bar.finish_and_clear();
     let fits = fits?;
     for f in &fits {

@@ -24,9 +24,8 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 
 use anyhow::{bail, Context};
-use dynacal::input::stream::{stream_wavelet_variances, StreamedWv, STREAM_THRESHOLD_BYTES};
+use dynacal::input::stream::{streamed_if_wanted, StreamMode};
 use dynacal::input::{load_series, InputArgs};
-use dynacal::wv::stream::HaarWvStream;
 use dynacal::wv::{WaveletVariance, WvOptions};
 use serde::Serialize;
 
@@ -55,17 +54,6 @@ pub struct Args {
     /// Also write DIR/report.html: the figures and tables, one self-contained page.
     #[arg(long, value_name = "DIR")]
     pub report: Option<PathBuf>,
-}
-
-/// When `dynacal wv` streams its input.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
-pub enum StreamMode {
-    /// Stream interchange files larger than 256 MiB on disk whose rate is known.
-    Auto,
-    /// Stream, or fail saying why the file does not allow it.
-    Always,
-    /// Load the whole file.
-    Never,
 }
 
 /// The JSON document written by `dynacal wv`.
@@ -97,25 +85,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         robust: args.robust,
         efficiency: args.efficiency,
     };
-    let (dt_s, channels, streamed) = match streamed(&args, &opts)? {
-        Some(s) => {
-            let channels = s.channels.into_iter().map(|c| (c.channel, c.wv)).collect();
-            let note = StreamNote {
-                full_levels: s.full_levels,
-                decimated_levels: format!(
-                    "levels above {} use every 2^(j-1)-th coefficient (as the board's \
+    let (dt_s, channels, streamed) =
+        match streamed_if_wanted(&args.file, &args.input, &opts, args.stream)? {
+            Some(s) => {
+                let channels = s.channels.into_iter().map(|c| (c.channel, c.wv)).collect();
+                let note = StreamNote {
+                    full_levels: s.full_levels,
+                    decimated_levels: format!(
+                        "levels above {} use every 2^(j-1)-th coefficient (as the board's \
                      streaming accumulator); their intervals have 4/9 of the degrees of \
                      freedom of that many overlapping coefficients",
-                    s.full_levels
-                ),
-            };
-            (s.dt_s, channels, Some(note))
-        }
-        None => {
-            let (dt_s, channels) = batch(&args, &opts)?;
-            (dt_s, channels, None)
-        }
-    };
+                        s.full_levels
+                    ),
+                };
+                (s.dt_s, channels, Some(note))
+            }
+            None => {
+                let (dt_s, channels) = batch(&args, &opts)?;
+                (dt_s, channels, None)
+            }
+        };
     let report = Report {
         file: args.file.display().to_string(),
         dt_s,
@@ -143,30 +132,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         );
     }
     super::write_json_and_report(&args.json, &report, args.report.as_deref(), page.as_ref())
-}
-
-/// The streamed result when `--stream` and the file call for it.
-fn streamed(args: &Args, opts: &WvOptions) -> anyhow::Result<Option<StreamedWv>> {
-    let large = || std::fs::metadata(&args.file).is_ok_and(|m| m.len() > STREAM_THRESHOLD_BYTES);
-    let wanted = match args.stream {
-        StreamMode::Never => false,
-        StreamMode::Always => true,
-        StreamMode::Auto => large(),
-    };
-    if !wanted {
-        return Ok(None);
-    }
-    let full_levels = HaarWvStream::DEFAULT_FULL_LEVELS;
-    match stream_wavelet_variances(&args.file, &args.input, opts, full_levels)? {
-        Ok(streamed) => Ok(Some(streamed)),
-        Err(reason) if args.stream == StreamMode::Always => {
-            bail!("{}: cannot stream: {reason}", args.file.display())
-        }
-        Err(reason) => {
-            eprintln!("{}: loaded whole ({reason})", args.file.display());
-            Ok(None)
-        }
-    }
 }
 
 /// The whole file loaded and every channel's batch estimate.

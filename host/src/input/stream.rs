@@ -59,6 +59,48 @@ impl std::fmt::Display for NotStreamable {
     }
 }
 
+/// When a command streams its input.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum StreamMode {
+    /// Stream interchange files larger than 256 MiB on disk whose rate is known.
+    #[default]
+    Auto,
+    /// Stream, or fail saying why the file does not allow it.
+    Always,
+    /// Load the whole file.
+    Never,
+}
+
+/// The streamed wavelet variances of `path` when `mode` and the file call for it; None: load
+/// it whole. `Always` on a file that cannot be streamed is an error saying why; `Auto` on a
+/// large one says on stderr why it is loaded whole.
+pub fn streamed_if_wanted(
+    path: &Path,
+    args: &InputArgs,
+    opts: &WvOptions,
+    mode: StreamMode,
+) -> Result<Option<StreamedWv>, InputError> {
+    let wanted = match mode {
+        StreamMode::Never => false,
+        StreamMode::Always => true,
+        StreamMode::Auto => std::fs::metadata(path).is_ok_and(|m| m.len() > STREAM_THRESHOLD_BYTES),
+    };
+    if !wanted {
+        return Ok(None);
+    }
+    match stream_wavelet_variances(path, args, opts, HaarWvStream::DEFAULT_FULL_LEVELS)? {
+        Ok(streamed) => Ok(Some(streamed)),
+        Err(reason) if mode == StreamMode::Always => Err(InputError::Format {
+            path: path.to_path_buf(),
+            message: format!("cannot stream: {reason}"),
+        }),
+        Err(reason) => {
+            eprintln!("{}: loaded whole ({reason})", path.display());
+            Ok(None)
+        }
+    }
+}
+
 /// The wavelet variance of every wanted channel of an interchange file, read once, row by
 /// row; `Ok(Err(reason))` when the file or the options do not allow streaming.
 pub fn stream_wavelet_variances(

@@ -15,6 +15,7 @@ use super::Channel;
 use crate::gmwm::fit::{FitError, FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, BootstrapOptions, ChannelFit, ModelChoice};
 use crate::gmwm::model::ModelSpec;
+use crate::input::stream::{streamed_if_wanted, StreamMode};
 use crate::input::{load_wavelet_variances, InputArgs, InputError};
 use crate::wv::WvOptions;
 
@@ -40,7 +41,24 @@ pub fn fit_file(
     choice: &ModelChoice,
     bootstrap: Option<BootstrapOptions>,
 ) -> Result<Vec<ChannelFit>, FitFileError> {
-    let channels = load_wavelet_variances(file, input, &WvOptions::default())?;
+    fit_file_as(file, input, choice, bootstrap, StreamMode::Auto)
+}
+
+/// As [`fit_file`], the wavelet variances streamed as `mode` says
+/// ([`crate::input::stream::streamed_if_wanted`]): in memory that does not grow with the
+/// recording's length, the fit needing only them.
+pub fn fit_file_as(
+    file: &Path,
+    input: &InputArgs,
+    choice: &ModelChoice,
+    bootstrap: Option<BootstrapOptions>,
+    mode: StreamMode,
+) -> Result<Vec<ChannelFit>, FitFileError> {
+    let opts = WvOptions::default();
+    let channels = match streamed_if_wanted(file, input, &opts, mode)? {
+        Some(streamed) => streamed.channels,
+        None => load_wavelet_variances(file, input, &opts)?,
+    };
     // Collected in full before the first error is taken, so that the error named is the
     // first channel's in file order, whichever thread finished first.
     let fits: Vec<Result<ChannelFit, FitFileError>> = channels
