@@ -6,7 +6,8 @@
 //! bias, which drifts) and a variance of what is left, so each new difference has a
 //! z-score that needs no knowledge of the units' noise. A unit is suspected when **every**
 //! pair it is in fails a test and no pair of healthy units without it does (a single fault
-//! among three or more is isolated; with two units left it is only detected). The tests:
+//! among three or more is isolated; with two units left it is only detected, but for a unit
+//! at a rail, which is placed by its own samples). The tests:
 //! - dropout (no sample), saturation (at the configured range) and stuck output (all three
 //!   axes unchanged while the others move) from the unit's own samples;
 //! - spike: one difference beyond `spike_sigma`;
@@ -22,9 +23,10 @@
 //! A suspected unit leaves the fused output at once; its kind is decided over the next
 //! `confirm_s` by what explains its residual against the healthy units: a constant (bias
 //! step), the signal (scale factor), the signal's rate of change (time slip), a few samples
-//! (spike), or nothing (noise burst). It is readmitted after `clean_s` without a failed test;
-//! meanwhile its pairs' means keep learning, so a unit whose bias stepped returns with its
-//! new bias. Why per-sample tests are not enough for a false-alarm rate: 1e-5 per test at
+//! (spike), or nothing (noise burst). It is readmitted after `clean_s` without a failed test
+//! at half its threshold against at least half the healthy units (against the other units
+//! out, when none is healthy); meanwhile its pairs' means keep learning, so a unit whose bias
+//! stepped returns with its new bias. Why per-sample tests are not enough for a false-alarm rate: 1e-5 per test at
 //! 100 Hz is 4 alarms an hour; the spike and shift thresholds are set for rates measured over
 //! hours of fault-free data (BENCHMARKS.md).
 
