@@ -11,7 +11,9 @@
 use std::io::Write;
 use std::path::Path;
 
-use crate::interchange::{check_time_increasing, read_table, TableError, CHANNELS};
+use crate::interchange::{
+    check_time_increasing, check_time_increasing_at, read_table, TableError, CHANNELS,
+};
 use crate::output::AtomicFile;
 use crate::regress::DYNAMICS_REGRESSORS;
 
@@ -122,7 +124,7 @@ impl ErrorSignals {
                 })
         };
         let t_s = col("t_s")?;
-        check_time_increasing(path, &t_s)?;
+        check_time_increasing_at(path, &t_s, table.row_lines)?;
         let errors = ERROR_COLUMNS.map(|c| table.column(c).map(<[f64]>::to_vec));
         if errors.iter().all(Option::is_none) {
             return Err(TableError::Csv {

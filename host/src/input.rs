@@ -27,7 +27,9 @@ pub mod stream;
 use crate::decode::BoardChannelWv;
 use crate::error_signal::ERROR_COLUMNS;
 use crate::import::ImportError;
-use crate::interchange::{median_step_s, open_maybe_gz, read_table, ImuRecording, TableError};
+use crate::interchange::{
+    median_step_s, open_maybe_gz, read_table, ImuRecording, RowLines, TableError,
+};
 use crate::model::Channel;
 use crate::wv::{haar_wv, haar_wv_counts, read_smac_golden, WaveletVariance, WvError, WvOptions};
 
@@ -188,18 +190,31 @@ pub fn sample_interval_s(
     t_s: &[f64],
     stated_rate_hz: Option<f64>,
 ) -> Result<f64, InputError> {
+    sample_interval_at(path, t_s, stated_rate_hz, RowLines::Unknown)
+}
+
+/// As [`sample_interval_s`], a gap's error naming the file line where the rows' are known.
+pub fn sample_interval_at(
+    path: &Path,
+    t_s: &[f64],
+    stated_rate_hz: Option<f64>,
+    lines: RowLines,
+) -> Result<f64, InputError> {
     let median = median_step_s(t_s)
         .ok_or_else(|| format_error(path, "fewer than two samples: no sample interval".into()))?;
     if let Some(i) = t_s
         .windows(2)
         .position(|w| (w[1] - w[0] - median).abs() > 0.5 * median)
     {
+        let place = match lines {
+            RowLines::From(first) => format!("line {}", first + i as u64 + 1),
+            RowLines::Unknown => format!("sample {} (1-based, t_s {} s)", i + 2, t_s[i + 1]),
+        };
         return Err(format_error(
             path,
             format!(
-                "line {}, column `t_s`: step {} s differs from the median interval {median} s \
+                "{place}, column `t_s`: step {} s differs from the median interval {median} s \
                  (the wavelet variance needs evenly spaced samples)",
-                i + 3,
                 t_s[i + 1] - t_s[i]
             ),
         ));
@@ -238,7 +253,7 @@ fn stated_interval_s(path: &Path, rate_hz: f64) -> Result<f64, InputError> {
 /// knows that holds one sensor (imported to SI units). With `evenly_sampled`, a gap in its
 /// time column is an error naming the line, as for the series the wavelet variance reads.
 pub fn load_recording(path: &Path, evenly_sampled: bool) -> Result<ImuRecording, InputError> {
-    let recording = match crate::import::detect(path)? {
+    let (recording, lines) = match crate::import::detect(path)? {
         Some(dataset) => {
             let mut sensors = crate::import::import_file(path, dataset)?;
             if sensors.len() != 1 {
@@ -252,12 +267,12 @@ pub fn load_recording(path: &Path, evenly_sampled: bool) -> Result<ImuRecording,
                     ),
                 ));
             }
-            sensors.remove(0).recording
+            (sensors.remove(0).recording, RowLines::Unknown)
         }
-        None => ImuRecording::read(path)?,
+        None => ImuRecording::read_with_lines(path)?,
     };
     if evenly_sampled {
-        sample_interval_s(path, &recording.t_s, recording.sample_rate_hz)?;
+        sample_interval_at(path, &recording.t_s, recording.sample_rate_hz, lines)?;
     }
     Ok(recording)
 }
@@ -277,7 +292,8 @@ pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputEr
             .iter()
             .any(|h| crate::interchange::is_interchange_column(h));
     let mut series = if interchange {
-        from_recordings(path, args, vec![(String::new(), ImuRecording::read(path)?)])?
+        let (recording, lines) = ImuRecording::read_with_lines(path)?;
+        from_recordings(path, args, vec![(String::new(), recording, lines)])?
     } else if let Some(dataset) = (!args.raw)
         .then(|| crate::import::detect(path))
         .transpose()?
@@ -293,7 +309,7 @@ pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputEr
                 } else {
                     String::new()
                 };
-                (prefix, s.recording)
+                (prefix, s.recording, RowLines::Unknown)
             })
             .collect();
         from_recordings(path, args, recordings)?
@@ -344,11 +360,12 @@ fn csv_header(path: &Path) -> Result<Vec<String>, InputError> {
 fn from_recordings(
     path: &Path,
     args: &InputArgs,
-    recordings: Vec<(String, ImuRecording)>,
+    recordings: Vec<(String, ImuRecording, RowLines)>,
 ) -> Result<Vec<Series>, InputError> {
     let mut available = Vec::new();
-    for (prefix, rec) in &recordings {
-        let dt_s = sample_interval_s(path, &rec.t_s, args.rate_hz.or(rec.sample_rate_hz))?;
+    for (prefix, rec, lines) in &recordings {
+        let rate = args.rate_hz.or(rec.sample_rate_hz);
+        let dt_s = sample_interval_at(path, &rec.t_s, rate, *lines)?;
         for c in Channel::ALL {
             if let Some(values) = rec.channel(c.name()) {
                 available.push(Series {
@@ -485,8 +502,8 @@ fn from_columns(
     }
     let dt_s = match (table.column("t_s"), args.rate_hz) {
         (Some(t_s), rate) => {
-            crate::interchange::check_time_increasing(path, t_s)?;
-            sample_interval_s(path, t_s, rate)?
+            crate::interchange::check_time_increasing_at(path, t_s, table.row_lines)?;
+            sample_interval_at(path, t_s, rate, table.row_lines)?
         }
         (None, Some(rate)) => stated_interval_s(path, rate)?,
         (None, None) => {
@@ -725,9 +742,14 @@ mod tests {
         for v in &mut gap[6..] {
             *v += 0.05;
         }
+        // The step from sample 6 to sample 7 (1-based) is the gap: behind a header and a
+        // rate line, sample 7 is on line 9; where the lines are not known, it is named.
+        let e = sample_interval_at(p, &gap, None, RowLines::From(3))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("line 9") && e.contains("t_s"), "{e}");
         let e = sample_interval_s(p, &gap, None).unwrap_err().to_string();
-        // The step from sample 5 to sample 6 is the gap; sample 6 is on line 8.
-        assert!(e.contains("line 8") && e.contains("t_s"), "{e}");
+        assert!(e.contains("sample 7 ") && e.contains("t_s 0.11"), "{e}");
     }
 
     #[test]

@@ -64,6 +64,15 @@ pub enum TableError {
         t_s: f64,
         previous_t_s: f64,
     },
+    /// Time does not strictly increase, found where the file's lines are no longer known
+    /// (a column read whole, whose comment lines were skipped; a binary log's samples).
+    #[error("{path}: sample {sample} (1-based), column `t_s`: time {t_s} s does not increase (previous {previous_t_s} s)")]
+    TimeNotIncreasingAtSample {
+        path: PathBuf,
+        sample: u64,
+        t_s: f64,
+        previous_t_s: f64,
+    },
     /// The file has a header but no data rows.
     #[error("{path}: no data rows")]
     Empty { path: PathBuf },
@@ -101,6 +110,18 @@ pub struct Table {
     pub path: PathBuf,
     pub headers: Vec<String>,
     pub columns: Vec<Vec<f64>>,
+    /// Where its rows are in the file, for errors found after reading.
+    pub row_lines: RowLines,
+}
+
+/// The file lines of a column's samples, as far as they are known: where errors found in a
+/// column read whole (time going back, a gap) can name the line.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RowLines {
+    /// Sample i is on line `first + i` (1-based; no comment line among the rows).
+    From(u64),
+    /// Not known (comment lines among the rows, or not a text file): errors name the sample.
+    Unknown,
 }
 
 impl Table {
@@ -229,6 +250,8 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
     let headers: Vec<String> = selected.iter().map(|&i| all_headers[i].clone()).collect();
     let mut columns: Vec<Vec<f64>> = vec![Vec::new(); selected.len()];
     let mut record = csv::ByteRecord::new();
+    let mut row_lines = None;
+    let mut rows = 0u64;
     loop {
         match csv.read_byte_record(&mut record) {
             Ok(false) => break,
@@ -236,6 +259,12 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
             Err(e) => return Err(csv_err(e)),
         }
         let line = record.position().map_or(0, |p| p.line());
+        row_lines = match row_lines {
+            None => Some(RowLines::From(line)),
+            Some(RowLines::From(first)) if first + rows != line => Some(RowLines::Unknown),
+            known => known,
+        };
+        rows += 1;
         for (slot, &i) in selected.iter().enumerate() {
             let raw = record.get(i).unwrap_or(b"");
             let value = std::str::from_utf8(raw)
@@ -259,6 +288,7 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
         path: path.to_path_buf(),
         headers,
         columns,
+        row_lines: row_lines.unwrap_or(RowLines::Unknown),
     })
 }
 
@@ -600,6 +630,11 @@ impl ImuRecording {
 
     /// Reads an interchange CSV or CSV.gz.
     pub fn read(path: &Path) -> Result<Self, TableError> {
+        Self::read_with_lines(path).map(|(recording, _)| recording)
+    }
+
+    /// As [`Self::read`], with where its samples are in the file (for errors found later).
+    pub fn read_with_lines(path: &Path) -> Result<(Self, RowLines), TableError> {
         let mut wanted: Vec<&str> = vec!["t_s"];
         for names in [&GYRO, &ACCEL, &ATTITUDE, &POSITION, &VELOCITY] {
             wanted.extend_from_slice(names);
@@ -612,6 +647,7 @@ impl ImuRecording {
                 column: "t_s".into(),
             })?
             .to_vec();
+        check_time_increasing_at(path, &t_s, table.row_lines)?;
         let mut single_axis = Vec::new();
         let mut triplet = |names: &[&str; 3]| -> Result<Option<Triplet>, TableError> {
             let present: Vec<bool> = names.iter().map(|n| table.index(n).is_some()).collect();
@@ -660,10 +696,11 @@ impl ImuRecording {
         if let Some((line, stated_hz)) = stated {
             check_stated_rate(path, line, stated_hz, &recording.t_s)?;
         }
-        Ok(ImuRecording {
+        let recording = ImuRecording {
             sample_rate_hz: stated.map(|(_, rate)| rate),
             ..recording
-        })
+        };
+        Ok((recording, table.row_lines))
     }
 
     /// Writes the recording as interchange CSV, gzip-compressed when `path` ends in `.gz`.
@@ -829,13 +866,32 @@ fn shortest_digits_may_tie(x: f64) -> bool {
     log2_lower < 60.5
 }
 
-/// Checks that `t_s` strictly increases; the error names the 1-based file line (header = 1).
+/// Checks that `t_s` strictly increases; the error names the sample (1-based) and its time,
+/// for a column that no longer knows its file lines (a line counted from the header would
+/// miss comment lines such as `# sample_rate_hz:`, and imported logs have none).
 pub fn check_time_increasing(path: &Path, t_s: &[f64]) -> Result<(), TableError> {
+    check_time_increasing_at(path, t_s, RowLines::Unknown)
+}
+
+/// As [`check_time_increasing`], naming the file line where the rows' lines are known.
+pub fn check_time_increasing_at(
+    path: &Path,
+    t_s: &[f64],
+    lines: RowLines,
+) -> Result<(), TableError> {
     for (i, w) in t_s.windows(2).enumerate() {
         if !(w[1] > w[0]) {
-            return Err(TableError::TimeNotIncreasing {
+            if let RowLines::From(first) = lines {
+                return Err(TableError::TimeNotIncreasing {
+                    path: path.to_path_buf(),
+                    line: first + i as u64 + 1,
+                    t_s: w[1],
+                    previous_t_s: w[0],
+                });
+            }
+            return Err(TableError::TimeNotIncreasingAtSample {
                 path: path.to_path_buf(),
-                line: i as u64 + 3,
+                sample: i as u64 + 2,
                 t_s: w[1],
                 previous_t_s: w[0],
             });
@@ -847,6 +903,24 @@ pub fn check_time_increasing(path: &Path, t_s: &[f64]) -> Result<(), TableError>
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Time going back is named by its file line behind a comment header, and by its
+    /// sample and time where a comment among the rows leaves the lines unknown.
+    #[test]
+    fn time_going_back_names_its_line_or_else_its_sample() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.csv");
+        std::fs::write(
+            &path,
+            "# sample_rate_hz: 100\nt_s,gx_rad_s\n0,1\n0.01,1\n0.005,1\n",
+        )
+        .unwrap();
+        let e = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(e.contains("t.csv: line 5,") && e.contains("0.005"), "{e}");
+        std::fs::write(&path, "t_s,gx_rad_s\n0,1\n# a note\n0.01,1\n0.005,1\n").unwrap();
+        let e = ImuRecording::read(&path).unwrap_err().to_string();
+        assert!(e.contains("t.csv: sample 3 ") && e.contains("0.005"), "{e}");
+    }
 
     fn sample() -> ImuRecording {
         ImuRecording {

@@ -522,6 +522,11 @@ pub(crate) fn for_each_csv_row(
 /// in that order; errors name the file and line.
 pub(crate) fn read_columns(path: &Path, columns: &[&str]) -> Result<Vec<Vec<f64>>, ImportError> {
     let table = crate::interchange::read_table(path, Some(columns))?;
+    // Checked here, where the rows' file lines are still known, rather than by the
+    // recordings' validation, which can name only the sample.
+    if let Some(t_s) = table.column("t_s") {
+        crate::interchange::check_time_increasing_at(path, t_s, table.row_lines)?;
+    }
     let mut out = Vec::with_capacity(columns.len());
     for name in columns {
         match table.column(name) {
