@@ -26,8 +26,8 @@
 //! (spike), or nothing (noise burst). It is readmitted after `clean_s` without a failed test
 //! at half its threshold against at least half the healthy units (against the other units
 //! out, when none is healthy); meanwhile its pairs' means keep learning, so a unit whose bias
-//! stepped returns with its new bias. Why per-sample tests are not enough for a false-alarm rate: 1e-5 per test at
-//! 100 Hz is 4 alarms an hour; the spike and shift thresholds are set for rates measured over
+//! stepped returns with its new bias. Why per-sample tests are not enough for a false-alarm
+//! rate: 1e-5 per test at 100 Hz is 4 alarms an hour; the spike and shift thresholds are set for rates measured over
 //! hours of fault-free data (BENCHMARKS.md).
 
 // Float methods without std; with std the inherent ones are used instead.
@@ -495,9 +495,9 @@ impl<const N: usize> FaultMonitor<N> {
     /// only two healthy units are left, whose disagreement alone cannot say which is wrong.
     /// Without this, a gross fault's samples reach the fused output until a direct test
     /// confirms it (a rail held for `stuck_s`, 0.1 s: a 16 g rail among three units is
-    /// 5 m/s of velocity); now its first sample does (a unit that merely jumped while the
-    /// others did not is not blamed: in a copter's vibration, or a knock on a static rig,
-    /// one unit's samples jump alone far more often than units fail).
+    /// 5 m/s of velocity); now only its first sample does. A unit that merely jumped while
+    /// the others did not is not blamed: in a copter's vibration, or a knock on a static
+    /// rig, one unit's samples jump alone far more often than units fail.
     fn screened_triggers(
         &mut self,
         samples: &[Option<[f32; 3]>; N],
@@ -940,6 +940,10 @@ impl<const N: usize> FaultMonitor<N> {
         direct: &[Option<(FaultKind, Option<u8>)>; N],
         step: &mut Step,
     ) {
+        if self.units.iter().all(|u| u.healthy) {
+            // Nothing to readmit: the per-sample path carries none of what follows.
+            return;
+        }
         let needed = self.config.samples(self.config.clean_s);
         let healthy: [bool; N] = core::array::from_fn(|k| present[k] && self.units[k].healthy);
         let candidate: [bool; N] = core::array::from_fn(|k| {
