@@ -199,97 +199,137 @@ impl<R: Read> Read for GzipText<R> {
 /// Only the columns named in `wanted` are parsed (all columns if `wanted` is `None`); other
 /// columns may hold anything. Every parsed field must be a finite number.
 pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableError> {
-    let reader = open_maybe_gz(path)?;
-    let mut csv = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_reader(reader);
-    let csv_err = |e: csv::Error| {
-        let line = e.position().map_or(0, |p| p.line());
-        let text = e.to_string();
-        match e.into_kind() {
-            csv::ErrorKind::Io(source) => TableError::Io {
-                path: path.to_path_buf(),
-                source,
-            },
-            csv::ErrorKind::UnequalLengths {
-                expected_len, len, ..
-            } => TableError::Csv {
-                path: path.to_path_buf(),
-                line,
-                message: format!("{len} fields, expected {expected_len} as in the header"),
-            },
-            csv::ErrorKind::Utf8 { err, .. } => TableError::Csv {
-                path: path.to_path_buf(),
-                line,
-                message: format!("field {} is not UTF-8 text", err.field() + 1),
-            },
-            _ => TableError::Csv {
-                path: path.to_path_buf(),
-                line,
-                message: text,
-            },
-        }
-    };
-    let all_headers: Vec<String> = csv
-        .headers()
-        .map_err(csv_err)?
-        .iter()
-        .map(str::to_string)
-        .collect();
-    let selected: Vec<usize> = match wanted {
-        None => (0..all_headers.len()).collect(),
-        Some(names) => all_headers
-            .iter()
-            .enumerate()
-            .filter(|(_, h)| names.contains(&h.as_str()))
-            .map(|(i, _)| i)
-            .collect(),
-    };
-    let headers: Vec<String> = selected.iter().map(|&i| all_headers[i].clone()).collect();
-    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); selected.len()];
-    let mut record = csv::ByteRecord::new();
+    let mut rows = TableRows::open(path, wanted)?;
+    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); rows.headers().len()];
     let mut row_lines = None;
-    let mut rows = 0u64;
-    loop {
-        match csv.read_byte_record(&mut record) {
-            Ok(false) => break,
-            Ok(true) => {}
-            Err(e) => return Err(csv_err(e)),
-        }
-        let line = record.position().map_or(0, |p| p.line());
+    let mut count = 0u64;
+    while let Some((line, values)) = rows.next_row()? {
         row_lines = match row_lines {
             None => Some(RowLines::From(line)),
-            Some(RowLines::From(first)) if first + rows != line => Some(RowLines::Unknown),
+            Some(RowLines::From(first)) if first + count != line => Some(RowLines::Unknown),
             known => known,
         };
-        rows += 1;
-        for (slot, &i) in selected.iter().enumerate() {
-            let raw = record.get(i).unwrap_or(b"");
+        count += 1;
+        for (column, value) in columns.iter_mut().zip(values) {
+            column.push(*value);
+        }
+    }
+    Ok(Table {
+        path: path.to_path_buf(),
+        headers: rows.headers,
+        columns,
+        row_lines: row_lines.unwrap_or(RowLines::Unknown),
+    })
+}
+
+/// A numeric CSV (or CSV.gz) read one row at a time, with [`read_table`]'s rules: `#` lines
+/// skipped, fields trimmed, only the wanted columns parsed, each a finite number, every error
+/// naming the file and line. What a reader whose memory must not grow with the file uses.
+pub struct TableRows {
+    path: PathBuf,
+    csv: csv::Reader<Box<dyn Read>>,
+    headers: Vec<String>,
+    selected: Vec<usize>,
+    record: csv::ByteRecord,
+    values: Vec<f64>,
+}
+
+impl TableRows {
+    /// Opens `path` and reads its header; `wanted` as in [`read_table`].
+    pub fn open(path: &Path, wanted: Option<&[&str]>) -> Result<Self, TableError> {
+        let mut csv = csv::ReaderBuilder::new()
+            .has_headers(true)
+            .trim(csv::Trim::All)
+            .comment(Some(b'#'))
+            .from_reader(open_maybe_gz(path)?);
+        let all_headers: Vec<String> = csv
+            .headers()
+            .map_err(|e| csv_error(path, e))?
+            .iter()
+            .map(str::to_string)
+            .collect();
+        let selected: Vec<usize> = match wanted {
+            None => (0..all_headers.len()).collect(),
+            Some(names) => all_headers
+                .iter()
+                .enumerate()
+                .filter(|(_, h)| names.contains(&h.as_str()))
+                .map(|(i, _)| i)
+                .collect(),
+        };
+        Ok(Self {
+            path: path.to_path_buf(),
+            csv,
+            headers: selected.iter().map(|&i| all_headers[i].clone()).collect(),
+            values: vec![0.0; selected.len()],
+            selected,
+            record: csv::ByteRecord::new(),
+        })
+    }
+
+    /// The parsed columns' names, in file order.
+    pub fn headers(&self) -> &[String] {
+        &self.headers
+    }
+
+    /// The next data row's 1-based file line and its parsed values (in [`Self::headers`]
+    /// order); `None` after the last row.
+    pub fn next_row(&mut self) -> Result<Option<(u64, &[f64])>, TableError> {
+        match self.csv.read_byte_record(&mut self.record) {
+            Ok(false) => return Ok(None),
+            Ok(true) => {}
+            Err(e) => return Err(csv_error(&self.path, e)),
+        }
+        let line = self.record.position().map_or(0, |p| p.line());
+        for (slot, &i) in self.selected.iter().enumerate() {
+            let raw = self.record.get(i).unwrap_or(b"");
             let value = std::str::from_utf8(raw)
                 .ok()
                 .and_then(|s| s.parse::<f64>().ok())
                 .filter(|v| v.is_finite());
             match value {
-                Some(v) => columns[slot].push(v),
+                Some(v) => self.values[slot] = v,
                 None => {
                     return Err(TableError::NotANumber {
-                        path: path.to_path_buf(),
+                        path: self.path.clone(),
                         line,
-                        column: headers[slot].clone(),
+                        column: self.headers[slot].clone(),
                         value: String::from_utf8_lossy(raw).into_owned(),
                     })
                 }
             }
         }
+        Ok(Some((line, &self.values)))
     }
-    Ok(Table {
-        path: path.to_path_buf(),
-        headers,
-        columns,
-        row_lines: row_lines.unwrap_or(RowLines::Unknown),
-    })
+}
+
+/// A CSV layer error as a [`TableError`] naming the file and line.
+fn csv_error(path: &Path, e: csv::Error) -> TableError {
+    let line = e.position().map_or(0, |p| p.line());
+    let text = e.to_string();
+    match e.into_kind() {
+        csv::ErrorKind::Io(source) => TableError::Io {
+            path: path.to_path_buf(),
+            source,
+        },
+        csv::ErrorKind::UnequalLengths {
+            expected_len, len, ..
+        } => TableError::Csv {
+            path: path.to_path_buf(),
+            line,
+            message: format!("{len} fields, expected {expected_len} as in the header"),
+        },
+        csv::ErrorKind::Utf8 { err, .. } => TableError::Csv {
+            path: path.to_path_buf(),
+            line,
+            message: format!("field {} is not UTF-8 text", err.field() + 1),
+        },
+        _ => TableError::Csv {
+            path: path.to_path_buf(),
+            line,
+            message: text,
+        },
+    }
 }
 
 /// The median step of a time column, s: dynacal's one estimate of a sample interval where
@@ -609,21 +649,8 @@ impl ImuRecording {
         let Some([lat, lon, _]) = &self.position else {
             return Ok(());
         };
-        let half_pi = std::f64::consts::FRAC_PI_2;
-        let two_pi = std::f64::consts::TAU;
-        for (column, values, limit, range) in [
-            ("lat_rad", lat, half_pi, "[-pi/2, pi/2]"),
-            ("lon_rad", lon, two_pi, "[-2 pi, 2 pi]"),
-        ] {
-            if let Some(i) = values.iter().position(|v| v.abs() > limit) {
-                return Err(TableError::OutOfRange {
-                    path: path.to_path_buf(),
-                    column,
-                    t_s: self.t_s[i],
-                    value: values[i],
-                    range,
-                });
-            }
+        for ((t_s, lat), lon) in self.t_s.iter().zip(lat).zip(lon) {
+            check_lat_lon(path, *t_s, *lat, *lon)?;
         }
         Ok(())
     }
@@ -640,58 +667,8 @@ impl ImuRecording {
             wanted.extend_from_slice(names);
         }
         let table = read_table(path, Some(&wanted))?;
-        let t_s = table
-            .column("t_s")
-            .ok_or_else(|| TableError::MissingColumn {
-                path: path.to_path_buf(),
-                column: "t_s".into(),
-            })?
-            .to_vec();
-        check_time_increasing_at(path, &t_s, table.row_lines)?;
-        let mut single_axis = Vec::new();
-        let mut triplet = |names: &[&str; 3]| -> Result<Option<Triplet>, TableError> {
-            let present: Vec<bool> = names.iter().map(|n| table.index(n).is_some()).collect();
-            if present.iter().all(|p| !p) {
-                return Ok(None);
-            }
-            let lone_imu_channel = CHANNEL_COLUMNS
-                .iter()
-                .position(|c| c == &names[0])
-                .filter(|_| present.iter().filter(|p| **p).count() == 1);
-            if let Some(first) = lone_imu_channel {
-                let axis = present.iter().position(|p| *p).unwrap();
-                single_axis.push(SingleAxis {
-                    channel: first + axis,
-                    values: table.column(names[axis]).unwrap().to_vec(),
-                });
-                return Ok(None);
-            }
-            if let Some(missing) = names.iter().zip(&present).find(|(_, p)| !**p) {
-                let present = names.iter().zip(&present).find(|(_, p)| **p).unwrap().0;
-                return Err(TableError::IncompleteTriplet {
-                    path: path.to_path_buf(),
-                    present: (*present).to_string(),
-                    missing: (*missing.0).to_string(),
-                });
-            }
-            Ok(Some(names.map(|n| table.column(n).unwrap().to_vec())))
-        };
-        let gyro_rad_s = triplet(&GYRO)?;
-        let accel_m_s2 = triplet(&ACCEL)?;
-        let attitude_rad = triplet(&ATTITUDE)?;
-        let position = triplet(&POSITION)?;
-        let velocity_ned_m_s = triplet(&VELOCITY)?;
-        let recording = ImuRecording {
-            t_s,
-            gyro_rad_s,
-            accel_m_s2,
-            attitude_rad,
-            position,
-            velocity_ned_m_s,
-            single_axis,
-            sample_rate_hz: None,
-        };
-        recording.validate(path)?;
+        let row_lines = table.row_lines;
+        let recording = Self::from_table(table)?;
         let stated = read_stated_rate(path)?;
         if let Some((line, stated_hz)) = stated {
             check_stated_rate(path, line, stated_hz, &recording.t_s)?;
@@ -700,7 +677,91 @@ impl ImuRecording {
             sample_rate_hz: stated.map(|(_, rate)| rate),
             ..recording
         };
-        Ok((recording, table.row_lines))
+        Ok((recording, row_lines))
+    }
+
+    /// The recording a table's interchange columns hold (others are ignored), checked as a
+    /// file read is; no stated rate. Errors name the table's file.
+    pub fn from_table(table: Table) -> Result<Self, TableError> {
+        let Table {
+            path,
+            headers,
+            columns,
+            row_lines,
+        } = table;
+        let path = path.as_path();
+        let mut columns: Vec<Option<Vec<f64>>> = columns.into_iter().map(Some).collect();
+        let mut take = |name: &str| {
+            let i = headers.iter().position(|h| h == name)?;
+            columns[i].take()
+        };
+        let t_s = take("t_s").ok_or_else(|| TableError::MissingColumn {
+            path: path.to_path_buf(),
+            column: "t_s".into(),
+        })?;
+        check_time_increasing_at(path, &t_s, row_lines)?;
+        let mut single_axis = Vec::new();
+        let mut triplet = |names: &[&str; 3]| -> Result<Option<Triplet>, TableError> {
+            let [x, y, z] = names.map(&mut take);
+            let present = [x.is_some(), y.is_some(), z.is_some()];
+            let count = present.iter().filter(|p| **p).count();
+            if count == 0 {
+                return Ok(None);
+            }
+            let lone_imu_channel = CHANNEL_COLUMNS.iter().position(|c| c == &names[0]);
+            if let (Some(first), 1) = (lone_imu_channel, count) {
+                let axis = present.iter().position(|p| *p).unwrap_or(0);
+                single_axis.push(SingleAxis {
+                    channel: first + axis,
+                    values: x.or(y).or(z).unwrap_or_default(),
+                });
+                return Ok(None);
+            }
+            match (x, y, z) {
+                (Some(x), Some(y), Some(z)) => Ok(Some([x, y, z])),
+                _ => {
+                    let present_at = present.iter().position(|p| *p).unwrap_or(0);
+                    let missing_at = present.iter().position(|p| !*p).unwrap_or(0);
+                    Err(TableError::IncompleteTriplet {
+                        path: path.to_path_buf(),
+                        present: names[present_at].to_string(),
+                        missing: names[missing_at].to_string(),
+                    })
+                }
+            }
+        };
+        let recording = ImuRecording {
+            t_s,
+            gyro_rad_s: triplet(&GYRO)?,
+            accel_m_s2: triplet(&ACCEL)?,
+            attitude_rad: triplet(&ATTITUDE)?,
+            position: triplet(&POSITION)?,
+            velocity_ned_m_s: triplet(&VELOCITY)?,
+            single_axis,
+            sample_rate_hz: None,
+        };
+        recording.validate(path)?;
+        Ok(recording)
+    }
+
+    /// The recording's interchange columns in the order they are written: `t_s`, then the
+    /// gyro, accelerometer (or their lone axes), attitude, position and velocity triplets.
+    pub fn named_columns(&self) -> Vec<(&'static str, &[f64])> {
+        let mut columns: Vec<(&'static str, &[f64])> = vec![("t_s", &self.t_s)];
+        for (k, (names, t)) in self.triplets().into_iter().enumerate() {
+            match t {
+                Some(t) => columns.extend(names.iter().copied().zip(t.iter().map(Vec::as_slice))),
+                // Lone gyro / accelerometer axes take their triplet's place.
+                None if k < 2 => columns.extend(
+                    self.single_axis
+                        .iter()
+                        .filter(|s| s.channel / 3 == k)
+                        .map(|s| (CHANNEL_COLUMNS[s.channel], s.values.as_slice())),
+                ),
+                None => {}
+            }
+        }
+        columns
     }
 
     /// Writes the recording as interchange CSV, gzip-compressed when `path` ends in `.gz`.
@@ -708,56 +769,242 @@ impl ImuRecording {
     /// round-trip form, so reading them back gives the same `f64` bits.
     pub fn write(&self, path: &Path) -> Result<(), TableError> {
         self.validate(path)?;
+        let columns = self.named_columns();
+        let rate = self.sample_rate_hz.or_else(|| {
+            median_step_s(&self.t_s)
+                .filter(|step| *step > 0.0)
+                .map(|step| shortest_rate_hz(1.0 / step))
+        });
+        let names: Vec<&'static str> = columns.iter().map(|c| c.0).collect();
+        let mut out = RowWriter::create(path, names, rate)?;
+        let mut row = vec![0.0; columns.len()];
+        for i in 0..self.t_s.len() {
+            for (value, (_, column)) in row.iter_mut().zip(&columns) {
+                *value = column[i];
+            }
+            out.push(&row)?;
+        }
+        out.finish().map(|_| ())
+    }
+}
+
+/// Latitude within the poles and longitude within two turns, rad: a position in degrees
+/// stored as radians fails here rather than as a navigation far off the Earth.
+fn check_lat_lon(path: &Path, t_s: f64, lat_rad: f64, lon_rad: f64) -> Result<(), TableError> {
+    let half_pi = std::f64::consts::FRAC_PI_2;
+    let two_pi = std::f64::consts::TAU;
+    for (column, value, limit, range) in [
+        ("lat_rad", lat_rad, half_pi, "[-pi/2, pi/2]"),
+        ("lon_rad", lon_rad, two_pi, "[-2 pi, 2 pi]"),
+    ] {
+        if value.abs() > limit {
+            return Err(TableError::OutOfRange {
+                path: path.to_path_buf(),
+                column,
+                t_s,
+                value,
+                range,
+            });
+        }
+    }
+    Ok(())
+}
+
+/// Rows a [`RowWriter`] holds back when no rate is given: the rate it states is the median
+/// step's over them (over the whole file, for files no longer than this).
+const RATE_PROBE_ROWS: usize = 1 << 16;
+
+/// What a [`RowWriter`] wrote.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RowsWritten {
+    pub rows: u64,
+    /// First and last `t_s`, s.
+    pub first_t_s: f64,
+    pub last_t_s: f64,
+}
+
+/// An interchange file written one row at a time, in memory that does not grow with its
+/// length (a long import). Each row is checked as [`ImuRecording::validate`] checks a whole
+/// recording (time strictly increasing, latitude and longitude in range). The file appears
+/// whole on [`RowWriter::finish`], or not at all.
+pub struct RowWriter {
+    path: PathBuf,
+    columns: Vec<&'static str>,
+    file: AtomicFile,
+    out: Option<Box<dyn Write + Send>>,
+    rate_hz: Option<f64>,
+    /// Rows waiting for the rate to be known, flattened.
+    held: Vec<f64>,
+    line: Vec<u8>,
+    digits: zmij::Buffer,
+    written: RowsWritten,
+    lat_lon: Option<(usize, usize)>,
+}
+
+impl RowWriter {
+    /// Starts `path` with `columns` (`t_s` first, then interchange columns). With no
+    /// `rate_hz` the stated rate is the median step's over the first rows.
+    pub fn create(
+        path: &Path,
+        columns: Vec<&'static str>,
+        rate_hz: Option<f64>,
+    ) -> Result<Self, TableError> {
+        assert!(
+            columns.first() == Some(&"t_s")
+                && columns[1..].iter().all(|c| is_interchange_column(c)),
+            "interchange columns are `t_s` then known columns: {columns:?}"
+        );
         let io = |source| TableError::Io {
             path: path.to_path_buf(),
             source,
         };
-        let mut out = AtomicFile::create(path).map_err(io)?;
-        let mut columns: Vec<(&str, &Vec<f64>)> = vec![("t_s", &self.t_s)];
-        for (k, (names, t)) in self.triplets().into_iter().enumerate() {
-            match t {
-                Some(t) => columns.extend(names.iter().copied().zip(t.iter())),
-                // Lone gyro / accelerometer axes take their triplet's place.
-                None if k < 2 => columns.extend(
-                    self.single_axis
-                        .iter()
-                        .filter(|s| s.channel / 3 == k)
-                        .map(|s| (CHANNEL_COLUMNS[s.channel], &s.values)),
-                ),
-                None => {}
-            }
+        let file = AtomicFile::create(path).map_err(io)?;
+        let out = Some(file.owned_writer().map_err(io)?);
+        let at = |name: &str| columns.iter().position(|c| *c == name);
+        let lat_lon = at("lat_rad").zip(at("lon_rad"));
+        let mut writer = Self {
+            path: path.to_path_buf(),
+            columns,
+            file,
+            out,
+            rate_hz,
+            held: Vec::new(),
+            line: Vec::with_capacity(1 << 16),
+            digits: zmij::Buffer::new(),
+            written: RowsWritten {
+                rows: 0,
+                first_t_s: f64::NAN,
+                last_t_s: f64::NAN,
+            },
+            lat_lon,
+        };
+        if rate_hz.is_some() {
+            writer.write_header()?;
         }
-        {
-            let mut w = out.writer();
-            let rate = self.sample_rate_hz.or_else(|| {
-                median_step_s(&self.t_s)
-                    .filter(|step| *step > 0.0)
-                    .map(|step| shortest_rate_hz(1.0 / step))
+        Ok(writer)
+    }
+
+    /// Appends one row, one value per column.
+    pub fn push(&mut self, row: &[f64]) -> Result<(), TableError> {
+        assert_eq!(row.len(), self.columns.len(), "one value per column");
+        self.check(row)?;
+        let w = &mut self.written;
+        if w.rows == 0 {
+            w.first_t_s = row[0];
+        }
+        w.last_t_s = row[0];
+        w.rows += 1;
+        if self.rate_hz.is_none() && self.out.is_some() && self.held_rows() < RATE_PROBE_ROWS {
+            self.held.extend_from_slice(row);
+            if self.held_rows() == RATE_PROBE_ROWS {
+                self.release_held()?;
+            }
+            return Ok(());
+        }
+        self.format_row(row);
+        if self.line.len() >= (1 << 16) - 1024 {
+            self.flush_line()?;
+        }
+        Ok(())
+    }
+
+    /// Writes what is held, moves the file into place and says what it holds; a file with
+    /// no row is an error (and is not written).
+    pub fn finish(mut self) -> Result<RowsWritten, TableError> {
+        if self.written.rows == 0 {
+            return Err(TableError::Empty { path: self.path });
+        }
+        if !self.held.is_empty() || self.rate_hz.is_none() {
+            self.release_held()?;
+        }
+        self.flush_line()?;
+        let io = |source| TableError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        if let Some(mut out) = self.out.take() {
+            out.flush().map_err(io)?;
+        }
+        self.file.commit().map_err(io)?;
+        Ok(self.written)
+    }
+
+    fn held_rows(&self) -> usize {
+        self.held.len() / self.columns.len()
+    }
+
+    fn check(&self, row: &[f64]) -> Result<(), TableError> {
+        let t_s = row[0];
+        if self.written.rows > 0 && !(t_s > self.written.last_t_s) {
+            return Err(TableError::TimeNotIncreasingAtSample {
+                path: self.path.clone(),
+                sample: self.written.rows + 1,
+                t_s,
+                previous_t_s: self.written.last_t_s,
             });
-            if let Some(rate) = rate {
-                writeln!(w, "{RATE_LINE_PREFIX}{rate}").map_err(io)?;
-            }
-            let header: Vec<&str> = columns.iter().map(|c| c.0).collect();
-            writeln!(w, "{}", header.join(",")).map_err(io)?;
-            let mut line: Vec<u8> = Vec::with_capacity(1 << 16);
-            let mut digits_buf = zmij::Buffer::new();
-            for row in 0..self.t_s.len() {
-                for (k, (_, col)) in columns.iter().enumerate() {
-                    if k > 0 {
-                        line.push(b',');
-                    }
-                    push_f64_display(&mut line, col[row], &mut digits_buf);
-                }
-                line.push(b'\n');
-                if line.len() >= (1 << 16) - 1024 {
-                    w.write_all(&line).map_err(io)?;
-                    line.clear();
-                }
-            }
-            w.write_all(&line).map_err(io)?;
-            w.flush().map_err(io)?;
         }
-        out.commit().map_err(io)
+        if let Some((lat, lon)) = self.lat_lon {
+            check_lat_lon(&self.path, t_s, row[lat], row[lon])?;
+        }
+        Ok(())
+    }
+
+    /// States the rate (the held rows' median step's if none was given), writes the header
+    /// and the held rows.
+    fn release_held(&mut self) -> Result<(), TableError> {
+        if self.rate_hz.is_none() {
+            let t_s: Vec<f64> = self
+                .held
+                .iter()
+                .step_by(self.columns.len())
+                .copied()
+                .collect();
+            self.rate_hz = median_step_s(&t_s)
+                .filter(|step| *step > 0.0)
+                .map(|step| shortest_rate_hz(1.0 / step))
+                .or(Some(f64::NAN));
+            self.write_header()?;
+        }
+        let held = std::mem::take(&mut self.held);
+        for row in held.chunks_exact(self.columns.len()) {
+            self.format_row(row);
+            if self.line.len() >= (1 << 16) - 1024 {
+                self.flush_line()?;
+            }
+        }
+        Ok(())
+    }
+
+    fn write_header(&mut self) -> Result<(), TableError> {
+        use std::io::Write as _;
+        // NaN: fewer than two rows, no rate to state.
+        if let Some(rate) = self.rate_hz.filter(|r| r.is_finite()) {
+            let _ = writeln!(self.line, "{RATE_LINE_PREFIX}{rate}");
+        }
+        let _ = writeln!(self.line, "{}", self.columns.join(","));
+        Ok(())
+    }
+
+    fn format_row(&mut self, row: &[f64]) {
+        for (k, value) in row.iter().enumerate() {
+            if k > 0 {
+                self.line.push(b',');
+            }
+            push_f64_display(&mut self.line, *value, &mut self.digits);
+        }
+        self.line.push(b'\n');
+    }
+
+    fn flush_line(&mut self) -> Result<(), TableError> {
+        let Some(out) = self.out.as_mut() else {
+            return Ok(());
+        };
+        out.write_all(&self.line).map_err(|source| TableError::Io {
+            path: self.path.clone(),
+            source,
+        })?;
+        self.line.clear();
+        Ok(())
     }
 }
 
@@ -985,6 +1232,65 @@ mod tests {
             let few_bits: i64 = rng.random_range(-(1 << 20)..(1 << 20));
             check(few_bits as f64 * 2f64.powi(rng.random_range(-80..80)));
         }
+    }
+
+    #[test]
+    fn rows_written_one_by_one_are_the_whole_write_and_a_bad_row_leaves_no_file() {
+        // Longer than the rows held to state a rate, with one gap: the stated rate is the
+        // held rows' median step's, the bytes those of a whole recording's write.
+        let dir = tempfile::tempdir().unwrap();
+        let n = RATE_PROBE_ROWS + 5_000;
+        let t_s: Vec<f64> = (0..n)
+            .map(|i| i as f64 * 0.02 + if i > 1000 { 0.5 } else { 0.0 })
+            .collect();
+        let gx: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).sin() * 1e-3).collect();
+        let rec = ImuRecording {
+            t_s: t_s.clone(),
+            single_axis: vec![SingleAxis {
+                channel: 0,
+                values: gx.clone(),
+            }],
+            ..Default::default()
+        };
+        let whole = dir.path().join("whole.csv");
+        rec.write(&whole).unwrap();
+        let streamed = dir.path().join("streamed.csv");
+        let mut writer = RowWriter::create(&streamed, vec!["t_s", "gx_rad_s"], None).unwrap();
+        for (t, g) in t_s.iter().zip(&gx) {
+            writer.push(&[*t, *g]).unwrap();
+        }
+        let written = writer.finish().unwrap();
+        assert_eq!(written.rows, n as u64);
+        assert_eq!((written.first_t_s, written.last_t_s), (t_s[0], t_s[n - 1]));
+        let text = std::fs::read_to_string(&streamed).unwrap();
+        assert!(
+            text.starts_with("# sample_rate_hz: 50\nt_s,gx_rad_s\n"),
+            "{}",
+            &text[..40]
+        );
+        assert_eq!(text, std::fs::read_to_string(&whole).unwrap());
+
+        // Time going back after the held rows were written: the sample is named and neither
+        // the file nor a temporary is left.
+        let bad = dir.path().join("bad.csv.gz");
+        let mut writer = RowWriter::create(&bad, vec!["t_s", "gx_rad_s"], None).unwrap();
+        for t in t_s.iter().take(RATE_PROBE_ROWS + 10) {
+            writer.push(&[*t, 0.0]).unwrap();
+        }
+        let err = writer.push(&[1.0, 0.0]).unwrap_err().to_string();
+        assert!(
+            err.contains(&format!("sample {}", RATE_PROBE_ROWS + 11)),
+            "{err}"
+        );
+        drop(writer);
+        let left: Vec<_> = std::fs::read_dir(dir.path())
+            .unwrap()
+            .map(|e| e.unwrap().file_name().into_string().unwrap())
+            .collect();
+        assert_eq!(left.len(), 2, "{left:?}");
+        let empty = RowWriter::create(&bad, vec!["t_s", "gx_rad_s"], Some(10.0)).unwrap();
+        assert!(matches!(empty.finish(), Err(TableError::Empty { .. })));
+        assert!(!bad.exists());
     }
 
     #[test]

@@ -115,15 +115,20 @@ impl AtomicFile {
             .as_mut()
             .expect("writer after commit")
             .as_file_mut();
-        let buffered = BufWriter::with_capacity(1 << 16, file);
-        if self.gzip {
-            Box::new(GzFinish(Some(flate2::write::GzEncoder::new(
-                buffered,
-                flate2::Compression::default(),
-            ))))
-        } else {
-            Box::new(buffered)
-        }
+        encoded(file, self.gzip)
+    }
+
+    /// As [`Self::writer`], on its own handle of the temporary file, so that it can be kept
+    /// beside the `AtomicFile` (a file written row by row). Flush and drop it before
+    /// [`AtomicFile::commit`]; one writer at a time, as they share the file's offset.
+    pub fn owned_writer(&self) -> io::Result<Box<dyn Write + Send>> {
+        let file = self
+            .temp
+            .as_ref()
+            .expect("writer after commit")
+            .as_file()
+            .try_clone()?;
+        Ok(encoded(file, self.gzip))
     }
 
     /// Flushes to disk and moves the file into place.
@@ -321,6 +326,19 @@ pub fn write_json_atomic<T: serde::Serialize>(target: &Path, value: &T) -> io::R
     let mut bytes = serde_json::to_vec_pretty(value).map_err(io::Error::other)?;
     bytes.push(b'\n');
     write_atomic(target, &bytes)
+}
+
+/// `file` buffered, and gzip-compressed when `gzip` (the stream finished on flush).
+fn encoded<'a, W: Write + Send + 'a>(file: W, gzip: bool) -> Box<dyn Write + Send + 'a> {
+    let buffered = BufWriter::with_capacity(1 << 16, file);
+    if gzip {
+        Box::new(GzFinish(Some(flate2::write::GzEncoder::new(
+            buffered,
+            flate2::Compression::default(),
+        ))))
+    } else {
+        Box::new(buffered)
+    }
 }
 
 /// A gzip encoder whose flush also finishes the stream, so the caller's usual

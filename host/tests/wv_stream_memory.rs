@@ -2,7 +2,9 @@
 //! seeded single-channel interchange recordings of 1e6, 1e7 and 1e8 rows are written into a
 //! temporary folder (the largest about 3 GB, removed afterwards) and the release `dynacal wv`
 //! and `dynacal fit --model WN+RW` are run on each under `/usr/bin/time -v`, streamed, and
-//! loaded whole at 1e7 rows for comparison. Ignored: it runs for minutes and needs the disk. Run with
+//! loaded whole at 1e7 rows for comparison; and `dynacal import` is run on seeded ADIS16405
+//! count files of the same lengths (the text importers convert row by row). Ignored: it runs
+//! for minutes and needs the disk. Run with
 //! `cargo test --release -p dynacal --test wv_stream_memory -- --ignored --nocapture`.
 
 use std::io::Write;
@@ -30,14 +32,37 @@ fn write_recording(path: &Path, rows: u64) {
     out.flush().unwrap();
 }
 
+/// A 100 Hz ADIS16405 session in integer counts (`gx,gy,gz,ax,ay,az`, no time column), at
+/// rest with z down: gyro counts about 0, accelerometer z about -300 (-1 g).
+fn write_adis_counts(path: &Path, rows: u64) {
+    let file = std::fs::File::create(path).unwrap();
+    let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+    let mut rng = ChaCha8Rng::seed_from_u64(rows);
+    let noise = Normal::new(0.0f64, 3.0).unwrap();
+    writeln!(out, "gx,gy,gz,ax,ay,az").unwrap();
+    for _ in 0..rows {
+        let mut count = || noise.sample(&mut rng).round() as i32;
+        let (gx, gy, gz, ax, ay) = (count(), count(), count(), count(), count());
+        writeln!(out, "{gx},{gy},{gz},{ax},{ay},{}", -300 + count()).unwrap();
+    }
+    out.flush().unwrap();
+}
+
 /// Peak resident memory (MiB) and wall time (s) of `dynacal COMMAND` on `input`.
 fn measure(command: &[&str], input: &Path, stream: &str, json: &Path) -> (f64, f64) {
+    let args = [input.to_str().unwrap(), "--stream", stream, "--json"];
+    let mut full: Vec<&str> = command.to_vec();
+    full.extend(args);
+    full.push(json.to_str().unwrap());
+    time_dynacal(&full)
+}
+
+/// Peak resident memory (MiB) and wall time (s) of `dynacal ARGS`.
+fn time_dynacal(args: &[&str]) -> (f64, f64) {
     let o = Command::new("/usr/bin/time")
         .arg("-v")
         .arg(env!("CARGO_BIN_EXE_dynacal"))
-        .args(command)
-        .args([input.to_str().unwrap(), "--stream", stream, "--json"])
-        .arg(json)
+        .args(args)
         .output()
         .expect("/usr/bin/time (apt-get install time)");
     let report = String::from_utf8_lossy(&o.stderr);
@@ -109,4 +134,37 @@ fn memory_is_flat_from_1e6_to_1e8_rows() {
             "`{command}`'s memory grows with the length: {rss:?}"
         );
     }
+}
+
+#[test]
+#[ignore = "minutes and ~3 GB of temporary disk; run by hand for the benchmark"]
+fn import_memory_is_flat_from_1e6_to_1e8_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    println!("| rows | file MB | peak RSS MiB | wall s |\n|---|---|---|---|");
+    let mut rss = vec![];
+    for rows in [1_000_000u64, 10_000_000, 100_000_000] {
+        let input = dir.path().join(format!("session-{rows}.csv"));
+        write_adis_counts(&input, rows);
+        let mb = std::fs::metadata(&input).unwrap().len() as f64 / 1e6;
+        let out = dir.path().join(format!("imported-{rows}"));
+        let (peak, wall) = time_dynacal(&[
+            "import",
+            input.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        let written = out.join(format!("adis16405-session-{rows}.csv.gz"));
+        assert!(written.exists(), "no {}", written.display());
+        println!("| {rows:.0e} | {mb:.0} | {peak:.1} | {wall:.1} |");
+        rss.push(peak);
+        std::fs::remove_file(&input).unwrap();
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+    let spread =
+        rss.iter().cloned().fold(f64::MIN, f64::max) - rss.iter().cloned().fold(f64::MAX, f64::min);
+    println!("`import` peak RSS spread from 1e6 to 1e8 rows {spread:.1} MiB");
+    assert!(
+        spread < 16.0,
+        "`import`'s memory grows with the length: {rss:?}"
+    );
 }

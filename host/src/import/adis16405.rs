@@ -12,6 +12,7 @@
 
 use std::path::Path;
 
+use super::rows::{collect_one, SensorLayout, SensorRows};
 use super::{for_each_csv_row, uniform_time_s, ImportError};
 use crate::interchange::ImuRecording;
 
@@ -32,7 +33,14 @@ pub const ADIS16405_ACCEL_M_S2_PER_COUNT: f64 = 0.00333 * STANDARD_GRAVITY_M_S2;
 
 /// Reads one session; each field must be an integer count.
 pub fn read(path: &Path) -> Result<ImuRecording, ImportError> {
-    let mut cols: [Vec<f64>; 6] = Default::default();
+    collect_one(path, |sink| stream(path, sink))
+}
+
+/// Streams one session into `sink`, row by row.
+pub(crate) fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
+    sink.begin(vec![SensorLayout::imu("")])?;
+    let mut row = [0.0; 7];
+    let mut samples = 0u64;
     for_each_csv_row(path, &COLUMNS, |line, record| {
         for (k, field) in record.iter().enumerate() {
             let count: i32 = field.parse().map_err(|_| {
@@ -47,20 +55,16 @@ pub fn read(path: &Path) -> Result<ImuRecording, ImportError> {
             } else {
                 ADIS16405_ACCEL_M_S2_PER_COUNT
             };
-            cols[k].push(count as f64 * scale);
+            row[1 + k] = count as f64 * scale;
         }
-        Ok(())
+        row[0] = uniform_time_s(samples, RATE_HZ);
+        samples += 1;
+        sink.push(0, &row)
     })?;
-    if cols[0].is_empty() {
+    if samples == 0 {
         return Err(ImportError::malformed(path, 2, "no data rows"));
     }
-    let [gx, gy, gz, ax, ay, az] = cols;
-    Ok(ImuRecording {
-        t_s: uniform_time_s(gx.len(), RATE_HZ),
-        gyro_rad_s: Some([gx, gy, gz]),
-        accel_m_s2: Some([ax, ay, az]),
-        ..Default::default()
-    })
+    Ok(())
 }
 
 #[cfg(test)]

@@ -17,14 +17,18 @@ pub mod mtig;
 pub mod psins_fog_mems;
 pub mod psins_lasergyro;
 pub mod px4_ulog;
+pub mod rows;
 pub mod xsens_dot;
 
 use std::collections::BTreeMap;
 use std::io::{BufRead, Read as _};
 use std::path::{Path, PathBuf};
 
-use crate::interchange::{open_maybe_gz, ImuRecording, TableError, CHANNELS};
+use crate::interchange::{
+    open_maybe_gz, ImuRecording, RowWriter, TableError, TableRows, CHANNELS, CHANNEL_COLUMNS,
+};
 use crate::output::FileSet;
+use rows::{CheckUnits, Collect, Named, SensorLayout, SensorRows};
 
 /// Errors while importing. Each names the file, and the line (1-based) where there is one.
 #[derive(Debug, thiserror::Error)]
@@ -210,101 +214,50 @@ pub struct ImportedSensor {
 
 /// Imports one dataset file into its sensors' recordings.
 pub fn import_file(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>, ImportError> {
-    let sensors = read_dataset(path, dataset)?;
-    for sensor in &sensors {
-        check_units(path, sensor)?;
-    }
-    Ok(sensors)
+    let mut collect = Collect::new(path);
+    let mut checked = CheckUnits::new(path, &mut collect);
+    stream_dataset(path, dataset, &mut checked)?;
+    checked.finish()?;
+    collect.into_sensors()
 }
 
-/// The sensors of `path` as its dataset's importer reads them.
-fn read_dataset(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>, ImportError> {
+/// Streams the sensors of `path`, as its dataset's importer reads them, into `sink`, each
+/// named as its output file is (`adis16405-session1`, `mpu9250-imu0`...).
+fn stream_dataset(
+    path: &Path,
+    dataset: Dataset,
+    sink: &mut dyn SensorRows,
+) -> Result<(), ImportError> {
     let stem = file_stem(path);
-    let one = |name: String, recording| vec![ImportedSensor { name, recording }];
-    Ok(match dataset {
-        Dataset::Adis16405 => one(format!("adis16405-{stem}"), adis16405::read(path)?),
-        Dataset::MtigGyroX => one(format!("mtig-{stem}"), mtig::read(path)?),
-        Dataset::PsinsMems => one("psins-mems".into(), psins_fog_mems::read_mems(path)?),
-        Dataset::PsinsFog => one("psins-fog".into(), psins_fog_mems::read_fog(path)?),
-        Dataset::PsinsLaserGyro => one(
-            "psins-lasergyro".into(),
-            psins_lasergyro::read(path)?.recording,
-        ),
-        Dataset::Mpu9250Tetra => mpu9250_tetra::read(path)?
-            .into_iter()
-            .enumerate()
-            .map(|(k, recording)| ImportedSensor {
-                name: format!("mpu9250-imu{k}"),
-                recording,
-            })
-            .collect(),
-        Dataset::ArduPilotDataFlash => ardupilot_dataflash::read(path)?
-            .into_iter()
-            .map(|(name, recording)| ImportedSensor {
-                name: format!("ardupilot-{stem}-{name}"),
-                recording,
-            })
-            .collect(),
-        Dataset::XsensDot => one(
-            format!("xsens-{stem}-imu"),
-            xsens_dot::read(path)?.recording,
-        ),
-        Dataset::Px4ULog => px4_ulog::read(path)?
-            .into_iter()
-            .map(|(name, recording)| ImportedSensor {
-                name: format!("px4-{stem}-{name}"),
-                recording,
-            })
-            .collect(),
-    })
-}
-
-/// Largest median |angular rate| an IMU's import is believed in, rad/s: 2000 deg/s, a MEMS
-/// gyro's widest range; more is a unit slip (deg/s or counts taken as rad/s).
-const MAX_MEDIAN_TURN_RATE_RAD_S: f64 = 35.0;
-/// The median |specific force| of a vehicle on Earth is about g whatever it does; outside
-/// this band, m/s^2 are not what the file holds (g, or counts).
-const MEDIAN_SPECIFIC_FORCE_M_S2: [f64; 2] = [2.0, 50.0];
-
-/// Fewest samples the units check judges: a median of fewer says little of a unit.
-const MIN_SAMPLES_FOR_UNITS: usize = 100;
-
-/// Refuses an imported IMU whose values cannot be in the units the importer states.
-fn check_units(path: &Path, sensor: &ImportedSensor) -> Result<(), ImportError> {
-    if sensor.recording.len() < MIN_SAMPLES_FOR_UNITS {
-        return Ok(());
-    }
-    let median_norm = |triad: &[Vec<f64>; 3]| {
-        crate::numeric::median(
-            (0..triad[0].len())
-                .map(|i| (triad[0][i].powi(2) + triad[1][i].powi(2) + triad[2][i].powi(2)).sqrt())
-                .collect(),
-        )
+    let prefix = match dataset {
+        Dataset::Adis16405 => format!("adis16405-{stem}"),
+        Dataset::MtigGyroX => format!("mtig-{stem}"),
+        Dataset::PsinsMems => "psins-mems".into(),
+        Dataset::PsinsFog => "psins-fog".into(),
+        Dataset::PsinsLaserGyro => "psins-lasergyro".into(),
+        Dataset::Mpu9250Tetra => "mpu9250".into(),
+        Dataset::ArduPilotDataFlash => format!("ardupilot-{stem}"),
+        Dataset::XsensDot => format!("xsens-{stem}-imu"),
+        Dataset::Px4ULog => format!("px4-{stem}"),
     };
-    let r = &sensor.recording;
-    let implausible = |message: String| ImportError::Implausible {
-        path: path.to_path_buf(),
-        sensor: sensor.name.clone(),
-        message,
+    let sink = &mut Named {
+        inner: sink,
+        prefix,
     };
-    if let Some(w) = r.gyro_rad_s.as_ref().and_then(median_norm) {
-        if w > MAX_MEDIAN_TURN_RATE_RAD_S {
-            return Err(implausible(format!(
-                "the median angular rate is {w:.4} rad/s, beyond any MEMS gyro's range: \
-                 the file's values are not in the units this dataset's format states"
-            )));
+    match dataset {
+        Dataset::Adis16405 => adis16405::stream(path, sink),
+        Dataset::MtigGyroX => mtig::stream(path, sink),
+        Dataset::PsinsMems => psins_fog_mems::stream_mems(path, sink),
+        Dataset::PsinsFog => psins_fog_mems::stream_fog(path, sink),
+        Dataset::PsinsLaserGyro => psins_lasergyro::stream(path, sink).map(|_| ()),
+        Dataset::Mpu9250Tetra => mpu9250_tetra::stream(path, sink),
+        Dataset::ArduPilotDataFlash => rows::replay(&ardupilot_dataflash::read(path)?, sink),
+        Dataset::XsensDot => {
+            let dot = xsens_dot::read(path)?;
+            rows::replay(&[(String::new(), dot.recording)], sink)
         }
+        Dataset::Px4ULog => rows::replay(&px4_ulog::read(path)?, sink),
     }
-    if let Some(f) = r.accel_m_s2.as_ref().and_then(median_norm) {
-        let [low, high] = MEDIAN_SPECIFIC_FORCE_M_S2;
-        if !(low..=high).contains(&f) {
-            return Err(implausible(format!(
-                "the median specific force is {f:.4} m/s^2, not about g (9.81): the file's \
-                 values are not in the units this dataset's format states"
-            )));
-        }
-    }
-    Ok(())
 }
 
 /// The file name without directory and without `.gz` / `.csv` / `.imu` / `.bin` / `.ulg`
@@ -407,17 +360,24 @@ pub struct ImportReport {
 
 /// The contents of a recording, as listed in [`WrittenFile::contents`].
 pub fn contents(rec: &ImuRecording) -> Vec<&'static str> {
+    let columns: Vec<&str> = rec.named_columns().iter().map(|c| c.0).collect();
+    contents_of(&columns)
+}
+
+/// What interchange columns hold, as listed in [`WrittenFile::contents`].
+fn contents_of(columns: &[&str]) -> Vec<&'static str> {
     let mut out: Vec<&'static str> = CHANNELS
         .iter()
-        .copied()
-        .filter(|c| rec.channel(c).is_some())
+        .zip(CHANNEL_COLUMNS)
+        .filter(|(_, column)| columns.contains(column))
+        .map(|(name, _)| *name)
         .collect();
-    for (name, present) in [
-        ("attitude", rec.attitude_rad.is_some()),
-        ("velocity_ned", rec.velocity_ned_m_s.is_some()),
-        ("position", rec.position.is_some()),
+    for (name, first_column) in [
+        ("attitude", "roll_rad"),
+        ("velocity_ned", "vn_m_s"),
+        ("position", "lat_rad"),
     ] {
-        if present {
+        if columns.contains(&first_column) {
             out.push(name);
         }
     }
@@ -425,7 +385,8 @@ pub fn contents(rec: &ImuRecording) -> Vec<&'static str> {
 }
 
 /// Imports the dataset file or folder `input` and writes one `<name>.csv.gz` interchange
-/// file per sensor into `out_dir` (created if needed).
+/// file per sensor into `out_dir` (created if needed). The text formats are converted row
+/// by row, in memory that does not depend on their length (see [`rows`]).
 ///
 /// All or nothing: every file is first written into a private staging folder inside
 /// `out_dir`, and moved into place only once every input has imported; on any error the
@@ -437,35 +398,69 @@ pub fn import_to_dir(input: &Path, out_dir: &Path) -> Result<ImportReport, Impor
     let mut sources: BTreeMap<String, PathBuf> = BTreeMap::new();
     let mut written = Vec::new();
     for (source, dataset) in datasets {
-        for sensor in import_file(&source, dataset)? {
-            let file_name = format!("{}.csv.gz", sensor.name);
-            if let Some(first) = sources.get(&file_name) {
-                return Err(ImportError::OutputCollision {
-                    name: file_name,
-                    first: first.clone(),
-                    second: source,
-                });
-            }
-            sensor.recording.write(&set.path(&file_name))?;
-            let rec = &sensor.recording;
+        let mut files = WriteFiles {
+            set: &mut set,
+            sources: &mut sources,
+            source: &source,
+            writers: Vec::new(),
+        };
+        let mut checked = CheckUnits::new(&source, &mut files);
+        stream_dataset(&source, dataset, &mut checked)?;
+        checked.finish()?;
+        for (file_name, columns, writer) in files.writers {
+            let rows = writer.finish()?;
             written.push(WrittenFile {
                 path: out_dir.join(&file_name),
                 source: source.clone(),
                 dataset,
-                samples: rec.len(),
-                duration_s: rec.t_s[rec.len() - 1] - rec.t_s[0],
-                contents: contents(rec),
+                samples: rows.rows as usize,
+                duration_s: rows.last_t_s - rows.first_t_s,
+                contents: contents_of(&columns),
             });
-            sources.insert(file_name, source.clone());
         }
     }
     set.commit().map_err(|e| ImportError::io(out_dir, e))?;
     Ok(ImportReport { written, skipped })
 }
 
-/// Returns `time[k] = k / rate_hz` for `n` samples: the time column of a file that has none.
-pub(crate) fn uniform_time_s(n: usize, rate_hz: f64) -> Vec<f64> {
-    (0..n).map(|k| k as f64 / rate_hz).collect()
+/// Writes each sensor of one dataset file into its staged interchange file as rows come.
+struct WriteFiles<'a> {
+    set: &'a mut FileSet,
+    /// The dataset file each output name came from, over the whole import.
+    sources: &'a mut BTreeMap<String, PathBuf>,
+    source: &'a Path,
+    /// Output file name, columns, writer.
+    writers: Vec<(String, Vec<&'static str>, RowWriter)>,
+}
+
+impl SensorRows for WriteFiles<'_> {
+    fn begin(&mut self, sensors: Vec<SensorLayout>) -> Result<(), ImportError> {
+        for sensor in sensors {
+            let file_name = format!("{}.csv.gz", sensor.name);
+            if let Some(first) = self.sources.get(&file_name) {
+                return Err(ImportError::OutputCollision {
+                    name: file_name,
+                    first: first.clone(),
+                    second: self.source.to_path_buf(),
+                });
+            }
+            self.sources
+                .insert(file_name.clone(), self.source.to_path_buf());
+            let path = self.set.path(&file_name);
+            let writer = RowWriter::create(&path, sensor.columns.clone(), sensor.rate_hz)?;
+            self.writers.push((file_name, sensor.columns, writer));
+        }
+        Ok(())
+    }
+
+    fn push(&mut self, sensor: usize, row: &[f64]) -> Result<(), ImportError> {
+        Ok(self.writers[sensor].2.push(row)?)
+    }
+}
+
+/// The time of sample `k` (0-based) of a file with no time column: `k / rate_hz`, s.
+pub(crate) fn uniform_time_s(k: u64, rate_hz: f64) -> f64 {
+    k as f64 / rate_hz
 }
 
 /// Reads a CSV with exactly the header `columns`, giving each data row to `row` with its
@@ -518,35 +513,58 @@ pub(crate) fn for_each_csv_row(
     Ok(())
 }
 
-/// Reads a numeric CSV that must have all of `columns` (others are ignored), returning them
-/// in that order; errors name the file and line.
-pub(crate) fn read_columns(path: &Path, columns: &[&str]) -> Result<Vec<Vec<f64>>, ImportError> {
-    let table = crate::interchange::read_table(path, Some(columns))?;
-    // Checked here, where the rows' file lines are still known, rather than by the
-    // recordings' validation, which can name only the sample.
-    if let Some(t_s) = table.column("t_s") {
-        crate::interchange::check_time_increasing_at(path, t_s, table.row_lines)?;
-    }
-    let mut out = Vec::with_capacity(columns.len());
-    for name in columns {
-        match table.column(name) {
-            Some(c) => out.push(c.to_vec()),
-            None => {
-                return Err(TableError::MissingColumn {
+/// Reads a numeric CSV that must have all of `columns` (others are ignored), giving `row`
+/// each data row's 1-based line and values in `columns` order, one row at a time. A `t_s`
+/// among them must strictly increase. Errors name the file and line; no row is an error.
+pub(crate) fn for_each_column_row(
+    path: &Path,
+    columns: &[&str],
+    mut row: impl FnMut(u64, &[f64]) -> Result<(), ImportError>,
+) -> Result<(), ImportError> {
+    let mut rows = TableRows::open(path, Some(columns))?;
+    let order = columns
+        .iter()
+        .map(|name| {
+            rows.headers()
+                .iter()
+                .position(|h| h == name)
+                .ok_or_else(|| TableError::MissingColumn {
                     path: path.to_path_buf(),
                     column: (*name).to_string(),
-                }
-                .into())
-            }
+                })
+        })
+        .collect::<Result<Vec<usize>, _>>()?;
+    let time = columns.iter().position(|c| *c == "t_s");
+    let mut values = vec![0.0; columns.len()];
+    let mut previous_t_s: Option<f64> = None;
+    let mut any_row = false;
+    while let Some((line, parsed)) = rows.next_row()? {
+        any_row = true;
+        for (value, &i) in values.iter_mut().zip(&order) {
+            *value = parsed[i];
         }
+        if let Some(k) = time {
+            let t_s = values[k];
+            if let Some(previous_t_s) = previous_t_s.filter(|p| !(t_s > *p)) {
+                return Err(TableError::TimeNotIncreasing {
+                    path: path.to_path_buf(),
+                    line,
+                    t_s,
+                    previous_t_s,
+                }
+                .into());
+            }
+            previous_t_s = Some(t_s);
+        }
+        row(line, &values)?;
     }
-    if out.first().is_none_or(Vec::is_empty) {
+    if !any_row {
         return Err(TableError::Empty {
             path: path.to_path_buf(),
         }
         .into());
     }
-    Ok(out)
+    Ok(())
 }
 
 #[cfg(test)]
@@ -685,6 +703,49 @@ mod tests {
             !out2.exists(),
             "a folder made for a failed import is removed"
         );
+    }
+
+    #[test]
+    fn a_long_import_streams_as_the_in_memory_reader_reads_and_fails_whole() {
+        // Longer than the rows a writer holds back to state a rate: the rows streamed
+        // into the file read back to the bits the in-memory importer gives.
+        let dir = tempfile::tempdir().unwrap();
+        let input = dir.path().join("in");
+        std::fs::create_dir(&input).unwrap();
+        let rows: Vec<String> = (0..70_000)
+            .map(|i| format!("{},{},{},{},{},{}", i % 7, -(i % 5), 3, 1, 2, -300 + i % 3))
+            .collect();
+        let session = write(
+            &input,
+            "session1.csv",
+            &format!("gx,gy,gz,ax,ay,az\n{}\n", rows.join("\n")),
+        );
+        let out = dir.path().join("out");
+        let report = import_to_dir(&input, &out).unwrap();
+        let written = ImuRecording::read(&report.written[0].path).unwrap();
+        let direct = import_file(&session, Dataset::Adis16405).unwrap().remove(0);
+        assert_eq!(written.t_s, direct.recording.t_s);
+        assert_eq!(written.gyro_rad_s, direct.recording.gyro_rad_s);
+        assert_eq!(written.accel_m_s2, direct.recording.accel_m_s2);
+        assert_eq!(written.sample_rate_hz, Some(100.0));
+        assert_eq!(report.written[0].samples, 70_000);
+
+        // A bad count near the end, after much has been written: an error naming it, and
+        // no output folder.
+        let mut bad = rows.clone();
+        bad[68_000] = "1,2,3,4,5,six".into();
+        write(
+            &input,
+            "session1.csv",
+            &format!("gx,gy,gz,ax,ay,az\n{}\n", bad.join("\n")),
+        );
+        let out2 = dir.path().join("out2");
+        let msg = import_to_dir(&input, &out2).unwrap_err().to_string();
+        assert!(
+            msg.contains("session1.csv") && msg.contains("line 68002"),
+            "{msg}"
+        );
+        assert!(!out2.exists());
     }
 
     #[test]

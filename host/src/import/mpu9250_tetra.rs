@@ -9,7 +9,8 @@
 
 use std::path::Path;
 
-use super::{read_columns, ImportError};
+use super::rows::{Collect, SensorLayout, SensorRows};
+use super::{for_each_column_row, ImportError};
 use crate::interchange::ImuRecording;
 
 /// Number of IMUs on the rig.
@@ -28,29 +29,35 @@ pub fn columns() -> Vec<String> {
     out
 }
 
-/// Reads the file into one recording per IMU (imu0..imu3).
+/// Reads the file into one recording per IMU, in order imu0..imu3.
 pub fn read(path: &Path) -> Result<Vec<ImuRecording>, ImportError> {
+    let mut collect = Collect::new(path);
+    stream(path, &mut collect)?;
+    Ok(collect
+        .into_sensors()?
+        .into_iter()
+        .map(|s| s.recording)
+        .collect())
+}
+
+/// Streams the four IMUs (`imu0`..`imu3`) into `sink`, row by row.
+pub(crate) fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
     let names = columns();
     let names: Vec<&str> = names.iter().map(String::as_str).collect();
-    let mut cols = read_columns(path, &names)?.into_iter();
-    let t_s = cols.next().unwrap_or_default();
-    let mut out = Vec::with_capacity(IMUS);
-    for _ in 0..IMUS {
-        let mut six: [Vec<f64>; 6] = Default::default();
-        for c in &mut six {
-            *c = cols.next().unwrap_or_default();
+    sink.begin(
+        (0..IMUS)
+            .map(|k| SensorLayout::imu(format!("imu{k}")))
+            .collect(),
+    )?;
+    let mut row = [0.0; 7];
+    for_each_column_row(path, &names, |_, values| {
+        row[0] = values[0];
+        for k in 0..IMUS {
+            row[1..].copy_from_slice(&values[1 + 6 * k..7 + 6 * k]);
+            sink.push(k, &row)?;
         }
-        let [gx, gy, gz, ax, ay, az] = six;
-        let rec = ImuRecording {
-            t_s: t_s.clone(),
-            gyro_rad_s: Some([gx, gy, gz]),
-            accel_m_s2: Some([ax, ay, az]),
-            ..Default::default()
-        };
-        rec.validate(path)?;
-        out.push(rec);
-    }
-    Ok(out)
+        Ok(())
+    })
 }
 
 #[cfg(test)]

@@ -4,8 +4,9 @@
 
 use std::path::Path;
 
-use super::{read_columns, uniform_time_s, ImportError};
-use crate::interchange::{ImuRecording, SingleAxis};
+use super::rows::{collect_one, SensorLayout, SensorRows};
+use super::{for_each_column_row, uniform_time_s, ImportError};
+use crate::interchange::ImuRecording;
 
 /// The header of the MTi-G file.
 pub const COLUMNS: [&str; 1] = ["gx_rad_s"];
@@ -15,14 +16,21 @@ pub const RATE_HZ: f64 = 100.0;
 
 /// Reads the single-axis gyro record.
 pub fn read(path: &Path) -> Result<ImuRecording, ImportError> {
-    let gx = read_columns(path, &COLUMNS)?.remove(0);
-    Ok(ImuRecording {
-        t_s: uniform_time_s(gx.len(), RATE_HZ),
-        single_axis: vec![SingleAxis {
-            channel: 0,
-            values: gx,
-        }],
-        ..Default::default()
+    collect_one(path, |sink| stream(path, sink))
+}
+
+/// Streams the record into `sink`, row by row.
+pub(crate) fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
+    sink.begin(vec![SensorLayout {
+        name: String::new(),
+        columns: vec!["t_s", "gx_rad_s"],
+        rate_hz: None,
+    }])?;
+    let mut samples = 0u64;
+    for_each_column_row(path, &COLUMNS, |_, values| {
+        let row = [uniform_time_s(samples, RATE_HZ), values[0]];
+        samples += 1;
+        sink.push(0, &row)
     })
 }
 

@@ -16,7 +16,8 @@
 use std::path::Path;
 
 use super::frames::{enu_to_ned, psins_attitude_to_ned, rfu_to_frd};
-use super::{read_columns, ImportError};
+use super::rows::{collect_one, SensorLayout, SensorRows};
+use super::{for_each_column_row, ImportError};
 use crate::interchange::ImuRecording;
 
 /// The header of `mems_increments.csv.gz`.
@@ -52,85 +53,82 @@ pub const MEMS_DT_S: f64 = 0.01;
 const MEMS_DT_TOLERANCE_S: f64 = 1e-6;
 
 /// Reads the MEMS increments as FRD rates (rad/s) and specific force (m/s^2).
-#[allow(clippy::needless_range_loop)] // one row index across seven columns
 pub fn read_mems(path: &Path) -> Result<ImuRecording, ImportError> {
-    let cols = read_columns(path, &MEMS_COLUMNS)?;
-    let t_s = cols[0].clone();
-    for (i, w) in t_s.windows(2).enumerate() {
-        if (w[1] - w[0] - MEMS_DT_S).abs() > MEMS_DT_TOLERANCE_S {
-            return Err(ImportError::malformed(
-                path,
-                i as u64 + 3,
-                format!(
-                    "column `t_s`: step {} s, expected {MEMS_DT_S} s (increments are over 0.01 s)",
-                    w[1] - w[0]
-                ),
-            ));
+    collect_one(path, |sink| stream_mems(path, sink))
+}
+
+/// Streams the MEMS increments into `sink` as FRD rates and specific force, row by row.
+pub(crate) fn stream_mems(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
+    sink.begin(vec![SensorLayout::imu("")])?;
+    let mut previous_t_s: Option<f64> = None;
+    let mut row = [0.0; 7];
+    for_each_column_row(path, &MEMS_COLUMNS, |line, values| {
+        let t_s = values[0];
+        if let Some(step) = previous_t_s.map(|p| t_s - p) {
+            if (step - MEMS_DT_S).abs() > MEMS_DT_TOLERANCE_S {
+                return Err(ImportError::malformed(
+                    path,
+                    line,
+                    format!(
+                        "column `t_s`: step {step} s, expected {MEMS_DT_S} s (increments are over 0.01 s)"
+                    ),
+                ));
+            }
         }
-    }
-    let n = t_s.len();
-    let mut gyro: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(n));
-    let mut accel: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(n));
-    for i in 0..n {
-        let omega_rfu = [cols[1][i], cols[2][i], cols[3][i]].map(|d| d / MEMS_DT_S);
-        let f_rfu = [cols[4][i], cols[5][i], cols[6][i]].map(|d| d / MEMS_DT_S);
+        previous_t_s = Some(t_s);
+        let omega_rfu = [values[1], values[2], values[3]].map(|d| d / MEMS_DT_S);
+        let f_rfu = [values[4], values[5], values[6]].map(|d| d / MEMS_DT_S);
         // A finite increment near f64::MAX overflows when divided by dt (found by fuzzing).
         if let Some(k) = omega_rfu.iter().chain(&f_rfu).position(|v| !v.is_finite()) {
             return Err(ImportError::malformed(
                 path,
-                i as u64 + 2,
+                line,
                 format!(
                     "column `{}`: increment {} over {MEMS_DT_S} s is not a finite rate",
                     MEMS_COLUMNS[1 + k],
-                    cols[1 + k][i]
+                    values[1 + k]
                 ),
             ));
         }
-        for (k, v) in rfu_to_frd(omega_rfu).into_iter().enumerate() {
-            gyro[k].push(v);
-        }
-        for (k, v) in rfu_to_frd(f_rfu).into_iter().enumerate() {
-            accel[k].push(v);
-        }
-    }
-    let rec = ImuRecording {
-        t_s,
-        gyro_rad_s: Some(gyro),
-        accel_m_s2: Some(accel),
-        ..Default::default()
-    };
-    rec.validate(path)?;
-    Ok(rec)
+        row[0] = t_s;
+        row[1..4].copy_from_slice(&rfu_to_frd(omega_rfu));
+        row[4..7].copy_from_slice(&rfu_to_frd(f_rfu));
+        sink.push(0, &row)
+    })
 }
 
 /// Reads the FOG INS solution as NED attitude, velocity and position (no IMU channel).
-#[allow(clippy::needless_range_loop)] // one row index across ten columns
 pub fn read_fog(path: &Path) -> Result<ImuRecording, ImportError> {
-    let cols = read_columns(path, &FOG_COLUMNS)?;
-    let n = cols[0].len();
-    let mut attitude: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(n));
-    let mut velocity: [Vec<f64>; 3] = std::array::from_fn(|_| Vec::with_capacity(n));
-    for i in 0..n {
-        let rpy = psins_attitude_to_ned(cols[1][i], cols[2][i], cols[3][i]);
-        let v_ned = enu_to_ned([cols[4][i], cols[5][i], cols[6][i]]);
-        for k in 0..3 {
-            attitude[k].push(rpy[k]);
-            velocity[k].push(v_ned[k]);
-        }
-    }
-    let mut cols = cols;
-    let h = cols.pop().unwrap_or_default();
-    let lon = cols.pop().unwrap_or_default();
-    let lat = cols.pop().unwrap_or_default();
-    let rec = ImuRecording {
-        t_s: cols.swap_remove(0),
-        attitude_rad: Some(attitude),
-        velocity_ned_m_s: Some(velocity),
-        position: Some([lat, lon, h]),
-        ..Default::default()
-    };
-    rec.validate(path)?;
-    Ok(rec)
+    collect_one(path, |sink| stream_fog(path, sink))
+}
+
+/// Streams the FOG INS solution into `sink`: attitude (rad, FRD w.r.t. NED), position (lat,
+/// lon rad, h m) and NED velocity (m/s), row by row.
+pub(crate) fn stream_fog(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
+    sink.begin(vec![SensorLayout {
+        name: String::new(),
+        columns: vec![
+            "t_s",
+            "roll_rad",
+            "pitch_rad",
+            "yaw_rad",
+            "lat_rad",
+            "lon_rad",
+            "h_m",
+            "vn_m_s",
+            "ve_m_s",
+            "vd_m_s",
+        ],
+        rate_hz: None,
+    }])?;
+    let mut row = [0.0; 10];
+    for_each_column_row(path, &FOG_COLUMNS, |_, v| {
+        row[0] = v[0];
+        row[1..4].copy_from_slice(&psins_attitude_to_ned(v[1], v[2], v[3]));
+        row[4..7].copy_from_slice(&v[7..10]);
+        row[7..10].copy_from_slice(&enu_to_ned([v[4], v[5], v[6]]));
+        sink.push(0, &row)
+    })
 }
 
 #[cfg(test)]

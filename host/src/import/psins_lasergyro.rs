@@ -18,6 +18,7 @@ use std::io::BufRead;
 use std::path::Path;
 
 use super::frames::{psins_attitude_to_ned, rfu_to_frd};
+use super::rows::{collect_one, SensorLayout, SensorRows};
 use super::ImportError;
 use crate::interchange::{open_maybe_gz, ImuRecording};
 
@@ -70,14 +71,28 @@ pub fn parse_numbers(line: &str) -> Option<Vec<f64>> {
 
 /// Reads a PSINS SIMU log.
 pub fn read(path: &Path) -> Result<LaserGyroLog, ImportError> {
+    let mut header = None;
+    let recording = collect_one(path, |sink| {
+        header = Some(stream(path, sink)?);
+        Ok(())
+    })?;
+    let header = header.expect("a log streamed whole has its header");
+    Ok(LaserGyroLog { header, recording })
+}
+
+/// Streams a PSINS SIMU log's samples into `sink`, row by row; returns its header.
+pub(crate) fn stream(
+    path: &Path,
+    sink: &mut dyn SensorRows,
+) -> Result<LaserGyroHeader, ImportError> {
+    sink.begin(vec![SensorLayout::imu("")])?;
     let reader = open_maybe_gz(path)?;
     let mut header_lines: Vec<Vec<f64>> = Vec::with_capacity(3);
     let mut header: Option<LaserGyroHeader> = None;
     let mut gyro_scale = [0.0; 3];
     let mut accel_scale = [0.0; 3];
-    let mut t_s = Vec::new();
-    let mut gyro: [Vec<f64>; 3] = Default::default();
-    let mut accel: [Vec<f64>; 3] = Default::default();
+    let mut samples = 0u64;
+    let mut row = [0.0; 7];
     let mut line_no = 0u64;
     for line in std::io::BufReader::new(reader).split(b'\n') {
         line_no += 1;
@@ -148,13 +163,11 @@ pub fn read(path: &Path) -> Result<LaserGyroLog, ImportError> {
                 format!("field {}: count {} is not a finite rate", k + 1, counts[k]),
             ));
         }
-        for (k, v) in rfu_to_frd(omega_rfu).into_iter().enumerate() {
-            gyro[k].push(v);
-        }
-        for (k, v) in rfu_to_frd(f_rfu).into_iter().enumerate() {
-            accel[k].push(v);
-        }
-        t_s.push(h.t0_s + (t_s.len() + 1) as f64 * h.dt_s);
+        samples += 1;
+        row[0] = h.t0_s + samples as f64 * h.dt_s;
+        row[1..4].copy_from_slice(&rfu_to_frd(omega_rfu));
+        row[4..7].copy_from_slice(&rfu_to_frd(f_rfu));
+        sink.push(0, &row)?;
     }
     let Some(header) = header else {
         return Err(ImportError::malformed(
@@ -163,17 +176,10 @@ pub fn read(path: &Path) -> Result<LaserGyroLog, ImportError> {
             format!("ends after {} of 3 header lines", header_lines.len()),
         ));
     };
-    if t_s.is_empty() {
+    if samples == 0 {
         return Err(ImportError::malformed(path, line_no, "no sample lines"));
     }
-    let recording = ImuRecording {
-        t_s,
-        gyro_rad_s: Some(gyro),
-        accel_m_s2: Some(accel),
-        ..Default::default()
-    };
-    recording.validate(path)?;
-    Ok(LaserGyroLog { header, recording })
+    Ok(header)
 }
 
 fn parse_header(path: &Path, line: u64, l: &[Vec<f64>]) -> Result<LaserGyroHeader, ImportError> {
