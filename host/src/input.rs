@@ -338,10 +338,7 @@ pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputEr
 }
 
 fn csv_header(path: &Path) -> Result<Vec<String>, InputError> {
-    let mut reader = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_reader(open_maybe_gz(path)?);
+    let mut reader = crate::interchange::csv_reader(open_maybe_gz(path)?, true);
     Ok(reader
         .headers()
         .map_err(|e| match e.kind() {

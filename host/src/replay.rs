@@ -257,10 +257,7 @@ pub fn read_adis16405_counts(
     samples: usize,
 ) -> Result<Vec<CountSample>, ReplayFileError> {
     let reader = open_maybe_gz(path).map_err(|e| ReplayFileError::Tool(e.to_string()))?;
-    let mut csv = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .trim(csv::Trim::All)
-        .from_reader(reader);
+    let mut csv = crate::interchange::csv_reader(reader, false);
     let csv_err = |e: csv::Error| ReplayFileError::Csv {
         path: path.to_path_buf(),
         line: e.position().map_or(0, |p| p.line()),

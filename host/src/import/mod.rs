@@ -472,10 +472,7 @@ pub(crate) fn for_each_csv_row(
     mut row: impl FnMut(u64, &csv::StringRecord) -> Result<(), ImportError>,
 ) -> Result<(), ImportError> {
     let reader = open_maybe_gz(path)?;
-    let mut csv = csv::ReaderBuilder::new()
-        .has_headers(true)
-        .trim(csv::Trim::All)
-        .from_reader(reader);
+    let mut csv = crate::interchange::csv_reader(reader, false);
     let csv_err = |e: csv::Error| {
         let line = e.position().map_or(0, |p| p.line());
         match e.into_kind() {

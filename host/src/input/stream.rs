@@ -15,7 +15,10 @@
 use std::path::Path;
 
 use super::{format_error, per_channel, ChannelWv, InputArgs, InputError};
-use crate::interchange::{is_interchange_column, open_maybe_gz, read_stated_rate, TableError};
+use crate::interchange::fast::{Fallback, FastBlocks};
+use crate::interchange::{
+    csv_reader, is_interchange_column, open_maybe_gz, read_stated_rate, TableError,
+};
 use crate::model::Channel;
 use crate::wv::stream::HaarWvStream;
 use crate::wv::{WaveletVariance, WvOptions};
@@ -112,10 +115,7 @@ pub fn stream_wavelet_variances(
     if opts.robust {
         return Ok(Err(NotStreamable::Robust));
     }
-    let mut csv = csv::ReaderBuilder::new()
-        .trim(csv::Trim::All)
-        .comment(Some(b'#'))
-        .from_reader(open_maybe_gz(path)?);
+    let mut csv = csv_reader(open_maybe_gz(path)?, true);
     let header: Vec<String> = match csv.headers() {
         Ok(h) => h.iter().map(str::to_string).collect(),
         Err(_) => return Ok(Err(NotStreamable::NotInterchange)),
@@ -146,23 +146,21 @@ pub fn stream_wavelet_variances(
         .map(|_| HaarWvStream::new(full_levels))
         .collect();
     let mut rows = RowChecker::new(path, dt_s);
-    let mut record = csv::ByteRecord::new();
-    let mut values = vec![0.0; columns.len()];
-    loop {
-        match csv.read_byte_record(&mut record) {
-            Ok(false) => break,
-            Ok(true) => {}
-            Err(e) => return Err(csv_error(path, e)),
+    if !feed_fast(path, &columns, &wanted, &mut rows, &mut streams)? {
+        // The fast reader left the file to the csv crate: start again, row by row.
+        rows = RowChecker::new(path, dt_s);
+        for stream in &mut streams {
+            *stream = HaarWvStream::new(full_levels);
         }
-        let line = record.position().map_or(0, |p| p.line());
-        let t_s = parse_field(path, &record, time_column, "t_s", line)?;
-        for (value, (channel, index)) in values.iter_mut().zip(&columns) {
-            *value = parse_field(path, &record, *index, channel.column(), line)?;
-        }
-        rows.check(t_s, line)?;
-        for (stream, &i) in streams.iter_mut().zip(&wanted) {
-            stream.push(values[i]);
-        }
+        feed_by_rows(
+            path,
+            csv,
+            time_column,
+            &columns,
+            &wanted,
+            &mut rows,
+            &mut streams,
+        )?;
     }
     rows.finish(rate_hz)?;
     let mut channels = Vec::with_capacity(wanted.len());
@@ -187,6 +185,81 @@ pub fn stream_wavelet_variances(
         full_levels,
         channels,
     }))
+}
+
+/// Feeds every row's time to `rows` and its wanted channels to `streams` through the fast
+/// block reader ([`crate::interchange::fast`]); `Ok(false)` when that reader leaves the file
+/// to the `csv` crate (what it fed is then to be dropped).
+fn feed_fast(
+    path: &Path,
+    columns: &[(Channel, usize)],
+    wanted: &[usize],
+    rows: &mut RowChecker,
+    streams: &mut [HaarWvStream],
+) -> Result<bool, InputError> {
+    let mut names: Vec<&str> = vec!["t_s"];
+    names.extend(columns.iter().map(|(c, _)| c.column()));
+    let Some(mut blocks) = FastBlocks::open(path, Some(&names)) else {
+        return Ok(false);
+    };
+    let at = |name: &str| blocks.headers().iter().position(|h| h == name);
+    let (Some(time), Some(slots)) = (
+        at("t_s"),
+        wanted
+            .iter()
+            .map(|&i| at(columns[i].0.column()))
+            .collect::<Option<Vec<usize>>>(),
+    ) else {
+        return Ok(false);
+    };
+    loop {
+        let block = match blocks.next_block() {
+            Ok(Some(block)) => block,
+            Ok(None) => return Ok(true),
+            Err(Fallback) => return Ok(false),
+        };
+        let mut line = block.first_line;
+        for piece in block.pieces() {
+            for (r, &t_s) in piece[time].iter().enumerate() {
+                rows.check(t_s, line + r as u64)?;
+            }
+            for (stream, &slot) in streams.iter_mut().zip(&slots) {
+                stream.push_block(&piece[slot]);
+            }
+            line += piece[time].len() as u64;
+        }
+    }
+}
+
+/// As [`feed_fast`], with the `csv` crate, one record at a time (its errors name the line).
+fn feed_by_rows(
+    path: &Path,
+    mut csv: csv::Reader<Box<dyn std::io::Read>>,
+    time_column: usize,
+    columns: &[(Channel, usize)],
+    wanted: &[usize],
+    rows: &mut RowChecker,
+    streams: &mut [HaarWvStream],
+) -> Result<(), InputError> {
+    let mut record = csv::ByteRecord::new();
+    let mut values = vec![0.0; columns.len()];
+    loop {
+        match csv.read_byte_record(&mut record) {
+            Ok(false) => break,
+            Ok(true) => {}
+            Err(e) => return Err(csv_error(path, e)),
+        }
+        let line = record.position().map_or(0, |p| p.line());
+        let t_s = parse_field(path, &record, time_column, "t_s", line)?;
+        for (value, (channel, index)) in values.iter_mut().zip(columns) {
+            *value = parse_field(path, &record, *index, channel.column(), line)?;
+        }
+        rows.check(t_s, line)?;
+        for (stream, &i) in streams.iter_mut().zip(wanted) {
+            stream.push(values[i]);
+        }
+    }
+    Ok(())
 }
 
 fn checked_scale(scale: Option<f64>) -> Result<f64, InputError> {

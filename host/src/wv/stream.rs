@@ -68,6 +68,41 @@ impl CompensatedSum {
     }
 }
 
+/// Coefficients computed at a time in [`HaarWvStream::push_block`].
+const SEGMENT: usize = 256;
+
+/// The last k' <= `last_k`, at most [`SEGMENT`] - 1 past `k`, such that for every offset
+/// `back` the ring slots of k - back .. k' - back do not wrap around (`mask` = ring length - 1).
+fn segment_end(k: u64, last_k: u64, backs: &[u64], mask: u64) -> u64 {
+    let mut end = last_k.min(k + SEGMENT as u64 - 1);
+    for &back in backs {
+        let to_wrap = mask - ((k - back) & mask);
+        end = end.min(k + to_wrap);
+    }
+    end
+}
+
+/// A full level's sum of squared coefficients in four compensated lanes, the coefficient
+/// ending at sample k going to lane k mod 4: four independent chains of additions keep the
+/// processor busy where one waits on each addition, and the lanes depend only on k, so any
+/// split of the samples into blocks gives the same sums.
+#[derive(Debug, Clone, Copy, Default)]
+struct LaneSums {
+    lanes: [CompensatedSum; 4],
+    count: u64,
+}
+
+impl LaneSums {
+    fn total(&self) -> CompensatedSum {
+        let mut total = CompensatedSum::default();
+        for lane in &self.lanes {
+            total.add(lane.sum);
+            total.compensation += lane.compensation;
+        }
+        total
+    }
+}
+
 /// One decimated level's last two prefix sums at multiples of its half-width.
 #[derive(Debug, Clone, Copy, Default)]
 struct DecimatedLevel {
@@ -81,19 +116,21 @@ struct DecimatedLevel {
 
 /// The streaming Haar wavelet variance of one channel (see the module documentation).
 ///
-/// Memory: 16 bytes per sample of the ring (2^full_levels of them) plus about 64 bytes per
-/// level: 4 MiB for the default [`Self::DEFAULT_FULL_LEVELS`] = 18.
+/// Memory: 16 bytes per sample of the ring (2^(full_levels + 1) of them: the widest level
+/// reads 2^full_levels back, and a block of up to 2^(full_levels - 1) samples is summed
+/// before the levels read it) plus about 64 bytes per level: 8 MiB for the default
+/// [`Self::DEFAULT_FULL_LEVELS`] = 18.
 #[derive(Debug, Clone)]
 pub struct HaarWvStream {
     full_levels: u32,
-    /// ring[k mod 2^full_levels] = S_k, k = number of samples summed.
+    /// ring[k mod 2^(full_levels + 1)] = S_k, k = number of samples summed.
     ring: Vec<DoubleDouble>,
     sum: DoubleDouble,
     /// The first sample: subtracted from every sample so the sums stay small (the Haar
     /// filter ignores any constant).
     origin: Option<f64>,
     n: u64,
-    full: Vec<(CompensatedSum, u64)>,
+    full: Vec<LaneSums>,
     decimated: Vec<DecimatedLevel>,
 }
 
@@ -111,11 +148,11 @@ impl HaarWvStream {
         let full_levels = full_levels.clamp(1, 30);
         Self {
             full_levels,
-            ring: vec![DoubleDouble::default(); 1 << full_levels],
+            ring: vec![DoubleDouble::default(); 2 << full_levels],
             sum: DoubleDouble::default(),
             origin: None,
             n: 0,
-            full: vec![(CompensatedSum::default(), 0); full_levels as usize],
+            full: vec![LaneSums::default(); full_levels as usize],
             decimated: vec![DecimatedLevel::default(); (Self::MAX_LEVELS - full_levels) as usize],
         }
     }
@@ -131,30 +168,83 @@ impl HaarWvStream {
 
     /// Adds one sample (any unit; finite, checked by the reader).
     pub fn push(&mut self, value: f64) {
-        let origin = *self.origin.get_or_insert(value);
-        // value - origin exactly, as a double-double (both parts enter the running sum).
-        let (difference, rounding) = two_sum(value, -origin);
-        self.sum = self.sum.add_f64(difference).add_f64(rounding);
-        self.n += 1;
-        let k = self.n;
-        let mask = self.ring.len() as u64 - 1;
-        // S_k is stored after the levels have read S_{k-2h}: for the widest full level
-        // k - 2h = k - 2^full_levels, the very slot S_k goes into.
-        for (index, (squares, count)) in self.full.iter_mut().enumerate() {
-            let h = 1u64 << index;
-            if k < 2 * h {
-                break;
-            }
-            let recent = self.sum.minus(self.ring[((k - h) & mask) as usize]);
-            let older = self.ring[((k - h) & mask) as usize]
-                .minus(self.ring[((k - 2 * h) & mask) as usize]);
-            let d = recent.minus(older).hi;
-            squares.add(d * d);
-            *count += 1;
+        self.push_block(std::slice::from_ref(&value));
+    }
+
+    /// Adds samples in order; the same result, bit for bit, as pushing them one by one, in
+    /// a fraction of the time on long blocks: their prefix sums are stored first, then each
+    /// full level runs along the block on its own (on every core), reading the ring in
+    /// order rather than at 18 scattered places per sample.
+    pub fn push_block(&mut self, values: &[f64]) {
+        for chunk in values.chunks(1usize << (self.full_levels - 1)) {
+            let first_k = self.n + 1;
+            self.store_prefix_sums(chunk);
+            self.add_full_levels(first_k, self.n);
         }
-        self.ring[(k & mask) as usize] = self.sum;
-        if k & mask == 0 {
-            self.push_decimated(k);
+    }
+
+    /// S_k of each sample into the ring, and the decimated levels at their multiples.
+    fn store_prefix_sums(&mut self, values: &[f64]) {
+        let ring_mask = self.ring.len() as u64 - 1;
+        let period_mask = (1u64 << self.full_levels) - 1;
+        for &value in values {
+            let origin = *self.origin.get_or_insert(value);
+            // value - origin exactly, as a double-double (both parts enter the running sum).
+            let (difference, rounding) = two_sum(value, -origin);
+            self.sum = self.sum.add_f64(difference).add_f64(rounding);
+            self.n += 1;
+            self.ring[(self.n & ring_mask) as usize] = self.sum;
+            if self.n & period_mask == 0 {
+                self.push_decimated(self.n);
+            }
+        }
+    }
+
+    /// The full levels' coefficients ending at samples `first_k..=last_k`, whose prefix sums
+    /// (and the 2^full_levels before them) are in the ring.
+    fn add_full_levels(&mut self, first_k: u64, last_k: u64) {
+        use rayon::prelude::*;
+        let ring = &self.ring;
+        let mask = ring.len() as u64 - 1;
+        let level = |(index, sums): (usize, &mut LaneSums)| {
+            let h = 1u64 << index;
+            let start = first_k.max(2 * h);
+            if start > last_k {
+                return;
+            }
+            sums.count += last_k - start + 1;
+            let mut lanes = sums.lanes;
+            let mut squares = [0.0f64; SEGMENT];
+            let mut k = start;
+            while k <= last_k {
+                // A run of coefficients whose three prefix sums lie in unbroken stretches
+                // of the ring: computed independently of each other (vectorised), then
+                // added in order.
+                let end = segment_end(k, last_k, &[0, h, 2 * h], mask);
+                let n = (end - k + 1) as usize;
+                let slot = |back: u64| ((k - back) & mask) as usize;
+                let (now, one, two) = (
+                    &ring[slot(0)..slot(0) + n],
+                    &ring[slot(h)..slot(h) + n],
+                    &ring[slot(2 * h)..slot(2 * h) + n],
+                );
+                for (i, square) in squares[..n].iter_mut().enumerate() {
+                    let recent = now[i].minus(one[i]);
+                    let older = one[i].minus(two[i]);
+                    let d = recent.minus(older).hi;
+                    *square = d * d;
+                }
+                for (i, square) in squares[..n].iter().enumerate() {
+                    lanes[((k + i as u64) % 4) as usize].add(*square);
+                }
+                k = end + 1;
+            }
+            sums.lanes = lanes;
+        };
+        if last_k - first_k < 4096 {
+            self.full.iter_mut().enumerate().for_each(level);
+        } else {
+            self.full.par_iter_mut().enumerate().for_each(level);
         }
     }
 
@@ -212,8 +302,8 @@ impl HaarWvStream {
         let (mut levels, mut variance, mut m, mut eta) = (vec![], vec![], vec![], vec![]);
         for j in 1..=j_max {
             let (squares, count, dof) = if j <= self.full_levels {
-                let (squares, count) = self.full[j as usize - 1];
-                (squares, count, eta3(count as usize, j))
+                let level = self.full[j as usize - 1];
+                (level.total(), level.count, eta3(level.count as usize, j))
             } else {
                 let level = &self.decimated[(j - self.full_levels - 1) as usize];
                 let dof = (2.0 * level.count as f64 / 9.0).max(1.0);
@@ -260,6 +350,30 @@ mod tests {
                 offset + walk + noise.sample(&mut rng)
             })
             .collect()
+    }
+
+    #[test]
+    fn blocks_of_any_size_give_the_one_by_one_result_to_the_bit() {
+        // Few full levels, so blocks span the chunking (2^(full_levels - 1)) and the
+        // decimated levels' multiples.
+        let x = drifting(13, 70_000, 3e3);
+        for full_levels in [5, 12] {
+            let mut one_by_one = HaarWvStream::new(full_levels);
+            x.iter().for_each(|&v| one_by_one.push(v));
+            let mut blocks = HaarWvStream::new(full_levels);
+            let mut rng = ChaCha8Rng::seed_from_u64(full_levels as u64);
+            let mut rest = x.as_slice();
+            while !rest.is_empty() {
+                let size = rand::Rng::random_range(&mut rng, 1..9_000).min(rest.len());
+                let (block, tail) = rest.split_at(size);
+                blocks.push_block(block);
+                rest = tail;
+            }
+            assert_eq!(
+                blocks.wavelet_variance(None, 1.0, 0.01).unwrap(),
+                one_by_one.wavelet_variance(None, 1.0, 0.01).unwrap()
+            );
+        }
     }
 
     #[test]

@@ -1,0 +1,522 @@
+//! The fast path of [`super::read_table`]: a numeric CSV read in large blocks on a thread of
+//! its own (which also inflates gzip), the blocks' lines parsed on every core (rayon) with
+//! `fast-float2`, no allocation per row. It takes the files dynacal writes and most that other
+//! tools write: `#` lines before the header, one header line, then rows of comma-separated
+//! fields with LF or CRLF line ends and spaces around fields. Anything else (a quote
+//! anywhere, a `#` or blank line among the rows, a field count unlike the header's, a wanted
+//! field that is not a finite number, a read error) gives `None`, and the caller reads the
+//! file again with the `csv` crate, whose errors name the line. So the fast path never
+//! decides what an error says: both paths give the same table, or the same error.
+//!
+//! Hand-written because the `csv` crate parses one record at a time on one core (about
+//! 100 MB/s here with the float parsing) and no crate splits a CSV into chunks to parse in
+//! parallel; the float parsing itself is `fast-float2`'s, which rounds as `str::parse` does.
+
+use std::io::Read;
+use std::path::Path;
+use std::sync::mpsc;
+
+use rayon::prelude::*;
+
+use super::{open_maybe_gz, RowLines, Table};
+
+/// Bytes read (after inflating) per block.
+const BLOCK_BYTES: usize = 8 << 20;
+
+/// Blocks read ahead of the parser.
+const BLOCKS_AHEAD: usize = 2;
+
+/// The table of `path` when the fast path can read it; `None`: read it with the `csv` crate.
+pub(super) fn read_table(path: &Path, wanted: Option<&[&str]>) -> Option<Table> {
+    let mut blocks = FastBlocks::open(path, wanted)?;
+    let mut parsed = Vec::new();
+    while let Some(block) = blocks.next_block().ok()? {
+        parsed.push(block);
+    }
+    // One copy into columns of the final length (the pieces are parsed into their own).
+    let rows: u64 = parsed.iter().map(ParsedBlock::rows).sum();
+    let columns = (0..blocks.headers().len())
+        .map(|c| {
+            let mut column = Vec::with_capacity(rows as usize);
+            for piece in parsed.iter().flat_map(ParsedBlock::pieces) {
+                column.extend_from_slice(&piece[c]);
+            }
+            column
+        })
+        .collect();
+    Some(Table {
+        path: path.to_path_buf(),
+        headers: blocks.header.names,
+        columns,
+        row_lines: parsed
+            .first()
+            .map_or(RowLines::Unknown, |b| RowLines::From(b.first_line)),
+    })
+}
+
+/// The fast path gave up: read the file with the `csv` crate, from its start.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Fallback;
+
+/// Rows parsed from one block of a file, in pieces of consecutive rows.
+pub struct ParsedBlock {
+    /// The file line (1-based) of the block's first row.
+    pub first_line: u64,
+    /// Each piece's row count and columns (in [`FastBlocks::headers`] order).
+    pieces: Vec<(u64, Vec<Vec<f64>>)>,
+}
+
+impl ParsedBlock {
+    /// Rows in the block.
+    pub fn rows(&self) -> u64 {
+        self.pieces.iter().map(|p| p.0).sum()
+    }
+
+    /// The pieces' columns, in file order.
+    pub fn pieces(&self) -> impl Iterator<Item = &[Vec<f64>]> {
+        self.pieces.iter().map(|p| p.1.as_slice())
+    }
+}
+
+/// A numeric CSV read a block of rows at a time by the fast path: what a whole-file read
+/// collects and a streamed one consumes as it goes.
+pub struct FastBlocks {
+    blocks: mpsc::Receiver<Result<Vec<u8>, ()>>,
+    /// Where parsed blocks' buffers go back to the reading thread.
+    recycle: mpsc::Sender<Vec<u8>>,
+    /// Bytes after the header in the blocks that held it, to parse first.
+    queued: Option<Vec<u8>>,
+    /// A line begun in the previous block.
+    carry: Vec<u8>,
+    header: Header,
+    /// The file line of the next row.
+    next_line: u64,
+    at_end: bool,
+}
+
+impl FastBlocks {
+    /// Reads the header of `path` (`wanted` as in [`super::read_table`]); `None` when the
+    /// file is not for the fast path.
+    pub fn open(path: &Path, wanted: Option<&[&str]>) -> Option<Self> {
+        let (blocks, recycle) = read_ahead(path);
+        let mut pending: Vec<u8> = Vec::new();
+        let mut at_end = false;
+        loop {
+            match blocks.recv() {
+                Ok(Ok(block)) => pending.extend_from_slice(&block),
+                Ok(Err(())) => return None,
+                Err(mpsc::RecvError) => at_end = true,
+            }
+            if pending.starts_with(b"\xEF\xBB\xBF") {
+                return None; // A byte-order mark: the csv crate's to strip.
+            }
+            if let Some((header, consumed, lines)) = find_header(&pending, wanted, at_end)? {
+                pending.drain(..consumed);
+                return Some(Self {
+                    blocks,
+                    recycle,
+                    queued: Some(pending),
+                    carry: Vec::new(),
+                    header,
+                    next_line: lines + 1,
+                    at_end,
+                });
+            }
+            if at_end {
+                return None;
+            }
+        }
+    }
+
+    /// The parsed columns' names, in file order.
+    pub fn headers(&self) -> &[String] {
+        &self.header.names
+    }
+
+    /// The next block of rows; `Ok(None)` after the last.
+    pub fn next_block(&mut self) -> Result<Option<ParsedBlock>, Fallback> {
+        loop {
+            let block = match self.queued.take() {
+                Some(block) => Some(block),
+                None if self.at_end => None,
+                None => match self.blocks.recv() {
+                    Ok(Ok(block)) => Some(block),
+                    Ok(Err(())) => return Err(Fallback),
+                    Err(mpsc::RecvError) => {
+                        self.at_end = true;
+                        None
+                    }
+                },
+            };
+            let Some(block) = block else {
+                // The end; a last line may lack its line end.
+                if self.carry.is_empty() {
+                    return Ok(None);
+                }
+                let last = std::mem::take(&mut self.carry);
+                let pieces = parse_rows(&last, &self.header).ok_or(Fallback)?;
+                return Ok(Some(self.counted(pieces)));
+            };
+            let pieces = self.parse_block(&block);
+            let _ = self.recycle.send(block);
+            let pieces = pieces.ok_or(Fallback)?;
+            if !pieces.is_empty() {
+                return Ok(Some(self.counted(pieces)));
+            }
+        }
+    }
+
+    /// The whole lines of `block`, the line begun before it first; keeps its last partial
+    /// line for the next.
+    fn parse_block(&mut self, block: &[u8]) -> Option<Vec<(u64, Vec<Vec<f64>>)>> {
+        let (Some(first_end), Some(last_end)) =
+            (memchr::memchr(b'\n', block), memchr::memrchr(b'\n', block))
+        else {
+            self.carry.extend_from_slice(block);
+            return Some(Vec::new());
+        };
+        let mut pieces = Vec::new();
+        let mut body_start = 0;
+        if !self.carry.is_empty() {
+            self.carry.extend_from_slice(&block[..=first_end]);
+            pieces.extend(parse_rows(&self.carry, &self.header)?);
+            self.carry.clear();
+            body_start = first_end + 1;
+        }
+        pieces.extend(parse_rows(&block[body_start..=last_end], &self.header)?);
+        self.carry.extend_from_slice(&block[last_end + 1..]);
+        Some(pieces)
+    }
+
+    fn counted(&mut self, pieces: Vec<(u64, Vec<Vec<f64>>)>) -> ParsedBlock {
+        let block = ParsedBlock {
+            first_line: self.next_line,
+            pieces,
+        };
+        self.next_line += block.rows();
+        block
+    }
+}
+
+/// The file's decompressed bytes in blocks, read on a thread of their own (a read error is
+/// `Err(())`: the `csv` path says what it is), and where to hand the buffers back.
+#[allow(clippy::type_complexity)]
+fn read_ahead(path: &Path) -> (mpsc::Receiver<Result<Vec<u8>, ()>>, mpsc::Sender<Vec<u8>>) {
+    let (send, receive) = mpsc::sync_channel(BLOCKS_AHEAD);
+    let (recycle, recycled) = mpsc::channel::<Vec<u8>>();
+    let path = path.to_path_buf();
+    std::thread::spawn(move || {
+        let Ok(mut reader) = open_maybe_gz(&path) else {
+            let _ = send.send(Err(()));
+            return;
+        };
+        loop {
+            let mut block = recycled
+                .try_recv()
+                .unwrap_or_else(|_| Vec::with_capacity(BLOCK_BYTES));
+            block.clear();
+            match (&mut reader)
+                .take(BLOCK_BYTES as u64)
+                .read_to_end(&mut block)
+            {
+                Ok(0) => return,
+                Ok(_) => {
+                    if send.send(Ok(block)).is_err() {
+                        return; // The parser gave up.
+                    }
+                }
+                Err(_) => {
+                    let _ = send.send(Err(()));
+                    return;
+                }
+            }
+        }
+    });
+    (receive, recycle)
+}
+
+/// The header: every field's name, and for each field the slot of its parsed column.
+struct Header {
+    /// Names of the parsed columns, in file order.
+    names: Vec<String>,
+    /// For each field of a row, the parsed column it goes to, if any.
+    slots: Vec<Option<usize>>,
+    /// Fields in the header.
+    fields: usize,
+}
+
+/// The header found in `bytes` (after `#` lines), the bytes up to its line's end and the
+/// lines up to it; `Some(None)`: not all here yet; `None`: not for the fast path.
+#[allow(clippy::type_complexity)]
+fn find_header(
+    bytes: &[u8],
+    wanted: Option<&[&str]>,
+    at_end: bool,
+) -> Option<Option<(Header, usize, u64)>> {
+    let mut start = 0;
+    let mut lines = 0u64;
+    loop {
+        let end = match bytes[start..].iter().position(|&b| b == b'\n') {
+            Some(i) => start + i,
+            None if at_end && start < bytes.len() => bytes.len(),
+            None if at_end => return None, // No header: the csv path says so.
+            None => return Some(None),
+        };
+        lines += 1;
+        let line = strip_cr(&bytes[start..end]);
+        let consumed = (end + 1).min(bytes.len());
+        if line.first() == Some(&b'#') {
+            start = consumed;
+            continue;
+        }
+        if line.is_empty() || line.contains(&b'"') {
+            return None;
+        }
+        let text = std::str::from_utf8(line).ok()?;
+        let all: Vec<&str> = text.split(',').map(|f| f.trim_ascii()).collect();
+        let mut names = Vec::new();
+        let slots = all
+            .iter()
+            .map(|name| {
+                let parsed = wanted.is_none_or(|w| w.contains(name));
+                parsed.then(|| {
+                    names.push(name.to_string());
+                    names.len() - 1
+                })
+            })
+            .collect();
+        let header = Header {
+            names,
+            slots,
+            fields: all.len(),
+        };
+        return Some(Some((header, consumed, lines)));
+    }
+}
+
+fn strip_cr(line: &[u8]) -> &[u8] {
+    line.strip_suffix(b"\r").unwrap_or(line)
+}
+
+/// Parses whole lines of rows in parallel over pieces of `bytes` split at line ends: each
+/// piece's row count and columns; `None` at anything the fast path leaves to the `csv` crate.
+fn parse_rows(bytes: &[u8], header: &Header) -> Option<Vec<(u64, Vec<Vec<f64>>)>> {
+    if bytes.is_empty() {
+        return Some(Vec::new());
+    }
+    if memchr::memchr(b'"', bytes).is_some() {
+        return None;
+    }
+    split_at_lines(bytes, rayon::current_num_threads() * 4)
+        .par_iter()
+        .map(|piece| parse_piece(piece, header))
+        .collect()
+}
+
+/// `bytes` cut into about `parts` pieces, each ending at a line end (the last at the end).
+fn split_at_lines(bytes: &[u8], parts: usize) -> Vec<&[u8]> {
+    let target = bytes.len().div_ceil(parts.max(1)).max(1 << 16);
+    let mut pieces = Vec::with_capacity(parts);
+    let mut rest = bytes;
+    while !rest.is_empty() {
+        let cut = if rest.len() <= target {
+            rest.len()
+        } else {
+            match memchr::memchr(b'\n', &rest[target..]) {
+                Some(i) => target + i + 1,
+                None => rest.len(),
+            }
+        };
+        let (piece, tail) = rest.split_at(cut);
+        pieces.push(piece);
+        rest = tail;
+    }
+    pieces
+}
+
+/// The number of lines in `piece` and their parsed columns.
+fn parse_piece(piece: &[u8], header: &Header) -> Option<(u64, Vec<Vec<f64>>)> {
+    let rows_guess = piece.len() / 16 + 1;
+    let mut columns: Vec<Vec<f64>> = (0..header.names.len())
+        .map(|_| Vec::with_capacity(rows_guess))
+        .collect();
+    let mut rows = 0;
+    let mut start = 0;
+    for end in memchr::memchr_iter(b'\n', piece).chain(std::iter::once(piece.len())) {
+        let line = strip_cr(&piece[start..end]);
+        if end == piece.len() && start == end {
+            break; // After the piece's last line end.
+        }
+        start = end + 1;
+        if line.is_empty() || line[0] == b'#' {
+            return None; // A blank or comment line among the rows: the csv crate's.
+        }
+        parse_line(line, header, &mut columns)?;
+        rows += 1;
+    }
+    Some((rows, columns))
+}
+
+/// Parses one row's wanted fields into `columns`: each a finite number with only spaces
+/// around it, and as many fields as the header has.
+fn parse_line(line: &[u8], header: &Header, columns: &mut [Vec<f64>]) -> Option<()> {
+    let skip_spaces = |mut pos: usize| {
+        while line.get(pos).is_some_and(u8::is_ascii_whitespace) {
+            pos += 1;
+        }
+        pos
+    };
+    let mut pos = 0;
+    for (k, slot) in header.slots.iter().enumerate() {
+        match slot {
+            Some(slot) => {
+                let at = skip_spaces(pos);
+                // The longest number at the field's start; what follows must be spaces up
+                // to the field's end, or the field is not a number (`1e`, `1 2`, `1x`).
+                let (value, used) = fast_float2::parse_partial::<f64, _>(&line[at..]).ok()?;
+                if !value.is_finite() {
+                    return None;
+                }
+                columns[*slot].push(value);
+                pos = skip_spaces(at + used);
+            }
+            None => {
+                pos = memchr::memchr(b',', &line[pos..]).map_or(line.len(), |i| pos + i);
+            }
+        }
+        if k + 1 == header.fields {
+            if pos != line.len() {
+                return None;
+            }
+        } else if line.get(pos) == Some(&b',') {
+            pos += 1;
+        } else {
+            return None;
+        }
+    }
+    Some(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// What the fast path reads must be what the `csv` path reads, to the bit.
+    fn agrees(text: &[u8], gzip: bool, wanted: Option<&[&str]>) -> Option<Table> {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.csv");
+        if gzip {
+            use std::io::Write as _;
+            let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+            enc.write_all(text).unwrap();
+            std::fs::write(&path, enc.finish().unwrap()).unwrap();
+        } else {
+            std::fs::write(&path, text).unwrap();
+        }
+        let fast = read_table(&path, wanted);
+        if let Some(table) = &fast {
+            let by_rows = super::super::read_table_by_rows(&path, wanted);
+            assert_eq!(
+                by_rows.as_ref().ok(),
+                Some(table),
+                "{:?}: {by_rows:?}",
+                String::from_utf8_lossy(text)
+            );
+        }
+        fast
+    }
+
+    #[test]
+    fn reads_what_dynacal_and_common_tools_write_and_leaves_the_rest() {
+        let wanted: &[&str] = &["t_s", "gx_rad_s"];
+        for (text, taken) in [
+            (
+                &b"# sample_rate_hz: 100\nt_s,gx_rad_s\n0,1.5\n0.01,-2e-3\n"[..],
+                true,
+            ),
+            (
+                b"t_s , gx_rad_s,name\r\n 0 ,1,a b\r\n0.01,+2,\"\"\r\n",
+                false,
+            ),
+            (b"t_s,gx_rad_s,name\r\n 0 ,1,a\r\n0.01,.5,b", true),
+            (b"t_s,gx_rad_s\n0,1\n\n0.01,2\n", false),
+            (b"t_s,gx_rad_s\n0,1\n# note\n0.01,2\n", false),
+            (b"\xEF\xBB\xBFt_s,gx_rad_s\n0,1\n", false),
+            (b"t_s,gx_rad_s\n0,1,3\n", false),
+            (b"t_s,gx_rad_s\n0,nan\n", false),
+            (b"t_s,gx_rad_s\n0,1e400\n", false),
+            (b"t_s,gx_rad_s\n0,1.\n1,5E-1\n", true),
+            (b"t_s,gx_rad_s\n", true),
+        ] {
+            for gzip in [false, true] {
+                let fast = agrees(text, gzip, Some(wanted));
+                assert_eq!(
+                    fast.is_some(),
+                    taken,
+                    "{:?} (gzip {gzip})",
+                    String::from_utf8_lossy(text)
+                );
+            }
+        }
+        // The rows' lines are known behind a comment header.
+        let t = agrees(b"# a\n# b\nt_s,gx_rad_s\n0,1\n", false, None).unwrap();
+        assert_eq!(t.row_lines, RowLines::From(4));
+    }
+
+    #[test]
+    fn blocks_join_across_their_boundaries() {
+        // Rows across several read blocks and parse pieces: every value lands in order.
+        let n = 1_200_000;
+        let mut text = String::from("t_s,gx_rad_s\n");
+        for i in 0..n {
+            text.push_str(&format!(
+                "{},{}\n",
+                i as f64 * 0.01,
+                (i % 977) as f64 * 1e-4
+            ));
+        }
+        let table = agrees(text.as_bytes(), false, None).expect("fast path");
+        assert_eq!(table.rows(), n);
+        assert_eq!(table.columns[1][n - 1], ((n - 1) % 977) as f64 * 1e-4);
+    }
+
+    fn field() -> impl Strategy<Value = String> {
+        prop_oneof![
+            any::<f64>().prop_map(|v| v.to_string()),
+            any::<f32>().prop_map(|v| format!("{v:e}")),
+            (-1000i64..1000).prop_map(|v| v.to_string()),
+            "[0-9+\\-.eE]{0,6}",
+            "[ \t]{0,2}[0-9]{1,3}[ \t]{0,2}",
+            prop_oneof![
+                Just("nan"),
+                Just("inf"),
+                Just("\"1\""),
+                Just("#"),
+                Just("x"),
+                Just("")
+            ]
+            .prop_map(str::to_string),
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(200))]
+        #[test]
+        fn any_text_reads_as_the_csv_path_reads_it(
+            rows in proptest::collection::vec(proptest::collection::vec(field(), 1..4), 0..20),
+            crlf in any::<bool>(),
+            final_end in any::<bool>(),
+            gzip in any::<bool>(),
+        ) {
+            let end = if crlf { "\r\n" } else { "\n" };
+            let lines: Vec<String> = rows.iter().map(|r| r.join(",")).collect();
+            let mut text = format!("a,b,c{end}{}", lines.join(end));
+            if final_end {
+                text.push_str(end);
+            }
+            agrees(text.as_bytes(), gzip, Some(&["a", "c"]));
+            agrees(text.as_bytes(), gzip, None);
+        }
+    }
+}
