@@ -13,8 +13,8 @@
 //!
 //! Long recordings are streamed (`--stream auto`, the default: an interchange file larger than
 //! 256 MiB on disk, [`dynacal::input::stream::STREAM_THRESHOLD_BYTES`], plain or gzip, whose
-//! rate is stated or given): read once, row by row, in memory that does not grow with the
-//! length (about 4 MiB per channel). Levels 1..=18 are then the batch estimator's to ~1e-12;
+//! rate is stated or given): read once, block by block, in memory that does not grow with the
+//! length (about 8 MiB per channel). Levels 1..=18 are then the batch estimator's to ~1e-12;
 //! higher levels (recordings of 2^20 samples or more) are decimated as on the board, every
 //! 2^{j-1}-th coefficient, with intervals 9/4 as wide in variance; the JSON says so in
 //! `streamed`. `--stream always` streams any file that allows it (else an error saying why),

@@ -1,6 +1,8 @@
-//! The wavelet variance of an interchange recording read in one pass, row by row, in memory
-//! that does not grow with its length: what `dynacal wv` does with recordings too long to
-//! load whole (`--stream`, chosen automatically above [`STREAM_THRESHOLD_BYTES`]).
+//! The wavelet variance of an interchange recording read in one pass, block by block, in
+//! memory that does not grow with its length: what `dynacal wv` does with recordings too long
+//! to load whole (`--stream`, chosen automatically above [`STREAM_THRESHOLD_BYTES`]). The
+//! blocks come from the fast reader ([`crate::interchange::fast`]); where it gives up, the
+//! file is read again from its start with the `csv` crate, one record at a time.
 //!
 //! It validates as the whole-file reader does (every parsed field a finite number, the field
 //! count, `t_s` strictly increasing, each error naming the file and the line) and applies the
