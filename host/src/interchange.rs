@@ -302,29 +302,37 @@ impl TableRows {
         }
         let line = self.record.position().map_or(0, |p| p.line());
         for (slot, &i) in self.selected.iter().enumerate() {
-            let raw = self.record.get(i).unwrap_or(b"");
-            let value = std::str::from_utf8(raw)
-                .ok()
-                .and_then(|s| s.parse::<f64>().ok())
-                .filter(|v| v.is_finite());
-            match value {
-                Some(v) => self.values[slot] = v,
-                None => {
-                    return Err(TableError::NotANumber {
-                        path: self.path.clone(),
-                        line,
-                        column: self.headers[slot].clone(),
-                        value: String::from_utf8_lossy(raw).into_owned(),
-                    })
-                }
-            }
+            self.values[slot] =
+                parse_field(&self.path, &self.record, i, &self.headers[slot], line)?;
         }
         Ok(Some((line, &self.values)))
     }
 }
 
+/// Field `index` of a record on file line `line` as a finite number, or an error naming the
+/// file, line, column and text.
+pub(crate) fn parse_field(
+    path: &Path,
+    record: &csv::ByteRecord,
+    index: usize,
+    column: &str,
+    line: u64,
+) -> Result<f64, TableError> {
+    let raw = record.get(index).unwrap_or(b"");
+    std::str::from_utf8(raw)
+        .ok()
+        .and_then(|s| s.parse::<f64>().ok())
+        .filter(|v| v.is_finite())
+        .ok_or_else(|| TableError::NotANumber {
+            path: path.to_path_buf(),
+            line,
+            column: column.into(),
+            value: String::from_utf8_lossy(raw).into_owned(),
+        })
+}
+
 /// A CSV layer error as a [`TableError`] naming the file and line.
-fn csv_error(path: &Path, e: csv::Error) -> TableError {
+pub(crate) fn csv_error(path: &Path, e: csv::Error) -> TableError {
     let line = e.position().map_or(0, |p| p.line());
     let text = e.to_string();
     match e.into_kind() {

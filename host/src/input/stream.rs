@@ -19,7 +19,8 @@ use std::path::Path;
 use super::{format_error, per_channel, ChannelWv, InputArgs, InputError};
 use crate::interchange::fast::{Fallback, FastBlocks};
 use crate::interchange::{
-    csv_reader, is_interchange_column, open_maybe_gz, read_stated_rate, TableError,
+    csv_error, csv_reader, is_interchange_column, open_maybe_gz, parse_field, read_stated_rate,
+    TableError,
 };
 use crate::model::Channel;
 use crate::wv::stream::HaarWvStream;
@@ -249,7 +250,7 @@ fn feed_by_rows(
         match csv.read_byte_record(&mut record) {
             Ok(false) => break,
             Ok(true) => {}
-            Err(e) => return Err(csv_error(path, e)),
+            Err(e) => return Err(csv_error(path, e).into()),
         }
         let line = record.position().map_or(0, |p| p.line());
         let t_s = parse_field(path, &record, time_column, "t_s", line)?;
@@ -401,46 +402,6 @@ impl<'a> RowChecker<'a> {
         }
         Ok(())
     }
-}
-
-fn parse_field(
-    path: &Path,
-    record: &csv::ByteRecord,
-    index: usize,
-    column: &str,
-    line: u64,
-) -> Result<f64, InputError> {
-    let raw = record.get(index).unwrap_or(b"");
-    std::str::from_utf8(raw)
-        .ok()
-        .and_then(|s| s.parse::<f64>().ok())
-        .filter(|v| v.is_finite())
-        .ok_or_else(|| {
-            TableError::NotANumber {
-                path: path.to_path_buf(),
-                line,
-                column: column.into(),
-                value: String::from_utf8_lossy(raw).into_owned(),
-            }
-            .into()
-        })
-}
-
-fn csv_error(path: &Path, e: csv::Error) -> InputError {
-    let line = e.position().map_or(0, |p| p.line());
-    let message = match e.kind() {
-        csv::ErrorKind::UnequalLengths {
-            expected_len, len, ..
-        } => format!("{len} fields, expected {expected_len} as in the header"),
-        csv::ErrorKind::Io(source) => source.to_string(),
-        _ => e.to_string(),
-    };
-    TableError::Csv {
-        path: path.to_path_buf(),
-        line,
-        message,
-    }
-    .into()
 }
 
 /// The rate stated in the `#` lines before the header (`# sample_rate_hz: 100`).
