@@ -907,7 +907,7 @@ impl RowWriter {
             lat_lon,
         };
         if rate_hz.is_some() {
-            writer.write_header()?;
+            writer.write_header();
         }
         Ok(writer)
     }
@@ -922,7 +922,8 @@ impl RowWriter {
         }
         w.last_t_s = row[0];
         w.rows += 1;
-        if self.rate_hz.is_none() && self.out.is_some() && self.held_rows() < RATE_PROBE_ROWS {
+        // Until the rate is known (set when the held rows reach RATE_PROBE_ROWS).
+        if self.rate_hz.is_none() {
             self.held.extend_from_slice(row);
             if self.held_rows() == RATE_PROBE_ROWS {
                 self.release_held()?;
@@ -991,7 +992,7 @@ impl RowWriter {
                 .filter(|step| *step > 0.0)
                 .map(|step| shortest_rate_hz(1.0 / step))
                 .or(Some(f64::NAN));
-            self.write_header()?;
+            self.write_header();
         }
         let held = std::mem::take(&mut self.held);
         for row in held.chunks_exact(self.columns.len()) {
@@ -1003,14 +1004,13 @@ impl RowWriter {
         Ok(())
     }
 
-    fn write_header(&mut self) -> Result<(), TableError> {
+    fn write_header(&mut self) {
         use std::io::Write as _;
         // NaN: fewer than two rows, no rate to state.
         if let Some(rate) = self.rate_hz.filter(|r| r.is_finite()) {
             let _ = writeln!(self.line, "{RATE_LINE_PREFIX}{rate}");
         }
         let _ = writeln!(self.line, "{}", self.columns.join(","));
-        Ok(())
     }
 
     fn format_row(&mut self, row: &[f64]) {
