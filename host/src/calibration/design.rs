@@ -1,7 +1,7 @@
 //! The calibration's linear model at its solution ([`CalibrationDesign`]), which the
 //! diagnosis strips candidate regressors with and corrects the calibration's estimates by.
 
-use nalgebra::{DMatrix, DVector};
+use nalgebra::{DMatrix, DVector, Vector3};
 
 use super::epochs::EpochData;
 use super::least_squares::{design_rows, normal_matrix_inverse, Layout, MAX_PARAMETERS};
@@ -13,11 +13,19 @@ use super::least_squares::{design_rows, normal_matrix_inverse, Layout, MAX_PARAM
 /// the terms it finds; and it carries the epoch derivatives the calibration used (9-point
 /// stencils at the reference's native rate), which are better than differences at the
 /// sensor rate.
+///
+/// Its rows are computed when asked for, from the reference's rates and specific force at
+/// the epochs: held whole they would take 18 numbers per channel and epoch (864 bytes an
+/// epoch), the largest item of a long drive's diagnosis.
 #[derive(Debug, Clone)]
 pub struct CalibrationDesign {
     epochs: usize,
-    /// Rows per channel (gx gy gz ax ay az), `epochs` each; empty for a channel not present.
-    rows: [Vec<[f64; MAX_PARAMETERS]>; 6],
+    /// Whether the gyro and the accelerometer channels have rows.
+    present: [bool; 2],
+    /// The reference's angular rate and specific force at the epochs (rad/s, m/s^2, body
+    /// frame): with the derivatives below, what a row is made of.
+    omega_ib_b_rad_s: Vec<Vector3<f64>>,
+    f_b_m_s2: Vec<Vector3<f64>>,
     weights: [f64; 2],
     /// (X' W X)^-1.
     bread: DMatrix<f64>,
@@ -47,7 +55,27 @@ impl CalibrationDesign {
     }
     /// Whether a channel (0..6, gx..az) has rows.
     pub fn has_channel(&self, channel: usize) -> bool {
-        !self.rows[channel].is_empty()
+        self.present[channel / 3]
+    }
+    /// The rows of `channel` (0..6, gx..az) at every epoch, in order.
+    fn rows(&self, channel: usize) -> impl Iterator<Item = [f64; MAX_PARAMETERS]> + '_ {
+        let accel = channel >= 3;
+        let count = if self.has_channel(channel) {
+            self.epochs
+        } else {
+            0
+        };
+        (0..count).map(move |k| {
+            let at = |v: &[Vec<f64>; 3]| Vector3::new(v[0][k], v[1][k], v[2][k]);
+            design_rows(
+                &self.layout,
+                &self.omega_ib_b_rad_s[k],
+                &self.f_b_m_s2[k],
+                &at(&self.omega_dot_b_rad_s2),
+                &at(&self.f_dot_b_m_s3),
+                accel,
+            )[channel % 3]
+        })
     }
     /// (X'WX)^-1 of the calibration's weighted least squares.
     pub fn bread(&self) -> &DMatrix<f64> {
@@ -58,7 +86,7 @@ impl CalibrationDesign {
         let p = self.layout.len();
         let w = self.weights[channel / 3];
         let mut xtwy = DVector::<f64>::zeros(p);
-        for (x, v) in self.rows[channel].iter().zip(y) {
+        for (x, v) in self.rows(channel).zip(y) {
             for a in 0..p {
                 xtwy[a] += w * x[a] * v;
             }
@@ -87,8 +115,7 @@ impl CalibrationDesign {
     /// The fitted error on `channel` of a parameter vector.
     pub fn fitted(&self, channel: usize, theta: &DVector<f64>) -> Vec<f64> {
         let p = self.layout.len();
-        self.rows[channel]
-            .iter()
+        self.rows(channel)
             .map(|x| (0..p).map(|a| x[a] * theta[a]).sum())
             .collect()
     }
@@ -117,26 +144,22 @@ impl CalibrationDesign {
             time: false,
             ..*layout
         };
-        let mut rows: [Vec<[f64; MAX_PARAMETERS]>; 6] = Default::default();
-        for k in 0..n {
-            let (w, f) = (&reference.omega_ib_b_rad_s[k], &reference.f_b_m_s2[k]);
-            for (accel, present) in [
-                (false, data.gyro_rad_s.is_some()),
-                (true, data.accel_m_s2.is_some()),
-            ] {
-                if present {
-                    let r = design_rows(&design_layout, w, f, &omega_dot[k], &f_dot[k], accel);
-                    for i in 0..3 {
-                        rows[3 * usize::from(accel) + i].push(r[i]);
-                    }
-                }
-            }
-        }
         let p = design_layout.len();
+        let mut design = CalibrationDesign {
+            epochs: n,
+            present: [data.gyro_rad_s.is_some(), data.accel_m_s2.is_some()],
+            omega_ib_b_rad_s: reference.omega_ib_b_rad_s.clone(),
+            f_b_m_s2: reference.f_b_m_s2.clone(),
+            weights,
+            bread: DMatrix::zeros(p, p),
+            layout: design_layout,
+            omega_dot_b_rad_s2: std::array::from_fn(|i| omega_dot.iter().map(|v| v[i]).collect()),
+            f_dot_b_m_s3: std::array::from_fn(|i| f_dot.iter().map(|v| v[i]).collect()),
+        };
         let mut xtwx = DMatrix::<f64>::zeros(p, p);
-        for (ch, rs) in rows.iter().enumerate() {
+        for ch in 0..6 {
             let w = weights[ch / 3];
-            for x in rs {
+            for x in design.rows(ch) {
                 for a in 0..p {
                     for b in 0..p {
                         xtwx[(a, b)] += w * x[a] * x[b];
@@ -144,16 +167,11 @@ impl CalibrationDesign {
                 }
             }
         }
-        CalibrationDesign {
-            epochs: n,
-            rows,
-            weights,
-            // The same design with the time columns left out was solvable, so this inverse
-            // exists; zeros (nothing absorbed) only guard the impossible case.
-            bread: normal_matrix_inverse(&xtwx).unwrap_or_else(|| DMatrix::zeros(p, p)),
-            layout: design_layout,
-            omega_dot_b_rad_s2: std::array::from_fn(|i| omega_dot.iter().map(|v| v[i]).collect()),
-            f_dot_b_m_s3: std::array::from_fn(|i| f_dot.iter().map(|v| v[i]).collect()),
+        // The same design with the time columns left out was solvable, so this inverse
+        // exists; zeros (nothing absorbed) only guard the impossible case.
+        if let Some(bread) = normal_matrix_inverse(&xtwx) {
+            design.bread = bread;
         }
+        design
     }
 }

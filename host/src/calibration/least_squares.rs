@@ -126,6 +126,9 @@ pub(super) fn normal_matrix_inverse(xtwx: &DMatrix<f64>) -> Option<DMatrix<f64>>
     }))
 }
 
+/// What visits a design row: (epoch, row, error, weight).
+type RowVisitor<'v> = dyn FnMut(usize, &[f64; MAX_PARAMETERS], f64, f64) + 'v;
+
 /// One weighted least-squares solve of the linearised error model over all epochs.
 fn solve(layout: &Layout, data: &EpochData, weights: [f64; 2]) -> Option<Solution> {
     let reference = &data.reference;
@@ -135,48 +138,47 @@ fn solve(layout: &Layout, data: &EpochData, weights: [f64; 2]) -> Option<Solutio
     let p = layout.len();
     let mut xtwx = DMatrix::<f64>::zeros(p, p);
     let mut xtwy = DVector::<f64>::zeros(p);
-    let mut rows: Vec<(usize, [f64; MAX_PARAMETERS], f64, f64)> = Vec::with_capacity(6 * n);
-    for k in 0..n {
-        let w = &reference.omega_ib_b_rad_s[k];
-        let f = &reference.f_b_m_s2[k];
-        if let Some(omega_s) = omega_s.filter(|_| layout.gyro) {
-            let e = omega_s[k] - w;
-            for (i, x) in design_rows(layout, w, f, &omega_dot[k], &f_dot[k], false)
-                .into_iter()
-                .enumerate()
-            {
-                rows.push((k, x, e[i], weights[0]));
+    // Each epoch's rows (k, x, y, w), made again on each pass rather than held: six rows of
+    // MAX_PARAMETERS numbers an epoch would be the largest item of a long drive.
+    let for_each_row = |visit: &mut RowVisitor| {
+        for k in 0..n {
+            let w = &reference.omega_ib_b_rad_s[k];
+            let f = &reference.f_b_m_s2[k];
+            if let Some(omega_s) = omega_s.filter(|_| layout.gyro) {
+                let e = omega_s[k] - w;
+                let rows = design_rows(layout, w, f, &omega_dot[k], &f_dot[k], false);
+                for (i, x) in rows.iter().enumerate() {
+                    visit(k, x, e[i], weights[0]);
+                }
+            }
+            if let Some(f_s) = f_s.filter(|_| layout.accel) {
+                let e = f_s[k] - f;
+                let rows = design_rows(layout, w, f, &omega_dot[k], &f_dot[k], true);
+                for (i, x) in rows.iter().enumerate() {
+                    visit(k, x, e[i], weights[1]);
+                }
             }
         }
-        if let Some(f_s) = f_s.filter(|_| layout.accel) {
-            let e = f_s[k] - f;
-            for (i, x) in design_rows(layout, w, f, &omega_dot[k], &f_dot[k], true)
-                .into_iter()
-                .enumerate()
-            {
-                rows.push((k, x, e[i], weights[1]));
-            }
-        }
-    }
-    for (_, x, y, w) in &rows {
+    };
+    for_each_row(&mut |_, x, y, w| {
         for a in 0..p {
             xtwy[a] += w * x[a] * y;
             for b in 0..p {
                 xtwx[(a, b)] += w * x[a] * x[b];
             }
         }
-    }
+    });
     let bread = normal_matrix_inverse(&xtwx)?;
     let theta = &bread * &xtwy;
     // Epoch scores for the sandwich: sum over the epoch's rows of w x e.
     let mut scores = vec![0.0; n * p];
-    for (k, x, y, w) in &rows {
+    for_each_row(&mut |k, x, y, w| {
         let pred: f64 = (0..p).map(|a| x[a] * theta[a]).sum();
         let e = y - pred;
         for a in 0..p {
             scores[k * p + a] += w * x[a] * e;
         }
-    }
+    });
     let lag = andrews_bartlett_lag_from_scores(&scores, p);
     let meat = newey_west_meat_from_scores(&scores, p, lag);
     let cov = &bread * meat * &bread;

@@ -35,6 +35,7 @@
 //! coefficient spreads no smaller than the measured residual's own (so a noise stronger than
 //! the baseline's is not read as terms).
 
+use std::borrow::Cow;
 use std::collections::BTreeMap;
 
 use rayon::prelude::*;
@@ -48,6 +49,7 @@ use super::extension::{channel_model, extended_model};
 use super::gain::{measure_gain, ChannelModelSims};
 use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, select};
 use super::moments::Absorber;
+use super::stats::SeriesSet;
 use super::stochastic::find_stochastic_effects;
 use super::terms::{find_terms, ChannelTerms, FittedTerms};
 use crate::calibration::{CalibrationDesign, CalibrationSummary};
@@ -83,7 +85,16 @@ pub struct DiagnoseOptions {
     pub alpha: f64,
     /// Smallest share of a channel's error variance a deterministic term must explain.
     pub min_variance_explained: f64,
+    /// Most simulated samples (replicates times epochs) of one channel held in memory;
+    /// above it, the simulations are drawn again each time a stage needs them (same seeds,
+    /// same series, the same report), so a long drive's memory does not grow with the
+    /// replicates.
+    pub held_samples: usize,
 }
+
+/// The default [`DiagnoseOptions::held_samples`]: 2^23 samples, 64 MiB a channel (30
+/// replicates of a 280 s drive at 1 kHz).
+pub const HELD_SAMPLES: usize = 1 << 23;
 
 impl Default for DiagnoseOptions {
     fn default() -> Self {
@@ -92,6 +103,7 @@ impl Default for DiagnoseOptions {
             seed: 1,
             alpha: 0.05,
             min_variance_explained: 0.005,
+            held_samples: HELD_SAMPLES,
         }
     }
 }
@@ -248,9 +260,9 @@ pub(super) struct Run<'a> {
     /// |omega| per epoch, rad/s.
     pub omega_norm: Vec<f64>,
     /// Specific force per body axis, m/s^2.
-    pub specific_force_m_s2: [Vec<f64>; 3],
+    pub specific_force_m_s2: [Cow<'a, [f64]>; 3],
     /// Its rate of change, m/s^3.
-    pub specific_force_rate_m_s3: [Vec<f64>; 3],
+    pub specific_force_rate_m_s3: [Cow<'a, [f64]>; 3],
     /// Two-sided normal quantile of one test at `alpha_test`.
     pub z_strict: f64,
     /// Number of tests of the run (Bonferroni's m).
@@ -308,12 +320,45 @@ impl Run<'_> {
         self.null_model(slot, r).simulate(self.n, &mut rng)
     }
 
-    /// Every baseline simulation of the channel at `slot`.
-    pub fn baseline_sims(&self, slot: usize) -> Vec<Vec<f64>> {
-        (0..self.opts.replicates)
-            .into_par_iter()
-            .map(|r| self.baseline_sim(slot, r))
-            .collect()
+    /// Whether the run is long: one channel's simulations exceed
+    /// [`DiagnoseOptions::held_samples`].
+    pub fn is_long(&self) -> bool {
+        self.opts.replicates.saturating_mul(self.n) > self.opts.held_samples
+    }
+
+    /// `f(slot, channel, item)` for each channel of the run with its item, in order: in
+    /// parallel on a short run, one channel after the other on a long one, where a channel's
+    /// working set is large (the work within a channel is parallel either way).
+    pub fn per_channel<I: Send, T: Send>(
+        &self,
+        items: Vec<I>,
+        f: impl Fn(usize, Channel, I) -> T + Sync + Send,
+    ) -> Vec<T> {
+        let jobs = self.channels.iter().copied().zip(items).enumerate();
+        if self.is_long() {
+            jobs.map(|(slot, (channel, item))| f(slot, channel, item))
+                .collect()
+        } else {
+            jobs.collect::<Vec<_>>()
+                .into_par_iter()
+                .map(|(slot, (channel, item))| f(slot, channel, item))
+                .collect()
+        }
+    }
+
+    /// Every baseline simulation of the channel at `slot`: held when they fit
+    /// [`DiagnoseOptions::held_samples`], drawn again at each visit otherwise.
+    pub fn baseline_sims(&self, slot: usize) -> BaselineSims<'_> {
+        BaselineSims {
+            run: self,
+            slot,
+            held: (!self.is_long()).then(|| {
+                (0..self.opts.replicates)
+                    .into_par_iter()
+                    .map(|r| self.baseline_sim(slot, r))
+                    .collect()
+            }),
+        }
     }
 
     /// The family-wise p-value of a test whose own p-value is `p` (Bonferroni).
@@ -342,6 +387,25 @@ fn max_wv_level(n: usize) -> u32 {
     ((n.max(2) as f64).log2().floor() as u32)
         .saturating_sub(2)
         .max(1)
+}
+
+/// The baseline simulations of one channel of a run ([`Run::baseline_sims`]).
+pub(super) struct BaselineSims<'r> {
+    run: &'r Run<'r>,
+    slot: usize,
+    held: Option<Vec<Vec<f64>>>,
+}
+
+impl SeriesSet for BaselineSims<'_> {
+    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+        match &self.held {
+            Some(held) => held.map_first(count, f),
+            None => (0..count.min(self.run.opts.replicates))
+                .into_par_iter()
+                .map(|r| f(&self.run.baseline_sim(self.slot, r)))
+                .collect(),
+        }
+    }
 }
 
 /// The number of tests a run makes, the m of its Bonferroni rule: per channel the
@@ -465,7 +529,8 @@ pub fn diagnose(
     opts: &DiagnoseOptions,
 ) -> Result<DiagnoseReport, DiagnoseError> {
     let mut notes = Vec::new();
-    let calibrated = calibrate(sensor, reference, &mut notes)?;
+    let mut calibrated = calibrate(sensor, reference, &mut notes)?;
+    calibrated.signals.release_jerks_and_acceleration();
     let signals = &calibrated.signals;
     let Grid {
         n,
@@ -500,16 +565,19 @@ pub fn diagnose(
     let z_strict = Normal::new(0.0, 1.0)
         .expect("normal")
         .inverse_cdf(1.0 - alpha_test / 2.0);
-    let specific_force_m_s2 = signals
-        .specific_force_b_m_s2
-        .clone()
-        .unwrap_or_else(|| std::array::from_fn(|i| signals.linear_acceleration_m_s2(i).to_vec()));
+    // Borrowed where they exist: on a long drive each copy is three more series.
+    let specific_force_m_s2: [Cow<[f64]>; 3] =
+        std::array::from_fn(|i| match &signals.specific_force_b_m_s2 {
+            Some(f) => Cow::Borrowed(&f[i][..]),
+            None => Cow::Borrowed(signals.linear_acceleration_m_s2(i)),
+        });
     // The calibration's derivatives (9-point stencils at the reference's native rate) when
     // there is one: differences at the sensor rate lose much of a vibration's jerk.
-    let specific_force_rate_m_s3 = match &calibrated.calibration {
-        Some((_, d)) => d.f_dot_b_m_s3.clone(),
-        None => std::array::from_fn(|i| central_difference(&signals.t_s, &specific_force_m_s2[i])),
-    };
+    let specific_force_rate_m_s3: [Cow<[f64]>; 3] =
+        std::array::from_fn(|i| match &calibrated.calibration {
+            Some((_, d)) => Cow::Borrowed(&d.f_dot_b_m_s3[i][..]),
+            None => Cow::Owned(central_difference(&signals.t_s, &specific_force_m_s2[i])),
+        });
     let run = Run {
         sensor,
         signals,
@@ -531,12 +599,9 @@ pub fn diagnose(
     };
     let found = find_terms(&run)?;
     let results: Vec<Result<ChannelResult, DiagnoseError>> = run
-        .channels
-        .par_iter()
-        .zip(found)
-        .enumerate()
-        .map(|(slot, (&channel, found))| diagnose_channel(&run, slot, channel, found))
-        .collect();
+        .per_channel(found, |slot, channel, found| {
+            diagnose_channel(&run, slot, channel, found)
+        });
     let mut gain = BTreeMap::new();
     let mut wv_curves = BTreeMap::new();
     let mut discrepancies = Vec::new();

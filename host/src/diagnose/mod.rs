@@ -16,4 +16,5 @@ pub mod report;
 pub mod stats;
 mod stochastic;
 mod terms;
+mod white_space;
 mod whiten;

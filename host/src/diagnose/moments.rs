@@ -9,8 +9,10 @@
 //! manoeuvres is in the null distribution) and from batch means of the measured residual;
 //! [`eliminate_on_moments`] is the stepwise selection over such terms.
 
+use std::sync::Arc;
+
 use super::terms::Candidate;
-use super::whiten::Whitener;
+pub(super) use super::white_space::WhiteSpace;
 use crate::calibration::CalibrationDesign;
 use crate::model::{Cause, Channel};
 
@@ -58,7 +60,7 @@ impl Absorber<'_> {
     }
     /// Every channel's series `y` (gx..az) less what the calibration fitted on all of them
     /// together takes from it: what the engine sees of a series after the calibration.
-    fn calibrate(&self, y: &[Option<&[f64]>; 6]) -> [Option<Vec<f64>>; 6] {
+    pub fn calibrate(&self, y: &[Option<&[f64]>; 6]) -> [Option<Vec<f64>>; 6] {
         let theta = match self {
             Absorber::Design(d) => Some(d.bread() * d.moments_all(y)),
             Absorber::Mean => None,
@@ -81,78 +83,16 @@ impl Absorber<'_> {
     }
 }
 
-/// The run as generalised least squares sees it: per channel the whitening filter of its
-/// baseline noise model ([`Whitener`]), and the calibrated error and every replicate's
-/// calibrated baseline simulation, filtered. Inner products of filtered series are the
-/// metric every term's fit uses.
-pub(super) struct WhiteSpace {
-    whiteners: [Option<Whitener>; 6],
-    errors: [Option<Vec<f64>>; 6],
-    sims: Vec<[Option<Vec<f64>>; 6]>,
-}
-
-impl WhiteSpace {
-    /// `errors`: every channel's error (None where absent); `sims_of(r)`: every channel's
-    /// baseline simulation of replicate r, for r in 0..replicates.
-    pub fn new(
-        absorber: &Absorber,
-        whiteners: [Option<Whitener>; 6],
-        errors: [Option<&[f64]>; 6],
-        replicates: usize,
-        sims_of: &(dyn Fn(usize) -> [Option<Vec<f64>>; 6] + Sync),
-    ) -> Self {
-        use rayon::prelude::*;
-        let whiten = |calibrated: [Option<Vec<f64>>; 6]| -> [Option<Vec<f64>>; 6] {
-            let mut calibrated = calibrated;
-            std::array::from_fn(|ch| {
-                let w = whiteners[ch].as_ref()?;
-                calibrated[ch].take().map(|y| w.apply(&y))
-            })
-        };
-        let errors = whiten(absorber.calibrate(&errors));
-        let sims = (0..replicates)
-            .into_par_iter()
-            .map(|r| {
-                let s = sims_of(r);
-                whiten(absorber.calibrate(&std::array::from_fn(|ch| s[ch].as_deref())))
-            })
-            .collect();
-        Self {
-            whiteners,
-            errors,
-            sims,
-        }
-    }
-
-    /// The filtered calibrated error of `channel`.
-    pub fn error(&self, channel: Channel) -> &[f64] {
-        self.errors[channel.index()]
-            .as_deref()
-            .expect("a channel of the run")
-    }
-}
-
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
-/// Inner product of two series given per channel (absent channels count zero).
-fn dot_channels(a: &[Option<Vec<f64>>; 6], b: &[Option<Vec<f64>>; 6]) -> f64 {
-    a.iter()
-        .zip(b)
-        .map(|(x, y)| match (x, y) {
-            (Some(x), Some(y)) => dot(x, y),
-            _ => 0.0,
-        })
-        .sum()
-}
-
 /// A deterministic term on one channel: its regressor stripped of what the calibration
-/// absorbs from it on its own channel (`own`), its signature on every channel after the
-/// calibration (on its own channel `own`, on the others minus what the calibration's pull
-/// leaves there) filtered by each channel's whitening filter, its inner products in that
-/// metric with the error and with each baseline simulation, and its coefficient with the
-/// standard error the simulations give it.
+/// absorbs from it on its own channel (`own`), filtered by the channel's whitening filter;
+/// on the other channels the calibration reaches, its signature is minus the calibration's
+/// filtered columns times what it absorbed, kept as moments ([`WhiteSpace`]). With them, its
+/// inner products in that metric with the error and with each baseline simulation, and its
+/// coefficient with the standard error the simulations give it.
 #[derive(Clone)]
 pub(super) struct Term {
     pub channel: Channel,
@@ -160,11 +100,18 @@ pub(super) struct Term {
     pub cause: Cause,
     /// The body axis of the regressor (x, y, z = 0, 1, 2).
     pub axis: usize,
-    /// The regressor less what the calibration absorbs of it on its own channel.
-    pub own: Vec<f64>,
+    /// The regressor less what the calibration absorbs of it on its own channel (shared:
+    /// a term is copied in each selection, and the series are long).
+    pub own: Arc<[f64]>,
     pub projection: Projection,
-    /// The signature on each channel (gx..az), filtered.
-    white: [Option<Vec<f64>>; 6],
+    /// `own` filtered by its channel's whitening filter.
+    white_own: Arc<[f64]>,
+    /// The filtered calibration columns of its own channel times `white_own` (where the
+    /// calibration reaches that channel).
+    on_own_columns: Option<nalgebra::DVector<f64>>,
+    /// Per other channel the calibration reaches, the Gram matrix of its filtered columns
+    /// times what this term's regressor gives the calibration.
+    pulled: [Option<nalgebra::DVector<f64>>; 6],
     on_error: f64,
     on_sims: Vec<f64>,
     pub coef: f64,
@@ -180,48 +127,102 @@ pub(super) struct Term {
 }
 
 impl Term {
-    pub fn new(absorber: &Absorber, channel: Channel, c: &Candidate, space: &WhiteSpace) -> Self {
-        let projection = absorber.project(channel, c.values);
-        let own = absorber.own(channel, c.values, &projection);
-        let white: [Option<Vec<f64>>; 6] = std::array::from_fn(|ch| {
-            let w = space.whiteners[ch].as_ref()?;
-            if ch == channel.index() {
-                return Some(w.apply(&own));
-            }
-            match absorber {
-                Absorber::Design(d) if d.has_channel(ch) => {
-                    let pulled: Vec<f64> = d
-                        .fitted(ch, &projection.absorbed)
-                        .into_iter()
-                        .map(|v| -v)
-                        .collect();
-                    Some(w.apply(&pulled))
+    /// One candidate as a term, coefficient not yet set.
+    pub fn new(space: &WhiteSpace, channel: Channel, c: &Candidate) -> Self {
+        Self::batch(space, channel, std::slice::from_ref(c))
+            .pop()
+            .expect("one term per candidate")
+    }
+
+    /// Every candidate on `channel` as a term, coefficients not yet set; the simulations
+    /// are visited once for all of them.
+    pub fn batch(space: &WhiteSpace, channel: Channel, cands: &[Candidate]) -> Vec<Self> {
+        use rayon::prelude::*;
+        let own_ch = channel.index();
+        let absorber = space.absorber();
+        let whitener = space.whitener(own_ch).expect("a channel of the run");
+        let mut terms: Vec<Term> = cands
+            .par_iter()
+            .map(|c| {
+                let projection = absorber.project(channel, c.values);
+                let own = absorber.own(channel, c.values, &projection);
+                let pulled = std::array::from_fn(|ch| {
+                    let g = space.column_gram(ch).filter(|_| ch != own_ch)?;
+                    Some(g * &projection.absorbed)
+                });
+                Term {
+                    channel,
+                    name: c.name.clone(),
+                    cause: c.cause,
+                    axis: c.axis,
+                    white_own: whitener.apply(&own).into(),
+                    own: own.into(),
+                    projection,
+                    on_own_columns: None,
+                    pulled,
+                    on_error: 0.0,
+                    on_sims: Vec::new(),
+                    coef: 0.0,
+                    se: f64::NAN,
+                    sd_floor: 0.0,
+                    fixed: None,
                 }
-                _ => None,
+            })
+            .collect();
+        if let Some(on_columns) = space.on_white_columns(own_ch, &|column| {
+            terms
+                .iter()
+                .map(|t| dot(column, &t.white_own))
+                .collect::<Vec<f64>>()
+        }) {
+            for (k, t) in terms.iter_mut().enumerate() {
+                let m = on_columns.iter().map(|c| c[k]);
+                t.on_own_columns = Some(nalgebra::DVector::from_iterator(on_columns.len(), m));
             }
-        });
-        Term {
-            channel,
-            name: c.name.clone(),
-            cause: c.cause,
-            axis: c.axis,
-            on_error: dot_channels(&white, &space.errors),
-            on_sims: space.sims.iter().map(|s| dot_channels(&white, s)).collect(),
-            own,
-            white,
-            projection,
-            coef: 0.0,
-            se: f64::NAN,
-            sd_floor: 0.0,
-            fixed: None,
         }
+        let white_error = space.error(channel);
+        for t in terms.iter_mut() {
+            t.on_error =
+                dot(&t.white_own, white_error) + t.pulled_moments(|ch| space.columns_on_error(ch));
+        }
+        let per_replicate: Vec<Vec<f64>> = {
+            let terms = &terms;
+            let on_own = space.map_white_sims(own_ch, &|sim| {
+                terms
+                    .iter()
+                    .map(|t| dot(&t.white_own, sim))
+                    .collect::<Vec<f64>>()
+            });
+            on_own
+                .into_iter()
+                .enumerate()
+                .map(|(r, own)| {
+                    own.iter()
+                        .zip(terms)
+                        .map(|(o, t)| o + t.pulled_moments(|ch| space.columns_on_sim(ch, r)))
+                        .collect()
+                })
+                .collect()
+        };
+        for (k, t) in terms.iter_mut().enumerate() {
+            t.on_sims = per_replicate.iter().map(|r| r[k]).collect();
+        }
+        terms
+    }
+
+    /// A series' inner product with what the calibration's pull leaves of this term on the
+    /// other channels (minus their filtered columns times what it absorbed), from the
+    /// columns' moments with the series on each channel (`on`).
+    fn pulled_moments<'s>(&self, on: impl Fn(usize) -> Option<&'s nalgebra::DVector<f64>>) -> f64 {
+        (0..6)
+            .filter(|&ch| ch != self.channel.index())
+            .filter_map(|ch| on(ch).map(|m| -m.dot(&self.projection.absorbed)))
+            .sum()
     }
 
     /// The filtered signature on the term's own channel.
     fn white_own(&self) -> &[f64] {
-        self.white[self.channel.index()]
-            .as_deref()
-            .expect("a term has its own channel")
+        &self.white_own
     }
 
     /// A term whose coefficient `coef` (standard error `se`, two-sided p-value `p_value`
@@ -252,9 +253,25 @@ impl Term {
     }
 }
 
-/// Inner product of two terms' signatures in the whitened metric, over every channel.
+/// Inner product of two terms' signatures in the whitened metric, over every channel: on a
+/// channel that is neither's own, the pulls' product through the columns' Gram matrix; on
+/// one term's own channel, its filtered regressor against the other's pull there.
 pub(super) fn gram(a: &Term, b: &Term) -> f64 {
-    dot_channels(&a.white, &b.white)
+    let (ca, cb) = (a.channel.index(), b.channel.index());
+    let mut g = if ca == cb {
+        dot(&a.white_own, &b.white_own)
+    } else {
+        let own_a = a.on_own_columns.as_ref();
+        let own_b = b.on_own_columns.as_ref();
+        -own_a.map_or(0.0, |m| m.dot(&b.projection.absorbed))
+            - own_b.map_or(0.0, |m| m.dot(&a.projection.absorbed))
+    };
+    for ch in (0..6).filter(|&ch| ch != ca && ch != cb) {
+        if let Some(p) = &a.pulled[ch] {
+            g += p.dot(&b.projection.absorbed);
+        }
+    }
+    g
 }
 
 /// The Gram matrix of `terms`.
@@ -281,7 +298,9 @@ pub(super) fn full_fit_residual(e: &[f64], terms: &[Term]) -> Vec<f64> {
     };
     let mut r = e.to_vec();
     for (t, b) in terms.iter().zip(beta.iter()) {
-        r.iter_mut().zip(&t.own).for_each(|(v, x)| *v -= b * x);
+        r.iter_mut()
+            .zip(t.own.iter())
+            .for_each(|(v, x)| *v -= b * x);
     }
     let m = r.iter().sum::<f64>() / r.len().max(1) as f64;
     r.iter_mut().for_each(|v| *v -= m);
@@ -506,14 +525,20 @@ mod tests {
             sample_rate_hz: 100.0,
             processes: vec![crate::gmwm::model::Process::WhiteNoise { sigma2: 0.0025 }],
         };
-        let mut whiteners: [Option<Whitener>; 6] = std::array::from_fn(|_| None);
-        whiteners[0] = Some(Whitener::new(&spec, e.len()));
+        let mut whiteners: [Option<super::super::whiten::Whitener>; 6] =
+            std::array::from_fn(|_| None);
+        whiteners[0] = Some(super::super::whiten::Whitener::new(&spec, e.len()));
         let mut errors: [Option<&[f64]>; 6] = [None; 6];
         errors[0] = Some(e);
-        let sims_of = |r: usize| -> [Option<Vec<f64>>; 6] {
-            std::array::from_fn(|ch| (ch == 0).then(|| sims[r].clone()))
-        };
-        let space = WhiteSpace::new(&absorber, whiteners, errors, sims.len(), &sims_of);
+        let sim_of = move |r: usize, ch: usize| (ch == 0).then(|| sims[r].clone());
+        let space = WhiteSpace::new(
+            absorber,
+            whiteners,
+            errors,
+            sims.len(),
+            Box::new(sim_of),
+            usize::MAX,
+        );
         let terms: Vec<Term> = columns
             .iter()
             .map(|(name, values)| {
@@ -523,7 +548,7 @@ mod tests {
                     cause: Cause::ScaleFactor,
                     axis: 0,
                 };
-                Term::new(&absorber, Channel::Gx, &c, &space)
+                Term::new(&space, Channel::Gx, &c)
             })
             .collect();
         let white_error = space.error(Channel::Gx).to_vec();

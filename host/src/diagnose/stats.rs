@@ -4,6 +4,7 @@
 //! estimate in physical units plus a test statistic that the discrepancy engine compares
 //! with the same statistic on series simulated from the baseline model.
 
+use rayon::prelude::*;
 use realfft::RealFftPlanner;
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{ContinuousCDF, Normal};
@@ -24,6 +25,46 @@ pub struct Psd {
     pub effective_segments: f64,
     /// Bin width, Hz.
     pub df_hz: f64,
+}
+
+/// A set of series visited one at a time, such as a channel's baseline simulations: held in
+/// memory, or drawn again at each visit (a long drive's thirty simulations would not fit).
+pub trait SeriesSet: Sync {
+    /// `f` of each of the first `count` series (all of them when there are fewer), in order.
+    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T>;
+
+    /// `f` of every series, in order.
+    fn map_each<T: Send>(&self, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+        self.map_first(usize::MAX, f)
+    }
+}
+
+impl SeriesSet for Vec<Vec<f64>> {
+    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+        self[..].map_first(count, f)
+    }
+}
+
+impl SeriesSet for [Vec<f64>] {
+    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+        self[..count.min(self.len())]
+            .par_iter()
+            .map(|s| f(s))
+            .collect()
+    }
+}
+
+/// Sum of squares and count of the values `of(series)` over every series of `set`.
+fn pooled_square_sum<S: SeriesSet + ?Sized>(
+    set: &S,
+    of: &(dyn Fn(&[f64]) -> Vec<f64> + Sync),
+) -> (f64, usize) {
+    set.map_each(&|s| {
+        let d = of(s);
+        (d.iter().map(|v| v * v).sum::<f64>(), d.len())
+    })
+    .into_iter()
+    .fold((0.0, 0), |(ss, n), (a, b)| (ss + a, n + b))
 }
 
 /// Welch PSD of `x` sampled every `dt_s`, with segments of `segment_len` samples (a power of
@@ -362,18 +403,17 @@ fn sharpness_series(x: &[f64], window: usize) -> Vec<f64> {
 /// over `x` itself). A step is as large at the shorter window, so this is small (standard
 /// normal); a change spread over the window (a ramp, slow wander) is smaller at the shorter
 /// window and this is large. NaN when it cannot be computed.
-pub fn step_sharpness(x: &[f64], index: usize, window: usize, sims: &[Vec<f64>]) -> f64 {
+pub fn step_sharpness<S: SeriesSet + ?Sized>(
+    x: &[f64],
+    index: usize,
+    window: usize,
+    sims: &S,
+) -> f64 {
     let observed = sharpness_series(x, window);
     let Some(&at) = index.checked_sub(window).and_then(|j| observed.get(j)) else {
         return f64::NAN;
     };
-    let mut pooled = (0.0, 0usize);
-    for s in sims {
-        for d in sharpness_series(s, window) {
-            pooled.0 += d * d;
-            pooled.1 += 1;
-        }
-    }
+    let pooled = pooled_square_sum(sims, &|s| sharpness_series(s, window));
     let simulated = (pooled.0 / pooled.1.max(1) as f64).sqrt();
     let mut abs: Vec<f64> = observed.iter().map(|d| d.abs()).collect();
     let mid = abs.len() / 2;
@@ -383,17 +423,22 @@ pub fn step_sharpness(x: &[f64], index: usize, window: usize, sims: &[Vec<f64>])
 
 /// Standard deviation of [`local_steps`] at each window over a set of series (simulations of
 /// the baseline), pooled over indices.
-pub fn local_step_null_sd(series: &[Vec<f64>], windows: &[usize]) -> Vec<f64> {
-    windows
-        .iter()
-        .map(|&w| {
-            let (mut ss, mut count) = (0.0, 0usize);
-            for s in series {
-                for d in local_steps(s, w) {
-                    ss += d * d;
-                    count += 1;
-                }
-            }
+pub fn local_step_null_sd<S: SeriesSet + ?Sized>(series: &S, windows: &[usize]) -> Vec<f64> {
+    // One visit of each series for every window: a drawn series is drawn once.
+    let per_series = series.map_each(&|s| {
+        windows
+            .iter()
+            .map(|&w| {
+                let d = local_steps(s, w);
+                (d.iter().map(|v| v * v).sum::<f64>(), d.len())
+            })
+            .collect::<Vec<_>>()
+    });
+    (0..windows.len())
+        .map(|k| {
+            let (ss, count) = per_series
+                .iter()
+                .fold((0.0, 0usize), |(ss, n), s| (ss + s[k].0, n + s[k].1));
             if count == 0 {
                 0.0
             } else {

@@ -17,7 +17,8 @@ use super::gain::{log_wv, simulate_channel};
 use super::null::{normal_p_value, poisson_upper_tail, wv_level_test, LevelTest};
 use super::readable::significant;
 use super::stats::{
-    find_outliers, noise_vs_dynamics, outlier_process, spectral_lines, welch_psd, SpectralLine,
+    find_outliers, noise_vs_dynamics, outlier_process, spectral_lines, welch_psd, SeriesSet,
+    SpectralLine,
 };
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, parameter_values, ModelChoice};
@@ -51,7 +52,7 @@ pub(super) fn find_stochastic_effects(
     spec: &ModelSpec,
     e: &[f64],
     mut resid: Vec<f64>,
-    sims: &[Vec<f64>],
+    sims: &impl SeriesSet,
 ) -> StochasticFindings {
     let mut found = StochasticFindings {
         findings: Vec::new(),
@@ -82,15 +83,12 @@ fn noise_growth(
     channel: Channel,
     e: &[f64],
     resid: &[f64],
-    sims: &[Vec<f64>],
+    sims: &impl SeriesSet,
     found: &mut StochasticFindings,
 ) -> Option<(f64, f64)> {
     let window = ((1.0 / run.dt_s) as usize).max(16);
     let nd = noise_vs_dynamics(resid, &run.omega_norm, window);
-    let sim_t: Vec<f64> = sims
-        .iter()
-        .map(|s| noise_vs_dynamics(s, &run.omega_norm, window).t)
-        .collect();
+    let sim_t: Vec<f64> = sims.map_each(&|s| noise_vs_dynamics(s, &run.omega_norm, window).t);
     let range = simulated_range(&sim_t);
     if !(nd.t > run.z_strict.max(range[1] * 1.5)
         && nd.sigma_per_unit > 0.0
@@ -131,7 +129,7 @@ fn outliers(
     e: &[f64],
     resid: &mut [f64],
     noise_scale: Option<(f64, f64)>,
-    sims: &[Vec<f64>],
+    sims: &impl SeriesSet,
     found: &mut StochasticFindings,
 ) {
     let n = run.n;
@@ -144,10 +142,7 @@ fn outliers(
         _ => resid.to_vec(),
     };
     let out = find_outliers(&input, 11, 6.0);
-    let sim_counts: Vec<f64> = sims
-        .iter()
-        .map(|s| find_outliers(s, 11, 6.0).indices.len() as f64)
-        .collect();
+    let sim_counts: Vec<f64> = sims.map_each(&|s| find_outliers(s, 11, 6.0).indices.len() as f64);
     let range = simulated_range(&sim_counts);
     if !(out.indices.len() >= 5 && out.indices.len() as f64 > range[1] + 3.0) {
         return;
@@ -278,23 +273,19 @@ fn vibration_lines(
     channel: Channel,
     e: &[f64],
     resid: &mut [f64],
-    sims: &[Vec<f64>],
+    sims: &impl SeriesSet,
     found: &mut StochasticFindings,
 ) {
     let (n, dt_s) = (run.n, run.dt_s);
     let seg = 1usize << ((n as f64 / 16.0).log2().floor() as u32).clamp(6, 12);
     let min_line_hz = (1.0f64).max(16.0 / (seg as f64 * dt_s));
     let lines = spectral_lines(&welch_psd(resid, dt_s, seg), run.alpha_test);
-    let sim_lines: Vec<f64> = sims
-        .iter()
-        .take(8)
-        .map(|s| {
-            spectral_lines(&welch_psd(s, dt_s, seg), run.alpha_test)
-                .iter()
-                .filter(|l| l.freq_hz >= min_line_hz)
-                .count() as f64
-        })
-        .collect();
+    let sim_lines: Vec<f64> = sims.map_first(8, &|s| {
+        spectral_lines(&welch_psd(s, dt_s, seg), run.alpha_test)
+            .iter()
+            .filter(|l| l.freq_hz >= min_line_hz)
+            .count() as f64
+    });
     for line in lines.iter().filter(|l| l.freq_hz >= min_line_hz) {
         let bin_hz = 1.0 / (seg as f64 * dt_s);
         let freq_hz = refine_line_frequency(line.freq_hz, bin_hz, resid, dt_s);
@@ -417,16 +408,13 @@ fn noise_change(
     channel: Channel,
     spec: &ModelSpec,
     resid: &[f64],
-    sims: &[Vec<f64>],
+    sims: &impl SeriesSet,
     found: &mut StochasticFindings,
 ) {
     let (dt_s, max_level) = (run.dt_s, run.max_wv_level());
     let measured_wv = log_wv(resid, dt_s, max_level);
     let sim_wv: Vec<Vec<f64>> = match found.effects.dynamic_noise {
-        None => sims
-            .par_iter()
-            .map(|s| log_wv(s, dt_s, max_level))
-            .collect(),
+        None => sims.map_each(&|s| log_wv(s, dt_s, max_level)),
         Some(_) => {
             let growth = ChannelModel {
                 dynamic_noise: found.effects.dynamic_noise,

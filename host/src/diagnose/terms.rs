@@ -7,16 +7,16 @@
 //! term moved the calibration drops out. Last, per channel, the kept terms as findings with
 //! their coefficients, intervals and shares of the error variance.
 
-use rayon::prelude::*;
 use serde_json::json;
 
 use super::engine::{ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run};
-use super::moments::Absorber;
 use super::moments::{
     eliminate_on_moments, full_fit_residual, gram_matrix, MeasuredSpread, Term, WhiteSpace,
 };
 use super::null::{normal_p_value, scan_p_value};
-use super::stats::{local_step_null_sd, local_step_robust_sd, local_step_scan, step_sharpness};
+use super::stats::{
+    local_step_null_sd, local_step_robust_sd, local_step_scan, step_sharpness, SeriesSet,
+};
 use super::whiten::Whitener;
 use crate::calibration::CalibrationDesign;
 use crate::model::{Cause, Channel};
@@ -102,45 +102,42 @@ fn candidates<'a>(run: &'a Run, channel: Channel) -> Vec<Candidate<'a>> {
 /// The run in the metric of generalised least squares: every channel filtered by the
 /// whitening filter of its baseline model, the errors and each replicate's baseline
 /// simulations after the calibration.
-fn white_space(run: &Run) -> Result<WhiteSpace, DiagnoseError> {
+fn white_space<'a>(run: &'a Run) -> Result<WhiteSpace<'a>, DiagnoseError> {
     let mut whiteners: [Option<Whitener>; 6] = std::array::from_fn(|_| None);
     for channel in &run.channels {
         whiteners[channel.index()] = Some(Whitener::new(run.spec(*channel)?, run.n));
     }
     let errors: [Option<&[f64]>; 6] =
         std::array::from_fn(|i| run.signals.error_of(Channel::ALL[i]));
-    // Every channel's baseline simulations of one replicate (the ones every stage draws).
-    let sims_of = |r: usize| -> [Option<Vec<f64>>; 6] {
-        std::array::from_fn(|i| {
-            let channel = Channel::ALL[i];
-            let slot = run.channels.iter().position(|c| *c == channel)?;
-            Some(run.baseline_sim(slot, r))
-        })
+    // A channel's baseline simulation of one replicate (the ones every stage draws).
+    let sim_of = move |r: usize, i: usize| -> Option<Vec<f64>> {
+        let channel = Channel::ALL[i];
+        let slot = run.channels.iter().position(|c| *c == channel)?;
+        Some(run.baseline_sim(slot, r))
     };
     // Static data has no candidate terms and a step's coefficient is its own estimate, so
-    // nothing is fitted against the simulations there: none are filtered (on a long static
-    // record they would hold six channels times the replicates in memory for nothing).
+    // nothing is fitted against the simulations there: none are filtered.
     let replicates = if run.has_dynamics {
         run.opts.replicates
     } else {
         0
     };
     Ok(WhiteSpace::new(
-        &run.absorber(),
+        run.absorber(),
         whiteners,
         errors,
         replicates,
-        &sims_of,
+        Box::new(sim_of),
+        run.opts.held_samples,
     ))
 }
 
 /// The stepwise selection of one channel's terms, with what it needs of the channel: its
 /// error and the run in the metric of generalised least squares.
 struct Selection<'a> {
-    absorber: Absorber<'a>,
     channel: Channel,
     e: &'a [f64],
-    space: &'a WhiteSpace,
+    space: &'a WhiteSpace<'a>,
     z_strict: f64,
     min_variance_explained: f64,
 }
@@ -148,10 +145,7 @@ struct Selection<'a> {
 impl Selection<'_> {
     /// Every candidate as a term fitted with the calibration, coefficients not yet set.
     fn terms(&self, cands: &[Candidate]) -> Vec<Term> {
-        cands
-            .par_iter()
-            .map(|c| Term::new(&self.absorber, self.channel, c, self.space))
-            .collect()
+        Term::batch(self.space, self.channel, cands)
     }
 
     /// Backward elimination with simulation-calibrated standard errors: the baseline noise
@@ -230,7 +224,7 @@ fn find_bias_step(
     run: &Run,
     channel: Channel,
     mut resid: Vec<f64>,
-    sims: &[Vec<f64>],
+    sims: &impl SeriesSet,
     steps_elsewhere: Option<&[f64]>,
 ) -> Option<FoundStep> {
     let windows: Vec<usize> = (6..20)
@@ -242,9 +236,9 @@ fn find_bias_step(
         resid.iter_mut().zip(spill).for_each(|(r, s)| *r += s);
     }
     let sim_z: Vec<f64> = sims
-        .par_iter()
-        .filter_map(|s| local_step_scan(s, &windows, &null_sd))
-        .map(|m| m.z)
+        .map_each(&|s| local_step_scan(s, &windows, &null_sd).map(|m| m.z))
+        .into_iter()
+        .flatten()
         .collect();
     let range = simulated_range(&sim_z);
     // The residual is scaled by its own noise where that is larger than the baseline's (a
@@ -315,9 +309,7 @@ fn channel_terms(
     let cands = candidates(run, channel);
     // Baseline simulations: the null distribution of the step scan.
     let sims = run.baseline_sims(slot);
-    let absorber = run.absorber();
     let selection = Selection {
-        absorber,
         channel,
         e,
         space,
@@ -350,7 +342,7 @@ fn channel_terms(
                 cause: Cause::BiasShift,
                 axis: 0,
             };
-            let mut step_term = Term::new(&absorber, channel, &candidate, space);
+            let mut step_term = Term::new(space, channel, &candidate);
             step_term.fix(size, se, p_value);
             step_at_s = Some(at_s);
             terms = selection.select(candidate_terms, Some(&step_term));
@@ -377,27 +369,21 @@ pub(super) fn find_terms(run: &Run) -> Result<Vec<ChannelTerms>, DiagnoseError> 
         channel_terms(run, &space, slot, channel, steps_elsewhere)
     };
     let first: Vec<Result<ChannelTerms, DiagnoseError>> = run
-        .channels
-        .par_iter()
-        .enumerate()
-        .map(|(slot, &channel)| stage1(slot, channel, None))
-        .collect();
+        .per_channel(vec![(); run.channels.len()], |slot, channel, ()| {
+            stage1(slot, channel, None)
+        });
     let mut per_channel: Vec<ChannelTerms> = first.into_iter().collect::<Result<_, _>>()?;
     // Steps found, their pull on the calibration given back to the other channels, and
     // the scan run again there.
     if let Some(design) = run.design {
         let spills = step_spills(design, run, &per_channel);
-        let again: Vec<Result<Option<ChannelTerms>, DiagnoseError>> = run
-            .channels
-            .par_iter()
-            .enumerate()
-            .map(|(slot, &channel)| {
-                spills[slot]
+        let again: Vec<Result<Option<ChannelTerms>, DiagnoseError>> =
+            run.per_channel(spills, |slot, channel, spill| {
+                spill
                     .as_deref()
                     .map(|s| stage1(slot, channel, Some(s)))
                     .transpose()
-            })
-            .collect();
+            });
         for (slot, redone) in again.into_iter().enumerate() {
             if let Some(r) = redone? {
                 per_channel[slot] = r;

@@ -1,0 +1,254 @@
+//! The run as generalised least squares sees it ([`WhiteSpace`]): per channel the whitening
+//! filter of its baseline noise model, the calibrated error filtered, and what every
+//! deterministic term's fit needs of the baseline simulations after the same calibration and
+//! filter. A term's signature on the channels other than its own is what the calibration's
+//! pull leaves there, minus the calibration's columns times what it absorbed, so its inner
+//! products there reduce to small moments of the filtered columns (their Gram matrix, their
+//! products with the error and with each simulation); only the term's own channel needs a
+//! simulation whole. On a long drive the simulations are therefore drawn again, one channel
+//! at a time, whenever a batch of terms needs them (same seeds, same series), and memory does
+//! not grow with the replicates; on a short one they are held, which is faster.
+
+use nalgebra::{DMatrix, DVector};
+use rayon::prelude::*;
+
+use super::moments::Absorber;
+use super::whiten::Whitener;
+use crate::model::Channel;
+
+/// Baseline simulation `r` of channel index `ch` (0..6, gx..az), None where the run has no
+/// such channel.
+pub(super) type SimOf<'a> = Box<dyn Fn(usize, usize) -> Option<Vec<f64>> + Sync + 'a>;
+
+/// A series per channel (gx..az), None where the run has none.
+type PerChannel = [Option<Vec<f64>>; 6];
+
+/// The calibration's columns on one channel, filtered, as moments: their Gram matrix and
+/// their inner products with the filtered error and with each filtered simulation.
+struct Columns {
+    gram: DMatrix<f64>,
+    on_error: DVector<f64>,
+    on_sims: Vec<DVector<f64>>,
+}
+
+/// See the module documentation.
+pub(super) struct WhiteSpace<'a> {
+    absorber: Absorber<'a>,
+    whiteners: [Option<Whitener>; 6],
+    errors: [Option<Vec<f64>>; 6],
+    replicates: usize,
+    sim_of: SimOf<'a>,
+    /// Per replicate, the calibration parameters a fit of its simulations on every channel
+    /// takes (with a calibration design; None without).
+    theta: Vec<Option<DVector<f64>>>,
+    /// Per channel the calibration reaches (with a design), its filtered columns' moments.
+    columns: [Option<Columns>; 6],
+    /// Every replicate's filtered calibrated simulations, when they fit the budget.
+    held: Option<Vec<PerChannel>>,
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+impl<'a> WhiteSpace<'a> {
+    /// `errors`: every channel's error (None where absent); `sim_of(r, ch)`: channel `ch`'s
+    /// baseline simulation of replicate r, for r in 0..replicates. The filtered simulations
+    /// are held when replicates times epochs is at most `held_samples`.
+    pub fn new(
+        absorber: Absorber<'a>,
+        whiteners: [Option<Whitener>; 6],
+        errors: [Option<&[f64]>; 6],
+        replicates: usize,
+        sim_of: SimOf<'a>,
+        held_samples: usize,
+    ) -> Self {
+        let n = errors.iter().flatten().map(|e| e.len()).max().unwrap_or(0);
+        let calibrated = absorber.calibrate(&errors);
+        let errors = std::array::from_fn(|ch| {
+            let w = whiteners[ch].as_ref()?;
+            calibrated[ch].as_ref().map(|y| w.apply(y))
+        });
+        let mut space = WhiteSpace {
+            absorber,
+            whiteners,
+            errors,
+            replicates,
+            sim_of,
+            theta: vec![None; replicates],
+            columns: std::array::from_fn(|_| None),
+            held: None,
+        };
+        let hold = replicates.saturating_mul(n) <= held_samples;
+        space.draw_replicates(hold);
+        let columns = std::array::from_fn(|ch| space.columns_of(ch));
+        space.columns = columns;
+        space
+    }
+
+    /// One pass over the replicates: each one's calibration parameters, and its filtered
+    /// calibrated simulations when `hold`.
+    fn draw_replicates(&mut self, hold: bool) {
+        let Absorber::Design(design) = self.absorber else {
+            if hold {
+                let held = (0..self.replicates)
+                    .into_par_iter()
+                    .map(|r| std::array::from_fn(|ch| self.white_sim(r, ch)))
+                    .collect();
+                self.held = Some(held);
+            }
+            return;
+        };
+        let drawn: Vec<(DVector<f64>, Option<PerChannel>)> = (0..self.replicates)
+            .into_par_iter()
+            .map(|r| {
+                let sims: [Option<Vec<f64>>; 6] =
+                    std::array::from_fn(|ch| self.whiteners[ch].as_ref().and((self.sim_of)(r, ch)));
+                let theta = design.bread()
+                    * design.moments_all(&std::array::from_fn(|ch| sims[ch].as_deref()));
+                let white = hold.then(|| {
+                    let mut sims = sims;
+                    std::array::from_fn(|ch| {
+                        let y = sims[ch].take()?;
+                        Some(self.filter(ch, y, Some(&theta)))
+                    })
+                });
+                (theta, white)
+            })
+            .collect();
+        let (theta, held): (Vec<_>, Vec<_>) = drawn.into_iter().unzip();
+        self.theta = theta.into_iter().map(Some).collect();
+        self.held = held.into_iter().collect();
+    }
+
+    /// `y` on channel `ch` after the calibration (parameters `theta` with a design, the
+    /// mean without one), filtered.
+    fn filter(&self, ch: usize, mut y: Vec<f64>, theta: Option<&DVector<f64>>) -> Vec<f64> {
+        match (self.absorber, theta) {
+            (Absorber::Design(d), Some(theta)) if d.has_channel(ch) => {
+                y.iter_mut()
+                    .zip(d.fitted(ch, theta))
+                    .for_each(|(v, f)| *v -= f);
+            }
+            (Absorber::Design(_), _) => {}
+            (Absorber::Mean, _) => {
+                let m = y.iter().sum::<f64>() / y.len().max(1) as f64;
+                y.iter_mut().for_each(|v| *v -= m);
+            }
+        }
+        self.whiteners[ch]
+            .as_ref()
+            .expect("a filtered channel has its whitener")
+            .apply(&y)
+    }
+
+    /// Replicate `r`'s filtered calibrated simulation of channel `ch`, drawn again unless
+    /// held.
+    fn white_sim(&self, r: usize, ch: usize) -> Option<Vec<f64>> {
+        if let Some(held) = &self.held {
+            return held[r][ch].clone();
+        }
+        self.whiteners[ch].as_ref()?;
+        let y = (self.sim_of)(r, ch)?;
+        Some(self.filter(ch, y, self.theta[r].as_ref()))
+    }
+
+    /// `f` of replicate `r`'s filtered simulation of channel `ch` (None where absent).
+    fn with_white_sim<T>(&self, r: usize, ch: usize, f: impl FnOnce(&[f64]) -> T) -> Option<T> {
+        match &self.held {
+            Some(held) => held[r][ch].as_deref().map(f),
+            None => self.white_sim(r, ch).map(|s| f(&s)),
+        }
+    }
+
+    /// The calibration's columns on channel `ch`, each filtered (None without a design
+    /// reaching the channel, or without the channel).
+    fn white_columns(&self, ch: usize) -> Option<Vec<Vec<f64>>> {
+        self.on_white_columns(ch, &|column| column.to_vec())
+    }
+
+    /// `f` of each of the calibration's filtered columns on channel `ch`, in order (None
+    /// without a design reaching the channel, or without the channel); a column at a time
+    /// is held.
+    pub fn on_white_columns<T: Send>(
+        &self,
+        ch: usize,
+        f: &(dyn Fn(&[f64]) -> T + Sync),
+    ) -> Option<Vec<T>> {
+        let Absorber::Design(d) = self.absorber else {
+            return None;
+        };
+        let w = self.whiteners[ch].as_ref().filter(|_| d.has_channel(ch))?;
+        let p = d.parameters();
+        Some(
+            (0..p)
+                .into_par_iter()
+                .map(|k| {
+                    let unit = DVector::from_fn(p, |a, _| f64::from(a == k));
+                    f(&w.apply(&d.fitted(ch, &unit)))
+                })
+                .collect(),
+        )
+    }
+
+    fn columns_of(&self, ch: usize) -> Option<Columns> {
+        let x = self.white_columns(ch)?;
+        let p = x.len();
+        let moments = |y: &[f64]| DVector::from_iterator(p, x.iter().map(|c| dot(c, y)));
+        let error = self.errors[ch].as_deref()?;
+        let on_sims = (0..self.replicates)
+            .into_par_iter()
+            .map(|r| {
+                self.with_white_sim(r, ch, moments)
+                    .expect("a channel of the run has its simulations")
+            })
+            .collect();
+        Some(Columns {
+            gram: DMatrix::from_fn(p, p, |a, b| dot(&x[a], &x[b])),
+            on_error: moments(error),
+            on_sims,
+        })
+    }
+
+    /// The filtered calibrated error of `channel`.
+    pub fn error(&self, channel: Channel) -> &[f64] {
+        self.errors[channel.index()]
+            .as_deref()
+            .expect("a channel of the run")
+    }
+
+    /// The whitening filter of channel index `ch`.
+    pub fn whitener(&self, ch: usize) -> Option<&Whitener> {
+        self.whiteners[ch].as_ref()
+    }
+
+    pub fn absorber(&self) -> Absorber<'a> {
+        self.absorber
+    }
+
+    /// The Gram matrix of channel `ch`'s filtered calibration columns.
+    pub fn column_gram(&self, ch: usize) -> Option<&DMatrix<f64>> {
+        self.columns[ch].as_ref().map(|c| &c.gram)
+    }
+
+    /// Channel `ch`'s filtered calibration columns' inner products with its filtered error.
+    pub fn columns_on_error(&self, ch: usize) -> Option<&DVector<f64>> {
+        self.columns[ch].as_ref().map(|c| &c.on_error)
+    }
+
+    /// The same with replicate `r`'s filtered simulation.
+    pub fn columns_on_sim(&self, ch: usize, r: usize) -> Option<&DVector<f64>> {
+        self.columns[ch].as_ref().map(|c| &c.on_sims[r])
+    }
+
+    /// For every replicate (in order), `f` of its filtered simulation of channel `ch`.
+    pub fn map_white_sims<T: Send>(&self, ch: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+        (0..self.replicates)
+            .into_par_iter()
+            .map(|r| {
+                self.with_white_sim(r, ch, f)
+                    .expect("a channel of the run has its simulations")
+            })
+            .collect()
+    }
+}
