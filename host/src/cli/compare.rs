@@ -36,8 +36,12 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             "--model auto: a comparison needs one model for both fits; give it, e.g. \"WN+GM+GM\""
         );
     }
-    let a = fit_file(&args.static_file, &args.input, &choice, None)?;
-    let b = fit_file(&args.dynamic_file, &args.input, &choice, None)?;
+    let bar = super::working(&format!("fitting {}", args.static_file.display()));
+    let a = fit_file(&args.static_file, &args.input, &choice, None);
+    bar.set_message(format!("fitting {}", args.dynamic_file.display()));
+    let b = a.and_then(|a| Ok((a, fit_file(&args.dynamic_file, &args.input, &choice, None)?)));
+    bar.finish_and_clear();
+    let (a, b) = b?;
     let mut channels = Vec::new();
     for fa in &a {
         let Some(fb) = b.iter().find(|f| f.channel == fa.channel) else {

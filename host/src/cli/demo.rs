@@ -73,7 +73,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         data_dir: dynacal::data_dir(),
         firmware_elf: elf,
     };
-    let bar = ProgressBar::new(STAGES.len() as u64);
+    let bar = super::bars().add(ProgressBar::new(STAGES.len() as u64));
     bar.set_style(
         ProgressStyle::with_template("{spinner} [{bar:30}] {pos}/{len} {msg} ({elapsed})")
             .context("progress template")?

@@ -42,14 +42,20 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         estimate_time_offset: !args.no_time_offset,
         max_time_offset_s: args.max_time_offset,
     };
-    let (signals, summary) =
-        build_error_signals(&sensor, &reference, &opts).with_context(|| {
-            format!(
-                "sensor {} against reference {}",
-                args.sensor.display(),
-                args.reference.display()
-            )
-        })?;
+    let bar = super::working(&format!(
+        "calibrating {} against {}",
+        args.sensor.display(),
+        args.reference.display()
+    ));
+    let built = build_error_signals(&sensor, &reference, &opts);
+    bar.finish_and_clear();
+    let (signals, summary) = built.with_context(|| {
+        format!(
+            "sensor {} against reference {}",
+            args.sensor.display(),
+            args.reference.display()
+        )
+    })?;
     signals.write(&args.out)?;
     if let Some(json) = &args.json {
         dynacal::output::write_json_atomic(json, &summary)

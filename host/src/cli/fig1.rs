@@ -24,7 +24,10 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let run = fig1(args.seconds, args.seed)?;
+    let bar = super::working("simulating and calibrating the Fig. 1 run");
+    let run = fig1(args.seconds, args.seed);
+    bar.finish_and_clear();
+    let run = run?;
     let svg = fig1_svg(&run)?;
     // fig1.json last: the completion marker of the folder's set (`dynacal::output::FileSet`).
     let mut set = FileSet::create(&args.out, Some("fig1.json"))

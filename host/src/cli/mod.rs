@@ -67,10 +67,63 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
     }
 }
 
+/// Every bar a command draws, on stderr (hidden when stderr is not a terminal): one
+/// MultiProgress, so an input file's read bar and a stage's spinner or bar do not overwrite
+/// each other. Add a bar with `bars().add(..)`.
+pub(crate) fn bars() -> &'static indicatif::MultiProgress {
+    static BARS: std::sync::OnceLock<indicatif::MultiProgress> = std::sync::OnceLock::new();
+    BARS.get_or_init(indicatif::MultiProgress::new)
+}
+
+/// Smallest input file that gets a read bar: smaller ones are read in a blink.
+const READ_BAR_MIN_BYTES: u64 = 8 << 20;
+
+/// Read bars of the input files being read ([`show_reading`]).
+#[derive(Default)]
+struct ReadBars {
+    open: std::sync::Mutex<std::collections::HashMap<u64, indicatif::ProgressBar>>,
+    next: std::sync::atomic::AtomicU64,
+}
+
+impl dynacal::interchange::progress::ReadProgress for ReadBars {
+    fn started(&self, path: &std::path::Path, size_bytes: u64) -> u64 {
+        let handle = self.next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        if size_bytes >= READ_BAR_MIN_BYTES {
+            let bar = bars().add(indicatif::ProgressBar::new(size_bytes));
+            if let Ok(style) = indicatif::ProgressStyle::with_template(
+                "{spinner} reading {msg} [{bar:30}] {bytes}/{total_bytes}, {bytes_per_sec}, eta {eta}",
+            ) {
+                bar.set_style(style.progress_chars("=> "));
+            }
+            let name = path.file_name().unwrap_or(path.as_os_str());
+            bar.set_message(name.to_string_lossy().into_owned());
+            if let Ok(mut open) = self.open.lock() {
+                open.insert(handle, bar);
+            }
+        }
+        handle
+    }
+    fn advanced(&self, handle: u64, bytes: u64) {
+        if let Some(bar) = self.open.lock().ok().and_then(|o| o.get(&handle).cloned()) {
+            bar.inc(bytes);
+        }
+    }
+    fn finished(&self, handle: u64) {
+        if let Some(bar) = self.open.lock().ok().and_then(|mut o| o.remove(&handle)) {
+            bar.finish_and_clear();
+        }
+    }
+}
+
+/// Draws a read bar on stderr for every large input file the command reads.
+pub(crate) fn show_reading() {
+    dynacal::interchange::progress::observe_reading(Box::new(ReadBars::default()));
+}
+
 /// A spinner with `message` and the elapsed time on stderr while long work runs (hidden when
 /// stderr is not a terminal); finish it with `finish_and_clear`.
 pub(crate) fn working(message: &str) -> indicatif::ProgressBar {
-    let bar = indicatif::ProgressBar::new_spinner();
+    let bar = bars().add(indicatif::ProgressBar::new_spinner());
     if let Ok(style) = indicatif::ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
         bar.set_style(style);
     }

@@ -52,13 +52,26 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     };
     let regs = sig.regressors();
     let mut reports: Vec<(&str, RegressionReport)> = Vec::new();
+    let bar = super::working(&format!("regressing {}", args.errors.display()));
     for ch in CHANNELS {
         if let Some(y) = sig.error(ch) {
+            bar.set_message(format!(
+                "regressing {}: channel {ch}",
+                args.errors.display()
+            ));
             let rep = backward_elimination(y, &regs, &opts)
-                .with_context(|| format!("{}: channel {ch}", args.errors.display()))?;
+                .with_context(|| format!("{}: channel {ch}", args.errors.display()));
+            let rep = match rep {
+                Ok(rep) => rep,
+                Err(e) => {
+                    bar.finish_and_clear();
+                    return Err(e);
+                }
+            };
             reports.push((ch, rep));
         }
     }
+    bar.finish_and_clear();
     print!("{}", format_table(&reports));
     if let Some(out) = &args.json {
         let map: serde_json::Map<String, serde_json::Value> = reports

@@ -57,7 +57,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         keep_ideal: args.ideal,
     };
     let total = sim::total_samples(&model, args.seconds);
-    let bar = ProgressBar::new(total);
+    let bar = super::bars().add(ProgressBar::new(total));
     bar.set_style(
         ProgressStyle::with_template(
             "{spinner} simulating [{bar:40}] {percent}% {human_pos}/{human_len} samples, eta {eta}",

@@ -1,0 +1,170 @@
+//! How far the reading of an input file has come, for a progress bar: every file the host
+//! reads goes through [`crate::interchange::open_maybe_gz`], which counts the bytes taken
+//! from the file on disk (compressed bytes for a gzip file, so the share is right either
+//! way) and tells the process's [`ReadProgress`] observer, if one is installed. The library
+//! draws nothing; the `dynacal` binary installs an observer that draws a bar on stderr.
+
+use std::io::Read;
+use std::path::Path;
+use std::sync::OnceLock;
+
+/// What is told of a file being read. One file's calls come from one thread, in order:
+/// `started`, `advanced` as bytes come, `finished` once (when the reader is dropped).
+pub trait ReadProgress: Send + Sync {
+    /// Reading of `path` (`size_bytes` on disk) starts; returns the handle its later calls
+    /// carry (several files may be open at once).
+    fn started(&self, path: &Path, size_bytes: u64) -> u64;
+    /// `bytes` more of file `handle` were read.
+    fn advanced(&self, handle: u64, bytes: u64);
+    /// File `handle` is closed.
+    fn finished(&self, handle: u64);
+}
+
+static OBSERVER: OnceLock<Box<dyn ReadProgress>> = OnceLock::new();
+
+/// Installs the process's observer of file reading; false if one already was.
+pub fn observe_reading(observer: Box<dyn ReadProgress>) -> bool {
+    OBSERVER.set(observer).is_ok()
+}
+
+/// Bytes between two reports: often enough for a bar, rarely enough to cost nothing.
+const REPORT_EVERY_BYTES: u64 = 1 << 20;
+
+/// A reader that counts what it takes from `inner` and reports it to the observer.
+pub(crate) struct Counted<R> {
+    inner: R,
+    handle: Option<u64>,
+    unreported: u64,
+}
+
+impl<R: Read> Counted<R> {
+    /// `inner` reading `path` of `size_bytes`; reports nothing when no observer is installed.
+    pub fn new(inner: R, path: &Path, size_bytes: u64) -> Self {
+        Self::reporting_to(OBSERVER.get().map(|o| o.as_ref()), inner, path, size_bytes)
+    }
+
+    fn reporting_to(
+        observer: Option<&dyn ReadProgress>,
+        inner: R,
+        path: &Path,
+        size_bytes: u64,
+    ) -> Self {
+        Counted {
+            inner,
+            handle: observer.map(|o| o.started(path, size_bytes)),
+            unreported: 0,
+        }
+    }
+
+    fn report(&mut self) {
+        if let (Some(h), Some(o)) = (self.handle, OBSERVER.get()) {
+            if self.unreported > 0 {
+                o.advanced(h, self.unreported);
+            }
+        }
+        self.unreported = 0;
+    }
+}
+
+impl<R: Read> Read for Counted<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.unreported += n as u64;
+        if self.unreported >= REPORT_EVERY_BYTES || n == 0 {
+            self.report();
+        }
+        Ok(n)
+    }
+}
+
+impl<R> Drop for Counted<R> {
+    fn drop(&mut self) {
+        if let (Some(h), Some(o)) = (self.handle, OBSERVER.get()) {
+            if self.unreported > 0 {
+                o.advanced(h, self.unreported);
+            }
+            o.finished(h);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::sync::Mutex;
+
+    /// Records every call, for the process-wide observer of this test binary.
+    #[derive(Default)]
+    struct Recorder {
+        calls: Mutex<Vec<(String, u64, u64)>>,
+    }
+
+    impl ReadProgress for &'static Recorder {
+        fn started(&self, path: &Path, size_bytes: u64) -> u64 {
+            let mut calls = self.calls.lock().unwrap();
+            let handle = calls.len() as u64;
+            calls.push((path.display().to_string(), handle, size_bytes));
+            handle
+        }
+        fn advanced(&self, handle: u64, bytes: u64) {
+            self.calls
+                .lock()
+                .unwrap()
+                .push(("advanced".into(), handle, bytes));
+        }
+        fn finished(&self, handle: u64) {
+            self.calls
+                .lock()
+                .unwrap()
+                .push(("finished".into(), handle, 0));
+        }
+    }
+
+    /// A gzip file read through `open_maybe_gz` reports its compressed size, bytes adding up
+    /// to it, and one `finished`, whether it is read to the end or dropped early.
+    #[test]
+    fn reading_reports_the_bytes_on_disk_and_one_finish() {
+        static RECORDER: OnceLock<Recorder> = OnceLock::new();
+        let recorder: &'static Recorder = RECORDER.get_or_init(Recorder::default);
+        assert!(observe_reading(Box::new(recorder)));
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("rows.csv.gz");
+        let text: String = (0..200_000).map(|i| format!("{i},{}\n", i * 7)).collect();
+        let mut gz = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        std::io::Write::write_all(&mut gz, text.as_bytes()).unwrap();
+        let bytes = gz.finish().unwrap();
+        std::fs::write(&path, &bytes).unwrap();
+        let mut whole = String::new();
+        crate::interchange::open_maybe_gz(&path)
+            .unwrap()
+            .read_to_string(&mut whole)
+            .unwrap();
+        assert_eq!(whole, text);
+        let mut first = [0u8; 10];
+        crate::interchange::open_maybe_gz(&path)
+            .unwrap()
+            .read_exact(&mut first)
+            .unwrap();
+        let calls = recorder.calls.lock().unwrap().clone();
+        let of = |h: u64, what: &str| -> Vec<u64> {
+            calls
+                .iter()
+                .filter(|c| c.1 == h && c.0 == what)
+                .map(|c| c.2)
+                .collect()
+        };
+        let opened: Vec<&(String, u64, u64)> = calls
+            .iter()
+            .filter(|c| c.0 == path.display().to_string())
+            .collect();
+        assert_eq!(opened.len(), 2, "{calls:?}");
+        let handles: Vec<u64> = opened.iter().map(|c| c.1).collect();
+        for (_, h, size) in &opened {
+            assert_eq!(*size, bytes.len() as u64);
+            assert_eq!(of(*h, "finished").len(), 1, "{calls:?}");
+        }
+        let read = |h: u64| of(h, "advanced").iter().sum::<u64>();
+        assert_eq!(read(handles[0]), bytes.len() as u64, "read to the end");
+        assert!(read(handles[1]) < bytes.len() as u64, "dropped early");
+    }
+}
