@@ -4,7 +4,7 @@
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use super::epochs::EpochData;
-use super::least_squares::{design_rows, normal_matrix_inverse, Layout, MAX_PARAMETERS};
+use super::least_squares::{design_row, normal_matrix_inverse, Layout, MAX_PARAMETERS};
 
 /// The linear model the calibration fitted, at its solution: what it would have absorbed
 /// from any other error. The discrepancy engine uses it to estimate per-channel terms
@@ -67,14 +67,15 @@ impl CalibrationDesign {
         };
         (0..count).map(move |k| {
             let at = |v: &[Vec<f64>; 3]| Vector3::new(v[0][k], v[1][k], v[2][k]);
-            design_rows(
+            design_row(
                 &self.layout,
                 &self.omega_ib_b_rad_s[k],
                 &self.f_b_m_s2[k],
                 &at(&self.omega_dot_b_rad_s2),
                 &at(&self.f_dot_b_m_s3),
                 accel,
-            )[channel % 3]
+                channel % 3,
+            )
         })
     }
     /// (X'WX)^-1 of the calibration's weighted least squares.

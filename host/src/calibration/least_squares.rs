@@ -71,36 +71,68 @@ pub(super) fn design_rows(
     f_dot_m_s3: &Vector3<f64>,
     accel: bool,
 ) -> [[f64; MAX_PARAMETERS]; 3] {
-    let mut rows = [[0.0; MAX_PARAMETERS]; 3];
-    let s = skew(if accel { f_m_s2 } else { omega_rad_s });
-    let ww = skew(omega_rad_s);
-    let lever_matrix = skew(omega_dot_rad_s2) + ww * ww;
-    for (i, x) in rows.iter_mut().enumerate() {
-        for j in 0..3 {
-            x[j] = s[(i, j)];
+    std::array::from_fn(|i| {
+        design_row(
+            layout,
+            omega_rad_s,
+            f_m_s2,
+            omega_dot_rad_s2,
+            f_dot_m_s3,
+            accel,
+            i,
+        )
+    })
+}
+
+/// Row `i` of [`skew`]`(v)`.
+fn skew_row(v: &Vector3<f64>, i: usize) -> [f64; 3] {
+    match i {
+        0 => [0.0, -v.z, v.y],
+        1 => [v.z, 0.0, -v.x],
+        _ => [-v.y, v.x, 0.0],
+    }
+}
+
+/// Row `i` (axis x, y, z = 0, 1, 2) of [`design_rows`], alone: the diagnosis asks for one
+/// channel's rows at a time, and the calibration's normal equations for every epoch's, many
+/// times over, so it is written out in scalars (the lever arm's skew(omega_dot) +
+/// skew(omega)^2 row is skew(omega_dot)'s row plus omega_i omega_j - |omega|^2 delta_ij).
+pub(super) fn design_row(
+    layout: &Layout,
+    omega_rad_s: &Vector3<f64>,
+    f_m_s2: &Vector3<f64>,
+    omega_dot_rad_s2: &Vector3<f64>,
+    f_dot_m_s3: &Vector3<f64>,
+    accel: bool,
+    i: usize,
+) -> [f64; MAX_PARAMETERS] {
+    let mut x = [0.0; MAX_PARAMETERS];
+    x[..3].copy_from_slice(&skew_row(if accel { f_m_s2 } else { omega_rad_s }, i));
+    if accel {
+        if let Some(ba) = layout.ba() {
+            x[ba + i] = 1.0;
         }
-        if accel {
-            if let Some(ba) = layout.ba() {
-                x[ba + i] = 1.0;
+        if let Some(l) = layout.lever() {
+            let w = omega_rad_s;
+            let w2 = w.norm_squared();
+            let dot_row = skew_row(omega_dot_rad_s2, i);
+            for j in 0..3 {
+                let delta = if i == j { w2 } else { 0.0 };
+                x[l + j] = dot_row[j] + w[i] * w[j] - delta;
             }
-            if let Some(l) = layout.lever() {
-                for j in 0..3 {
-                    x[l + j] = lever_matrix[(i, j)];
-                }
-            }
-            if let Some(t) = layout.time() {
-                x[t + 3 + i] = -f_dot_m_s3[i];
-            }
-        } else {
-            if let Some(bg) = layout.bg() {
-                x[bg + i] = 1.0;
-            }
-            if let Some(t) = layout.time() {
-                x[t + i] = -omega_dot_rad_s2[i];
-            }
+        }
+        if let Some(t) = layout.time() {
+            x[t + 3 + i] = -f_dot_m_s3[i];
+        }
+    } else {
+        if let Some(bg) = layout.bg() {
+            x[bg + i] = 1.0;
+        }
+        if let Some(t) = layout.time() {
+            x[t + i] = -omega_dot_rad_s2[i];
         }
     }
-    rows
+    x
 }
 
 /// Inverse of a normal matrix X'WX, or None when it is near singular (rather than return

@@ -376,12 +376,14 @@ pub(super) fn find_terms(run: &Run) -> Result<Vec<ChannelTerms>, DiagnoseError> 
     // Steps found, their pull on the calibration given back to the other channels, and
     // the scan run again there.
     if let Some(design) = run.design {
-        let spills = step_spills(design, run, &per_channel);
+        let steps: Vec<&Term> = per_channel
+            .iter()
+            .flat_map(|c| c.terms.iter().filter(|t| t.fixed.is_some()))
+            .collect();
         let again: Vec<Result<Option<ChannelTerms>, DiagnoseError>> =
-            run.per_channel(spills, |slot, channel, spill| {
-                spill
-                    .as_deref()
-                    .map(|s| stage1(slot, channel, Some(s)))
+            run.per_channel(vec![(); run.channels.len()], |slot, channel, ()| {
+                step_spill(design, run, &steps, channel)
+                    .map(|s| stage1(slot, channel, Some(&s)))
                     .transpose()
             });
         for (slot, redone) in again.into_iter().enumerate() {
@@ -414,37 +416,30 @@ pub(super) fn find_terms(run: &Run) -> Result<Vec<ChannelTerms>, DiagnoseError> 
     Ok(per_channel)
 }
 
-/// Per channel (run slot), what the bias steps found on the other channels took from it
-/// through the calibration (None where no other channel has a step): each step's
+/// What the bias steps found on the other channels (`steps`: every channel's) took from
+/// `channel` through the calibration (None where no other channel has a step): each step's
 /// coefficient times the calibration's fit of what it absorbed of the step, on this
-/// channel's rows.
-fn step_spills(
+/// channel's rows. Made when the channel's scan runs again, so one channel's is held at a
+/// time.
+fn step_spill(
     design: &CalibrationDesign,
     run: &Run,
-    per_channel: &[ChannelTerms],
-) -> Vec<Option<Vec<f64>>> {
-    let steps: Vec<&Term> = per_channel
-        .iter()
-        .flat_map(|c| c.terms.iter().filter(|t| t.fixed.is_some()))
-        .collect();
-    run.channels
-        .iter()
-        .map(|channel| {
-            let elsewhere: Vec<&&Term> = steps.iter().filter(|t| t.channel != *channel).collect();
-            if elsewhere.is_empty() {
-                return None;
-            }
-            let mut spill = vec![0.0; run.n];
-            for t in elsewhere {
-                let fit = design.fitted(channel.index(), &t.projection.absorbed);
-                spill
-                    .iter_mut()
-                    .zip(fit)
-                    .for_each(|(v, x)| *v += t.coef * x);
-            }
-            Some(spill)
-        })
-        .collect()
+    steps: &[&Term],
+    channel: Channel,
+) -> Option<Vec<f64>> {
+    let elsewhere: Vec<&&Term> = steps.iter().filter(|t| t.channel != channel).collect();
+    if elsewhere.is_empty() {
+        return None;
+    }
+    let mut spill = vec![0.0; run.n];
+    for t in elsewhere {
+        let fit = design.fitted(channel.index(), &t.projection.absorbed);
+        spill
+            .iter_mut()
+            .zip(fit)
+            .for_each(|(v, x)| *v += t.coef * x);
+    }
+    Some(spill)
 }
 
 /// The terms the joint fit keeps and, per channel, what the other channels' kept terms
