@@ -1,5 +1,6 @@
 //! How far the reading of an input file has come, for a progress bar: every file the host
-//! reads goes through [`crate::interchange::open_maybe_gz`], which counts the bytes taken
+//! reads goes through [`crate::interchange::open_maybe_gz`] (a board log through
+//! [`crate::decode::decode_file`]), which counts the bytes taken
 //! from the file on disk (compressed bytes for a gzip file, so the share is right either
 //! way) and tells the process's [`ReadProgress`] observer, if one is installed. The library
 //! draws nothing; the `dynacal` binary installs an observer that draws a bar on stderr.
