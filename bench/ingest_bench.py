@@ -1,16 +1,17 @@
 #!/usr/bin/env python3
-"""Ingest benchmark: `dynacal wv` end to end on interchange CSV files against pandas + numpy
-and pandas + allantools, side by side in one run on the same files (issue 22).
+"""Ingest benchmark: `dynacal wv` end to end on interchange CSV and Parquet files against
+pandas + numpy and pandas + allantools, side by side in one run on the same files (issue 22).
 
 One run writes seeded one-channel recordings (`t_s,gx_rad_s` at 100 Hz, a 1e-3 rad/s white
 noise on a random walk, `# sample_rate_hz: 100`) of each size into bench/.data/, plain and
-gzip, and times every tool in its own process under /usr/bin/time -v (wall time and peak RSS
+gzip, and the same table as Parquet the way pandas writes it (`DataFrame.to_parquet`: pyarrow,
+snappy, dictionary pages tried; the rate in the `sample_rate_hz` metadata), and times every tool in its own process under /usr/bin/time -v (wall time and peak RSS
 of the whole process, interpreter start included): `dynacal wv FILE` as a user runs it
 (the default `--stream auto`, which streams files over 256 MiB) and loaded whole
 (`--stream never`); `pandas.read_csv` then the numpy prefix-sum Haar WV of wv_bench.py;
 `pandas.read_csv` then `allantools.oadev`. The read alone is timed in-process too
-(`bench_read` example for dynacal; `pandas.read_csv` for pandas), as MB/s of file text. The
-script checks the wavelet variances agree and prints a markdown table.
+(`bench_read` example for dynacal; `pandas.read_csv` / `read_parquet` for pandas), as MB/s
+of the file's CSV text (so the two forms compare as rows per second). The script checks the wavelet variances agree and prints a markdown table.
 
 Setup and run (from the repository root):
     python3 -m venv bench/.venv && bench/.venv/bin/pip install -r bench/requirements.txt
@@ -50,11 +51,25 @@ def write_csv(path, n, seed):
             f.write("".join(f"{ti!r},{gi!r}\n" for ti, gi in zip(t.tolist(), gx.tolist())))
 
 
+def write_parquet(csv_path, path):
+    """The CSV's table as pandas writes Parquet, with the rate in the file's metadata."""
+    import pandas as pd
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pa.Table.from_pandas(pd.read_csv(csv_path, comment="#"), preserve_index=False)
+    metadata = {**(table.schema.metadata or {}), b"sample_rate_hz": b"100"}
+    pq.write_table(table.replace_schema_metadata(metadata), path)
+
+
 def pandas_worker(tool, path):
     import pandas as pd
 
     t0 = time.perf_counter()
-    df = pd.read_csv(path, comment="#")
+    if path.endswith(".parquet"):
+        df = pd.read_parquet(path)
+    else:
+        df = pd.read_csv(path, comment="#")
     x = df["gx_rad_s"].to_numpy()
     t1 = time.perf_counter()
     if tool == "numpy":
@@ -87,6 +102,11 @@ def dynacal_wv(exe, path, mode, json_path):
     return wall, rss, report
 
 
+def dynacal_fit(exe, path, json_path):
+    wall, rss, _ = timed([exe, "fit", path, "--model", "auto", "--json", json_path])
+    return wall, rss
+
+
 def wv_values(report):
     """The gx channel's wavelet variance per level from `dynacal wv --json`."""
     return report["channels"]["gx"]["variance"]
@@ -117,16 +137,26 @@ def main():
         gz = plain + ".gz"
         if not os.path.exists(gz):
             subprocess.run(["sh", "-c", f"gzip -1 -c {plain} > {gz}"], check=True)
+        parquet = os.path.join(DATA, f"ingest-{n}.parquet")
+        if not os.path.exists(parquet):
+            write_parquet(plain, parquet)
         mb = os.path.getsize(plain) / 1e6
-        for path, kind in [(plain, "csv"), (gz, "csv.gz")]:
+        for path, kind in [(plain, "csv"), (gz, "csv.gz"), (parquet, "parquet")]:
             read = json.loads(subprocess.run([reader, path, "2"], capture_output=True,
                                              text=True, check=True).stdout)
-            result = {"n": n, "kind": kind, "mb": mb, "dynacal_read_s": read["read_s"],
-                      "csv_crate_read_s": read["csv_crate_s"]}
+            result = {"n": n, "kind": kind, "mb": mb, "disk_mb": os.path.getsize(path) / 1e6,
+                      "dynacal_read_s": read["read_s"],
+                      "csv_crate_read_s": read["csv_crate_s"] or float("nan")}
             for mode in ["auto", "never"]:
                 wall, rss, rep = dynacal_wv(exe, path, mode, os.path.join(DATA, "wv.json"))
                 result[f"dynacal_{mode}"] = (wall, rss)
                 result[f"wv_{mode}"] = wv_values(rep)
+            # `fit --model auto` end to end, and its fit stage alone: the same fit from the
+            # wavelet variances `wv` (auto) stored, so read + WV is the difference.
+            _, _, _ = dynacal_wv(exe, path, "auto", os.path.join(DATA, "wv.json"))
+            result["fit"] = dynacal_fit(exe, path, os.path.join(DATA, "model.json"))
+            result["fit_stage"] = dynacal_fit(exe, os.path.join(DATA, "wv.json"),
+                                              os.path.join(DATA, "model-wv.json"))
             for tool in ["numpy", "allantools"]:
                 wall, rss, out = timed([sys.executable, __file__, "--worker", tool, path])
                 w = json.loads(out.strip().splitlines()[-1])
@@ -139,17 +169,27 @@ def main():
                 assert rel < 1e-3, f"{key} disagrees with numpy by {rel:.2e}"
             rows.append(result)
             print(json.dumps({k: v for k, v in result.items() if not k.startswith("wv_")}))
-    print("\n| rows | file | MB (text) | dynacal wv (auto) s / MiB | dynacal wv (whole) s / MiB "
+    print("\n| rows | file | MB (text) | MB on disk | dynacal wv (auto) s / MiB | dynacal wv (whole) s / MiB "
           "| dynacal read s (MB/s) | csv crate read s (MB/s) | pandas+numpy s / MiB (read s) "
           "| pandas+allantools s / MiB | speed-up vs pandas+numpy | vs pandas+allantools |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         a, w, npy, alt = r["dynacal_auto"], r["dynacal_never"], r["numpy"], r["allantools"]
-        print(f"| {r['n']:.1e} | {r['kind']} | {r['mb']:.0f} | {a[0]:.2f} / {a[1]:.0f} "
+        print(f"| {r['n']:.1e} | {r['kind']} | {r['mb']:.0f} | {r['disk_mb']:.0f} "
+              f"| {a[0]:.2f} / {a[1]:.0f} "
               f"| {w[0]:.2f} / {w[1]:.0f} | {r['dynacal_read_s']:.2f} ({r['mb'] / r['dynacal_read_s']:.0f}) "
               f"| {r['csv_crate_read_s']:.2f} ({r['mb'] / r['csv_crate_read_s']:.0f}) "
               f"| {npy[0]:.2f} / {npy[1]:.0f} ({npy[2]:.2f}) | {alt[0]:.2f} / {alt[1]:.0f} "
               f"| {npy[0] / a[0]:.1f}x | {alt[0] / a[0]:.1f}x |")
+
+    print("\n| rows | file | `fit --model auto` s / MiB | read + WV s (share) | fit stage s (share) |")
+    print("|---|---|---|---|---|")
+    for r in rows:
+        total, rss = r["fit"]
+        stage = r["fit_stage"][0]
+        print(f"| {r['n']:.1e} | {r['kind']} | {total:.2f} / {rss:.0f} "
+              f"| {total - stage:.2f} ({(total - stage) / total:.0%}) "
+              f"| {stage:.2f} ({stage / total:.0%}) |")
 
 
 if __name__ == "__main__":

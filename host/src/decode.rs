@@ -29,7 +29,7 @@ use dynacal_core::log::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::interchange::ImuRecording;
+use crate::interchange::{FileFormat, ImuRecording};
 use crate::wv::WaveletVariance;
 use dynacal_core::Channel;
 
@@ -445,8 +445,8 @@ impl DecodedLog {
         Ok(())
     }
 
-    /// What the log held, for `summary.json`.
-    pub fn summary(&self) -> LogSummary {
+    /// What the log held, for `summary.json`; its IMUs' files written in `format`.
+    pub fn summary(&self, format: FileFormat) -> LogSummary {
         LogSummary {
             bytes_total: self.stream.bytes_seen,
             bytes_decoded: self.stream.bytes_decoded,
@@ -480,7 +480,7 @@ impl DecodedLog {
                     first_t_us: imu.t_us.first().copied(),
                     last_t_us: imu.t_us.last().copied(),
                     gaps: imu.gaps(),
-                    file: (!imu.is_empty()).then(|| imu_file_name(imu.config.imu_id)),
+                    file: (!imu.is_empty()).then(|| imu_file_name(imu.config.imu_id, format)),
                 })
                 .collect(),
             pps_events: self.pps.len() as u64,
@@ -495,9 +495,9 @@ impl DecodedLog {
     }
 }
 
-/// File name of one IMU's interchange CSV in a decode output folder.
-pub fn imu_file_name(imu_id: u8) -> String {
-    format!("imu{imu_id}.csv")
+/// File name of one IMU's interchange file in a decode output folder.
+pub fn imu_file_name(imu_id: u8, format: FileFormat) -> String {
+    format!("imu{imu_id}.{}", format.extension())
 }
 
 /// The decoder's report (`summary.json`).

@@ -179,7 +179,8 @@ impl ErrorSignals {
         })
     }
 
-    /// Writes the file whole or not at all (gzip when the name ends in `.gz`).
+    /// Writes the file whole or not at all (gzip when the name ends in `.gz`, Parquet when
+    /// it ends in `.parquet`).
     pub fn write(&self, path: &Path) -> Result<(), TableError> {
         let io = |source| TableError::Io {
             path: path.to_path_buf(),
@@ -211,6 +212,9 @@ impl ErrorSignals {
             }
         }
         check_time_increasing(path, &self.t_s)?;
+        if crate::interchange::parquet::writes_parquet(path) {
+            return crate::interchange::parquet::write_columns(path, &columns);
+        }
         let mut out = AtomicFile::create(path).map_err(io)?;
         {
             let mut w = out.writer();

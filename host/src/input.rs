@@ -281,7 +281,7 @@ pub fn load_recording(path: &Path, evenly_sampled: bool) -> Result<ImuRecording,
 /// `--columns`.
 pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputError> {
     // A binary dataset (an ArduPilot log) has no CSV header: it is recognised first.
-    let header = match csv_header(path) {
+    let header = match column_names(path) {
         Ok(header) => header,
         Err(e) if args.raw || crate::import::detect(path)?.is_none() => return Err(e),
         Err(_) => Vec::new(),
@@ -337,7 +337,11 @@ pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputEr
     Ok(series)
 }
 
-fn csv_header(path: &Path) -> Result<Vec<String>, InputError> {
+/// The column names of a CSV's header row or of a Parquet file.
+fn column_names(path: &Path) -> Result<Vec<String>, InputError> {
+    if crate::interchange::parquet::is_parquet(path) {
+        return Ok(crate::interchange::parquet::headers(path)?);
+    }
     let mut reader = crate::interchange::csv_reader(open_maybe_gz(path)?, true);
     Ok(reader
         .headers()

@@ -19,6 +19,7 @@ use std::path::{Path, PathBuf};
 use crate::output::AtomicFile;
 
 pub mod fast;
+pub mod parquet;
 pub mod progress;
 
 /// Errors reading or writing tables. Each names the file and, where there is one, the line
@@ -79,11 +80,12 @@ pub enum TableError {
     /// The file has a header but no data rows.
     #[error("{path}: no data rows")]
     Empty { path: PathBuf },
-    /// The sample rate stated in the file's first lines disagrees with its time column.
-    #[error("{path}: line {line}: the stated sample rate {stated_hz} Hz disagrees with the time column `t_s` (median step {median_step_s} s, {measured_hz:.6} Hz)")]
+    /// The sample rate stated in the file (`place`: its line, or a Parquet file's metadata
+    /// entry) disagrees with its time column.
+    #[error("{path}: {place}: the stated sample rate {stated_hz} Hz disagrees with the time column `t_s` (median step {median_step_s} s, {measured_hz:.6} Hz)")]
     RateMismatch {
         path: PathBuf,
-        line: u64,
+        place: String,
         stated_hz: f64,
         median_step_s: f64,
         measured_hz: f64,
@@ -96,6 +98,18 @@ pub enum TableError {
         t_s: f64,
         value: f64,
         range: &'static str,
+    },
+    /// A Parquet file that cannot be read or written, or a column of it dynacal cannot read.
+    #[error("{path}: {message}")]
+    Parquet { path: PathBuf, message: String },
+    /// A value of a binary table (Parquet) that is not what its column needs; rows are
+    /// counted among the data rows, from 1.
+    #[error("{path}: row {row}, column `{column}`: {message}")]
+    AtRow {
+        path: PathBuf,
+        row: u64,
+        column: String,
+        message: String,
     },
     /// Columns of an in-memory recording have different lengths.
     #[error("{path}: column `{column}` has {len} values, expected {expected}")]
@@ -204,6 +218,9 @@ impl<R: Read> Read for GzipText<R> {
 /// Only the columns named in `wanted` are parsed (all columns if `wanted` is `None`); other
 /// columns may hold anything. Every parsed field must be a finite number.
 pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableError> {
+    if parquet::is_parquet(path) {
+        return parquet::read_table(path, wanted);
+    }
     if let Some(table) = fast::read_table(path, wanted) {
         return Ok(table);
     }
@@ -377,9 +394,14 @@ pub fn median_step_s(t_s: &[f64]) -> Option<f64> {
 /// How an interchange file states its sample rate: a first line `# sample_rate_hz: 100`.
 const RATE_LINE_PREFIX: &str = "# sample_rate_hz: ";
 
-/// The sample rate stated in the `#` lines before the header, with its 1-based line.
-pub(crate) fn read_stated_rate(path: &Path) -> Result<Option<(u64, f64)>, TableError> {
+/// The sample rate a file states, Hz, with where it is stated (for errors): a CSV's `#`
+/// line before the header (`line N`), a Parquet file's metadata entry.
+pub(crate) fn read_stated_rate(path: &Path) -> Result<Option<(String, f64)>, TableError> {
     use std::io::BufRead;
+    if parquet::is_parquet(path) {
+        let place = format!("metadata `{}`", parquet::RATE_KEY);
+        return Ok(parquet::stated_rate_hz(path)?.map(|rate| (place, rate)));
+    }
     let reader = std::io::BufReader::new(open_maybe_gz(path)?.take(1 << 16));
     for (i, line) in reader.lines().enumerate() {
         let line = line.map_err(|source| TableError::Io {
@@ -398,7 +420,7 @@ pub(crate) fn read_stated_rate(path: &Path) -> Result<Option<(u64, f64)>, TableE
             .ok()
             .filter(|r| r.is_finite() && *r > 0.0);
         return match rate {
-            Some(rate) => Ok(Some((i as u64 + 1, rate))),
+            Some(rate) => Ok(Some((format!("line {}", i + 1), rate))),
             None => Err(TableError::Csv {
                 path: path.to_path_buf(),
                 line: i as u64 + 1,
@@ -416,7 +438,7 @@ pub(crate) fn read_stated_rate(path: &Path) -> Result<Option<(u64, f64)>, TableE
 /// 10000 ppm, or a file whose rate line belongs to another file).
 fn check_stated_rate(
     path: &Path,
-    line: u64,
+    place: String,
     stated_hz: f64,
     t_s: &[f64],
 ) -> Result<(), TableError> {
@@ -426,7 +448,7 @@ fn check_stated_rate(
     if (step * stated_hz - 1.0).abs() > 0.01 {
         return Err(TableError::RateMismatch {
             path: path.to_path_buf(),
-            line,
+            place,
             stated_hz,
             median_step_s: step,
             measured_hz: 1.0 / step,
@@ -686,7 +708,7 @@ impl ImuRecording {
         Ok(())
     }
 
-    /// Reads an interchange CSV or CSV.gz.
+    /// Reads an interchange CSV, CSV.gz or Parquet file.
     pub fn read(path: &Path) -> Result<Self, TableError> {
         Self::read_with_lines(path).map(|(recording, _)| recording)
     }
@@ -701,11 +723,12 @@ impl ImuRecording {
         let row_lines = table.row_lines;
         let recording = Self::from_table(table)?;
         let stated = read_stated_rate(path)?;
-        if let Some((line, stated_hz)) = stated {
-            check_stated_rate(path, line, stated_hz, &recording.t_s)?;
+        let sample_rate_hz = stated.as_ref().map(|(_, rate)| *rate);
+        if let Some((place, stated_hz)) = stated {
+            check_stated_rate(path, place, stated_hz, &recording.t_s)?;
         }
         let recording = ImuRecording {
-            sample_rate_hz: stated.map(|(_, rate)| rate),
+            sample_rate_hz,
             ..recording
         };
         Ok((recording, row_lines))
@@ -795,7 +818,8 @@ impl ImuRecording {
         columns
     }
 
-    /// Writes the recording as interchange CSV, gzip-compressed when `path` ends in `.gz`.
+    /// Writes the recording as interchange CSV, gzip-compressed when `path` ends in `.gz`,
+    /// or as Parquet when it ends in `.parquet`.
     /// The file appears whole or not at all. Values are written in Rust's shortest
     /// round-trip form, so reading them back gives the same `f64` bits.
     pub fn write(&self, path: &Path) -> Result<(), TableError> {
@@ -841,6 +865,30 @@ fn check_lat_lon(path: &Path, t_s: f64, lat_rad: f64, lon_rad: f64) -> Result<()
     Ok(())
 }
 
+/// The form an interchange file is written in; a writer chooses it by the file's name
+/// ([`RowWriter`]), a command that names its files by this.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum FileFormat {
+    /// CSV text.
+    Csv,
+    /// CSV text, gzip-compressed.
+    #[default]
+    CsvGz,
+    /// Parquet: binary columns, the fastest to read.
+    Parquet,
+}
+
+impl FileFormat {
+    /// The file name ending that selects this form (no leading dot).
+    pub fn extension(self) -> &'static str {
+        match self {
+            Self::Csv => "csv",
+            Self::CsvGz => "csv.gz",
+            Self::Parquet => "parquet",
+        }
+    }
+}
+
 /// Rows a [`RowWriter`] holds back when no rate is given: the rate it states is the median
 /// step's over them (over the whole file, for files no longer than this).
 const RATE_PROBE_ROWS: usize = 1 << 16;
@@ -855,21 +903,31 @@ pub struct RowsWritten {
 }
 
 /// An interchange file written one row at a time, in memory that does not grow with its
-/// length (a long import). Each row is checked as [`ImuRecording::validate`] checks a whole
-/// recording (time strictly increasing, latitude and longitude in range). The file appears
-/// whole on [`RowWriter::finish`], or not at all.
+/// length (a long import): CSV text (gzip-compressed when the name ends in `.gz`), or
+/// Parquet when it ends in `.parquet`. Each row is checked as [`ImuRecording::validate`]
+/// checks a whole recording (time strictly increasing, latitude and longitude in range). The
+/// file appears whole on [`RowWriter::finish`], or not at all.
 pub struct RowWriter {
     path: PathBuf,
     columns: Vec<&'static str>,
     file: AtomicFile,
-    out: Option<Box<dyn Write + Send>>,
+    sink: Option<Sink>,
     rate_hz: Option<f64>,
     /// Rows waiting for the rate to be known, flattened.
     held: Vec<f64>,
-    line: Vec<u8>,
-    digits: zmij::Buffer,
     written: RowsWritten,
     lat_lon: Option<(usize, usize)>,
+}
+
+/// Where a [`RowWriter`]'s rows go.
+enum Sink {
+    /// CSV lines gathered in `line` and written a block at a time.
+    Text {
+        out: Box<dyn Write + Send>,
+        line: Vec<u8>,
+        digits: zmij::Buffer,
+    },
+    Parquet(parquet::ParquetSink),
 }
 
 impl RowWriter {
@@ -890,18 +948,25 @@ impl RowWriter {
             source,
         };
         let file = AtomicFile::create(path).map_err(io)?;
-        let out = Some(file.owned_writer().map_err(io)?);
+        let out = file.owned_writer().map_err(io)?;
+        let sink = if parquet::writes_parquet(path) {
+            Sink::Parquet(parquet::ParquetSink::create(path, out, &columns)?)
+        } else {
+            Sink::Text {
+                out,
+                line: Vec::with_capacity(1 << 16),
+                digits: zmij::Buffer::new(),
+            }
+        };
         let at = |name: &str| columns.iter().position(|c| *c == name);
         let lat_lon = at("lat_rad").zip(at("lon_rad"));
         let mut writer = Self {
             path: path.to_path_buf(),
             columns,
             file,
-            out,
+            sink: Some(sink),
             rate_hz,
             held: Vec::new(),
-            line: Vec::with_capacity(1 << 16),
-            digits: zmij::Buffer::new(),
             written: RowsWritten {
                 rows: 0,
                 first_t_s: f64::NAN,
@@ -933,11 +998,7 @@ impl RowWriter {
             }
             return Ok(());
         }
-        self.format_row(row);
-        if self.line.len() >= (1 << 16) - 1024 {
-            self.flush_line()?;
-        }
-        Ok(())
+        self.write_row(row)
     }
 
     /// Writes what is held, moves the file into place and says what it holds; a file with
@@ -954,8 +1015,10 @@ impl RowWriter {
             path: self.path.clone(),
             source,
         };
-        if let Some(mut out) = self.out.take() {
-            out.flush().map_err(io)?;
+        match self.sink.take() {
+            Some(Sink::Text { mut out, .. }) => out.flush().map_err(io)?,
+            Some(Sink::Parquet(sink)) => sink.finish(self.rate_hz)?,
+            None => {}
         }
         self.file.commit().map_err(io)?;
         Ok(self.written)
@@ -999,42 +1062,54 @@ impl RowWriter {
         }
         let held = std::mem::take(&mut self.held);
         for row in held.chunks_exact(self.columns.len()) {
-            self.format_row(row);
-            if self.line.len() >= (1 << 16) - 1024 {
-                self.flush_line()?;
-            }
+            self.write_row(row)?;
         }
         Ok(())
     }
 
+    /// The CSV form's rate line and header (a Parquet file's schema is written at its
+    /// creation, its rate in its footer).
     fn write_header(&mut self) {
         use std::io::Write as _;
+        let Some(Sink::Text { line, .. }) = self.sink.as_mut() else {
+            return;
+        };
         // NaN: fewer than two rows, no rate to state.
         if let Some(rate) = self.rate_hz.filter(|r| r.is_finite()) {
-            let _ = writeln!(self.line, "{RATE_LINE_PREFIX}{rate}");
+            let _ = writeln!(line, "{RATE_LINE_PREFIX}{rate}");
         }
-        let _ = writeln!(self.line, "{}", self.columns.join(","));
+        let _ = writeln!(line, "{}", self.columns.join(","));
     }
 
-    fn format_row(&mut self, row: &[f64]) {
-        for (k, value) in row.iter().enumerate() {
-            if k > 0 {
-                self.line.push(b',');
+    fn write_row(&mut self, row: &[f64]) -> Result<(), TableError> {
+        match self.sink.as_mut() {
+            Some(Sink::Text { line, digits, .. }) => {
+                for (k, value) in row.iter().enumerate() {
+                    if k > 0 {
+                        line.push(b',');
+                    }
+                    push_f64_display(line, *value, digits);
+                }
+                line.push(b'\n');
+                if line.len() >= (1 << 16) - 1024 {
+                    self.flush_line()?;
+                }
+                Ok(())
             }
-            push_f64_display(&mut self.line, *value, &mut self.digits);
+            Some(Sink::Parquet(sink)) => sink.push(row),
+            None => Ok(()),
         }
-        self.line.push(b'\n');
     }
 
     fn flush_line(&mut self) -> Result<(), TableError> {
-        let Some(out) = self.out.as_mut() else {
+        let Some(Sink::Text { out, line, .. }) = self.sink.as_mut() else {
             return Ok(());
         };
-        out.write_all(&self.line).map_err(|source| TableError::Io {
+        out.write_all(line).map_err(|source| TableError::Io {
             path: self.path.clone(),
             source,
         })?;
-        self.line.clear();
+        line.clear();
         Ok(())
     }
 }

@@ -347,3 +347,30 @@ fn a_streamed_fit_recovers_the_batch_fit() {
     );
     assert!(!json.exists());
 }
+
+#[test]
+fn parquet_reads_whole_and_streamed_as_its_csv_does() {
+    // GIVEN a recording as CSV and the same recording written as Parquet (two row groups)
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("imu.csv");
+    std::fs::write(&csv, recording_text(25, 200_000)).unwrap();
+    let parquet = dir.path().join("imu.parquet");
+    dynacal::interchange::ImuRecording::read(&csv)
+        .unwrap()
+        .write(&parquet)
+        .unwrap();
+    // WHEN each is read whole and streamed
+    let csv_whole = run_wv(&csv, "never", &dir.path().join("a.json"));
+    let csv_streamed = run_wv(&csv, "always", &dir.path().join("b.json"));
+    let parquet_whole = run_wv(&parquet, "never", &dir.path().join("c.json"));
+    let parquet_streamed = run_wv(&parquet, "always", &dir.path().join("d.json"));
+    // THEN the Parquet file gives its CSV's wavelet variances to the bit, either way
+    assert_eq!(parquet_streamed["streamed"]["full_levels"], 18);
+    for name in ["gx", "gy", "gz"] {
+        assert_eq!(channel(&parquet_whole, name), channel(&csv_whole, name));
+        assert_eq!(
+            channel(&parquet_streamed, name),
+            channel(&csv_streamed, name)
+        );
+    }
+}

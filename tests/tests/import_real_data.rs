@@ -12,7 +12,7 @@ use dynacal::import::{
     adis16405, ardupilot_dataflash, detect, frames, import_to_dir, mpu9250_tetra, mtig,
     psins_fog_mems, psins_lasergyro, px4_ulog, xsens_dot, Dataset,
 };
-use dynacal::interchange::{open_maybe_gz, ImuRecording};
+use dynacal::interchange::{open_maybe_gz, FileFormat, ImuRecording};
 use nalgebra::{Rotation3, Vector3};
 
 /// WGS-84 Earth rotation rate, rad/s.
@@ -342,7 +342,9 @@ fn malformed_copies_of_real_files_fail_naming_file_and_line_and_write_nothing() 
         let copy = tmp.path().join(name);
         std::fs::write(&copy, lines.join("\n") + "\n").unwrap();
         let out = tmp.path().join(format!("out-{name}"));
-        let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+        let msg = import_to_dir(&copy, &out, FileFormat::CsvGz)
+            .unwrap_err()
+            .to_string();
         println!("{msg}");
         assert!(
             msg.contains(name) && msg.contains(&format!("line {line}")) && msg.contains(what),
@@ -356,7 +358,10 @@ fn malformed_copies_of_real_files_fail_naming_file_and_line_and_write_nothing() 
         // The unspoilt copy imports.
         lines = head(&source, 40);
         std::fs::write(&copy, lines.join("\n") + "\n").unwrap();
-        assert!(!import_to_dir(&copy, &out).unwrap().written.is_empty());
+        assert!(!import_to_dir(&copy, &out, FileFormat::CsvGz)
+            .unwrap()
+            .written
+            .is_empty());
     }
 }
 
@@ -562,7 +567,9 @@ fn damaged_copies_of_the_real_log_fail_naming_the_byte_offset_and_write_nothing(
     let cut = 1_000_000;
     let m = log.messages()[log.messages().partition_point(|m| m.offset <= cut) - 1];
     std::fs::write(&copy, &bytes[..cut]).unwrap();
-    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    let msg = import_to_dir(&copy, &out, FileFormat::CsvGz)
+        .unwrap_err()
+        .to_string();
     println!("{msg}");
     assert!(
         msg.contains("log171-damaged.bin")
@@ -576,7 +583,9 @@ fn damaged_copies_of_the_real_log_fail_naming_the_byte_offset_and_write_nothing(
     let mut damaged = bytes.clone();
     damaged[m.offset + 1] = 0x00;
     std::fs::write(&copy, &damaged).unwrap();
-    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    let msg = import_to_dir(&copy, &out, FileFormat::CsvGz)
+        .unwrap_err()
+        .to_string();
     println!("{msg}");
     assert!(
         msg.contains(&format!("byte offset {}: message 50000", m.offset))
@@ -1037,7 +1046,9 @@ fn damaged_copies_of_the_px4_log_fail_naming_the_byte_offset() {
 
     // Cut inside a message.
     std::fs::write(&copy, &bytes[..sample + 20]).unwrap();
-    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    let msg = import_to_dir(&copy, &out, FileFormat::CsvGz)
+        .unwrap_err()
+        .to_string();
     println!("{msg}");
     assert!(
         msg.contains("log-damaged.ulg")
@@ -1049,7 +1060,9 @@ fn damaged_copies_of_the_px4_log_fail_naming_the_byte_offset() {
     let mut damaged = bytes.clone();
     damaged[sample + 3..sample + 5].copy_from_slice(&999u16.to_le_bytes());
     std::fs::write(&copy, &damaged).unwrap();
-    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    let msg = import_to_dir(&copy, &out, FileFormat::CsvGz)
+        .unwrap_err()
+        .to_string();
     assert!(
         msg.contains(&format!("byte offset {sample}: "))
             && msg.contains("data for msg_id 999, which no subscription ('A') announced"),
@@ -1059,7 +1072,9 @@ fn damaged_copies_of_the_px4_log_fail_naming_the_byte_offset() {
     let mut damaged = bytes;
     damaged[sample] -= 1;
     std::fs::write(&copy, &damaged).unwrap();
-    let msg = import_to_dir(&copy, &out).unwrap_err().to_string();
+    let msg = import_to_dir(&copy, &out, FileFormat::CsvGz)
+        .unwrap_err()
+        .to_string();
     assert!(
         msg.contains(&format!("byte offset {sample}: "))
             && msg.contains(

@@ -25,7 +25,8 @@ use std::io::{BufRead, Read as _};
 use std::path::{Path, PathBuf};
 
 use crate::interchange::{
-    open_maybe_gz, ImuRecording, RowWriter, TableError, TableRows, CHANNELS, CHANNEL_COLUMNS,
+    open_maybe_gz, FileFormat, ImuRecording, RowWriter, TableError, TableRows, CHANNELS,
+    CHANNEL_COLUMNS,
 };
 use crate::output::FileSet;
 use rows::{CheckUnits, Collect, Named, SensorLayout, SensorRows};
@@ -391,7 +392,11 @@ fn contents_of(columns: &[&str]) -> Vec<&'static str> {
 /// All or nothing: every file is first written into a private staging folder inside
 /// `out_dir`, and moved into place only once every input has imported; on any error the
 /// staging folder is removed and `out_dir` is left as it was (or absent, if it was).
-pub fn import_to_dir(input: &Path, out_dir: &Path) -> Result<ImportReport, ImportError> {
+pub fn import_to_dir(
+    input: &Path,
+    out_dir: &Path,
+    format: FileFormat,
+) -> Result<ImportReport, ImportError> {
     let (datasets, skipped) = find_datasets(input)?;
     // No completion marker: each sensor's file is a recording on its own.
     let mut set = FileSet::create(out_dir, None).map_err(|e| ImportError::io(out_dir, e))?;
@@ -402,6 +407,7 @@ pub fn import_to_dir(input: &Path, out_dir: &Path) -> Result<ImportReport, Impor
             set: &mut set,
             sources: &mut sources,
             source: &source,
+            format,
             writers: Vec::new(),
         };
         let mut checked = CheckUnits::new(&source, &mut files);
@@ -429,6 +435,7 @@ struct WriteFiles<'a> {
     /// The dataset file each output name came from, over the whole import.
     sources: &'a mut BTreeMap<String, PathBuf>,
     source: &'a Path,
+    format: FileFormat,
     /// Output file name, columns, writer.
     writers: Vec<(String, Vec<&'static str>, RowWriter)>,
 }
@@ -436,7 +443,7 @@ struct WriteFiles<'a> {
 impl SensorRows for WriteFiles<'_> {
     fn begin(&mut self, sensors: Vec<SensorLayout>) -> Result<(), ImportError> {
         for sensor in sensors {
-            let file_name = format!("{}.csv.gz", sensor.name);
+            let file_name = format!("{}.{}", sensor.name, self.format.extension());
             if let Some(first) = self.sources.get(&file_name) {
                 return Err(ImportError::OutputCollision {
                     name: file_name,
@@ -671,7 +678,7 @@ mod tests {
         );
         write(&input, "README.md", "# not data\n");
         let out = dir.path().join("out");
-        let report = import_to_dir(&input, &out).unwrap();
+        let report = import_to_dir(&input, &out, FileFormat::CsvGz).unwrap();
         assert_eq!(report.written.len(), 1);
         let w = &report.written[0];
         assert_eq!(w.path, out.join("adis16405-session1.csv.gz"));
@@ -691,7 +698,9 @@ mod tests {
             "gx,gy,gz,ax,ay,az\n1,2,3,4,5,6\n1,2,x,4,5,6\n",
         );
         let out2 = dir.path().join("out2");
-        let msg = import_to_dir(&input, &out2).unwrap_err().to_string();
+        let msg = import_to_dir(&input, &out2, FileFormat::CsvGz)
+            .unwrap_err()
+            .to_string();
         assert!(
             msg.contains("session2.csv") && msg.contains("line 3"),
             "{msg}"
@@ -718,7 +727,7 @@ mod tests {
             &format!("gx,gy,gz,ax,ay,az\n{}\n", rows.join("\n")),
         );
         let out = dir.path().join("out");
-        let report = import_to_dir(&input, &out).unwrap();
+        let report = import_to_dir(&input, &out, FileFormat::CsvGz).unwrap();
         let written = ImuRecording::read(&report.written[0].path).unwrap();
         let direct = import_file(&session, Dataset::Adis16405).unwrap().remove(0);
         assert_eq!(written.t_s, direct.recording.t_s);
@@ -737,7 +746,9 @@ mod tests {
             &format!("gx,gy,gz,ax,ay,az\n{}\n", bad.join("\n")),
         );
         let out2 = dir.path().join("out2");
-        let msg = import_to_dir(&input, &out2).unwrap_err().to_string();
+        let msg = import_to_dir(&input, &out2, FileFormat::CsvGz)
+            .unwrap_err()
+            .to_string();
         assert!(
             msg.contains("session1.csv") && msg.contains("line 68002"),
             "{msg}"
@@ -751,7 +762,7 @@ mod tests {
         write(dir.path(), "x.csv", "gx_rad_s\n0.1\n");
         std::fs::create_dir(dir.path().join("sub")).unwrap();
         write(&dir.path().join("sub"), "x.csv.gz", "gx_rad_s\n0.2\n");
-        let msg = import_to_dir(dir.path(), &dir.path().join("out"))
+        let msg = import_to_dir(dir.path(), &dir.path().join("out"), FileFormat::CsvGz)
             .unwrap_err()
             .to_string();
         assert!(msg.contains("mtig-x.csv.gz"), "{msg}");

@@ -1,8 +1,10 @@
 //! The wavelet variance of an interchange recording read in one pass, block by block, in
 //! memory that does not grow with its length: what `dynacal wv` does with recordings too long
-//! to load whole (`--stream`, chosen automatically above [`STREAM_THRESHOLD_BYTES`]). The
+//! to load whole (`--stream`, chosen automatically above [`STREAM_THRESHOLD_BYTES`]). A CSV's
 //! blocks come from the fast reader ([`crate::interchange::fast`]); where it gives up, the
-//! file is read again from its start with the `csv` crate, one record at a time.
+//! file is read again from its start with the `csv` crate, one record at a time. A Parquet
+//! file's come from its column readers ([`crate::interchange::parquet`]), its rows numbered
+//! among the data rows rather than by line.
 //!
 //! It validates as the whole-file reader does (every parsed field a finite number, the field
 //! count, `t_s` strictly increasing, each error naming the file and the line) and applies the
@@ -18,6 +20,7 @@ use std::path::Path;
 
 use super::{format_error, per_channel, ChannelWv, InputArgs, InputError};
 use crate::interchange::fast::{Fallback, FastBlocks};
+use crate::interchange::parquet::{is_parquet, ParquetColumns};
 use crate::interchange::{
     csv_error, csv_reader, is_interchange_column, open_maybe_gz, parse_field, read_stated_rate,
     TableError,
@@ -58,7 +61,8 @@ impl std::fmt::Display for NotStreamable {
             Self::NotInterchange => "only an interchange recording is streamed",
             Self::NoRate => {
                 "streaming needs the sample rate before the first row: the file states none \
-                 (`# sample_rate_hz:`); give `--rate-hz`"
+                 (a `# sample_rate_hz:` line, or a Parquet file's `sample_rate_hz` metadata); \
+                 give `--rate-hz`"
             }
             Self::Robust => "the robust wavelet variance needs every coefficient at once",
         })
@@ -118,10 +122,14 @@ pub fn stream_wavelet_variances(
     if opts.robust {
         return Ok(Err(NotStreamable::Robust));
     }
-    let mut csv = csv_reader(open_maybe_gz(path)?, true);
-    let header: Vec<String> = match csv.headers() {
-        Ok(h) => h.iter().map(str::to_string).collect(),
-        Err(_) => return Ok(Err(NotStreamable::NotInterchange)),
+    let parquet = is_parquet(path);
+    let header: Vec<String> = if parquet {
+        crate::interchange::parquet::headers(path)?
+    } else {
+        match csv_reader(open_maybe_gz(path)?, true).headers() {
+            Ok(h) => h.iter().map(str::to_string).collect(),
+            Err(_) => return Ok(Err(NotStreamable::NotInterchange)),
+        }
     };
     let Some(time_column) = header.iter().position(|h| h == "t_s") else {
         return Ok(Err(NotStreamable::NotInterchange));
@@ -148,16 +156,17 @@ pub fn stream_wavelet_variances(
         .iter()
         .map(|_| HaarWvStream::new(full_levels))
         .collect();
-    let mut rows = RowChecker::new(path, dt_s);
-    if !feed_fast(path, &columns, &wanted, &mut rows, &mut streams)? {
+    let mut rows = RowChecker::new(path, dt_s, !parquet);
+    if parquet {
+        feed_parquet(path, &columns, &wanted, &mut rows, &mut streams)?;
+    } else if !feed_fast(path, &columns, &wanted, &mut rows, &mut streams)? {
         // The fast reader left the file to the csv crate: start again, row by row.
-        rows = RowChecker::new(path, dt_s);
+        rows = RowChecker::new(path, dt_s, true);
         for stream in &mut streams {
             *stream = HaarWvStream::new(full_levels);
         }
         feed_by_rows(
             path,
-            csv,
             time_column,
             &columns,
             &wanted,
@@ -234,16 +243,44 @@ fn feed_fast(
     }
 }
 
+/// As [`feed_fast`], from a Parquet file's column blocks (errors name the row).
+fn feed_parquet(
+    path: &Path,
+    columns: &[(Channel, usize)],
+    wanted: &[usize],
+    rows: &mut RowChecker,
+    streams: &mut [HaarWvStream],
+) -> Result<(), InputError> {
+    let mut names: Vec<&str> = vec!["t_s"];
+    names.extend(wanted.iter().map(|&i| columns[i].0.column()));
+    let mut blocks = ParquetColumns::open(path, Some(&names))?;
+    let at = |name: &str| blocks.headers().iter().position(|h| h == name);
+    let time = at("t_s").expect("the header has `t_s`");
+    let slots: Vec<usize> = wanted
+        .iter()
+        .map(|&i| at(columns[i].0.column()).expect("the header has the channel"))
+        .collect();
+    while let Some(block) = blocks.next_block()? {
+        for (r, &t_s) in block.columns[time].iter().enumerate() {
+            rows.check(t_s, block.first_row + r as u64)?;
+        }
+        for (stream, &slot) in streams.iter_mut().zip(&slots) {
+            stream.push_block(&block.columns[slot]);
+        }
+    }
+    Ok(())
+}
+
 /// As [`feed_fast`], with the `csv` crate, one record at a time (its errors name the line).
 fn feed_by_rows(
     path: &Path,
-    mut csv: csv::Reader<Box<dyn std::io::Read>>,
     time_column: usize,
     columns: &[(Channel, usize)],
     wanted: &[usize],
     rows: &mut RowChecker,
     streams: &mut [HaarWvStream],
 ) -> Result<(), InputError> {
+    let mut csv = csv_reader(open_maybe_gz(path)?, true);
     let mut record = csv::ByteRecord::new();
     let mut values = vec![0.0; columns.len()];
     loop {
@@ -331,6 +368,8 @@ fn wanted_channels(
 /// The time column's checks, one row at a time.
 struct RowChecker<'a> {
     path: &'a Path,
+    /// Rows are numbered by their file line (text), else among the data rows (Parquet).
+    rows_are_lines: bool,
     dt_s: f64,
     first_t_s: f64,
     previous_t_s: f64,
@@ -338,9 +377,10 @@ struct RowChecker<'a> {
 }
 
 impl<'a> RowChecker<'a> {
-    fn new(path: &'a Path, dt_s: f64) -> Self {
+    fn new(path: &'a Path, dt_s: f64, rows_are_lines: bool) -> Self {
         Self {
             path,
+            rows_are_lines,
             dt_s,
             first_t_s: 0.0,
             previous_t_s: 0.0,
@@ -348,23 +388,38 @@ impl<'a> RowChecker<'a> {
         }
     }
 
-    fn check(&mut self, t_s: f64, line: u64) -> Result<(), InputError> {
+    /// Row `at`'s time (its line, or its 1-based row among the data rows).
+    fn check(&mut self, t_s: f64, at: u64) -> Result<(), InputError> {
         if self.rows > 0 {
             let step = t_s - self.previous_t_s;
-            if step <= 0.0 {
+            let path = self.path.to_path_buf();
+            let previous_t_s = self.previous_t_s;
+            if step <= 0.0 && self.rows_are_lines {
+                let line = at;
                 return Err(TableError::TimeNotIncreasing {
-                    path: self.path.to_path_buf(),
+                    path,
                     line,
                     t_s,
-                    previous_t_s: self.previous_t_s,
+                    previous_t_s,
+                }
+                .into());
+            }
+            if step <= 0.0 {
+                let sample = at;
+                return Err(TableError::TimeNotIncreasingAtSample {
+                    path,
+                    sample,
+                    t_s,
+                    previous_t_s,
                 }
                 .into());
             }
             if (step - self.dt_s).abs() > 0.5 * self.dt_s {
+                let place = if self.rows_are_lines { "line" } else { "row" };
                 return Err(format_error(
                     self.path,
                     format!(
-                        "line {line}, column `t_s`: step {step} s differs from the sample \
+                        "{place} {at}, column `t_s`: step {step} s differs from the sample \
                          interval {} s (the wavelet variance needs evenly spaced samples)",
                         self.dt_s
                     ),

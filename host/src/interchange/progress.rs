@@ -31,29 +31,32 @@ pub fn observe_reading(observer: Box<dyn ReadProgress>) -> bool {
 /// Bytes between two reports: often enough for a bar, rarely enough to cost nothing.
 const REPORT_EVERY_BYTES: u64 = 1 << 20;
 
-/// A reader that counts what it takes from `inner` and reports it to the observer.
-pub(crate) struct Counted<R> {
-    inner: R,
+/// What one file's reading has reported: the handle the observer gave it and the bytes not
+/// yet told. Tells the observer the file is finished when dropped.
+pub(crate) struct Reporter {
     handle: Option<u64>,
     unreported: u64,
 }
 
-impl<R: Read> Counted<R> {
-    /// `inner` reading `path` of `size_bytes`; reports nothing when no observer is installed.
-    pub fn new(inner: R, path: &Path, size_bytes: u64) -> Self {
-        Self::reporting_to(OBSERVER.get().map(|o| o.as_ref()), inner, path, size_bytes)
+impl Reporter {
+    /// Starts reporting the reading of `path` (`size_bytes` on disk); reports nothing when
+    /// no observer is installed.
+    pub fn new(path: &Path, size_bytes: u64) -> Self {
+        Self::reporting_to(OBSERVER.get().map(|o| o.as_ref()), path, size_bytes)
     }
 
-    fn reporting_to(
-        observer: Option<&dyn ReadProgress>,
-        inner: R,
-        path: &Path,
-        size_bytes: u64,
-    ) -> Self {
-        Counted {
-            inner,
+    fn reporting_to(observer: Option<&dyn ReadProgress>, path: &Path, size_bytes: u64) -> Self {
+        Self {
             handle: observer.map(|o| o.started(path, size_bytes)),
             unreported: 0,
+        }
+    }
+
+    /// `bytes` more were read; told to the observer once a megabyte has gathered.
+    pub fn add(&mut self, bytes: u64) {
+        self.unreported += bytes;
+        if self.unreported >= REPORT_EVERY_BYTES {
+            self.report();
         }
     }
 
@@ -67,25 +70,39 @@ impl<R: Read> Counted<R> {
     }
 }
 
-impl<R: Read> Read for Counted<R> {
-    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
-        let n = self.inner.read(buf)?;
-        self.unreported += n as u64;
-        if self.unreported >= REPORT_EVERY_BYTES || n == 0 {
-            self.report();
+impl Drop for Reporter {
+    fn drop(&mut self) {
+        self.report();
+        if let (Some(h), Some(o)) = (self.handle, OBSERVER.get()) {
+            o.finished(h);
         }
-        Ok(n)
     }
 }
 
-impl<R> Drop for Counted<R> {
-    fn drop(&mut self) {
-        if let (Some(h), Some(o)) = (self.handle, OBSERVER.get()) {
-            if self.unreported > 0 {
-                o.advanced(h, self.unreported);
-            }
-            o.finished(h);
+/// A reader that counts what it takes from `inner` and reports it to the observer.
+pub(crate) struct Counted<R> {
+    inner: R,
+    reporter: Reporter,
+}
+
+impl<R: Read> Counted<R> {
+    /// `inner` reading `path` of `size_bytes`; reports nothing when no observer is installed.
+    pub fn new(inner: R, path: &Path, size_bytes: u64) -> Self {
+        Counted {
+            inner,
+            reporter: Reporter::new(path, size_bytes),
         }
+    }
+}
+
+impl<R: Read> Read for Counted<R> {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let n = self.inner.read(buf)?;
+        self.reporter.add(n as u64);
+        if n == 0 {
+            self.reporter.report();
+        }
+        Ok(n)
     }
 }
 

@@ -434,7 +434,10 @@ pub fn decode_outcome(path: &Path) -> Outcome {
         r.err()
             .map(|e| Outcome::Unclean(format!("{what} does not serialise: {e}")))
     };
-    if let Some(bad) = json("summary", serde_json::to_string(&log.summary())) {
+    if let Some(bad) = json(
+        "summary",
+        serde_json::to_string(&log.summary(dynacal::interchange::FileFormat::Csv)),
+    ) {
         return bad;
     }
     let mut lens = Vec::new();
