@@ -577,10 +577,7 @@ pub fn decode_file(path: &Path) -> Result<DecodedLog, DecodeError> {
     };
     let file = std::fs::File::open(path).map_err(io)?;
     let size_bytes = file.metadata().map_err(io)?.len();
-    decode_reader(crate::interchange::progress::Counted::new(
-        file, path, size_bytes,
-    ))
-    .map_err(io)
+    decode_reader(crate::progress::Counted::new(file, path, size_bytes)).map_err(io)
 }
 
 /// Encodes frames into a log (the board's byte stream), e.g. for tests and simulation.

@@ -20,7 +20,6 @@ use crate::output::AtomicFile;
 
 pub mod fast;
 pub mod parquet;
-pub mod progress;
 
 /// Errors reading or writing tables. Each names the file and, where there is one, the line
 /// (1-based, the header being line 1) and column.
@@ -168,7 +167,7 @@ pub fn open_maybe_gz(path: &Path) -> Result<Box<dyn Read>, TableError> {
     let n = file.read(&mut magic).map_err(io)?;
     let file = File::open(path).map_err(io)?;
     let size_bytes = file.metadata().map_err(io)?.len();
-    let file = progress::Counted::new(file, path, size_bytes);
+    let file = crate::progress::Counted::new(file, path, size_bytes);
     if n == 2 && magic == [0x1f, 0x8b] {
         Ok(Box::new(BufReader::with_capacity(
             1 << 16,

@@ -20,6 +20,7 @@ pub mod model;
 pub mod nav_smoother;
 pub mod numeric;
 pub mod output;
+pub mod progress;
 pub mod redundancy;
 pub mod refit;
 pub mod regress;

@@ -10,7 +10,7 @@ fn main() -> std::process::ExitCode {
     // installed) they are still never mistaken for outputs, only left behind.
     let _ = dynacal::output::remove_partials_on_signal();
     let args = cli::Cli::parse();
-    cli::show_reading();
+    cli::show_progress();
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {

@@ -159,11 +159,16 @@ pub fn build_error_signals_with_design(
     if sensor.gyro_rad_s.is_none() && sensor.accel_m_s2.is_none() {
         return Err(ErrorsError::SensorHasNoChannels);
     }
+    crate::progress::stage(|| "aligning the sensor's samples with the reference".into());
     let source = EpochSource::new(sensor, reference, opts)?;
     motion::check_same_motion(&source.t_s, &source.at(0.0)?)?;
+    crate::progress::stage(|| {
+        "estimating boresight, lever arm and time offset (searched over shifts)".into()
+    });
     let fit = least_squares::fit(&source, opts)?;
     // Final errors at the estimated boresight and time offset.
     let data = source.at(fit.shift_s)?.rotated(&fit.r_sb);
+    crate::progress::stage(|| "forming the error signals and the dynamics".into());
     let design = CalibrationDesign::new(&fit.layout, fit.weights, &data);
     let errors = signals::error_columns(&data, fit.lever_arm_b_m());
     let dynamics = signals::dynamics_columns(&source.t_s, &data);

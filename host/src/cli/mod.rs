@@ -78,14 +78,14 @@ pub(crate) fn bars() -> &'static indicatif::MultiProgress {
 /// Smallest input file that gets a read bar: smaller ones are read in a blink.
 const READ_BAR_MIN_BYTES: u64 = 8 << 20;
 
-/// Read bars of the input files being read ([`show_reading`]).
+/// Read bars of the input files being read ([`show_progress`]).
 #[derive(Default)]
 struct ReadBars {
     open: std::sync::Mutex<std::collections::HashMap<u64, indicatif::ProgressBar>>,
     next: std::sync::atomic::AtomicU64,
 }
 
-impl dynacal::interchange::progress::ReadProgress for ReadBars {
+impl dynacal::progress::ReadProgress for ReadBars {
     fn started(&self, path: &std::path::Path, size_bytes: u64) -> u64 {
         let handle = self.next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         if size_bytes >= READ_BAR_MIN_BYTES {
@@ -115,9 +115,28 @@ impl dynacal::interchange::progress::ReadProgress for ReadBars {
     }
 }
 
-/// Draws a read bar on stderr for every large input file the command reads.
-pub(crate) fn show_reading() {
-    dynacal::interchange::progress::observe_reading(Box::new(ReadBars::default()));
+/// Draws a read bar on stderr for every large input file the command reads, and the stages
+/// of long work on the spinner of [`working`].
+pub(crate) fn show_progress() {
+    dynacal::progress::observe_reading(Box::new(ReadBars::default()));
+    dynacal::progress::observe_work(Box::new(StageSpinner));
+}
+
+/// The spinner of the work running now and its message before any stage.
+static CURRENT_WORK: std::sync::Mutex<Option<(indicatif::ProgressBar, String)>> =
+    std::sync::Mutex::new(None);
+
+/// Tells the stages of long work on the current spinner ("diagnosing x: channel gx: ...").
+struct StageSpinner;
+
+impl dynacal::progress::WorkProgress for StageSpinner {
+    fn stage(&self, what: &str) {
+        if let Ok(current) = CURRENT_WORK.lock() {
+            if let Some((bar, message)) = current.as_ref() {
+                bar.set_message(format!("{message}: {what}"));
+            }
+        }
+    }
 }
 
 /// A spinner with `message` and the elapsed time on stderr while long work runs (hidden when
@@ -129,6 +148,9 @@ pub(crate) fn working(message: &str) -> indicatif::ProgressBar {
     }
     bar.set_message(message.to_string());
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    if let Ok(mut current) = CURRENT_WORK.lock() {
+        *current = Some((bar.clone(), message.to_string()));
+    }
     bar
 }
 

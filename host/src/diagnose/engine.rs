@@ -58,6 +58,7 @@ use crate::gmwm::model::ModelSpec;
 use crate::interchange::ImuRecording;
 use crate::model::{Cause, Channel, ChannelModel, SimModel};
 use crate::numeric::central_difference;
+use crate::progress::stage;
 
 /// Errors of the engine.
 #[derive(Debug, thiserror::Error)]
@@ -486,6 +487,7 @@ fn diagnose_channel(
         .zip(&found.calibration_spill)
         .map(|(v, s)| v - s)
         .collect();
+    stage(|| format!("channel {}: stochastic effects", channel.name()));
     let sims = run.baseline_sims(slot);
     let mut discrepancies = std::mem::take(&mut found.discrepancies);
     let terms = FittedTerms::new(run, channel, found, &e);
@@ -495,6 +497,7 @@ fn diagnose_channel(
         .map(|t| e[t] - terms.intercept - fitted[t])
         .collect();
     let stochastic = find_stochastic_effects(run, slot, channel, spec, &e, resid, &sims);
+    stage(|| format!("channel {}: selecting what to keep", channel.name()));
     let selection = select(run, slot, spec, &e, &terms, &stochastic);
     let coefficients = kept_coefficients(&terms, &selection.kept);
     let effects = kept_effects(&stochastic, &selection.kept);
@@ -505,6 +508,7 @@ fn diagnose_channel(
         intercept: terms.intercept,
     };
     let model = channel_model(&terms, &stochastic, &selection.kept, spec);
+    stage(|| format!("channel {}: measuring the gain", channel.name()));
     let (gain, wv_curves) = measure_gain(run, slot, &e, &terms, &extended, selection);
     findings.extend(stochastic.findings);
     discrepancies.extend(stochastic.discrepancies);
@@ -529,6 +533,9 @@ pub fn diagnose(
     opts: &DiagnoseOptions,
 ) -> Result<DiagnoseReport, DiagnoseError> {
     let mut notes = Vec::new();
+    if reference.is_some() {
+        stage(|| "calibrating against the reference (boresight, lever arm, time offset)".into());
+    }
     let mut calibrated = calibrate(sensor, reference, &mut notes)?;
     calibrated.signals.release_jerks_and_acceleration();
     let signals = &calibrated.signals;
@@ -541,6 +548,7 @@ pub fn diagnose(
     let baseline = match baseline {
         Some(b) => b,
         None => {
+            stage(|| "fitting the baseline model on the quietest stretch".into());
             let b = super::baseline::fit_quietest(signals, &channels, &omega_norm, dt_s)?;
             notes.push(format!("no baseline model given: {}", b.source));
             b
@@ -597,6 +605,12 @@ pub fn diagnose(
         alpha_test,
         null_models,
     };
+    stage(|| {
+        format!(
+            "simulating the baseline ({} replicates a channel) and testing deterministic terms",
+            opts.replicates
+        )
+    });
     let found = find_terms(&run)?;
     let results: Vec<Result<ChannelResult, DiagnoseError>> = run
         .per_channel(found, |slot, channel, found| {
@@ -623,6 +637,7 @@ pub fn diagnose(
         wv_curves.insert(channel, r.wv_curves);
         channel_models.insert(channel, r.model);
     }
+    stage(|| "terms common to the sensor and the extended model".into());
     let sensor_wide = sensor_wide_terms(&run, absorbed_total);
     let extended_model = extended_model(1.0 / dt_s, channel_models, run.calibration, &sensor_wide);
     let mut findings = sensor_wide.findings;

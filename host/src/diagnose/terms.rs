@@ -376,6 +376,7 @@ pub(super) fn find_terms(run: &Run) -> Result<Vec<ChannelTerms>, DiagnoseError> 
     // Steps found, their pull on the calibration given back to the other channels, and
     // the scan run again there.
     if let Some(design) = run.design {
+        crate::progress::stage(|| "testing terms again beside the steps found".into());
         let steps: Vec<&Term> = per_channel
             .iter()
             .flat_map(|c| c.terms.iter().filter(|t| t.fixed.is_some()))

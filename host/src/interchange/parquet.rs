@@ -34,9 +34,9 @@ use ::parquet::file::reader::{FileReader, SerializedFileReader};
 use ::parquet::file::writer::SerializedFileWriter;
 use ::parquet::schema::types::{ColumnDescriptor, Type as SchemaType};
 
-use super::progress::Reporter;
 use super::{RowLines, Table, TableError};
 use crate::output::AtomicFile;
+use crate::progress::Reporter;
 
 /// The four bytes a Parquet file starts (and ends) with.
 pub const MAGIC: &[u8; 4] = b"PAR1";

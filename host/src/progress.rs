@@ -1,9 +1,14 @@
-//! How far the reading of an input file has come, for a progress bar: every file the host
-//! reads goes through [`crate::interchange::open_maybe_gz`] (a board log through
-//! [`crate::decode::decode_file`]), which counts the bytes taken
-//! from the file on disk (compressed bytes for a gzip file, so the share is right either
-//! way) and tells the process's [`ReadProgress`] observer, if one is installed. The library
-//! draws nothing; the `dynacal` binary installs an observer that draws a bar on stderr.
+//! How far long work has come, for a progress display. The library draws nothing: it tells
+//! the process's observers, if the program installed any (the `dynacal` binary draws on
+//! stderr).
+//!
+//! - Reading: every file the host reads goes through [`crate::interchange::open_maybe_gz`]
+//!   (a board log through [`crate::decode::decode_file`], a Parquet file through its column
+//!   reader), which counts the bytes taken from the file on disk (compressed bytes for a gzip
+//!   file, so the share is right either way) and tells the [`ReadProgress`] observer.
+//! - Computing: long computations (a diagnosis, a calibration) name the stage they enter with
+//!   [`stage`], told to the [`WorkProgress`] observer: a run of many minutes says what it is
+//!   doing rather than only that it runs.
 
 use std::io::Read;
 use std::path::Path;
@@ -26,6 +31,26 @@ static OBSERVER: OnceLock<Box<dyn ReadProgress>> = OnceLock::new();
 /// Installs the process's observer of file reading; false if one already was.
 pub fn observe_reading(observer: Box<dyn ReadProgress>) -> bool {
     OBSERVER.set(observer).is_ok()
+}
+
+/// What is told of long work: the stage it enters (any thread, in the order they come).
+pub trait WorkProgress: Send + Sync {
+    /// Work enters the stage `what` ("channel gx: measuring the gain").
+    fn stage(&self, what: &str);
+}
+
+static WORK_OBSERVER: OnceLock<Box<dyn WorkProgress>> = OnceLock::new();
+
+/// Installs the process's observer of long work; false if one already was.
+pub fn observe_work(observer: Box<dyn WorkProgress>) -> bool {
+    WORK_OBSERVER.set(observer).is_ok()
+}
+
+/// Tells the observer, if any, that work enters the stage `what()` (formatted only then).
+pub fn stage(what: impl FnOnce() -> String) {
+    if let Some(observer) = WORK_OBSERVER.get() {
+        observer.stage(&what());
+    }
 }
 
 /// Bytes between two reports: often enough for a bar, rarely enough to cost nothing.
@@ -136,6 +161,30 @@ mod tests {
                 .unwrap()
                 .push(("finished".into(), handle, 0));
         }
+    }
+
+    /// Stages told with `stage` reach the installed observer, in order, formatted.
+    #[test]
+    fn stages_reach_the_work_observer_in_order() {
+        static STAGES: Mutex<Vec<String>> = Mutex::new(Vec::new());
+        struct Log;
+        impl WorkProgress for Log {
+            fn stage(&self, what: &str) {
+                STAGES.lock().unwrap().push(what.to_string());
+            }
+        }
+        assert!(observe_work(Box::new(Log)));
+        assert!(!observe_work(Box::new(Log)), "one observer a process");
+        stage(|| "a first stage".into());
+        stage(|| format!("channel {}: a second", "gx"));
+        // Other tests of this binary (calibrations) may tell stages of their own meanwhile.
+        let seen = STAGES.lock().unwrap().clone();
+        let mine: Vec<&str> = seen
+            .iter()
+            .map(String::as_str)
+            .filter(|s| s.starts_with("a first") || s.ends_with("a second"))
+            .collect();
+        assert_eq!(mine, ["a first stage", "channel gx: a second"]);
     }
 
     /// A gzip file read through `open_maybe_gz` reports its compressed size, bytes adding up
