@@ -307,8 +307,8 @@ fn ship_run(causes: &[&'static str], seed: u64, seconds: f64) -> (DiagnoseReport
     let drive = ship::ship_run(seconds, seed, &mount, &effects);
     let baseline = baseline_fitted_on(&ship::static_record(seconds, seed ^ 0x5_7a71c, &mount));
     let report = diagnose(
-        &drive.sensor,
-        Some(&drive.reference),
+        drive.sensor.clone(),
+        Some(drive.reference.clone()),
         Some(baseline),
         &DiagnoseOptions {
             seed,

@@ -182,8 +182,8 @@ fn extended_model_runs_in_the_simulator_and_carries_the_found_effect() {
     )
     .expect("the extended model simulates");
     let again = diagnose(
-        &out.imus[0].recording,
-        Some(&out.reference.recording),
+        out.imus[0].recording.clone(),
+        Some(out.reference.recording.clone()),
         Some(fitted_baseline(77, SECONDS)),
         &DiagnoseOptions {
             seed: 77,
@@ -242,7 +242,7 @@ fn finds_a_bias_step_on_static_data() {
     let (model, _) = car::hide(&[("bias_shift", Some("ax"))], 41, seconds);
     let out = car::simulate_run(&model, Scenario::Static, seconds, 41);
     let report = diagnose(
-        &out.imus[0].recording,
+        out.imus[0].recording.clone(),
         None,
         Some(fitted_baseline(41, seconds)),
         &DiagnoseOptions {
@@ -286,8 +286,8 @@ fn simulations_drawn_again_give_the_report_held_ones_give() {
     let baseline = fitted_baseline(5, seconds);
     let diagnose_holding = |held_samples: usize| {
         diagnose(
-            &out.imus[0].recording,
-            Some(&out.reference.recording),
+            out.imus[0].recording.clone(),
+            Some(out.reference.recording.clone()),
             Some(baseline.clone()),
             &DiagnoseOptions {
                 seed: 5,

@@ -333,8 +333,12 @@ pub(super) struct EpochData {
 impl EpochData {
     /// The same epochs with the sensor rotated by `r_sb` (sensor to reference body frame).
     pub(super) fn rotated(self, r_sb: &Rotation3<f64>) -> EpochData {
+        // In place: a copy would hold both for a moment, six series of the drive's length.
         let rotate = |v: Option<Vec<Vector3<f64>>>| {
-            v.map(|v| v.iter().map(|x| r_sb * x).collect::<Vec<_>>())
+            v.map(|mut v| {
+                v.iter_mut().for_each(|x| *x = r_sb * *x);
+                v
+            })
         };
         EpochData {
             gyro_rad_s: rotate(self.gyro_rad_s),

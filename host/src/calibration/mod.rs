@@ -129,6 +129,11 @@ pub struct ErrorOptions {
     pub estimate_time_offset: bool,
     /// Largest time offset searched, s: also the margin trimmed off the overlap.
     pub max_time_offset_s: f64,
+    /// Form only the dynamics the diagnosis reads (angular rate and acceleration): the
+    /// angular jerk and the acceleration with its rate are left empty, as
+    /// [`ErrorSignals::release_jerks_and_acceleration`] leaves them, without ever holding
+    /// them (nine series of the drive's length).
+    pub rates_only: bool,
 }
 
 impl Default for ErrorOptions {
@@ -137,6 +142,7 @@ impl Default for ErrorOptions {
             estimate_lever_arm: true,
             estimate_time_offset: true,
             max_time_offset_s: 0.2,
+            rates_only: false,
         }
     }
 }
@@ -171,7 +177,7 @@ pub fn build_error_signals_with_design(
     crate::progress::stage(|| "forming the error signals and the dynamics".into());
     let design = CalibrationDesign::new(&fit.layout, fit.weights, &data);
     let errors = signals::error_columns(&data, fit.lever_arm_b_m());
-    let dynamics = signals::dynamics_columns(&source.t_s, &data);
+    let dynamics = signals::dynamics_columns(&source.t_s, &data, opts.rates_only);
     let summary = signals::summary(fit, &source, &errors);
     let signals = ErrorSignals {
         specific_force_b_m_s2: Some(std::array::from_fn(|i| {
@@ -303,5 +309,17 @@ mod tests {
         let mean = gx.iter().sum::<f64>() / gx.len() as f64;
         assert!((mean - bg[0]).abs() < 2e-4, "{mean}");
         assert!(std_dev(gx) < 3e-3, "{}", std_dev(gx));
+        // What the diagnosis asks for: the same calibration and errors, only the rates among
+        // the dynamics, the jerks and the acceleration never formed.
+        let rates = ErrorOptions {
+            rates_only: true,
+            ..Default::default()
+        };
+        let (lean, lean_summary) = build_error_signals(&sensor, &reference, &rates).unwrap();
+        assert_eq!(lean_summary.boresight_rad.value, s.boresight_rad.value);
+        assert_eq!(lean.errors, sig.errors);
+        assert_eq!(lean.dynamics[..6], sig.dynamics[..6]);
+        assert!(lean.dynamics[6..].iter().all(Vec::is_empty));
+        assert!(sig.dynamics.iter().all(|d| d.len() == sig.t_s.len()));
     }
 }

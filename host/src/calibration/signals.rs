@@ -50,24 +50,34 @@ pub(super) fn error_columns(
 /// The dynamics of Section III at the epochs `t_s`, in
 /// [`crate::regress::DYNAMICS_REGRESSORS`] order: angular rate, acceleration and jerk, linear
 /// acceleration (specific force plus gravity) and jerk, body frame.
-pub(super) fn dynamics_columns(t_s: &[f64], data: &EpochData) -> [Vec<f64>; 15] {
+pub(super) fn dynamics_columns(t_s: &[f64], data: &EpochData, rates_only: bool) -> [Vec<f64>; 15] {
     let reference = &data.reference;
-    let omega_dot = &data.omega_dot_b_rad_s2;
-    let omega_ddot = crate::numeric::central_difference_3(t_s, omega_dot);
+    let column = |v: &[Vector3<f64>], axis: usize| v.iter().map(|x| x[axis]).collect::<Vec<_>>();
+    let mut columns: [Vec<f64>; 15] = std::array::from_fn(|_| Vec::new());
+    for axis in 0..3 {
+        columns[axis] = column(&reference.omega_ib_b_rad_s, axis);
+        columns[3 + axis] = column(&data.omega_dot_b_rad_s2, axis);
+    }
+    if rates_only {
+        return columns;
+    }
+    // Each temporary is dropped once its columns are made: a long drive holds fewer series.
+    let omega_ddot = crate::numeric::central_difference_3(t_s, &data.omega_dot_b_rad_s2);
+    for axis in 0..3 {
+        columns[6 + axis] = column(&omega_ddot, axis);
+    }
+    drop(omega_ddot);
     let a_b: Vec<Vector3<f64>> = (0..data.len())
         .map(|k| {
             reference.f_b_m_s2[k] + reference.q_nb_mid[k].inverse() * reference.g_ned_mid_m_s2[k]
         })
         .collect();
     let a_dot = crate::numeric::central_difference_3(t_s, &a_b);
-    let series = [
-        &reference.omega_ib_b_rad_s,
-        omega_dot,
-        &omega_ddot,
-        &a_b,
-        &a_dot,
-    ];
-    std::array::from_fn(|q| series[q / 3].iter().map(|v| v[q % 3]).collect())
+    for axis in 0..3 {
+        columns[9 + axis] = column(&a_b, axis);
+        columns[12 + axis] = column(&a_dot, axis);
+    }
+    columns
 }
 
 /// A bias estimated in the (rotated) body frame, expressed back in the sensor frame. The

@@ -41,6 +41,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         estimate_lever_arm: !args.no_lever_arm,
         estimate_time_offset: !args.no_time_offset,
         max_time_offset_s: args.max_time_offset,
+        rates_only: false,
     };
     let bar = super::working(&format!(
         "calibrating {} against {}",

@@ -33,8 +33,14 @@ pub(super) fn calibrate(
 ) -> Result<Calibrated, DiagnoseError> {
     Ok(match reference {
         Some(r) => {
-            let (signals, summary, design) =
-                build_error_signals_with_design(sensor, r, &ErrorOptions::default())?;
+            let (signals, summary, design) = build_error_signals_with_design(
+                sensor,
+                r,
+                &ErrorOptions {
+                    rates_only: true,
+                    ..Default::default()
+                },
+            )?;
             Calibrated {
                 signals,
                 calibration: Some((summary, design)),

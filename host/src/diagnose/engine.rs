@@ -50,7 +50,7 @@ use super::gain::{measure_gain, ChannelModelSims};
 use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, select};
 use super::moments::Absorber;
 use super::stats::SeriesSet;
-use super::stochastic::find_stochastic_effects;
+use super::stochastic::{find_stochastic_effects, lattice_step};
 use super::terms::{find_terms, ChannelTerms, FittedTerms};
 use crate::calibration::{CalibrationDesign, CalibrationSummary};
 use crate::error_signal::ErrorSignals;
@@ -243,7 +243,11 @@ pub(super) fn simulated_range(vals: &[f64]) -> [f64; 2] {
 /// What every stage of one run shares: the data, the calibration, the baseline, the options
 /// and the quantities derived from them once.
 pub(super) struct Run<'a> {
-    pub sensor: &'a ImuRecording,
+    /// The sensor recording's first time, s: findings' times count from it.
+    pub sensor_start_s: f64,
+    /// Per channel (gx..az) the lattice step of the raw sensor values and its standard
+    /// error, where they lie on one (quantised output).
+    pub raw_lattice: [Option<(f64, f64)>; 6],
     pub signals: &'a ErrorSignals,
     pub calibration: Option<&'a CalibrationSummary>,
     pub design: Option<&'a CalibrationDesign>,
@@ -525,18 +529,28 @@ fn diagnose_channel(
 }
 
 /// Runs the engine on a sensor recording against a reference (or, without one, on static
-/// data whose truth is constant).
+/// data whose truth is constant). The recordings are taken, and dropped once the error
+/// signals are formed: on a long drive they are a tenth of what the diagnosis holds.
 pub fn diagnose(
-    sensor: &ImuRecording,
-    reference: Option<&ImuRecording>,
+    sensor: ImuRecording,
+    reference: Option<ImuRecording>,
     baseline: Option<Baseline>,
     opts: &DiagnoseOptions,
 ) -> Result<DiagnoseReport, DiagnoseError> {
     let mut notes = Vec::new();
-    if reference.is_some() {
+    let has_dynamics = reference.is_some();
+    if has_dynamics {
         stage(|| "calibrating against the reference (boresight, lever arm, time offset)".into());
     }
-    let mut calibrated = calibrate(sensor, reference, &mut notes)?;
+    let mut calibrated = calibrate(&sensor, reference.as_ref(), &mut notes)?;
+    drop(reference);
+    let sensor_start_s = sensor.t_s.first().copied().unwrap_or(0.0);
+    let raw_lattice = std::array::from_fn(|ch| {
+        sensor
+            .channel(Channel::ALL[ch].name())
+            .and_then(lattice_step)
+    });
+    drop(sensor);
     calibrated.signals.release_jerks_and_acceleration();
     let signals = &calibrated.signals;
     let Grid {
@@ -568,7 +582,7 @@ pub fn diagnose(
     let (null_models, null_notes) =
         super::null::null_models(&baseline, &channels, opts.replicates, opts.seed);
     notes.extend(null_notes);
-    let tests = tests_of_run(channels.len(), n, reference.is_some());
+    let tests = tests_of_run(channels.len(), n, has_dynamics);
     let alpha_test = opts.alpha / tests as f64;
     let z_strict = Normal::new(0.0, 1.0)
         .expect("normal")
@@ -587,7 +601,8 @@ pub fn diagnose(
             None => Cow::Owned(central_difference(&signals.t_s, &specific_force_m_s2[i])),
         });
     let run = Run {
-        sensor,
+        sensor_start_s,
+        raw_lattice,
         signals,
         calibration: calibrated.calibration.as_ref().map(|(c, _)| c),
         design: calibrated.calibration.as_ref().map(|(_, d)| d),
@@ -596,7 +611,7 @@ pub fn diagnose(
         channels,
         n,
         dt_s,
-        has_dynamics: reference.is_some(),
+        has_dynamics,
         omega_norm,
         specific_force_m_s2,
         specific_force_rate_m_s3,

@@ -156,7 +156,7 @@ fn coefficients_on(
         .terms
         .iter()
         .filter(|t| kept.contains(&Component::Terms(t.cause)))
-        .map(|t| (t.name.as_str(), gather(&t.own, train)))
+        .map(|t| (t.name.as_str(), gather(&t.own(), train)))
         .collect();
     if columns.is_empty() {
         return all;
@@ -204,7 +204,7 @@ struct Scoring<'a> {
     slot: usize,
     spec: &'a ModelSpec,
     e: &'a [f64],
-    terms: &'a FittedTerms,
+    terms: &'a FittedTerms<'a>,
     found: &'a StochasticFindings,
 }
 

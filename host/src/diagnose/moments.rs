@@ -9,6 +9,7 @@
 //! manoeuvres is in the null distribution) and from batch means of the measured residual;
 //! [`eliminate_on_moments`] is the stepwise selection over such terms.
 
+use std::borrow::Cow;
 use std::sync::Arc;
 
 use super::terms::Candidate;
@@ -24,6 +25,30 @@ use crate::model::{Cause, Channel};
 pub(super) enum Absorber<'a> {
     Design(&'a CalibrationDesign),
     Mean,
+}
+
+/// Where a term's regressor comes from: a series of the run (borrowed, so a term does not
+/// copy it), or a bias step made when asked for.
+#[derive(Clone, Copy)]
+pub(super) enum Regressor<'a> {
+    Series(&'a [f64]),
+    /// 0 before epoch `at`, 1 from it on, over `n` epochs.
+    Step {
+        at: usize,
+        n: usize,
+    },
+}
+
+impl<'a> Regressor<'a> {
+    /// The regressor's values, one per epoch.
+    pub fn values(&self) -> Cow<'a, [f64]> {
+        match *self {
+            Regressor::Series(x) => Cow::Borrowed(x),
+            Regressor::Step { at, n } => {
+                Cow::Owned((0..n).map(|t| if t >= at { 1.0 } else { 0.0 }).collect())
+            }
+        }
+    }
 }
 
 /// A regressor on one channel seen through the calibration: the parameters the calibration
@@ -94,15 +119,20 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
 /// inner products in that metric with the error and with each baseline simulation, and its
 /// coefficient with the standard error the simulations give it.
 #[derive(Clone)]
-pub(super) struct Term {
+pub(super) struct Term<'a> {
     pub channel: Channel,
     pub name: String,
     pub cause: Cause,
     /// The body axis of the regressor (x, y, z = 0, 1, 2).
     pub axis: usize,
-    /// The regressor less what the calibration absorbs of it on its own channel (shared:
-    /// a term is copied in each selection, and the series are long).
-    pub own: Arc<[f64]>,
+    /// The regressor, and what absorbs of it: the term's unfiltered signature on its own
+    /// channel ([`Term::own`]) is made from them when asked for rather than held, as a
+    /// channel's dozen candidates would hold a dozen series of the drive's length.
+    regressor: Regressor<'a>,
+    absorber: Absorber<'a>,
+    /// Mean and variance of [`Term::own`] (channel unit / regressor unit, squared).
+    pub own_mean: f64,
+    pub own_variance: f64,
     pub projection: Projection,
     /// `own` filtered by its channel's whitening filter.
     white_own: Arc<[f64]>,
@@ -126,9 +156,9 @@ pub(super) struct Term {
     pub fixed: Option<f64>,
 }
 
-impl Term {
+impl<'a> Term<'a> {
     /// One candidate as a term, coefficient not yet set.
-    pub fn new(space: &WhiteSpace, channel: Channel, c: &Candidate) -> Self {
+    pub fn new(space: &WhiteSpace<'a>, channel: Channel, c: &Candidate<'a>) -> Self {
         Self::batch(space, channel, std::slice::from_ref(c))
             .pop()
             .expect("one term per candidate")
@@ -136,7 +166,7 @@ impl Term {
 
     /// Every candidate on `channel` as a term, coefficients not yet set; the simulations
     /// are visited once for all of them.
-    pub fn batch(space: &WhiteSpace, channel: Channel, cands: &[Candidate]) -> Vec<Self> {
+    pub fn batch(space: &WhiteSpace<'a>, channel: Channel, cands: &[Candidate<'a>]) -> Vec<Self> {
         use rayon::prelude::*;
         let own_ch = channel.index();
         let absorber = space.absorber();
@@ -144,8 +174,10 @@ impl Term {
         let mut terms: Vec<Term> = cands
             .par_iter()
             .map(|c| {
-                let projection = absorber.project(channel, c.values);
-                let own = absorber.own(channel, c.values, &projection);
+                let values = c.values.values();
+                let projection = absorber.project(channel, &values);
+                let own = absorber.own(channel, &values, &projection);
+                let own_mean = own.iter().sum::<f64>() / own.len().max(1) as f64;
                 let pulled = std::array::from_fn(|ch| {
                     let g = space.column_gram(ch).filter(|_| ch != own_ch)?;
                     Some(g * &projection.absorbed)
@@ -156,7 +188,10 @@ impl Term {
                     cause: c.cause,
                     axis: c.axis,
                     white_own: whitener.apply(&own).into(),
-                    own: own.into(),
+                    regressor: c.values,
+                    absorber,
+                    own_mean,
+                    own_variance: super::engine::variance(&own),
                     projection,
                     on_own_columns: None,
                     pulled,
@@ -218,6 +253,13 @@ impl Term {
             .filter(|&ch| ch != self.channel.index())
             .filter_map(|ch| on(ch).map(|m| -m.dot(&self.projection.absorbed)))
             .sum()
+    }
+
+    /// The regressor less what the calibration absorbs of it on its own channel, one value
+    /// per epoch (made anew at each call).
+    pub fn own(&self) -> Vec<f64> {
+        let values = self.regressor.values();
+        self.absorber.own(self.channel, &values, &self.projection)
     }
 
     /// The filtered signature on the term's own channel.
@@ -298,9 +340,7 @@ pub(super) fn full_fit_residual(e: &[f64], terms: &[Term]) -> Vec<f64> {
     };
     let mut r = e.to_vec();
     for (t, b) in terms.iter().zip(beta.iter()) {
-        r.iter_mut()
-            .zip(t.own.iter())
-            .for_each(|(v, x)| *v -= b * x);
+        r.iter_mut().zip(t.own()).for_each(|(v, x)| *v -= b * x);
     }
     let m = r.iter().sum::<f64>() / r.len().max(1) as f64;
     r.iter_mut().for_each(|v| *v -= m);
@@ -513,11 +553,11 @@ mod tests {
     /// Candidates on one channel without a calibration design, fitted with a white-noise
     /// baseline of sd 0.05 (so generalised least squares is ordinary least squares): the
     /// columns' terms, their Gram matrix and the channel's filtered error.
-    fn moment_terms(
+    fn moment_terms<'a>(
         e: &[f64],
-        sims: &[Vec<f64>],
-        columns: &[(&str, Vec<f64>)],
-    ) -> (nalgebra::DMatrix<f64>, Vec<Term>, Vec<f64>) {
+        sims: &'a [Vec<f64>],
+        columns: &'a [(&str, Vec<f64>)],
+    ) -> (nalgebra::DMatrix<f64>, Vec<Term<'a>>, Vec<f64>) {
         let absorber = Absorber::Mean;
         let spec = crate::gmwm::model::ModelSpec {
             model: "WN".into(),
@@ -544,7 +584,7 @@ mod tests {
             .map(|(name, values)| {
                 let c = Candidate {
                     name: (*name).into(),
-                    values,
+                    values: Regressor::Series(values),
                     cause: Cause::ScaleFactor,
                     axis: 0,
                 };

@@ -339,8 +339,7 @@ fn vibration_lines(
 
 /// Quantization: the raw sensor values on a lattice the baseline does not have.
 fn quantization(run: &Run, channel: Channel, e: &[f64], found: &mut StochasticFindings) {
-    let raw = run.sensor.channel(channel.name()).unwrap_or(&[]);
-    let Some((q, q_se)) = lattice_step(raw) else {
+    let Some((q, q_se)) = run.raw_lattice[channel.index()] else {
         return;
     };
     found.discrepancies.push(Discrepancy {
@@ -364,7 +363,7 @@ fn quantization(run: &Run, channel: Channel, e: &[f64], found: &mut StochasticFi
 
 /// Lattice spacing of a raw sensor channel and its standard error, if its values lie on one
 /// (quantised output).
-fn lattice_step(x: &[f64]) -> Option<(f64, f64)> {
+pub(super) fn lattice_step(x: &[f64]) -> Option<(f64, f64)> {
     let diffs: Vec<f64> = x
         .windows(2)
         .map(|w| (w[1] - w[0]).abs())

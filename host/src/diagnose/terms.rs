@@ -11,7 +11,8 @@ use serde_json::json;
 
 use super::engine::{ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run};
 use super::moments::{
-    eliminate_on_moments, full_fit_residual, gram_matrix, MeasuredSpread, Term, WhiteSpace,
+    eliminate_on_moments, full_fit_residual, gram_matrix, MeasuredSpread, Regressor, Term,
+    WhiteSpace,
 };
 use super::null::{normal_p_value, scan_p_value};
 use super::stats::{
@@ -30,7 +31,7 @@ fn explains_enough(share: f64, min: f64) -> bool {
 /// A regressor that may drive a channel's error, and the cause it stands for.
 pub(super) struct Candidate<'a> {
     pub name: String,
-    pub values: &'a [f64],
+    pub values: Regressor<'a>,
     pub cause: Cause,
     /// The body axis of the regressor (x, y, z = 0, 1, 2): where its coefficient goes in the
     /// channel's model row.
@@ -38,8 +39,8 @@ pub(super) struct Candidate<'a> {
 }
 
 /// What the per-channel and joint stages found on one channel.
-pub(super) struct ChannelTerms {
-    pub terms: Vec<Term>,
+pub(super) struct ChannelTerms<'a> {
+    pub terms: Vec<Term<'a>>,
     /// Time of the bias step, s from the start of the sensor recording, when one was found.
     pub step_at_s: Option<f64>,
     pub discrepancies: Vec<Discrepancy>,
@@ -67,7 +68,7 @@ fn candidates<'a>(run: &'a Run, channel: Channel) -> Vec<Candidate<'a>> {
         };
         cands.push(Candidate {
             name: format!("{input_name}_{axis_name}"),
-            values: input,
+            values: Regressor::Series(input),
             cause: if j == channel.axis() {
                 Cause::ScaleFactor
             } else {
@@ -78,20 +79,20 @@ fn candidates<'a>(run: &'a Run, channel: Channel) -> Vec<Candidate<'a>> {
         if gyro {
             cands.push(Candidate {
                 name: format!("f_{axis_name}"),
-                values: &run.specific_force_m_s2[j],
+                values: Regressor::Series(&run.specific_force_m_s2[j]),
                 cause: Cause::GSensitivity,
                 axis: j,
             });
         }
         cands.push(Candidate {
             name: format!("omega_dot_{axis_name}"),
-            values: run.signals.angular_acceleration_rad_s2(j),
+            values: Regressor::Series(run.signals.angular_acceleration_rad_s2(j)),
             cause: Cause::AngularAcceleration,
             axis: j,
         });
         cands.push(Candidate {
             name: format!("f_dot_{axis_name}"),
-            values: &run.specific_force_rate_m_s3[j],
+            values: Regressor::Series(&run.specific_force_rate_m_s3[j]),
             cause: Cause::Jerk,
             axis: j,
         });
@@ -134,17 +135,17 @@ fn white_space<'a>(run: &'a Run) -> Result<WhiteSpace<'a>, DiagnoseError> {
 
 /// The stepwise selection of one channel's terms, with what it needs of the channel: its
 /// error and the run in the metric of generalised least squares.
-struct Selection<'a> {
+struct Selection<'s, 'a> {
     channel: Channel,
-    e: &'a [f64],
-    space: &'a WhiteSpace<'a>,
+    e: &'s [f64],
+    space: &'s WhiteSpace<'a>,
     z_strict: f64,
     min_variance_explained: f64,
 }
 
-impl Selection<'_> {
+impl<'a> Selection<'_, 'a> {
     /// Every candidate as a term fitted with the calibration, coefficients not yet set.
-    fn terms(&self, cands: &[Candidate]) -> Vec<Term> {
+    fn terms(&self, cands: &[Candidate<'a>]) -> Vec<Term<'a>> {
         Term::batch(self.space, self.channel, cands)
     }
 
@@ -153,7 +154,7 @@ impl Selection<'_> {
     /// spurious correlation of slow noise with slow manoeuvres is in the null distribution.
     /// HAC alone under-covers for such persistent noise. With a `fixed` term (a bias step
     /// estimated locally) the candidates are fitted on what it leaves.
-    fn select(&self, mut terms: Vec<Term>, fixed: Option<&Term>) -> Vec<Term> {
+    fn select(&self, mut terms: Vec<Term<'a>>, fixed: Option<&Term<'a>>) -> Vec<Term<'a>> {
         let white_error = self.space.error(self.channel);
         let spread_e = match fixed {
             Some(f) => {
@@ -165,7 +166,7 @@ impl Selection<'_> {
         let gram = gram_matrix(&terms);
         let var_e = variance(self.e);
         let small = |k: usize, b: f64| {
-            let explained = b.powi(2) * variance(&terms[k].own) / var_e;
+            let explained = b.powi(2) * terms[k].own_variance / var_e;
             !explains_enough(explained, self.min_variance_explained)
         };
         let kept = eliminate_on_moments(
@@ -262,7 +263,7 @@ fn find_bias_step(
     let sharp = !(blur > MAX_STEP_BLUR);
     Some(FoundStep {
         index: step.index,
-        at_s: t_s[step.index] - run.sensor.t_s[0],
+        at_s: t_s[step.index] - run.sensor_start_s,
         size: step.size,
         se: step.sd,
         p_value: scan_p_value(step.z, &sim_z),
@@ -298,13 +299,13 @@ fn find_bias_step(
 /// (0 before, 1 after) is confounded with slow wander, whose spread over a fitted
 /// baseline's drawn models is wide, while a step stands whole at a window of seconds, where
 /// the wander barely moves.
-fn channel_terms(
-    run: &Run,
-    space: &WhiteSpace,
+fn channel_terms<'a>(
+    run: &'a Run,
+    space: &WhiteSpace<'a>,
     slot: usize,
     channel: Channel,
     steps_elsewhere: Option<&[f64]>,
-) -> Result<ChannelTerms, DiagnoseError> {
+) -> Result<ChannelTerms<'a>, DiagnoseError> {
     let e = run.error(channel);
     let cands = candidates(run, channel);
     // Baseline simulations: the null distribution of the step scan.
@@ -333,12 +334,12 @@ fn channel_terms(
         } = found;
         discrepancies.push(discrepancy);
         if sharp {
-            let step_values: Vec<f64> = (0..run.n)
-                .map(|t| if t >= index { 1.0 } else { 0.0 })
-                .collect();
             let candidate = Candidate {
                 name: format!("step_at_{at_s:.2}_s"),
-                values: &step_values,
+                values: Regressor::Step {
+                    at: index,
+                    n: run.n,
+                },
                 cause: Cause::BiasShift,
                 axis: 0,
             };
@@ -361,7 +362,7 @@ fn channel_terms(
 /// per channel, then, with a calibration, stage 2 across channels: the terms kept per channel
 /// are fitted jointly with the calibration and each other, so a term one channel shows only
 /// because another channel's term pulled the boresight or lever arm drops out.
-pub(super) fn find_terms(run: &Run) -> Result<Vec<ChannelTerms>, DiagnoseError> {
+pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, DiagnoseError> {
     let errors: [Option<&[f64]>; 6] =
         std::array::from_fn(|i| run.signals.error_of(Channel::ALL[i]));
     let space = white_space(run)?;
@@ -402,7 +403,7 @@ pub(super) fn find_terms(run: &Run) -> Result<Vec<ChannelTerms>, DiagnoseError> 
         .collect();
     let joint = joint_terms(design, all, run.z_strict, &|t: &Term, b: f64| {
         let explained =
-            b.powi(2) * variance(&t.own) / errors[t.channel.index()].map_or(f64::NAN, variance);
+            b.powi(2) * t.own_variance / errors[t.channel.index()].map_or(f64::NAN, variance);
         !explains_enough(explained, run.opts.min_variance_explained)
     });
     let mut joint_spill = joint.spill;
@@ -445,8 +446,8 @@ fn step_spill(
 
 /// The terms the joint fit keeps and, per channel, what the other channels' kept terms
 /// had pushed into it through the calibration (to be taken out of its error).
-struct JointTerms {
-    terms: Vec<Term>,
+struct JointTerms<'a> {
+    terms: Vec<Term<'a>>,
     spill: [Option<Vec<f64>>; 6],
 }
 
@@ -459,12 +460,12 @@ struct JointTerms {
 /// other channels (f_x on az). Each channel's own fit sees that copy as a term of its own;
 /// in the joint fit the copy is explained by the term that caused it. Fixed terms (a bias
 /// step's local estimate) keep their coefficients; the others are fitted on what they leave.
-fn joint_terms(
+fn joint_terms<'a>(
     design: &CalibrationDesign,
-    terms: Vec<Term>,
+    terms: Vec<Term<'a>>,
     z_strict: f64,
     small: &dyn Fn(&Term, f64) -> bool,
-) -> JointTerms {
+) -> JointTerms<'a> {
     let (fixed, mut terms): (Vec<Term>, Vec<Term>) =
         terms.into_iter().partition(|t| t.fixed.is_some());
     for t in terms.iter_mut() {
@@ -524,8 +525,11 @@ impl Coefficient {
 
 /// A channel's deterministic terms after both stages: each term with its coefficient
 /// (`coefficients[k]` belongs to `terms[k]`) and the bias left beside them.
-pub(super) struct FittedTerms {
-    pub terms: Vec<Term>,
+pub(super) struct FittedTerms<'a> {
+    pub terms: Vec<Term<'a>>,
+    /// Each term's [`Term::own`], held: a channel keeps few terms, and the gain's
+    /// simulations read them over and over.
+    own: Vec<Vec<f64>>,
     pub coefficients: Vec<Coefficient>,
     /// Mean error the terms leave, channel unit.
     pub intercept: f64,
@@ -543,12 +547,12 @@ const TERM_CAUSES: [Cause; 6] = [
     Cause::BiasShift,
 ];
 
-impl FittedTerms {
+impl<'a> FittedTerms<'a> {
     /// The terms `found` on `channel`, whose error (as the joint calibration leaves it) is
     /// `e`. A term whose final interval (widened by the time offset's uncertainty where it
     /// rides on the channel's own derivative) no longer excludes zero at the run's per-test
     /// level is dropped: a finding means its effect is there.
-    pub fn new(run: &Run, channel: Channel, found: ChannelTerms, e: &[f64]) -> Self {
+    pub fn new(run: &Run, channel: Channel, found: ChannelTerms<'a>, e: &[f64]) -> Self {
         let n = run.n;
         let var_e = variance(e);
         let offset_sigma_s = run
@@ -574,7 +578,7 @@ impl FittedTerms {
                 let c = Coefficient {
                     value: t.coef,
                     ci95: ci(t.coef, se),
-                    variance_explained: t.coef.powi(2) * variance(&t.own) / var_e,
+                    variance_explained: t.coef.powi(2) * t.own_variance / var_e,
                     p_value: t.fixed.unwrap_or_else(|| normal_p_value(t.coef / se)),
                 };
                 (t, c)
@@ -582,12 +586,10 @@ impl FittedTerms {
             .filter(|(_, c)| c.p_value < run.alpha_test)
             .unzip();
         let intercept = e.iter().sum::<f64>() / n as f64
-            - terms
-                .iter()
-                .map(|t| t.coef * t.own.iter().sum::<f64>() / n as f64)
-                .sum::<f64>();
+            - terms.iter().map(|t| t.coef * t.own_mean).sum::<f64>();
         let step_kept = terms.iter().any(|t| t.cause == Cause::BiasShift);
         Self {
+            own: terms.iter().map(Term::own).collect(),
             terms,
             coefficients,
             intercept,
@@ -606,8 +608,8 @@ impl FittedTerms {
             .map(|t| {
                 coefficients
                     .iter()
-                    .zip(&self.terms)
-                    .map(|(c, term)| c.value * term.own[t])
+                    .zip(&self.own)
+                    .map(|(c, own)| c.value * own[t])
                     .sum::<f64>()
             })
             .collect()

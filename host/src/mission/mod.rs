@@ -229,8 +229,8 @@ pub fn run_mission(
         ..Default::default()
     };
     let diagnosis = diagnose(
-        &drive.imus[0].recording,
-        Some(&drive.reference.recording),
+        drive.imus[0].recording.clone(),
+        Some(drive.reference.recording.clone()),
         Some(baseline),
         &diagnose_opts,
     )

@@ -47,8 +47,8 @@ pub fn psins(
     let mems = read_mems(&mems_path).map_err(stage("reading the PSINS MEMS"))?;
     let fog = read_fog(&fog_path).map_err(stage("reading the PSINS FOG INS"))?;
     let chain = paper::run_chain("PSINS MEMS", &mems, &fog, None)?;
-    let diagnosis = diagnose(&mems, Some(&fog), None, opts)
-        .map_err(stage("the diagnosis of the PSINS MEMS"))?;
+    let diagnosis =
+        diagnose(mems, Some(fog), None, opts).map_err(stage("the diagnosis of the PSINS MEMS"))?;
     Ok(Ok(PsinsPart { chain, diagnosis }))
 }
 

@@ -53,8 +53,8 @@ pub fn run(
     let (model, hidden) = hide(hidden, seed, seconds);
     let out = simulate_run(&model, Scenario::Car, seconds, seed);
     let report = diagnose(
-        &out.imus[0].recording,
-        Some(&out.reference.recording),
+        out.imus[0].recording.clone(),
+        Some(out.reference.recording.clone()),
         Some(fitted_baseline(seed, seconds)),
         &DiagnoseOptions {
             seed,
