@@ -67,12 +67,8 @@ impl Reporter {
     /// Starts reporting the reading of `path` (`size_bytes` on disk); reports nothing when
     /// no observer is installed.
     pub fn new(path: &Path, size_bytes: u64) -> Self {
-        Self::reporting_to(OBSERVER.get().map(|o| o.as_ref()), path, size_bytes)
-    }
-
-    fn reporting_to(observer: Option<&dyn ReadProgress>, path: &Path, size_bytes: u64) -> Self {
         Self {
-            handle: observer.map(|o| o.started(path, size_bytes)),
+            handle: OBSERVER.get().map(|o| o.started(path, size_bytes)),
             unreported: 0,
         }
     }

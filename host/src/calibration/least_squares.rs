@@ -61,29 +61,6 @@ pub(super) struct Solution {
     pub lag: usize,
 }
 
-/// The three rows (x, y, z) of the linearised error model of one epoch for the gyros
-/// (`accel = false`) or the accelerometers: columns as in [`Layout`].
-pub(super) fn design_rows(
-    layout: &Layout,
-    omega_rad_s: &Vector3<f64>,
-    f_m_s2: &Vector3<f64>,
-    omega_dot_rad_s2: &Vector3<f64>,
-    f_dot_m_s3: &Vector3<f64>,
-    accel: bool,
-) -> [[f64; MAX_PARAMETERS]; 3] {
-    std::array::from_fn(|i| {
-        design_row(
-            layout,
-            omega_rad_s,
-            f_m_s2,
-            omega_dot_rad_s2,
-            f_dot_m_s3,
-            accel,
-            i,
-        )
-    })
-}
-
 /// Row `i` of [`skew`]`(v)`.
 fn skew_row(v: &Vector3<f64>, i: usize) -> [f64; 3] {
     match i {
@@ -93,9 +70,10 @@ fn skew_row(v: &Vector3<f64>, i: usize) -> [f64; 3] {
     }
 }
 
-/// Row `i` (axis x, y, z = 0, 1, 2) of [`design_rows`], alone: the diagnosis asks for one
-/// channel's rows at a time, and the calibration's normal equations for every epoch's, many
-/// times over, so it is written out in scalars (the lever arm's skew(omega_dot) +
+/// Row `i` (axis x, y, z = 0, 1, 2) of the linearised error model of one epoch for the
+/// gyros (`accel = false`) or the accelerometers, columns as in [`Layout`]: the diagnosis
+/// asks for one channel's rows at a time, and the calibration's normal equations for every
+/// epoch's, many times over, so it is written out in scalars (the lever arm's skew(omega_dot) +
 /// skew(omega)^2 row is skew(omega_dot)'s row plus omega_i omega_j - |omega|^2 delta_ij).
 pub(super) fn design_row(
     layout: &Layout,
@@ -176,18 +154,16 @@ fn solve(layout: &Layout, data: &EpochData, weights: [f64; 2]) -> Option<Solutio
         for k in 0..n {
             let w = &reference.omega_ib_b_rad_s[k];
             let f = &reference.f_b_m_s2[k];
-            if let Some(omega_s) = omega_s.filter(|_| layout.gyro) {
-                let e = omega_s[k] - w;
-                let rows = design_rows(layout, w, f, &omega_dot[k], &f_dot[k], false);
-                for (i, x) in rows.iter().enumerate() {
-                    visit(k, x, e[i], weights[0]);
-                }
-            }
-            if let Some(f_s) = f_s.filter(|_| layout.accel) {
-                let e = f_s[k] - f;
-                let rows = design_rows(layout, w, f, &omega_dot[k], &f_dot[k], true);
-                for (i, x) in rows.iter().enumerate() {
-                    visit(k, x, e[i], weights[1]);
+            let sensed = [
+                (omega_s.filter(|_| layout.gyro), w, false, weights[0]),
+                (f_s.filter(|_| layout.accel), f, true, weights[1]),
+            ];
+            for (samples, truth, accel, weight) in sensed {
+                let Some(samples) = samples else { continue };
+                let e = samples[k] - truth;
+                for i in 0..3 {
+                    let x = design_row(layout, w, f, &omega_dot[k], &f_dot[k], accel, i);
+                    visit(k, &x, e[i], weight);
                 }
             }
         }

@@ -392,25 +392,22 @@ impl<'a> RowChecker<'a> {
     fn check(&mut self, t_s: f64, at: u64) -> Result<(), InputError> {
         if self.rows > 0 {
             let step = t_s - self.previous_t_s;
-            let path = self.path.to_path_buf();
-            let previous_t_s = self.previous_t_s;
-            if step <= 0.0 && self.rows_are_lines {
-                let line = at;
-                return Err(TableError::TimeNotIncreasing {
-                    path,
-                    line,
-                    t_s,
-                    previous_t_s,
-                }
-                .into());
-            }
             if step <= 0.0 {
-                let sample = at;
-                return Err(TableError::TimeNotIncreasingAtSample {
-                    path,
-                    sample,
-                    t_s,
-                    previous_t_s,
+                let (path, previous_t_s) = (self.path.to_path_buf(), self.previous_t_s);
+                return Err(if self.rows_are_lines {
+                    TableError::TimeNotIncreasing {
+                        path,
+                        line: at,
+                        t_s,
+                        previous_t_s,
+                    }
+                } else {
+                    TableError::TimeNotIncreasingAtSample {
+                        path,
+                        sample: at,
+                        t_s,
+                        previous_t_s,
+                    }
                 }
                 .into());
             }

@@ -74,6 +74,18 @@ fn format_error(path: &Path, message: impl std::fmt::Display) -> TableError {
     }
 }
 
+/// The file's reader (its footer read and checked) and its size on disk, bytes.
+fn open_file(path: &Path) -> Result<(SerializedFileReader<File>, u64), TableError> {
+    let io = |source| TableError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let handle = File::open(path).map_err(io)?;
+    let size_bytes = handle.metadata().map_err(io)?.len();
+    let file = SerializedFileReader::new(handle).map_err(|e| unreadable_file(path, e))?;
+    Ok((file, size_bytes))
+}
+
 fn unreadable_file(path: &Path, e: ParquetError) -> TableError {
     format_error(
         path,
@@ -213,13 +225,7 @@ impl ParquetColumns {
     /// Opens `path` and checks the wanted columns (all flat columns if `wanted` is None);
     /// names in `wanted` that are absent are left out, as a CSV reader does.
     pub fn open(path: &Path, wanted: Option<&[&str]>) -> Result<Self, TableError> {
-        let io = |source| TableError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
-        let handle = File::open(path).map_err(io)?;
-        let size_bytes = handle.metadata().map_err(io)?.len();
-        let file = SerializedFileReader::new(handle).map_err(|e| unreadable_file(path, e))?;
+        let (file, size_bytes) = open_file(path)?;
         let schema = file.metadata().file_metadata().schema_descr_ptr();
         let mut headers = Vec::new();
         let mut leaves = Vec::new();
@@ -370,12 +376,7 @@ impl ParquetColumns {
 
 /// The flat column names of a Parquet file, in file order.
 pub fn headers(path: &Path) -> Result<Vec<String>, TableError> {
-    let io = |source| TableError::Io {
-        path: path.to_path_buf(),
-        source,
-    };
-    let file = SerializedFileReader::new(File::open(path).map_err(io)?)
-        .map_err(|e| unreadable_file(path, e))?;
+    let (file, _) = open_file(path)?;
     let schema = file.metadata().file_metadata().schema_descr_ptr();
     Ok(schema
         .columns()
