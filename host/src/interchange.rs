@@ -435,7 +435,7 @@ pub(crate) fn read_stated_rate(path: &Path) -> Result<Option<(String, f64)>, Tab
 
 /// A stated rate must agree with the time column's median step to 1% (a clock off by
 /// 10000 ppm, or a file whose rate line belongs to another file).
-fn check_stated_rate(
+pub(crate) fn check_stated_rate(
     path: &Path,
     place: String,
     stated_hz: f64,
@@ -500,6 +500,41 @@ pub fn is_interchange_column(name: &str) -> bool {
     [GYRO, ACCEL, ATTITUDE, POSITION, VELOCITY]
         .iter()
         .any(|triplet| triplet.contains(&name))
+}
+
+/// The interchange columns among `headers`, in the order a recording writes them (`t_s`,
+/// the gyro and accelerometer triplets or their lone axes, attitude, position, velocity);
+/// others are left out. An error, naming `path`, without `t_s` or for a triplet that is
+/// neither whole nor (gyro, accelerometer) a lone axis, as a read refuses them.
+pub fn interchange_columns(
+    path: &Path,
+    headers: &[String],
+) -> Result<Vec<&'static str>, TableError> {
+    let has = |name: &str| headers.iter().any(|h| h == name);
+    if !has("t_s") {
+        return Err(TableError::MissingColumn {
+            path: path.to_path_buf(),
+            column: "t_s".into(),
+        });
+    }
+    let mut columns = vec!["t_s"];
+    for names in [&GYRO, &ACCEL, &ATTITUDE, &POSITION, &VELOCITY] {
+        let present: Vec<&'static str> = names.iter().copied().filter(|n| has(n)).collect();
+        let lone_allowed = CHANNEL_COLUMNS.contains(&names[0]);
+        match present.len() {
+            0 => {}
+            1 if lone_allowed => columns.extend(present),
+            3 => columns.extend(present),
+            _ => {
+                return Err(TableError::IncompleteTriplet {
+                    path: path.to_path_buf(),
+                    present: present[0].to_string(),
+                    missing: names.iter().find(|n| !has(n)).copied().unwrap_or("").into(),
+                })
+            }
+        }
+    }
+    Ok(columns)
 }
 
 const GYRO: [&str; 3] = ["gx_rad_s", "gy_rad_s", "gz_rad_s"];
@@ -844,7 +879,12 @@ impl ImuRecording {
 
 /// Latitude within the poles and longitude within two turns, rad: a position in degrees
 /// stored as radians fails here rather than as a navigation far off the Earth.
-fn check_lat_lon(path: &Path, t_s: f64, lat_rad: f64, lon_rad: f64) -> Result<(), TableError> {
+pub(crate) fn check_lat_lon(
+    path: &Path,
+    t_s: f64,
+    lat_rad: f64,
+    lon_rad: f64,
+) -> Result<(), TableError> {
     let half_pi = std::f64::consts::FRAC_PI_2;
     let two_pi = std::f64::consts::TAU;
     for (column, value, limit, range) in [

@@ -8,10 +8,13 @@
 //!   file, so the share is right either way) and tells the [`ReadProgress`] observer.
 //! - Computing: long computations (a diagnosis, a calibration) name the stage they enter with
 //!   [`stage`], told to the [`WorkProgress`] observer: a run of many minutes says what it is
-//!   doing rather than only that it runs.
+//!   doing rather than only that it runs; work of a known size (a diagnosis's passes over
+//!   its channels, a bootstrap's replicates) counts its units with a [`Tally`], so the
+//!   display shows how much is done and how long the rest will take.
 
 use std::io::Read;
 use std::path::Path;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::OnceLock;
 
 /// What is told of a file being read. One file's calls come from one thread, in order:
@@ -37,6 +40,11 @@ pub fn observe_reading(observer: Box<dyn ReadProgress>) -> bool {
 pub trait WorkProgress: Send + Sync {
     /// Work enters the stage `what` ("channel gx: measuring the gain").
     fn stage(&self, what: &str);
+    /// `done` of the `total` units of work a [`Tally`] counts are finished (`total` may grow
+    /// as work finds more to do).
+    fn counted(&self, done: u64, total: u64) {
+        let _ = (done, total);
+    }
 }
 
 static WORK_OBSERVER: OnceLock<Box<dyn WorkProgress>> = OnceLock::new();
@@ -50,6 +58,47 @@ pub fn observe_work(observer: Box<dyn WorkProgress>) -> bool {
 pub fn stage(what: impl FnOnce() -> String) {
     if let Some(observer) = WORK_OBSERVER.get() {
         observer.stage(&what());
+    }
+}
+
+/// Units of work of a known count (any thread), told to the [`WorkProgress`] observer as
+/// they are announced and finished.
+#[derive(Debug, Default)]
+pub struct Tally {
+    done: AtomicU64,
+    total: AtomicU64,
+}
+
+impl Tally {
+    /// `units` more units of work are to come.
+    pub fn expect(&self, units: u64) {
+        let total = self.total.fetch_add(units, Ordering::Relaxed) + units;
+        Self::tell(self.done.load(Ordering::Relaxed), total);
+    }
+
+    /// One unit of work is finished.
+    pub fn finish_one(&self) {
+        self.finish(1);
+    }
+
+    /// `units` units of work are finished (or found to need nothing).
+    pub fn finish(&self, units: u64) {
+        let done = self.done.fetch_add(units, Ordering::Relaxed) + units;
+        Self::tell(done, self.total.load(Ordering::Relaxed));
+    }
+
+    /// Units finished and announced so far.
+    pub fn counts(&self) -> (u64, u64) {
+        (
+            self.done.load(Ordering::Relaxed),
+            self.total.load(Ordering::Relaxed),
+        )
+    }
+
+    fn tell(done: u64, total: u64) {
+        if let Some(observer) = WORK_OBSERVER.get() {
+            observer.counted(done.min(total), total);
+        }
     }
 }
 
@@ -159,14 +208,19 @@ mod tests {
         }
     }
 
-    /// Stages told with `stage` reach the installed observer, in order, formatted.
+    /// Stages told with `stage` reach the installed observer, in order, formatted; a
+    /// tally's units are counted as announced and finished.
     #[test]
-    fn stages_reach_the_work_observer_in_order() {
+    fn stages_and_counted_work_reach_the_work_observer_in_order() {
         static STAGES: Mutex<Vec<String>> = Mutex::new(Vec::new());
+        static COUNTED: Mutex<Vec<(u64, u64)>> = Mutex::new(Vec::new());
         struct Log;
         impl WorkProgress for Log {
             fn stage(&self, what: &str) {
                 STAGES.lock().unwrap().push(what.to_string());
+            }
+            fn counted(&self, done: u64, total: u64) {
+                COUNTED.lock().unwrap().push((done, total));
             }
         }
         assert!(observe_work(Box::new(Log)));
@@ -181,6 +235,21 @@ mod tests {
             .filter(|s| s.starts_with("a first") || s.ends_with("a second"))
             .collect();
         assert_eq!(mine, ["a first stage", "channel gx: a second"]);
+        // A total no other test's tally has, so theirs can be told apart.
+        let tally = Tally::default();
+        tally.expect(7_000);
+        tally.expect(919);
+        tally.finish_one();
+        tally.finish_one();
+        assert_eq!(tally.counts(), (2, 7_919));
+        let counted: Vec<(u64, u64)> = COUNTED
+            .lock()
+            .unwrap()
+            .iter()
+            .copied()
+            .filter(|&(_, total)| total == 7_000 || total == 7_919)
+            .collect();
+        assert_eq!(counted, [(0, 7_000), (0, 7_919), (1, 7_919), (2, 7_919)]);
     }
 
     /// A gzip file read through `open_maybe_gz` reports its compressed size, bytes adding up

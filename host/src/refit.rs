@@ -339,15 +339,19 @@ fn fit_unit(
 fn hat_bootstrap(units: &mut [UnitRefit], n: usize, dt_s: f64, b: BootstrapOptions) {
     use rand::SeedableRng;
     use rayon::prelude::*;
+    let replicates_each = b.replicates as u64;
+    let tally = crate::progress::Tally::default();
+    tally.expect(Channel::ALL.len() as u64 * replicates_each);
     for (c, channel) in Channel::ALL.into_iter().enumerate() {
         let fits: Option<Vec<ChannelFit>> =
             units.iter().map(|u| u.fit_of(channel).cloned()).collect();
-        let Some(fits) = fits else { continue };
-        let structures: Option<Vec<Structure>> = fits
-            .iter()
-            .map(|f| Structure::parse(&f.model).ok())
-            .collect();
-        let Some(structures) = structures else {
+        let structures: Option<Vec<Structure>> = fits.as_ref().and_then(|fits| {
+            fits.iter()
+                .map(|f| Structure::parse(&f.model).ok())
+                .collect()
+        });
+        let (Some(fits), Some(structures)) = (fits, structures) else {
+            tally.finish(replicates_each);
             continue;
         };
         let draws: Vec<Vec<Option<Vec<f64>>>> = (0..b.replicates)
@@ -361,11 +365,14 @@ fn hat_bootstrap(units: &mut [UnitRefit], n: usize, dt_s: f64, b: BootstrapOptio
                     .collect();
                 let refs: Vec<&[f64]> = series.iter().map(Vec::as_slice).collect();
                 let own = crate::redundancy::own_wv_of(&refs, dt_s);
-                fits.iter()
+                let refits = fits
+                    .iter()
                     .zip(&structures)
                     .zip(&own)
                     .map(|((fit, structure), own)| refit_own(fit, structure, own, n, dt_s))
-                    .collect()
+                    .collect();
+                tally.finish_one();
+                refits
             })
             .collect();
         for (k, unit) in units.iter_mut().enumerate() {

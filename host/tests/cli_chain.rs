@@ -74,7 +74,7 @@ fn a_fitted_model_simulates_and_refits_to_the_same_wavelet_variance() {
     let dir = tempfile::tempdir().unwrap();
     let d = dir.path();
     std::fs::write(d.join("m.json"), MEMS_MODEL).unwrap();
-    let sim = |model: &Path, seed: &str, out: &Path| {
+    let sim = |model: &Path, seed: &str, out: &Path, format: &str| {
         dynacal(&[
             "simulate",
             "--scenario",
@@ -87,9 +87,11 @@ fn a_fitted_model_simulates_and_refits_to_the_same_wavelet_variance() {
             path(model),
             "--out",
             path(out),
+            "--format",
+            format,
         ]);
     };
-    sim(&d.join("m.json"), "3", &d.join("s1"));
+    sim(&d.join("m.json"), "3", &d.join("s1"), "csv");
     dynacal(&[
         "fit",
         path(&d.join("s1/mems.csv")),
@@ -103,10 +105,11 @@ fn a_fitted_model_simulates_and_refits_to_the_same_wavelet_variance() {
     for c in Channel::ALL {
         assert!(model.imus[0].model_of(c).stochastic.is_some(), "{c}");
     }
-    sim(&d.join("f1.json"), "4", &d.join("s2"));
+    // The second round goes through Parquet: what `simulate` writes in it, `fit` reads.
+    sim(&d.join("f1.json"), "4", &d.join("s2"), "parquet");
     dynacal(&[
         "fit",
-        path(&d.join("s2/mems.csv")),
+        path(&d.join("s2/mems.parquet")),
         "--json",
         path(&d.join("f2.json")),
     ]);

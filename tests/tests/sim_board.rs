@@ -7,6 +7,7 @@ use std::collections::BTreeMap;
 use std::path::Path;
 
 use dynacal::decode::{decode_bytes, decode_file};
+use dynacal::interchange::FileFormat;
 use dynacal::sim::board::{
     board_recording, BoardError, BoardRecording, DEFAULT_ACCEL_LSB_M_S2, DEFAULT_GYRO_LSB_RAD_S,
 };
@@ -208,7 +209,8 @@ fn simulated_log_decodes_to_the_replay_counts_bit_for_bit_and_to_counts_times_sc
 
     // Written through the output stage: the same bytes, readable from disk.
     let dir = tempfile::tempdir().unwrap();
-    let files = write_outputs_with_board(&out, dir.path(), false, false, Some(&board)).unwrap();
+    let files =
+        write_outputs_with_board(&out, dir.path(), FileFormat::Csv, false, Some(&board)).unwrap();
     assert!(files.iter().any(|f| f.ends_with(REPLAY_FILE)));
     assert_eq!(std::fs::read(dir.path().join(REPLAY_FILE)).unwrap(), replay);
     assert_eq!(std::fs::read(dir.path().join(LOG_FILE)).unwrap(), log);

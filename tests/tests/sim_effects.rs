@@ -6,6 +6,7 @@
 use std::path::Path;
 
 use dynacal::gmwm::model::{ModelSpec, Process};
+use dynacal::interchange::FileFormat;
 use dynacal::model::Channel;
 use dynacal::model::{ChannelModel, ImuModel};
 use dynacal::sim::effects::sensor_kinematics;
@@ -604,7 +605,7 @@ fn written_outputs_read_back_list_every_effect_and_repeat_bit_for_bit_for_a_seed
     let dirs = [tempfile::tempdir().unwrap(), tempfile::tempdir().unwrap()];
     for d in &dirs {
         let out = simulate(&model, &opts, &|_| {}).unwrap();
-        dynacal::sim::output::write_outputs(&out, d.path(), false, false).unwrap();
+        dynacal::sim::output::write_outputs(&out, d.path(), FileFormat::Csv, false).unwrap();
     }
     let names = [
         "reference.csv",
@@ -697,7 +698,8 @@ fn an_output_folder_that_cannot_be_created_is_an_error_naming_it() {
     std::fs::write(&blocker, b"x").unwrap();
     let out = run(&model_with(100.0, vec![]), Scenario::Static, 1.0, 1);
     let err =
-        dynacal::sim::output::write_outputs(&out, &blocker.join("out"), false, false).unwrap_err();
+        dynacal::sim::output::write_outputs(&out, &blocker.join("out"), FileFormat::Csv, false)
+            .unwrap_err();
     assert!(
         err.to_string().contains("file/out") || err.to_string().contains("file"),
         "{err}"

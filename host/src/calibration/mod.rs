@@ -39,7 +39,7 @@ mod least_squares;
 pub(crate) mod motion;
 mod signals;
 
-pub use design::CalibrationDesign;
+pub use design::{CalibrationDesign, DesignRows};
 
 use crate::error_signal::ErrorSignals;
 use crate::interchange::ImuRecording;

@@ -137,6 +137,22 @@ impl dynacal::progress::WorkProgress for StageSpinner {
             }
         }
     }
+    /// The spinner becomes a bar of the units done, with the time the rest will take.
+    fn counted(&self, done: u64, total: u64) {
+        if let Ok(current) = CURRENT_WORK.lock() {
+            if let Some((bar, _)) = current.as_ref() {
+                if bar.length() != Some(total) {
+                    if let Ok(style) = indicatif::ProgressStyle::with_template(
+                        "{spinner} {msg} [{bar:30}] {pos}/{len} ({elapsed}, eta {eta})",
+                    ) {
+                        bar.set_style(style.progress_chars("=> "));
+                    }
+                    bar.set_length(total);
+                }
+                bar.set_position(done);
+            }
+        }
+    }
 }
 
 /// A spinner with `message` and the elapsed time on stderr while long work runs (hidden when

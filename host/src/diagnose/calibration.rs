@@ -12,7 +12,8 @@ use serde_json::json;
 use super::engine::{ci, DiagnoseError, Finding, Run, LEVER_ARM_MODEL_SIGMA_M};
 use super::null::normal_p_value;
 use crate::calibration::{
-    build_error_signals_with_design, CalibrationDesign, CalibrationSummary, ErrorOptions,
+    build_error_signals_with_design, CalibrationDesign, CalibrationSummary, DesignRows,
+    ErrorOptions,
 };
 use crate::error_signal::ErrorSignals;
 use crate::interchange::ImuRecording;
@@ -88,7 +89,7 @@ pub(super) struct SensorWideTerms {
 
 /// Standard deviation of each calibration parameter over baseline noise simulated for every
 /// channel: the Newey-West sigma alone under-covers when the noise wanders slowly.
-fn simulated_calibration_sd(run: &Run, design: &CalibrationDesign) -> Vec<f64> {
+fn simulated_calibration_sd(run: &Run, design: DesignRows<'_>) -> Vec<f64> {
     let reps = run.opts.replicates.max(8);
     let thetas: Vec<nalgebra::DVector<f64>> = (0..reps)
         .into_par_iter()
@@ -113,10 +114,7 @@ fn simulated_calibration_sd(run: &Run, design: &CalibrationDesign) -> Vec<f64> {
 }
 
 /// What the calibration takes from one series per channel (in [`Channel::ALL`] order).
-fn absorbed_from(
-    design: &CalibrationDesign,
-    series: &[Option<Vec<f64>>],
-) -> nalgebra::DVector<f64> {
+fn absorbed_from(design: DesignRows<'_>, series: &[Option<Vec<f64>>]) -> nalgebra::DVector<f64> {
     let refs: [Option<&[f64]>; 6] = std::array::from_fn(|i| series[i].as_deref());
     design.absorbed_all(&refs)
 }
@@ -137,7 +135,7 @@ fn parameter_sd(vectors: &[nalgebra::DVector<f64>], parameters: usize) -> Vec<f6
 /// into them, and with blocks long against the noise's memory their spread is that error's.
 /// A spread no smaller than the measured residual's own: on ship motion with a baseline
 /// fitted on 300 s, the simulated spread fell short of the lever arm's scatter.
-fn batch_calibration_sd(run: &Run, design: &CalibrationDesign) -> Vec<f64> {
+fn batch_calibration_sd(run: &Run, design: DesignRows<'_>) -> Vec<f64> {
     const BLOCKS: usize = 20;
     let n = design.epochs();
     let edge = |b: usize| b * n / BLOCKS;

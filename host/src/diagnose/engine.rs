@@ -52,13 +52,13 @@ use super::moments::Absorber;
 use super::stats::SeriesSet;
 use super::stochastic::{find_stochastic_effects, lattice_step};
 use super::terms::{find_terms, ChannelTerms, FittedTerms};
-use crate::calibration::{CalibrationDesign, CalibrationSummary};
+use crate::calibration::{CalibrationSummary, DesignRows};
 use crate::error_signal::ErrorSignals;
 use crate::gmwm::model::ModelSpec;
 use crate::interchange::ImuRecording;
 use crate::model::{Cause, Channel, ChannelModel, SimModel};
 use crate::numeric::central_difference;
-use crate::progress::stage;
+use crate::progress::{stage, Tally};
 
 /// Errors of the engine.
 #[derive(Debug, thiserror::Error)]
@@ -250,7 +250,7 @@ pub(super) struct Run<'a> {
     pub raw_lattice: [Option<(f64, f64)>; 6],
     pub signals: &'a ErrorSignals,
     pub calibration: Option<&'a CalibrationSummary>,
-    pub design: Option<&'a CalibrationDesign>,
+    pub design: Option<DesignRows<'a>>,
     pub baseline: &'a Baseline,
     pub opts: &'a DiagnoseOptions,
     /// The channels the sensor has, in [`Channel::ALL`] order; a channel's position here
@@ -276,6 +276,9 @@ pub(super) struct Run<'a> {
     pub alpha_test: f64,
     /// Per slot, the model of each baseline simulation ([`super::null::null_models`]).
     pub null_models: Vec<Vec<ModelSpec>>,
+    /// The passes over the channels done and announced ([`Run::per_channel`] counts a
+    /// channel's pass as one unit), for a progress display.
+    pub work: Tally,
 }
 
 impl Run<'_> {
@@ -340,13 +343,17 @@ impl Run<'_> {
         f: impl Fn(usize, Channel, I) -> T + Sync + Send,
     ) -> Vec<T> {
         let jobs = self.channels.iter().copied().zip(items).enumerate();
+        let counted = |(slot, (channel, item)): (usize, (Channel, I))| {
+            let out = f(slot, channel, item);
+            self.work.finish_one();
+            out
+        };
         if self.is_long() {
-            jobs.map(|(slot, (channel, item))| f(slot, channel, item))
-                .collect()
+            jobs.map(counted).collect()
         } else {
             jobs.collect::<Vec<_>>()
                 .into_par_iter()
-                .map(|(slot, (channel, item))| f(slot, channel, item))
+                .map(counted)
                 .collect()
         }
     }
@@ -605,7 +612,10 @@ pub fn diagnose(
         raw_lattice,
         signals,
         calibration: calibrated.calibration.as_ref().map(|(c, _)| c),
-        design: calibrated.calibration.as_ref().map(|(_, d)| d),
+        design: calibrated
+            .calibration
+            .as_ref()
+            .map(|(_, d)| d.over(signals)),
         baseline: &baseline,
         opts,
         channels,
@@ -619,7 +629,10 @@ pub fn diagnose(
         tests,
         alpha_test,
         null_models,
+        work: Tally::default(),
     };
+    // Two passes over the channels: the deterministic terms, then the rest of each.
+    run.work.expect(2 * run.channels.len() as u64);
     stage(|| {
         format!(
             "simulating the baseline ({} replicates a channel) and testing deterministic terms",

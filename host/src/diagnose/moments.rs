@@ -14,7 +14,7 @@ use std::sync::Arc;
 
 use super::terms::Candidate;
 pub(super) use super::white_space::WhiteSpace;
-use crate::calibration::CalibrationDesign;
+use crate::calibration::DesignRows;
 use crate::model::{Cause, Channel};
 
 /// What a least-squares fit of per-channel terms jointly with the calibration needs of the
@@ -23,7 +23,7 @@ use crate::model::{Cause, Channel};
 /// channel.
 #[derive(Clone, Copy)]
 pub(super) enum Absorber<'a> {
-    Design(&'a CalibrationDesign),
+    Design(DesignRows<'a>),
     Mean,
 }
 

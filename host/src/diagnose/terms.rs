@@ -19,7 +19,7 @@ use super::stats::{
     local_step_null_sd, local_step_robust_sd, local_step_scan, step_sharpness, SeriesSet,
 };
 use super::whiten::Whitener;
-use crate::calibration::CalibrationDesign;
+use crate::calibration::DesignRows;
 use crate::model::{Cause, Channel};
 
 /// True when a term's share of the error variance reaches `min`; a NaN share (an error
@@ -378,6 +378,7 @@ pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, Diag
     // the scan run again there.
     if let Some(design) = run.design {
         crate::progress::stage(|| "testing terms again beside the steps found".into());
+        run.work.expect(run.channels.len() as u64);
         let steps: Vec<&Term> = per_channel
             .iter()
             .flat_map(|c| c.terms.iter().filter(|t| t.fixed.is_some()))
@@ -424,7 +425,7 @@ pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, Diag
 /// channel's rows. Made when the channel's scan runs again, so one channel's is held at a
 /// time.
 fn step_spill(
-    design: &CalibrationDesign,
+    design: DesignRows<'_>,
     run: &Run,
     steps: &[&Term],
     channel: Channel,
@@ -461,7 +462,7 @@ struct JointTerms<'a> {
 /// in the joint fit the copy is explained by the term that caused it. Fixed terms (a bias
 /// step's local estimate) keep their coefficients; the others are fitted on what they leave.
 fn joint_terms<'a>(
-    design: &CalibrationDesign,
+    design: DesignRows<'_>,
     terms: Vec<Term<'a>>,
     z_strict: f64,
     small: &dyn Fn(&Term, f64) -> bool,
@@ -654,7 +655,7 @@ impl<'a> FittedTerms<'a> {
     }
 
     /// What the calibration took from these terms, to correct its estimates.
-    pub fn absorbed_by(&self, design: &CalibrationDesign) -> nalgebra::DVector<f64> {
+    pub fn absorbed_by(&self, design: DesignRows<'_>) -> nalgebra::DVector<f64> {
         let mut total = nalgebra::DVector::<f64>::zeros(design.parameters());
         for (c, t) in self.coefficients.iter().zip(&self.terms) {
             total += &t.projection.absorbed * c.value;

@@ -12,6 +12,7 @@ pub mod ardupilot_dataflash;
 pub mod frames;
 #[cfg(test)]
 mod fuzz;
+pub mod interchange;
 pub mod mpu9250_tetra;
 pub mod mtig;
 pub mod psins_fog_mems;
@@ -115,6 +116,8 @@ pub enum Dataset {
     XsensDot,
     /// A PX4 ULog flight log (`px4-ulog/sample_log_small.ulg`).
     Px4ULog,
+    /// An interchange recording (CSV, CSV.gz or Parquet), written again in another form.
+    Interchange,
 }
 
 impl Dataset {
@@ -130,6 +133,7 @@ impl Dataset {
             Dataset::ArduPilotDataFlash => "ArduPilot DataFlash log (IMU instances, GPS + ATT)",
             Dataset::XsensDot => "Xsens DOT CSV export (sensor axes)",
             Dataset::Px4ULog => "PX4 ULog (IMU topics and instances, GPS + attitude)",
+            Dataset::Interchange => "interchange recording (written again in the format asked)",
         }
     }
 }
@@ -140,7 +144,8 @@ fn header_fields(line: &str) -> Vec<&str> {
 }
 
 /// Recognises a dataset from its first bytes (an ArduPilot DataFlash log: `A3 95 80`, a
-/// message header and `FMT`; a PX4 ULog: `ULog 01 12 35`) or its first data line (the CSV header, or for the PSINS SIMU
+/// message header and `FMT`; a PX4 ULog: `ULog 01 12 35`; a Parquet file, taken if it is
+/// an interchange recording: `PAR1`) or its first data line (the CSV header, or for the PSINS SIMU
 /// log its first numeric line; blank lines and `%` comment lines are skipped; an Xsens DOT
 /// header may follow a preamble). `Ok(None)` means "not a known dataset"; errors are I/O
 /// failures.
@@ -155,6 +160,9 @@ pub fn detect(path: &Path) -> Result<Option<Dataset>, ImportError> {
     }
     if px4_ulog::is_ulog(&head) {
         return Ok(Some(Dataset::Px4ULog));
+    }
+    if crate::interchange::parquet::is_parquet(path) {
+        return Ok(interchange::is_interchange(path).then_some(Dataset::Interchange));
     }
     let Some((_, line)) = first_data_line(path)? else {
         return Ok(None);
@@ -174,6 +182,8 @@ pub fn detect(path: &Path) -> Result<Option<Dataset>, ImportError> {
         Some(Dataset::PsinsLaserGyro)
     } else if xsens_dot::find_header(path)?.is_some() {
         Some(Dataset::XsensDot)
+    } else if interchange::is_interchange(path) {
+        Some(Dataset::Interchange)
     } else {
         None
     };
@@ -240,6 +250,7 @@ fn stream_dataset(
         Dataset::ArduPilotDataFlash => format!("ardupilot-{stem}"),
         Dataset::XsensDot => format!("xsens-{stem}-imu"),
         Dataset::Px4ULog => format!("px4-{stem}"),
+        Dataset::Interchange => stem,
     };
     let sink = &mut Named {
         inner: sink,
@@ -258,6 +269,7 @@ fn stream_dataset(
             rows::replay(&[(String::new(), dot.recording)], sink)
         }
         Dataset::Px4ULog => rows::replay(&px4_ulog::read(path)?, sink),
+        Dataset::Interchange => interchange::stream(path, sink),
     }
 }
 
@@ -268,7 +280,7 @@ fn file_stem(path: &Path) -> String {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    for suffix in [".gz", ".csv", ".imu", ".bin", ".BIN", ".ulg"] {
+    for suffix in [".gz", ".csv", ".imu", ".bin", ".BIN", ".ulg", ".parquet"] {
         if let Some(s) = name.strip_suffix(suffix) {
             name = s.to_string();
         }
@@ -630,8 +642,10 @@ mod tests {
                 "time(millisecond),datetime(utc),latitude,longitude\n".into(),
                 None,
             ),
-            // An interchange file is not a raw dataset.
-            ("g.csv", "t_s,gx_rad_s\n0,1\n".into(), None),
+            // An interchange file is taken last, to be written again in another form; a
+            // time column alone is not one.
+            ("g.csv", "t_s,gx_rad_s\n0,1\n".into(), Some(Dataset::Interchange)),
+            ("k.csv", "t_s,temperature_c\n0,1\n".into(), None),
             ("h.txt", "% only comments\n".into(), None),
         ];
         for (name, text, expected) in cases {

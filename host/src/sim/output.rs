@@ -1,6 +1,6 @@
-//! Writing a simulation: one interchange CSV per IMU (the reference with attitude, position
-//! and velocity columns), `gnss.csv`, `pps.csv` and `truth.json`, optionally the error-free
-//! `<name>-ideal.csv` of each IMU, and on request the board's view of the MEMS IMUs
+//! Writing a simulation: one interchange file per IMU (the reference with attitude, position
+//! and velocity columns; CSV, gzip-compressed CSV or Parquet), `gnss.csv`, `pps.csv` and
+//! `truth.json`, optionally the error-free `<name>-ideal.csv` of each IMU, and on request the board's view of the MEMS IMUs
 //! (`board.replay`, the firmware replay input, and `board.log`, the board log; see
 //! [`super::board`]). Files are staged in a hidden folder inside the output
 //! folder and moved into place only when all are written, `truth.json` last as the set's
@@ -16,7 +16,7 @@ use rayon::prelude::*;
 use super::board::{BoardError, BoardRecording};
 use super::gnss::{GnssFixes, PpsTable};
 use super::SimOutput;
-use crate::interchange::{ImuRecording, TableError};
+use crate::interchange::{FileFormat, ImuRecording, TableError};
 use crate::output::{write_json_atomic, AtomicFile, FileSet};
 
 /// Errors writing a simulation's outputs.
@@ -50,10 +50,10 @@ pub const TRUTH_FILE: &str = "truth.json";
 pub fn write_outputs(
     out: &SimOutput,
     dir: &Path,
-    gzip: bool,
+    format: FileFormat,
     write_ideal: bool,
 ) -> Result<Vec<PathBuf>, SimWriteError> {
-    write_outputs_with_board(out, dir, gzip, write_ideal, None)
+    write_outputs_with_board(out, dir, format, write_ideal, None)
 }
 
 /// Maps an I/O error on `path` to a [`SimWriteError`].
@@ -178,17 +178,23 @@ fn text_writer(text: String) -> impl FnOnce(&mut dyn Write, &Path) -> Result<(),
 }
 
 /// [`write_outputs`], plus [`REPLAY_FILE`] and [`LOG_FILE`] from `board` when given (never
-/// compressed: the firmware and the decoder read them as they are).
+/// compressed: the firmware and the decoder read them as they are). The IMUs are written in
+/// `format`; `gnss` and `pps`, short tables of another shape, as CSV (gzip-compressed with
+/// [`FileFormat::CsvGz`]).
 pub fn write_outputs_with_board(
     out: &SimOutput,
     dir: &Path,
-    gzip: bool,
+    format: FileFormat,
     write_ideal: bool,
     board: Option<&BoardRecording>,
 ) -> Result<Vec<PathBuf>, SimWriteError> {
     let mut stage = Stage::new(dir)?;
-    let ext = if gzip { "csv.gz" } else { "csv" };
-    let imus = imu_files(out, ext, write_ideal);
+    let ext = match format {
+        FileFormat::Parquet => FileFormat::Csv,
+        text => text,
+    }
+    .extension();
+    let imus = imu_files(out, format.extension(), write_ideal);
     let paths: Vec<PathBuf> = imus.iter().map(|(name, _)| stage.path(name)).collect();
     imus.par_iter()
         .zip(&paths)
