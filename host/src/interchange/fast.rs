@@ -343,60 +343,71 @@ fn parse_piece(piece: &[u8], header: &Header) -> Option<(u64, Vec<Vec<f64>>)> {
         .map(|_| Vec::with_capacity(rows_guess))
         .collect();
     let mut rows = 0;
-    let mut start = 0;
-    for end in memchr::memchr_iter(b'\n', piece).chain(std::iter::once(piece.len())) {
-        let line = strip_cr(&piece[start..end]);
-        if end == piece.len() && start == end {
-            break; // After the piece's last line end.
-        }
-        start = end + 1;
-        if line.is_empty() || line[0] == b'#' {
-            return None; // A blank or comment line among the rows: the csv crate's.
-        }
-        parse_line(line, header, &mut columns)?;
+    let mut pos = 0;
+    while pos < piece.len() {
+        pos = parse_row(piece, pos, header, &mut columns)?;
         rows += 1;
     }
     Some((rows, columns))
 }
 
-/// Parses one row's wanted fields into `columns`: each a finite number with only spaces
-/// around it, and as many fields as the header has.
-fn parse_line(line: &[u8], header: &Header, columns: &mut [Vec<f64>]) -> Option<()> {
-    let skip_spaces = |mut pos: usize| {
-        while line.get(pos).is_some_and(u8::is_ascii_whitespace) {
-            pos += 1;
-        }
-        pos
-    };
-    let mut pos = 0;
+/// Parses the row starting at `bytes[pos]` into `columns`: each wanted field a finite number
+/// with only blanks around it, and as many fields as the header has, up to the line's end
+/// (LF, CRLF, or the end of `bytes`); returns where the next row starts. A blank line or a
+/// `#` line is not a row (the `csv` crate's to skip).
+///
+/// The fields are parsed from `bytes` as a whole rather than from a line cut out of them:
+/// `fast-float2` reads eight digits at a time where eight bytes follow, and a line cut at
+/// its end leaves the last digits of every row to a byte-by-byte loop (measured: about a
+/// sixth of the parse).
+fn parse_row(
+    bytes: &[u8],
+    mut pos: usize,
+    header: &Header,
+    columns: &mut [Vec<f64>],
+) -> Option<usize> {
+    match bytes[pos..] {
+        [b'\n' | b'#', ..] | [b'\r', b'\n', ..] => return None,
+        _ => {}
+    }
+    let last = header.fields - 1;
     for (k, slot) in header.slots.iter().enumerate() {
         match slot {
             Some(slot) => {
-                let at = skip_spaces(pos);
-                // The longest number at the field's start; what follows must be spaces up
+                let at = skip_blanks(bytes, pos);
+                // The longest number at the field's start; what follows must be blanks up
                 // to the field's end, or the field is not a number (`1e`, `1 2`, `1x`).
-                let (value, used) = fast_float2::parse_partial::<f64, _>(&line[at..]).ok()?;
+                let (value, used) = fast_float2::parse_partial::<f64, _>(&bytes[at..]).ok()?;
                 if !value.is_finite() {
                     return None;
                 }
                 columns[*slot].push(value);
-                pos = skip_spaces(at + used);
+                pos = skip_blanks(bytes, at + used);
             }
             None => {
-                pos = memchr::memchr(b',', &line[pos..]).map_or(line.len(), |i| pos + i);
+                pos += memchr::memchr2(b',', b'\n', &bytes[pos..]).unwrap_or(bytes.len() - pos);
             }
         }
-        if k + 1 == header.fields {
-            if pos != line.len() {
-                return None;
-            }
-        } else if line.get(pos) == Some(&b',') {
-            pos += 1;
-        } else {
-            return None;
+        match bytes.get(pos) {
+            Some(b',') if k < last => pos += 1,
+            Some(b'\n') if k == last => return Some(pos + 1),
+            None if k == last => return Some(pos),
+            _ => return None,
         }
     }
-    Some(())
+    None
+}
+
+/// The position of the first byte from `pos` on that is not whitespace within a line (a
+/// line end is not a blank).
+fn skip_blanks(bytes: &[u8], mut pos: usize) -> usize {
+    while bytes
+        .get(pos)
+        .is_some_and(|&b| b != b'\n' && b.is_ascii_whitespace())
+    {
+        pos += 1;
+    }
+    pos
 }
 
 #[cfg(test)]
@@ -450,6 +461,13 @@ mod tests {
             (b"t_s,gx_rad_s\n0,1e400\n", false),
             (b"t_s,gx_rad_s\n0,1.\n1,5E-1\n", true),
             (b"t_s,gx_rad_s\n", true),
+            // A field not wanted first: a comment, blank or CR-only line is still no row,
+            // and the number parsed from the whole block stops at its line's end.
+            (b"name,t_s,gx_rad_s\na,0,1\n# x,1,2\n", false),
+            (b"name,t_s,gx_rad_s\na,0,1\n\r\nb,1,2\n", false),
+            (b"name,t_s,gx_rad_s\r\na,0,1 \r\n\tb ,1,2\r\n", true),
+            (b"name,t_s,gx_rad_s\na,0,1\n2,3\n", false),
+            (b"name,t_s,gx_rad_s\na,0,1e\n5,1,2\n", false),
         ] {
             for gzip in [false, true] {
                 let fast = agrees(text, gzip, Some(wanted));
