@@ -18,6 +18,7 @@ pub mod interchange;
 pub mod mission;
 pub mod model;
 pub mod nav_smoother;
+pub mod navsim;
 pub mod numeric;
 pub mod output;
 pub mod progress;

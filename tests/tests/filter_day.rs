@@ -6,12 +6,11 @@
 //!
 //! A day of three units at 200 Hz is 52 million samples, too many to simulate whole (the
 //! simulator holds every sample of a run in memory). So the drive is streamed sample by
-//! sample: the simulator's car trajectory (exact kinematics) and GNSS receiver are built for
-//! the whole day (a position grid and the fixes, about 0.5 GB), and each unit's reading is
-//! made when it is needed from the trajectory's truth at that instant, moved to the unit by
-//! the simulator's mount transfer, plus the units' white noise and Gauss-Markov bias drawn
-//! sample by sample, rounded to the board's counts. The units tick together on GPS time
-//! (the fusion's own tests cover clocks and the replay path).
+//! sample (`dynacal::navsim::drive::StreamedDrive`, what `dynacal navsim` drives): the
+//! simulator's car trajectory (exact kinematics) and GNSS receiver are built for the whole
+//! day (a position grid and the fixes, about 0.5 GB), and each unit's reading is made when
+//! it is needed. The units tick together on GPS time (the fusion's own tests cover clocks
+//! and the replay path).
 //!
 //! `the_boards_filter_keeps_its_covariance_over_ten_minutes` runs in the default test run;
 //! the day is ignored by default (about 2.5 minutes in release, after the build):
@@ -21,21 +20,16 @@ mod three_units;
 
 use std::time::Instant;
 
-use dynacal::sim::board::{gnss_fixes, DEFAULT_ACCEL_LSB_M_S2, DEFAULT_GYRO_LSB_RAD_S};
-use dynacal::sim::effects::{sensor_kinematics, Mount};
-use dynacal::sim::gnss::simulate_gnss;
-use dynacal::sim::trajectory::{Scenario, Trajectory, Truth};
-use dynacal_core::fusion::{BoardFilter, BoardFusion, FusionConfig, UnitReading, UNITS};
-use dynacal_core::log::GnssFix;
+use dynacal::navsim::drive::StreamedDrive;
+use dynacal::navsim::SETTLE_AFTER_OUTAGE_S;
+use dynacal::sim::trajectory::Truth;
+use dynacal_core::fusion::{BoardFilter, BoardFusion, FusionConfig};
 use dynacal_core::nav::ekf::{
     boresight_index, ACCEL_BIAS, ATT, CALIBRATION_STATES_PER_IMU, GYRO_BIAS, NAV_STATES, POS, VEL,
 };
 use dynacal_core::nav::radii;
 use nalgebra::{Cholesky, Rotation3, SMatrix, SymmetricEigen, UnitQuaternion, Vector3};
-use rand::{Rng, SeedableRng};
-use rand_chacha::ChaCha8Rng;
-use rand_distr::StandardNormal;
-use three_units::{board_model, Noise, ACCEL_NOISE, GYRO_NOISE, RATE_HZ};
+use three_units::{board_model, RATE_HZ};
 
 /// States of the board's filter (two extra units' calibrations).
 const STATES: usize = 27;
@@ -43,134 +37,9 @@ const STATES: usize = 27;
 const CHECK_EVERY_S: u64 = 10;
 /// The navigation error is taken this often, simulated s.
 const ERROR_EVERY_S: u64 = 1;
-/// After an outage the navigation is counted as "with GNSS" again this long after it ends, s
-/// (the filter needs a few fixes to pull a drifted position back).
-const SETTLE_AFTER_OUTAGE_S: f64 = 30.0;
 
 /// The covariance in f64, as the checks read it.
 type Covariance = SMatrix<f64, STATES, STATES>;
-
-/// One unit's noise drawn sample by sample: each channel's white noise and its
-/// Gauss-Markov bias advanced exactly over one sample (started from its stationary law).
-struct UnitNoise {
-    rng: ChaCha8Rng,
-    bias: [f64; 6],
-}
-
-impl UnitNoise {
-    fn new(seed: u64, unit: usize) -> Self {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0xda7_0000);
-        rng.set_stream(unit as u64);
-        let bias = core::array::from_fn(|i| {
-            let z: f64 = rng.sample(StandardNormal);
-            channel_noise(i).gm_sigma2.sqrt() * z
-        });
-        Self { rng, bias }
-    }
-
-    /// The next sample's error of each channel (gx .. az).
-    fn next(&mut self) -> [f64; 6] {
-        let dt = 1.0 / RATE_HZ;
-        core::array::from_fn(|i| {
-            let n = channel_noise(i);
-            let phi = (-n.gm_beta_per_s * dt).exp();
-            let (z_bias, z_white): (f64, f64) = (
-                self.rng.sample(StandardNormal),
-                self.rng.sample(StandardNormal),
-            );
-            self.bias[i] = phi * self.bias[i] + (n.gm_sigma2 * (1.0 - phi * phi)).sqrt() * z_bias;
-            self.bias[i] + n.white_sigma2.sqrt() * z_white
-        })
-    }
-}
-
-fn channel_noise(i: usize) -> Noise {
-    if i < 3 {
-        GYRO_NOISE
-    } else {
-        ACCEL_NOISE
-    }
-}
-
-/// The drive, streamed: the trajectory and the fixes of the whole run, the units' readings
-/// made one sample set at a time.
-struct Drive {
-    trajectory: Trajectory,
-    mounts: [Mount; UNITS],
-    noise: [UnitNoise; UNITS],
-    fixes: Vec<GnssFix>,
-    next_fix: usize,
-    next_sample: u64,
-    outages: Vec<[f64; 2]>,
-}
-
-impl Drive {
-    fn new(seconds: f64, outages: Vec<[f64; 2]>, seed: u64) -> Self {
-        let model = three_units::sim_model(&outages);
-        let trajectory = Trajectory::new(
-            Scenario::Car,
-            model.trajectory.clone(),
-            seconds,
-            seconds + 1.0,
-            seed,
-        );
-        let disabled = Default::default();
-        let gnss = model.gnss.as_ref().expect("the model has a receiver");
-        let fixes = gnss_fixes(&simulate_gnss(&trajectory, gnss, seconds, seed, &disabled));
-        Self {
-            mounts: core::array::from_fn(|k| Mount::of(&model.imus[k], &disabled)),
-            noise: core::array::from_fn(|k| UnitNoise::new(seed, k)),
-            trajectory,
-            fixes,
-            next_fix: 0,
-            next_sample: 0,
-            outages,
-        }
-    }
-
-    /// The next sample set: its GPS time (us), the truth then, and each unit's reading as
-    /// the board reads it (the value rounded to the simulator's default LSB, in f32).
-    fn next_set(&mut self) -> (u64, Truth, [Option<UnitReading>; UNITS]) {
-        let t_s = self.next_sample as f64 / RATE_HZ;
-        self.next_sample += 1;
-        let truth = self.trajectory.truth(t_s);
-        let readings = core::array::from_fn(|k| {
-            let kinematics = sensor_kinematics(&truth, &self.mounts[k]);
-            let error = self.noise[k].next();
-            let value = |i: usize, lsb: f64| {
-                let counts = ((kinematics.channel(i) + error[i]) / lsb).round();
-                (counts * lsb) as f32
-            };
-            Some(UnitReading {
-                gyro_rad_s: core::array::from_fn(|a| value(a, DEFAULT_GYRO_LSB_RAD_S)),
-                accel_m_s2: core::array::from_fn(|a| value(3 + a, DEFAULT_ACCEL_LSB_M_S2)),
-            })
-        });
-        ((t_s * 1e6).round() as u64, truth, readings)
-    }
-
-    /// The fixes stamped at or before `t_us` not handed out yet.
-    fn fixes_until(&mut self, t_us: u64) -> &[GnssFix] {
-        let first = self.next_fix;
-        while self
-            .fixes
-            .get(self.next_fix)
-            .is_some_and(|f| f.t_us <= t_us)
-        {
-            self.next_fix += 1;
-        }
-        &self.fixes[first..self.next_fix]
-    }
-
-    /// Whether the navigation at `t_s` is "with GNSS": outside every outage and
-    /// [`SETTLE_AFTER_OUTAGE_S`] after it.
-    fn with_gnss(&self, t_s: f64) -> bool {
-        !self
-            .outages
-            .iter()
-            .any(|o| t_s >= o[0] && t_s < o[1] + SETTLE_AFTER_OUTAGE_S)
-    }
-}
 
 /// The filter's error against the truth: NED position (m), attitude (rad, NED axes, as the
 /// filter's `C_b^n = (I + [eps x]) C_hat`), both truth minus estimate.
@@ -207,7 +76,7 @@ struct Bounds {
     ///   stays below the larger of its initial and its stationary `psd / (2 beta)` (no
     ///   ceiling for a random walk);
     /// - position, velocity and attitude are not bounded by the model; with GNSS
-    ///   ([`Drive::with_gnss`]) they are held to [`NAV_CEILING_FACTOR`] times their
+    ///   ([`StreamedDrive::with_gnss`]) they are held to [`NAV_CEILING_FACTOR`] times their
     ///   variance at the start (the first fix's and the alignment's), which each fix and
     ///   the drive's manoeuvres keep them under.
     ceiling: [f64; STATES],
@@ -387,13 +256,14 @@ struct DayFigures {
 /// end s) and measures it.
 fn run_day(seconds: f64, outages: Vec<[f64; 2]>, seed: u64) -> DayFigures {
     let started = Instant::now();
-    let mut drive = Drive::new(seconds, outages, seed);
+    let mut drive = StreamedDrive::new(&three_units::sim_model(&[]), seconds, outages, seed)
+        .expect("the three units drive");
     let mut fusion =
         BoardFusion::<f32>::new(FusionConfig::at_rate(RATE_HZ as f32), &board_model(true));
     let mut figures = DayFigures {
         simulated_s: seconds,
         variance: vec![Range::default(); STATES],
-        outage_end: vec![(0.0, 0.0); drive.outages.len()],
+        outage_end: vec![(0.0, 0.0); drive.outages().len()],
         ..DayFigures::default()
     };
     let mut bounds: Option<Bounds> = None;
@@ -483,15 +353,20 @@ fn trace_line(filter: &BoardFilter, truth: &Truth, still: bool) {
 }
 
 /// The navigation error at one instant into the figures.
-fn take_error(figures: &mut DayFigures, drive: &Drive, filter: &BoardFilter, truth: &Truth) {
+fn take_error(
+    figures: &mut DayFigures,
+    drive: &StreamedDrive,
+    filter: &BoardFilter,
+    truth: &Truth,
+) {
     let (position, attitude) = nav_error(filter, truth);
     let sigma = |i: usize| f64::from(filter.ekf.sigma(i).unwrap_or(f32::NAN));
-    for (o, end) in drive.outages.iter().zip(figures.outage_end.iter_mut()) {
+    for (o, end) in drive.outages().iter().zip(figures.outage_end.iter_mut()) {
         if truth.t_s < o[1] {
             *end = (position.xy().norm(), sigma(POS).hypot(sigma(POS + 1)));
         }
     }
-    if !drive.with_gnss(truth.t_s) {
+    if !drive.with_gnss(truth.t_s, SETTLE_AFTER_OUTAGE_S) {
         return;
     }
     figures.horizontal_m.add(position.xy().norm());
@@ -512,7 +387,7 @@ fn take_error(figures: &mut DayFigures, drive: &Drive, filter: &BoardFilter, tru
 /// One covariance check at `t_s` into the figures.
 fn take_check(
     figures: &mut DayFigures,
-    drive: &Drive,
+    drive: &StreamedDrive,
     filter: &BoardFilter,
     bounds: &Bounds,
     t_s: f64,
@@ -526,7 +401,7 @@ fn take_check(
     figures
         .min_correlation_eigenvalue
         .add(check.min_correlation_eigenvalue);
-    let with_gnss = drive.with_gnss(t_s);
+    let with_gnss = drive.with_gnss(t_s, SETTLE_AFTER_OUTAGE_S);
     let mut violation = None;
     for i in 0..STATES {
         let v = p[(i, i)];

@@ -44,6 +44,8 @@ pub enum Command {
     Wv(wv::Args),
     /// Paper Fig. 1 on simulated data: boresight and lever-arm estimates of two IMUs (SVG, JSON).
     Fig1(fig1::Args),
+    /// The board's fusion filter on a simulated drive with GNSS outages, in f64 or f32.
+    Navsim(navsim::Args),
 }
 
 pub fn run(cli: Cli) -> anyhow::Result<()> {
@@ -64,6 +66,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Export(args) => export::run(args),
         Command::Wv(args) => wv::run(args),
         Command::Fig1(args) => fig1::run(args),
+        Command::Navsim(args) => navsim::run(args),
     }
 }
 
@@ -214,6 +217,7 @@ mod fig1;
 mod fit;
 mod import;
 mod info;
+mod navsim;
 mod redundancy;
 mod refit;
 mod regress;

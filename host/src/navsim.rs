@@ -1,0 +1,334 @@
+//! The board's fusion filter on a simulated car drive, on the host, in the scalar asked
+//! (`dynacal navsim`): three units and a GNSS receiver from a model file, GNSS outages spread
+//! through the run, and the filter measured against the truth (position and attitude error,
+//! with GNSS and through the outages, and its consistency: the normalised estimation error
+//! squared of position, velocity and attitude). The same source runs in `f64` and `f32`
+//! (`dynacal_core::fusion::BoardFusion<T>`), so what a scalar costs is measured on one drive.
+//!
+//! The drive is streamed ([`drive::StreamedDrive`]): the trajectory and the fixes are built
+//! for the whole run, and each sample set is made when the filter needs it, so a day of
+//! driving fits in memory.
+
+pub mod drive;
+
+use nalgebra::{RealField, SMatrix, UnitQuaternion, Vector3};
+use serde::Serialize;
+use statrs::distribution::{ChiSquared, ContinuousCDF};
+
+use crate::model::SimModel;
+use crate::progress::Tally;
+use crate::sim::trajectory::Truth;
+use drive::{DriveError, StreamedDrive};
+use dynacal_core::fusion::{BoardFusion, FusionConfig, FusionFilter};
+use dynacal_core::nav::ekf::{ATT, POS, VEL};
+use dynacal_core::nav::radii;
+
+/// The default drive's units and receiver (`examples/models/three-units-200hz.json`).
+const THREE_UNIT_MODEL: &str = include_str!("../../examples/models/three-units-200hz.json");
+
+/// Three MEMS units at 200 Hz on one board and a 10 Hz receiver: the default drive.
+pub fn three_unit_model() -> SimModel {
+    SimModel::from_json(
+        THREE_UNIT_MODEL,
+        std::path::Path::new("examples/models/three-units-200hz.json"),
+    )
+    .expect("the built-in model is valid")
+}
+
+/// The filter's scalar.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Scalar {
+    /// Double precision: the reference.
+    F64,
+    /// Single precision: what the Cortex-M4F board runs.
+    F32,
+}
+
+impl Scalar {
+    /// The scalar's name, as `--scalar` takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Scalar::F64 => "f64",
+            Scalar::F32 => "f32",
+        }
+    }
+}
+
+/// What to run.
+#[derive(Debug, Clone, Copy)]
+pub struct NavSimOptions {
+    /// Length of the drive, s.
+    pub seconds: f64,
+    pub seed: u64,
+    /// Length of each GNSS outage, s (0: none).
+    pub outage_s: f64,
+    pub scalar: Scalar,
+}
+
+/// Simulated seconds between two NEES samples: about the time the filter's position and
+/// attitude errors take to decorrelate with GNSS, so the samples' mean has the spread the
+/// chi-square bounds assume (closer samples would make the bounds too narrow).
+pub const NEES_EVERY_S: f64 = 10.0;
+/// The navigation counts as "with GNSS" again this long after an outage ends, s.
+pub const SETTLE_AFTER_OUTAGE_S: f64 = 30.0;
+/// Dimension of the NEES: position, velocity and attitude errors.
+const NEES_STATES: usize = 9;
+
+/// What a run measured.
+#[derive(Debug, Clone, Serialize)]
+pub struct NavSimReport {
+    pub scalar: Scalar,
+    pub seconds: f64,
+    pub seed: u64,
+    /// The GNSS outages, [start, end] s.
+    pub outages_s: Vec<[f64; 2]>,
+    /// When the filter started (alignment done), s.
+    pub aligned_after_s: f64,
+    /// RMS of the 3-D position error with GNSS (outside outages and
+    /// [`SETTLE_AFTER_OUTAGE_S`] after them), m, every second.
+    pub position_rms_m: f64,
+    /// RMS of the 3-D position error during the outages, m, every second.
+    pub position_rms_outage_m: f64,
+    /// RMS of the attitude error angle over the run, deg, every second.
+    pub attitude_rms_deg: f64,
+    /// Mean NEES of position, velocity and attitude (9 states), every [`NEES_EVERY_S`].
+    pub nees_mean: f64,
+    /// Two-sided 95% bounds of that mean for a consistent filter (chi-square with 9 x
+    /// samples degrees of freedom, over the samples).
+    pub nees_bounds: [f64; 2],
+    pub nees_samples: u64,
+    /// Numbers the filter found out of its scalar's range or invalid (non-finite or
+    /// negative variances, failed updates) and covariance resets.
+    pub overflow_events: u64,
+}
+
+/// Errors of a simulated navigation run.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum NavSimError {
+    #[error(transparent)]
+    Drive(#[from] DriveError),
+    #[error("the filter never started: no alignment in {seconds} s")]
+    NeverAligned { seconds: f64 },
+}
+
+/// `outage_s`-long GNSS outages spread through `seconds` of driving: one per 300 s (at least
+/// one), centred on equal divisions of the run.
+pub fn spread_outages(seconds: f64, outage_s: f64) -> Vec<[f64; 2]> {
+    if outage_s <= 0.0 {
+        return Vec::new();
+    }
+    let count = (seconds / 300.0).round().max(1.0) as usize;
+    (1..=count)
+        .map(|k| {
+            let centre = seconds * k as f64 / (count + 1) as f64;
+            [centre - outage_s / 2.0, centre + outage_s / 2.0]
+        })
+        .collect()
+}
+
+/// Runs the board's fusion over the drive `model` and `opts` describe.
+pub fn run(model: &SimModel, opts: &NavSimOptions) -> Result<NavSimReport, NavSimError> {
+    match opts.scalar {
+        Scalar::F64 => run_with::<f64>(model, opts),
+        Scalar::F32 => run_with::<f32>(model, opts),
+    }
+}
+
+/// Root mean square of what was added.
+#[derive(Debug, Default, Clone, Copy)]
+struct Rms {
+    sum2: f64,
+    n: u64,
+}
+
+impl Rms {
+    fn add(&mut self, x: f64) {
+        self.sum2 += x * x;
+        self.n += 1;
+    }
+    fn value(&self) -> f64 {
+        (self.sum2 / self.n.max(1) as f64).sqrt()
+    }
+}
+
+fn run_with<T: RealField + Copy>(
+    model: &SimModel,
+    opts: &NavSimOptions,
+) -> Result<NavSimReport, NavSimError> {
+    let outages = spread_outages(opts.seconds, opts.outage_s);
+    let mut drive = StreamedDrive::new(model, opts.seconds, outages.clone(), opts.seed)?;
+    let rate_hz = drive.rate_hz();
+    let mut fusion =
+        BoardFusion::<T>::new(FusionConfig::at_rate(rate_hz as f32), &drive.board_model());
+    let sets = (opts.seconds * rate_hz) as u64;
+    let every_second = rate_hz.round() as u64;
+    let nees_every = (NEES_EVERY_S * rate_hz).round() as u64;
+    let (mut with_gnss, mut in_outage, mut attitude) =
+        (Rms::default(), Rms::default(), Rms::default());
+    let (mut nees_sum, mut nees_samples) = (0.0, 0u64);
+    let mut aligned_after_s = None;
+    let tally = Tally::default();
+    tally.expect(sets / every_second);
+    for k in 0..sets {
+        if k % every_second == 0 && k > 0 {
+            tally.finish_one();
+        }
+        let (t_us, truth, readings) = drive.next_set();
+        for fix in drive.fixes_until(t_us) {
+            fusion.push_gnss(t_us, fix);
+        }
+        fusion.push_set(t_us, &readings, &mut |_| {});
+        let Some(filter) = fusion.filter() else {
+            continue;
+        };
+        aligned_after_s.get_or_insert(truth.t_s);
+        let error = NavError::of(filter, &truth);
+        if k % every_second == 0 {
+            attitude.add(error.attitude_rad.norm().to_degrees());
+            if drive.in_outage(truth.t_s) {
+                in_outage.add(error.position_ned_m.norm());
+            } else if drive.with_gnss(truth.t_s, SETTLE_AFTER_OUTAGE_S) {
+                with_gnss.add(error.position_ned_m.norm());
+            }
+        }
+        if k % nees_every == 0 {
+            if let Some(nees) = error.nees(filter) {
+                nees_sum += nees;
+                nees_samples += 1;
+            }
+        }
+    }
+    let aligned_after_s = aligned_after_s.ok_or(NavSimError::NeverAligned {
+        seconds: opts.seconds,
+    })?;
+    Ok(NavSimReport {
+        scalar: opts.scalar,
+        seconds: opts.seconds,
+        seed: opts.seed,
+        outages_s: outages,
+        aligned_after_s,
+        position_rms_m: with_gnss.value(),
+        position_rms_outage_m: in_outage.value(),
+        attitude_rms_deg: attitude.value(),
+        nees_mean: nees_sum / nees_samples.max(1) as f64,
+        nees_bounds: nees_bounds(nees_samples),
+        nees_samples,
+        overflow_events: overflow_events(&fusion),
+    })
+}
+
+/// Two-sided 95% bounds of the mean of `samples` NEES values of a consistent filter.
+pub fn nees_bounds(samples: u64) -> [f64; 2] {
+    let dof = (NEES_STATES as u64 * samples.max(1)) as f64;
+    let chi2 = ChiSquared::new(dof).expect("positive degrees of freedom");
+    let m = samples.max(1) as f64;
+    [chi2.inverse_cdf(0.025) / m, chi2.inverse_cdf(0.975) / m]
+}
+
+/// The filter's count of numbers out of range or invalid, and its restarts.
+fn overflow_events<T: RealField + Copy>(fusion: &BoardFusion<T>) -> u64 {
+    let restarts = u64::from(fusion.counts().restarts);
+    let Some(filter) = fusion.filter() else {
+        return restarts;
+    };
+    let stats = filter.ekf.stats();
+    let faults: u32 = [
+        stats.gnss_position,
+        stats.gnss_velocity,
+        stats.zero_velocity,
+        stats.inter_imu_rate,
+        stats.inter_imu_force,
+    ]
+    .iter()
+    .map(|c| c.numerical_faults)
+    .sum();
+    restarts + u64::from(faults) + u64::from(stats.covariance_resets)
+}
+
+/// A filter value in f64.
+fn to_f64<T: RealField + Copy>(x: T) -> f64 {
+    nalgebra::try_convert::<T, f64>(x).unwrap_or(f64::NAN)
+}
+
+/// The filter's navigation error against the truth, truth minus estimate: NED position (m)
+/// and velocity (m/s), and attitude (rad, NED axes, as the filter's
+/// `C_b^n = (I + [eps x]) C_hat`).
+struct NavError {
+    position_ned_m: Vector3<f64>,
+    velocity_ned_m_s: Vector3<f64>,
+    attitude_rad: Vector3<f64>,
+}
+
+impl NavError {
+    fn of<T: RealField + Copy>(filter: &FusionFilter<T>, truth: &Truth) -> Self {
+        let s = filter.state();
+        let r = radii(truth.lat_rad);
+        let h_m = to_f64(s.h_m);
+        let q_nb = UnitQuaternion::from_quaternion(nalgebra::Quaternion::from(
+            s.q_nb.into_inner().coords.map(to_f64),
+        ));
+        let truth_q = UnitQuaternion::from_rotation_matrix(
+            &nalgebra::Rotation3::from_matrix_unchecked(truth.c_bn),
+        );
+        Self {
+            position_ned_m: Vector3::new(
+                (truth.lat_rad - s.lat_rad) * (r.meridian_m + h_m),
+                (truth.lon_rad - s.lon_rad) * (r.transverse_m + h_m) * truth.lat_rad.cos(),
+                h_m - truth.h_m,
+            ),
+            velocity_ned_m_s: truth.v_ned_m_s - s.v_ned_m_s.map(to_f64),
+            // Through quaternions: a rotation's own angle from its trace is NaN when
+            // rounding puts the trace of a near-identity product above 3.
+            attitude_rad: (truth_q * q_nb.inverse()).scaled_axis(),
+        }
+    }
+
+    /// e' P^-1 e over position, velocity and attitude; None if their covariance block is
+    /// not positive definite.
+    fn nees<T: RealField + Copy>(&self, filter: &FusionFilter<T>) -> Option<f64> {
+        let p = filter.ekf.covariance();
+        let first = [POS, VEL, ATT];
+        let block = SMatrix::<f64, NEES_STATES, NEES_STATES>::from_fn(|i, j| {
+            to_f64(p[(first[i / 3] + i % 3, first[j / 3] + j % 3)])
+        });
+        let e = nalgebra::SVector::<f64, NEES_STATES>::from_iterator(
+            self.position_ned_m
+                .iter()
+                .chain(self.velocity_ned_m_s.iter())
+                .chain(self.attitude_rad.iter())
+                .copied(),
+        );
+        let cholesky = block.cholesky()?;
+        Some(e.dot(&cholesky.solve(&e)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn outages_are_spread_through_the_run() {
+        assert_eq!(spread_outages(300.0, 30.0), [[135.0, 165.0]]);
+        assert_eq!(
+            spread_outages(600.0, 30.0),
+            [[185.0, 215.0], [385.0, 415.0]]
+        );
+        assert_eq!(
+            spread_outages(900.0, 60.0),
+            [[195.0, 255.0], [420.0, 480.0], [645.0, 705.0]]
+        );
+        assert!(spread_outages(600.0, 0.0).is_empty());
+    }
+
+    #[test]
+    fn nees_bounds_narrow_around_the_dimension() {
+        let [low, high] = nees_bounds(1);
+        // chi-square with 9 degrees of freedom: 2.70 and 19.02.
+        assert!((low - 2.700).abs() < 1e-3 && (high - 19.023).abs() < 1e-3);
+        let [low, high] = nees_bounds(1000);
+        assert!(low > 8.7 && high < 9.3 && low < 9.0 && high > 9.0);
+    }
+}
