@@ -20,7 +20,7 @@ use crate::progress::Tally;
 use crate::sim::trajectory::Truth;
 use drive::{DriveError, StreamedDrive};
 use dynacal_core::fusion::{BoardFusion, FusionConfig, FusionFilter};
-use dynacal_core::nav::ekf::{ATT, POS, VEL};
+use dynacal_core::nav::ekf::{boresight_index, ACCEL_BIAS, ATT, GYRO_BIAS, POS, VEL};
 use dynacal_core::nav::radii;
 
 /// The default drive's units and receiver (`examples/models/three-units-200hz.json`).
@@ -66,14 +66,30 @@ pub struct NavSimOptions {
     pub scalar: Scalar,
 }
 
-/// Simulated seconds between two NEES samples: about the time the filter's position and
-/// attitude errors take to decorrelate with GNSS, so the samples' mean has the spread the
-/// chi-square bounds assume (closer samples would make the bounds too narrow).
+/// Simulated seconds between two NEES samples. The bounds take the samples as independent;
+/// errors this far apart are not quite (the position error's memory with GNSS is seconds,
+/// an outage's drift tens of seconds), so the bounds are somewhat too narrow, and closer
+/// samples would make them narrower still.
 pub const NEES_EVERY_S: f64 = 10.0;
 /// The navigation counts as "with GNSS" again this long after an outage ends, s.
 pub const SETTLE_AFTER_OUTAGE_S: f64 = 30.0;
 /// Dimension of the NEES: position, velocity and attitude errors.
 const NEES_STATES: usize = 9;
+/// States of the board's filter (15 navigation states, two extra units' calibrations).
+const STATES: usize = 27;
+
+/// The filter's state groups, with their first index and length (variances in the squared
+/// units of `dynacal_core::nav::ekf`'s state table).
+pub const STATE_GROUPS: [(&str, usize, usize); 8] = [
+    ("position, m^2", POS, 3),
+    ("velocity, (m/s)^2", VEL, 3),
+    ("roll and pitch, rad^2", ATT, 2),
+    ("heading, rad^2", ATT + 2, 1),
+    ("accel bias, (m/s^2)^2", ACCEL_BIAS, 3),
+    ("gyro bias, (rad/s)^2", GYRO_BIAS, 3),
+    ("boresights, rad^2", boresight_index(0), 3),
+    ("lever arms, m^2", boresight_index(0) + 3, 3),
+];
 
 /// What a run measured.
 #[derive(Debug, Clone, Serialize)]
@@ -98,9 +114,136 @@ pub struct NavSimReport {
     /// samples degrees of freedom, over the samples).
     pub nees_bounds: [f64; 2],
     pub nees_samples: u64,
+    /// How far apart the covariance's numbers lay over the run (every [`NEES_EVERY_S`]).
+    pub covariance: CovarianceSpread,
     /// Numbers the filter found out of its scalar's range or invalid (non-finite or
     /// negative variances, failed updates) and covariance resets.
     pub overflow_events: u64,
+}
+
+/// The smallest and largest of a quantity over a run.
+#[derive(Debug, Clone, Copy, Serialize)]
+pub struct Span {
+    pub min: f64,
+    pub max: f64,
+}
+
+impl Default for Span {
+    fn default() -> Self {
+        Self {
+            min: f64::INFINITY,
+            max: f64::NEG_INFINITY,
+        }
+    }
+}
+
+impl Span {
+    fn add(&mut self, x: f64) {
+        self.min = self.min.min(x);
+        self.max = self.max.max(x);
+    }
+    /// Decades from `min` to `max`.
+    fn decades(&self) -> f64 {
+        (self.max / self.min).log10()
+    }
+}
+
+/// How far apart the filter covariance's numbers lie: what a fixed-point format must hold.
+/// A format's range must hold the largest magnitude of any element and its resolution must
+/// be fine against the smallest variance (an element below the resolution rounds to zero,
+/// which errs by the resolution against the square root of its two variances' product).
+#[derive(Debug, Clone, Serialize)]
+pub struct CovarianceSpread {
+    /// Each state group's variances ([`STATE_GROUPS`]).
+    pub variances: Vec<(String, Span)>,
+    /// Largest magnitude of any element, and smallest variance, as the filter holds them.
+    pub largest_element: f64,
+    pub smallest_variance: f64,
+    /// Decades between the two.
+    pub decades: f64,
+    /// The same of the covariance scaled by the sigmas it started with (after the
+    /// alignment): `P_ij / (s_i s_j)`, the states in units of their initial uncertainty.
+    pub scaled_largest_element: f64,
+    pub scaled_smallest_variance: f64,
+    pub scaled_decades: f64,
+}
+
+/// Gathers a [`CovarianceSpread`] over a run.
+struct SpreadGatherer {
+    start_sigmas: Option<[f64; STATES]>,
+    variances: [Span; STATES],
+    elements: Span,
+    scaled_variances: Span,
+    scaled_elements: Span,
+}
+
+impl SpreadGatherer {
+    fn new() -> Self {
+        Self {
+            start_sigmas: None,
+            variances: [Span::default(); STATES],
+            elements: Span::default(),
+            scaled_variances: Span::default(),
+            scaled_elements: Span::default(),
+        }
+    }
+
+    /// Takes the filter's sigmas as it starts, the scale of [`CovarianceSpread`]'s scaled
+    /// figures.
+    fn start<T: RealField + Copy>(&mut self, filter: &FusionFilter<T>) {
+        let p = filter.ekf.covariance();
+        self.start_sigmas = Some(core::array::from_fn(|i| to_f64(p[(i, i)]).sqrt()));
+    }
+
+    fn add<T: RealField + Copy>(&mut self, filter: &FusionFilter<T>) {
+        let p = filter.ekf.covariance().map(to_f64);
+        let Some(sigmas) = self.start_sigmas else {
+            return;
+        };
+        for i in 0..STATES {
+            self.variances[i].add(p[(i, i)]);
+            self.scaled_variances
+                .add(p[(i, i)] / (sigmas[i] * sigmas[i]));
+            for j in 0..=i {
+                self.elements.add(p[(i, j)].abs());
+                self.scaled_elements
+                    .add(p[(i, j)].abs() / (sigmas[i] * sigmas[j]));
+            }
+        }
+    }
+
+    fn spread(&self) -> CovarianceSpread {
+        let smallest = self
+            .variances
+            .iter()
+            .map(|v| v.min)
+            .fold(f64::INFINITY, f64::min);
+        let groups = STATE_GROUPS.iter().map(|(name, first, len)| {
+            let mut span = Span::default();
+            for v in &self.variances[*first..first + len] {
+                span.add(v.min);
+                span.add(v.max);
+            }
+            (name.to_string(), span)
+        });
+        let whole = Span {
+            min: smallest,
+            max: self.elements.max,
+        };
+        let scaled = Span {
+            min: self.scaled_variances.min,
+            max: self.scaled_elements.max,
+        };
+        CovarianceSpread {
+            variances: groups.collect(),
+            largest_element: whole.max,
+            smallest_variance: whole.min,
+            decades: whole.decades(),
+            scaled_largest_element: scaled.max,
+            scaled_smallest_variance: scaled.min,
+            scaled_decades: scaled.decades(),
+        }
+    }
 }
 
 /// Errors of a simulated navigation run.
@@ -169,6 +312,7 @@ fn run_with<T: RealField + Copy>(
         (Rms::default(), Rms::default(), Rms::default());
     let (mut nees_sum, mut nees_samples) = (0.0, 0u64);
     let mut aligned_after_s = None;
+    let mut spread = SpreadGatherer::new();
     let tally = Tally::default();
     tally.expect(sets / every_second);
     for k in 0..sets {
@@ -183,7 +327,10 @@ fn run_with<T: RealField + Copy>(
         let Some(filter) = fusion.filter() else {
             continue;
         };
-        aligned_after_s.get_or_insert(truth.t_s);
+        if aligned_after_s.is_none() {
+            aligned_after_s = Some(truth.t_s);
+            spread.start(filter);
+        }
         let error = NavError::of(filter, &truth);
         if k % every_second == 0 {
             attitude.add(error.attitude_rad.norm().to_degrees());
@@ -194,6 +341,7 @@ fn run_with<T: RealField + Copy>(
             }
         }
         if k % nees_every == 0 {
+            spread.add(filter);
             if let Some(nees) = error.nees(filter) {
                 nees_sum += nees;
                 nees_samples += 1;
@@ -215,6 +363,7 @@ fn run_with<T: RealField + Copy>(
         nees_mean: nees_sum / nees_samples.max(1) as f64,
         nees_bounds: nees_bounds(nees_samples),
         nees_samples,
+        covariance: spread.spread(),
         overflow_events: overflow_events(&fusion),
     })
 }

@@ -21,12 +21,10 @@ mod three_units;
 use std::time::Instant;
 
 use dynacal::navsim::drive::StreamedDrive;
-use dynacal::navsim::SETTLE_AFTER_OUTAGE_S;
+use dynacal::navsim::{SETTLE_AFTER_OUTAGE_S, STATE_GROUPS};
 use dynacal::sim::trajectory::Truth;
 use dynacal_core::fusion::{BoardFilter, BoardFusion, FusionConfig};
-use dynacal_core::nav::ekf::{
-    boresight_index, ACCEL_BIAS, ATT, CALIBRATION_STATES_PER_IMU, GYRO_BIAS, NAV_STATES, POS, VEL,
-};
+use dynacal_core::nav::ekf::{ATT, CALIBRATION_STATES_PER_IMU, NAV_STATES, POS, VEL};
 use dynacal_core::nav::radii;
 use nalgebra::{Cholesky, Rotation3, SMatrix, SymmetricEigen, UnitQuaternion, Vector3};
 use three_units::{board_model, RATE_HZ};
@@ -128,18 +126,6 @@ fn class_of(i: usize) -> usize {
         6
     }
 }
-
-/// Names of the state groups the figures are given for, with their first index and length.
-const GROUPS: [(&str, usize, usize); 8] = [
-    ("position, m^2", POS, 3),
-    ("velocity, (m/s)^2", VEL, 3),
-    ("roll and pitch, rad^2", ATT, 2),
-    ("heading, rad^2", ATT + 2, 1),
-    ("accel bias, (m/s^2)^2", ACCEL_BIAS, 3),
-    ("gyro bias, (rad/s)^2", GYRO_BIAS, 3),
-    ("boresights, rad^2", boresight_index(0), 3),
-    ("lever arms, m^2", boresight_index(0) + 3, 3),
-];
 
 /// What one covariance check found.
 #[derive(Debug, Clone, Copy)]
@@ -444,7 +430,7 @@ fn report(f: &DayFigures) {
         f.min_correlation_eigenvalue.min,
         f.min_correlation_eigenvalue.max
     );
-    for (name, first, len) in GROUPS {
+    for (name, first, len) in STATE_GROUPS {
         let mut r = Range::default();
         for i in first..first + len {
             r.add(f.variance[i].min);

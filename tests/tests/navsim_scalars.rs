@@ -71,6 +71,7 @@ fn twenty_seeds_in_each_scalar() {
     for outage_s in [30.0, 60.0] {
         let mut worst_ratio = 1.0f64;
         let mut inside = [0, 0];
+        let mut spreads = Vec::new();
         for seed in 1..=20 {
             let run = |scalar| {
                 let options = NavSimOptions {
@@ -82,6 +83,7 @@ fn twenty_seeds_in_each_scalar() {
                 run(&three_unit_model(), &options).expect("the drive runs")
             };
             let (wide, narrow) = (run(Scalar::F64), run(Scalar::F32));
+            spreads.push(wide.covariance.clone());
             let ratio = narrow.position_rms_outage_m / wide.position_rms_outage_m;
             worst_ratio = worst_ratio.max(ratio).max(1.0 / ratio);
             for (k, r) in [&wide, &narrow].into_iter().enumerate() {
@@ -109,5 +111,47 @@ fn twenty_seeds_in_each_scalar() {
             "outages of {outage_s} s: f32 / f64 position in outages within a factor {worst_ratio:.3}; NEES inside its bounds on {} (f64) and {} (f32) of 20 seeds",
             inside[0], inside[1]
         );
+        print_spread(&spreads);
     }
+}
+
+/// The covariance's numbers over every run (f64): each group's variances, and the decades
+/// a fixed-point format would have to span, as the filter holds the covariance and scaled by
+/// the sigmas it started with.
+fn print_spread(spreads: &[dynacal::navsim::CovarianceSpread]) {
+    let fold = |f: &dyn Fn(&dynacal::navsim::CovarianceSpread) -> f64, max: bool| {
+        spreads.iter().map(f).fold(
+            if max {
+                f64::NEG_INFINITY
+            } else {
+                f64::INFINITY
+            },
+            |a, b| {
+                if max {
+                    a.max(b)
+                } else {
+                    a.min(b)
+                }
+            },
+        )
+    };
+    for (k, (name, _)) in spreads[0].variances.iter().enumerate() {
+        println!(
+            "  {name}: {:.2e} to {:.2e}",
+            fold(&|s| s.variances[k].1.min, false),
+            fold(&|s| s.variances[k].1.max, true)
+        );
+    }
+    println!(
+        "  as held: largest element {:.2e}, smallest variance {:.2e}, {:.1} decades (worst run {:.1}); scaled by the start's sigmas: {:.2e}, {:.2e}, {:.1} decades (worst run {:.1})",
+        fold(&|s| s.largest_element, true),
+        fold(&|s| s.smallest_variance, false),
+        (fold(&|s| s.largest_element, true) / fold(&|s| s.smallest_variance, false)).log10(),
+        fold(&|s| s.decades, true),
+        fold(&|s| s.scaled_largest_element, true),
+        fold(&|s| s.scaled_smallest_variance, false),
+        (fold(&|s| s.scaled_largest_element, true) / fold(&|s| s.scaled_smallest_variance, false))
+            .log10(),
+        fold(&|s| s.scaled_decades, true)
+    );
 }
