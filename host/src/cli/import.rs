@@ -23,8 +23,12 @@ pub struct Args {
 pub fn run(args: Args) -> anyhow::Result<()> {
     let report = import_to_dir(&args.path, &args.out, args.format)?;
     for w in &report.written {
+        let left_out = match w.left_out.as_slice() {
+            [] => String::new(),
+            columns => format!("; not carried: {}", columns.join(", ")),
+        };
         println!(
-            "{}: {} samples, {:.3} s, [{}] <- {} ({})",
+            "{}: {} samples, {:.3} s, [{}] <- {} ({}{left_out})",
             w.path.display(),
             w.samples,
             w.duration_s,

@@ -28,6 +28,17 @@ pub(crate) fn is_interchange(path: &Path) -> bool {
         .is_ok_and(|h| h.iter().any(|c| c == "t_s") && h.iter().any(|c| is_interchange_column(c)))
 }
 
+/// The columns of the recording at `path` that a conversion does not carry (not the
+/// format's), in file order.
+pub(crate) fn left_out_columns(path: &Path) -> Result<Vec<String>, TableError> {
+    let headers = headers(path)?;
+    let carried = interchange_columns(path, &headers)?;
+    Ok(headers
+        .into_iter()
+        .filter(|h| !carried.contains(&h.as_str()))
+        .collect())
+}
+
 /// The names of the file's columns (a CSV's header, a Parquet file's flat columns).
 fn headers(path: &Path) -> Result<Vec<String>, TableError> {
     if parquet::is_parquet(path) {
@@ -211,6 +222,8 @@ mod tests {
         import_to_dir(&csv, &out, FileFormat::Parquet).unwrap();
         let written = crate::interchange::parquet::headers(&out.join("unit.parquet")).unwrap();
         assert_eq!(written, ["t_s", "gx_rad_s"]);
+        let report = import_to_dir(&csv, &dir.path().join("again"), FileFormat::Csv).unwrap();
+        assert_eq!(report.written[0].left_out, ["temp_c"]);
         std::fs::write(&csv, text.replace("\n1.5,170,", "\n1.4,170,")).unwrap();
         let bad_out = dir.path().join("bad");
         let message = import_to_dir(&csv, &bad_out, FileFormat::Parquet)

@@ -361,6 +361,9 @@ pub struct WrittenFile {
     /// What the file holds: IMU channel names (`gx` ... `az`) and `attitude`, `position`,
     /// `velocity_ned` where present.
     pub contents: Vec<&'static str>,
+    /// Columns of the source not carried into the file (an interchange recording's columns
+    /// that are not the format's); empty for the datasets, whose columns are all converted.
+    pub left_out: Vec<String>,
 }
 
 /// What [`import_to_dir`] did.
@@ -434,6 +437,10 @@ pub fn import_to_dir(
                 samples: rows.rows as usize,
                 duration_s: rows.last_t_s - rows.first_t_s,
                 contents: contents_of(&columns),
+                left_out: match dataset {
+                    Dataset::Interchange => interchange::left_out_columns(&source)?,
+                    _ => Vec::new(),
+                },
             });
         }
     }
