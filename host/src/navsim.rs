@@ -19,8 +19,10 @@ use crate::model::SimModel;
 use crate::progress::Tally;
 use crate::sim::trajectory::Truth;
 use drive::{DriveError, StreamedDrive};
-use dynacal_core::fusion::{BoardFusion, FusionConfig, FusionFilter};
-use dynacal_core::nav::ekf::{boresight_index, ACCEL_BIAS, ATT, GYRO_BIAS, POS, VEL};
+use dynacal_core::fusion::{BoardFusion, FusionConfig, FusionFilter, UNITS};
+use dynacal_core::nav::ekf::{
+    boresight_index, ACCEL_BIAS, ATT, CALIBRATION_STATES_PER_IMU, GYRO_BIAS, NAV_STATES, POS, VEL,
+};
 use dynacal_core::nav::radii;
 
 /// The default drive's units and receiver (`examples/models/three-units-200hz.json`).
@@ -75,8 +77,8 @@ pub const NEES_EVERY_S: f64 = 10.0;
 pub const SETTLE_AFTER_OUTAGE_S: f64 = 30.0;
 /// Dimension of the NEES: position, velocity and attitude errors.
 const NEES_STATES: usize = 9;
-/// States of the board's filter (15 navigation states, two extra units' calibrations).
-const STATES: usize = 27;
+/// States of the board's filter: the navigation states and each extra unit's calibration.
+pub const STATES: usize = NAV_STATES + (UNITS - 1) * CALIBRATION_STATES_PER_IMU;
 
 /// The filter's state groups, with their first index and length (variances in the squared
 /// units of `dynacal_core::nav::ekf`'s state table).
@@ -138,12 +140,13 @@ impl Default for Span {
 }
 
 impl Span {
-    fn add(&mut self, x: f64) {
+    /// Widens the span to hold `x`.
+    pub fn add(&mut self, x: f64) {
         self.min = self.min.min(x);
         self.max = self.max.max(x);
     }
     /// Decades from `min` to `max`.
-    fn decades(&self) -> f64 {
+    pub fn decades(&self) -> f64 {
         (self.max / self.min).log10()
     }
 }
@@ -279,19 +282,23 @@ pub fn run(model: &SimModel, opts: &NavSimOptions) -> Result<NavSimReport, NavSi
     }
 }
 
-/// Root mean square of what was added.
+/// Root mean square and largest magnitude of what was added.
 #[derive(Debug, Default, Clone, Copy)]
-struct Rms {
+pub struct Rms {
     sum2: f64,
     n: u64,
+    /// Largest magnitude added.
+    pub max_abs: f64,
 }
 
 impl Rms {
-    fn add(&mut self, x: f64) {
+    pub fn add(&mut self, x: f64) {
         self.sum2 += x * x;
         self.n += 1;
+        self.max_abs = self.max_abs.max(x.abs());
     }
-    fn value(&self) -> f64 {
+    /// The root mean square (0 before anything is added).
+    pub fn value(&self) -> f64 {
         (self.sum2 / self.n.max(1) as f64).sqrt()
     }
 }
@@ -404,14 +411,15 @@ fn to_f64<T: RealField + Copy>(x: T) -> f64 {
 /// The filter's navigation error against the truth, truth minus estimate: NED position (m)
 /// and velocity (m/s), and attitude (rad, NED axes, as the filter's
 /// `C_b^n = (I + [eps x]) C_hat`).
-struct NavError {
-    position_ned_m: Vector3<f64>,
-    velocity_ned_m_s: Vector3<f64>,
-    attitude_rad: Vector3<f64>,
+pub struct NavError {
+    pub position_ned_m: Vector3<f64>,
+    pub velocity_ned_m_s: Vector3<f64>,
+    pub attitude_rad: Vector3<f64>,
 }
 
 impl NavError {
-    fn of<T: RealField + Copy>(filter: &FusionFilter<T>, truth: &Truth) -> Self {
+    /// The error of `filter`'s navigation state against `truth`.
+    pub fn of<T: RealField + Copy>(filter: &FusionFilter<T>, truth: &Truth) -> Self {
         let s = filter.state();
         let r = radii(truth.lat_rad);
         let h_m = to_f64(s.h_m);

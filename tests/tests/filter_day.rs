@@ -21,16 +21,13 @@ mod three_units;
 use std::time::Instant;
 
 use dynacal::navsim::drive::StreamedDrive;
-use dynacal::navsim::{SETTLE_AFTER_OUTAGE_S, STATE_GROUPS};
+use dynacal::navsim::{NavError, Rms, Span, SETTLE_AFTER_OUTAGE_S, STATES, STATE_GROUPS};
 use dynacal::sim::trajectory::Truth;
 use dynacal_core::fusion::{BoardFilter, BoardFusion, FusionConfig};
 use dynacal_core::nav::ekf::{ATT, CALIBRATION_STATES_PER_IMU, NAV_STATES, POS, VEL};
-use dynacal_core::nav::radii;
-use nalgebra::{Cholesky, Rotation3, SMatrix, SymmetricEigen, UnitQuaternion, Vector3};
+use nalgebra::{Cholesky, SMatrix, SymmetricEigen, Vector3};
 use three_units::{board_model, RATE_HZ};
 
-/// States of the board's filter (two extra units' calibrations).
-const STATES: usize = 27;
 /// The covariance is checked this often, simulated s.
 const CHECK_EVERY_S: u64 = 10;
 /// The navigation error is taken this often, simulated s.
@@ -42,22 +39,8 @@ type Covariance = SMatrix<f64, STATES, STATES>;
 /// The filter's error against the truth: NED position (m), attitude (rad, NED axes, as the
 /// filter's `C_b^n = (I + [eps x]) C_hat`), both truth minus estimate.
 fn nav_error(filter: &BoardFilter, truth: &Truth) -> (Vector3<f64>, Vector3<f64>) {
-    let s = filter.state();
-    let r = radii(truth.lat_rad);
-    let h_m = f64::from(s.h_m);
-    let position = Vector3::new(
-        (truth.lat_rad - s.lat_rad) * (r.meridian_m + h_m),
-        (truth.lon_rad - s.lon_rad) * (r.transverse_m + h_m) * truth.lat_rad.cos(),
-        h_m - truth.h_m,
-    );
-    let c_bn_estimate = s.c_bn().map(f64::from);
-    // Through a quaternion: the rotation's own angle takes acos of its trace, which is NaN
-    // when rounding puts the trace of a near-identity product above 3.
-    let rotation = Rotation3::from_matrix_unchecked(truth.c_bn * c_bn_estimate.transpose());
-    (
-        position,
-        UnitQuaternion::from_rotation_matrix(&rotation).scaled_axis(),
-    )
+    let error = NavError::of(filter, truth);
+    (error.position_ned_m, error.attitude_rad)
 }
 
 /// The variance bounds of each state, as the filter states them or as they follow from its
@@ -160,48 +143,6 @@ fn check_covariance(p: &Covariance) -> CovarianceCheck {
     }
 }
 
-/// Largest and smallest of what was seen.
-#[derive(Debug, Clone, Copy)]
-struct Range {
-    min: f64,
-    max: f64,
-}
-
-impl Default for Range {
-    fn default() -> Self {
-        Self {
-            min: f64::INFINITY,
-            max: f64::NEG_INFINITY,
-        }
-    }
-}
-
-impl Range {
-    fn add(&mut self, x: f64) {
-        self.min = self.min.min(x);
-        self.max = self.max.max(x);
-    }
-}
-
-/// Root mean square and largest of a series.
-#[derive(Debug, Clone, Copy, Default)]
-struct Spread {
-    sum2: f64,
-    n: u64,
-    max: f64,
-}
-
-impl Spread {
-    fn add(&mut self, x: f64) {
-        self.sum2 += x * x;
-        self.n += 1;
-        self.max = self.max.max(x.abs());
-    }
-    fn rms(&self) -> f64 {
-        (self.sum2 / self.n.max(1) as f64).sqrt()
-    }
-}
-
 /// Everything the run measured.
 #[derive(Debug, Default)]
 struct DayFigures {
@@ -214,19 +155,19 @@ struct DayFigures {
     checks: u64,
     max_asymmetry: f64,
     cholesky_failures: u64,
-    min_eigenvalue: Range,
-    min_correlation_eigenvalue: Range,
+    min_eigenvalue: Span,
+    min_correlation_eigenvalue: Span,
     /// Each state's variance over the checks.
-    variance: Vec<Range>,
+    variance: Vec<Span>,
     /// Checks that found a variance outside its bounds, with the first such finding.
     bound_violations: u64,
     first_violation: Option<String>,
     /// With GNSS: horizontal and vertical position error (m), roll/pitch and heading error
     /// (rad), and the largest error over its stated sigma of any position or attitude axis.
-    horizontal_m: Spread,
-    vertical_m: Spread,
-    level_rad: Spread,
-    heading_rad: Spread,
+    horizontal_m: Rms,
+    vertical_m: Rms,
+    level_rad: Rms,
+    heading_rad: Rms,
     max_error_over_sigma: f64,
     /// Where it was: simulated s, state index, error and sigma.
     worst_error: (f64, usize, f64, f64),
@@ -248,7 +189,7 @@ fn run_day(seconds: f64, outages: Vec<[f64; 2]>, seed: u64) -> DayFigures {
         BoardFusion::<f32>::new(FusionConfig::at_rate(RATE_HZ as f32), &board_model(true));
     let mut figures = DayFigures {
         simulated_s: seconds,
-        variance: vec![Range::default(); STATES],
+        variance: vec![Span::default(); STATES],
         outage_end: vec![(0.0, 0.0); drive.outages().len()],
         ..DayFigures::default()
     };
@@ -431,7 +372,7 @@ fn report(f: &DayFigures) {
         f.min_correlation_eigenvalue.max
     );
     for (name, first, len) in STATE_GROUPS {
-        let mut r = Range::default();
+        let mut r = Span::default();
         for i in first..first + len {
             r.add(f.variance[i].min);
             r.add(f.variance[i].max);
@@ -444,8 +385,8 @@ fn report(f: &DayFigures) {
     );
     println!(
         "with GNSS: horizontal RMS {:.3} max {:.3} m; vertical RMS {:.3} max {:.3} m; roll/pitch RMS {:.2e} max {:.2e} rad; heading RMS {:.2e} max {:.2e} rad; largest |error|/sigma {:.2} (t, state, error, sigma: {:?})",
-        f.horizontal_m.rms(), f.horizontal_m.max, f.vertical_m.rms(), f.vertical_m.max,
-        f.level_rad.rms(), f.level_rad.max, f.heading_rad.rms(), f.heading_rad.max,
+        f.horizontal_m.value(), f.horizontal_m.max_abs, f.vertical_m.value(), f.vertical_m.max_abs,
+        f.level_rad.value(), f.level_rad.max_abs, f.heading_rad.value(), f.heading_rad.max_abs,
         f.max_error_over_sigma, f.worst_error
     );
     println!(
@@ -475,10 +416,10 @@ fn assert_healthy(f: &DayFigures) {
         f.min_correlation_eigenvalue
     );
     assert_eq!(f.bound_violations, 0, "{:?}", f.first_violation);
-    assert!(f.horizontal_m.max < 2.0, "{:?}", f.horizontal_m);
-    assert!(f.vertical_m.max < 3.0, "{:?}", f.vertical_m);
-    assert!(f.level_rad.max < 0.01, "{:?}", f.level_rad);
-    assert!(f.heading_rad.max < 0.05, "{:?}", f.heading_rad);
+    assert!(f.horizontal_m.max_abs < 2.0, "{:?}", f.horizontal_m);
+    assert!(f.vertical_m.max_abs < 3.0, "{:?}", f.vertical_m);
+    assert!(f.level_rad.max_abs < 0.01, "{:?}", f.level_rad);
+    assert!(f.heading_rad.max_abs < 0.05, "{:?}", f.heading_rad);
     for (error, sigma) in &f.outage_end {
         assert!(
             *error < OUTAGE_END_BOUND_M && *error < 4.0 * sigma,
