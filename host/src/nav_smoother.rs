@@ -144,10 +144,10 @@ impl<const K: usize, const N: usize> SmoothingEkf<K, N> {
         t_s: f64,
         updates: impl FnOnce(&mut ErrorStateEkf<f64, K, N>),
     ) -> NavCorrection<f64> {
-        let p_predicted = to_dynamic(self.ekf.covariance());
+        let p_predicted = to_dynamic(&self.ekf.covariance());
         updates(&mut self.ekf);
         let correction = DVector::from_column_slice(self.ekf.error_estimate().as_slice());
-        let p_updated = to_dynamic(self.ekf.covariance());
+        let p_updated = to_dynamic(&self.ekf.covariance());
         let nav = self.ekf.reset();
         let calibration = (0..K)
             .filter_map(|imu| self.ekf.calibration(imu).copied())

@@ -11,7 +11,8 @@
 
 pub mod drive;
 
-use nalgebra::{RealField, SMatrix, UnitQuaternion, Vector3};
+use dynacal_core::scalar::FilterScalar;
+use nalgebra::{SMatrix, UnitQuaternion, Vector3};
 use serde::Serialize;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
@@ -45,6 +46,8 @@ pub enum Scalar {
     F64,
     /// Single precision: what the Cortex-M4F board runs.
     F32,
+    /// Fixed point, Q32.32 (`dynacal_core::fixed::I32F32`): for boards without an FPU.
+    Fixed,
 }
 
 impl Scalar {
@@ -53,6 +56,7 @@ impl Scalar {
         match self {
             Scalar::F64 => "f64",
             Scalar::F32 => "f32",
+            Scalar::Fixed => "fixed",
         }
     }
 }
@@ -119,7 +123,8 @@ pub struct NavSimReport {
     /// How far apart the covariance's numbers lay over the run (every [`NEES_EVERY_S`]).
     pub covariance: CovarianceSpread,
     /// Numbers the filter found out of its scalar's range or invalid (non-finite or
-    /// negative variances, failed updates) and covariance resets.
+    /// negative variances, failed updates), covariance resets, and in fixed point every
+    /// result that saturated or was invalid (`dynacal_core::fixed::overflows`).
     pub overflow_events: u64,
 }
 
@@ -169,6 +174,12 @@ pub struct CovarianceSpread {
     pub scaled_largest_element: f64,
     pub scaled_smallest_variance: f64,
     pub scaled_decades: f64,
+    /// The same of the numbers the filter holds: in floating point the covariance itself,
+    /// in fixed point the covariance scaled by each state's power of two
+    /// (`ErrorStateEkf::held_covariance`), whose range the fixed format must cover.
+    pub held_largest_element: f64,
+    pub held_smallest_variance: f64,
+    pub held_decades: f64,
 }
 
 /// Gathers a [`CovarianceSpread`] over a run.
@@ -178,6 +189,8 @@ struct SpreadGatherer {
     elements: Span,
     scaled_variances: Span,
     scaled_elements: Span,
+    held_variances: Span,
+    held_elements: Span,
 }
 
 impl SpreadGatherer {
@@ -188,21 +201,30 @@ impl SpreadGatherer {
             elements: Span::default(),
             scaled_variances: Span::default(),
             scaled_elements: Span::default(),
+            held_variances: Span::default(),
+            held_elements: Span::default(),
         }
     }
 
     /// Takes the filter's sigmas as it starts, the scale of [`CovarianceSpread`]'s scaled
     /// figures.
-    fn start<T: RealField + Copy>(&mut self, filter: &FusionFilter<T>) {
-        let p = filter.ekf.covariance();
-        self.start_sigmas = Some(core::array::from_fn(|i| to_f64(p[(i, i)]).sqrt()));
+    fn start<T: FilterScalar>(&mut self, filter: &FusionFilter<T>) {
+        let p = filter.ekf.covariance_f64();
+        self.start_sigmas = Some(core::array::from_fn(|i| p[(i, i)].sqrt()));
     }
 
-    fn add<T: RealField + Copy>(&mut self, filter: &FusionFilter<T>) {
-        let p = filter.ekf.covariance().map(to_f64);
+    fn add<T: FilterScalar>(&mut self, filter: &FusionFilter<T>) {
+        let p = filter.ekf.covariance_f64();
+        let held = filter.ekf.held_covariance().map(to_f64);
         let Some(sigmas) = self.start_sigmas else {
             return;
         };
+        for i in 0..STATES {
+            self.held_variances.add(held[(i, i)]);
+            for j in 0..=i {
+                self.held_elements.add(held[(i, j)].abs());
+            }
+        }
         for i in 0..STATES {
             self.variances[i].add(p[(i, i)]);
             self.scaled_variances
@@ -237,7 +259,14 @@ impl SpreadGatherer {
             min: self.scaled_variances.min,
             max: self.scaled_elements.max,
         };
+        let held = Span {
+            min: self.held_variances.min,
+            max: self.held_elements.max,
+        };
         CovarianceSpread {
+            held_largest_element: held.max,
+            held_smallest_variance: held.min,
+            held_decades: held.decades(),
             variances: groups.collect(),
             largest_element: whole.max,
             smallest_variance: whole.min,
@@ -279,6 +308,7 @@ pub fn run(model: &SimModel, opts: &NavSimOptions) -> Result<NavSimReport, NavSi
     match opts.scalar {
         Scalar::F64 => run_with::<f64>(model, opts),
         Scalar::F32 => run_with::<f32>(model, opts),
+        Scalar::Fixed => run_with::<dynacal_core::fixed::I32F32>(model, opts),
     }
 }
 
@@ -303,7 +333,7 @@ impl Rms {
     }
 }
 
-fn run_with<T: RealField + Copy>(
+fn run_with<T: FilterScalar>(
     model: &SimModel,
     opts: &NavSimOptions,
 ) -> Result<NavSimReport, NavSimError> {
@@ -320,6 +350,7 @@ fn run_with<T: RealField + Copy>(
     let (mut nees_sum, mut nees_samples) = (0.0, 0u64);
     let mut aligned_after_s = None;
     let mut spread = SpreadGatherer::new();
+    let fixed_overflows_before = dynacal_core::fixed::overflows();
     let tally = Tally::default();
     tally.expect(sets / every_second);
     for k in 0..sets {
@@ -371,7 +402,8 @@ fn run_with<T: RealField + Copy>(
         nees_bounds: nees_bounds(nees_samples),
         nees_samples,
         covariance: spread.spread(),
-        overflow_events: overflow_events(&fusion),
+        overflow_events: overflow_events(&fusion)
+            + (dynacal_core::fixed::overflows() - fixed_overflows_before),
     })
 }
 
@@ -384,7 +416,7 @@ pub fn nees_bounds(samples: u64) -> [f64; 2] {
 }
 
 /// The filter's count of numbers out of range or invalid, and its restarts.
-fn overflow_events<T: RealField + Copy>(fusion: &BoardFusion<T>) -> u64 {
+fn overflow_events<T: FilterScalar>(fusion: &BoardFusion<T>) -> u64 {
     let restarts = u64::from(fusion.counts().restarts);
     let Some(filter) = fusion.filter() else {
         return restarts;
@@ -404,7 +436,7 @@ fn overflow_events<T: RealField + Copy>(fusion: &BoardFusion<T>) -> u64 {
 }
 
 /// A filter value in f64.
-fn to_f64<T: RealField + Copy>(x: T) -> f64 {
+fn to_f64<T: FilterScalar>(x: T) -> f64 {
     nalgebra::try_convert::<T, f64>(x).unwrap_or(f64::NAN)
 }
 
@@ -419,7 +451,7 @@ pub struct NavError {
 
 impl NavError {
     /// The error of `filter`'s navigation state against `truth`.
-    pub fn of<T: RealField + Copy>(filter: &FusionFilter<T>, truth: &Truth) -> Self {
+    pub fn of<T: FilterScalar>(filter: &FusionFilter<T>, truth: &Truth) -> Self {
         let s = filter.state();
         let r = radii(truth.lat_rad);
         let h_m = to_f64(s.h_m);
@@ -444,11 +476,11 @@ impl NavError {
 
     /// e' P^-1 e over position, velocity and attitude; None if their covariance block is
     /// not positive definite.
-    fn nees<T: RealField + Copy>(&self, filter: &FusionFilter<T>) -> Option<f64> {
-        let p = filter.ekf.covariance();
+    fn nees<T: FilterScalar>(&self, filter: &FusionFilter<T>) -> Option<f64> {
+        let p = filter.ekf.covariance_f64();
         let first = [POS, VEL, ATT];
         let block = SMatrix::<f64, NEES_STATES, NEES_STATES>::from_fn(|i, j| {
-            to_f64(p[(first[i / 3] + i % 3, first[j / 3] + j % 3)])
+            p[(first[i / 3] + i % 3, first[j / 3] + j % 3)]
         });
         let e = nalgebra::SVector::<f64, NEES_STATES>::from_iterator(
             self.position_ned_m

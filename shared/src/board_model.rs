@@ -126,8 +126,11 @@ impl BoardModel {
             gauss_markov_tau_s: 0.0,
             random_walk_psd,
         };
-        let gyro = noise(filter.gyro_noise_psd, filter.gyro_bias_psd);
-        let accel = noise(filter.accel_noise_psd, filter.accel_bias_psd);
+        let gyro = noise(filter.gyro_noise_psd.value(), filter.gyro_bias_psd.value());
+        let accel = noise(
+            filter.accel_noise_psd.value(),
+            filter.accel_bias_psd.value(),
+        );
         let mut units = heapless::Vec::new();
         for &imu_id in imu_ids.iter().take(MAX_IMUS) {
             let _ = units.push(UnitModel {

@@ -19,6 +19,7 @@ use dynacal_core::nav::ekf::{
 };
 use dynacal_core::nav::strapdown::{NavState, Strapdown};
 use dynacal_core::redundancy::{LiveNoise, MotionThresholds};
+use dynacal_core::scalar::Pow2;
 use nalgebra::{Matrix3, UnitQuaternion, Vector3};
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
@@ -153,7 +154,7 @@ fn epoch(sim: &SimOutput, nav: &InsEkf<f64, 0, 15>, t_s: f64) -> Epoch {
     );
     let v = truth.v_ned_m_s - est.v_ned_m_s;
     let att = small_rotation_vector(&(truth.q_nb * est.q_nb.inverse()));
-    let p = nav.ekf.covariance();
+    let p = &nav.ekf.covariance();
     Epoch {
         t_s,
         nees: [nees(&d, p, POS), nees(&v, p, VEL), nees(&att, p, ATT)],
@@ -210,8 +211,8 @@ fn navigate(sim: &SimOutput, levels: &[(f64, f64)], noise: Noise, seed: u64) -> 
     };
     let (mean_gyro2, mean_accel2) = (mean(|l| l.0), mean(|l| l.1));
     let mut config = EkfConfig::<f64>::automotive_mems();
-    config.accel_bias_psd = 1e-12;
-    config.gyro_bias_psd = 1e-14;
+    config.accel_bias_psd = Pow2::from_f64(1e-12);
+    config.gyro_bias_psd = Pow2::from_f64(1e-14);
     let initial = InitialSigmas {
         position_m: Vector3::repeat(0.5),
         velocity_m_s: Vector3::repeat(0.05),
@@ -236,7 +237,8 @@ fn navigate(sim: &SimOutput, levels: &[(f64, f64)], noise: Noise, seed: u64) -> 
             Noise::Dynamic => (mean_gyro2, mean_accel2),
             Noise::Adaptive => (levels[i].0.powi(2), levels[i].1.powi(2)),
         };
-        nav.ekf.set_sensor_noise_psd(a2 * dt, g2 * dt);
+        nav.ekf
+            .set_sensor_noise_psd(Pow2::from_f64(a2 * dt), Pow2::from_f64(g2 * dt));
         let w = Vector3::new(gyro[0][i], gyro[1][i], gyro[2][i]);
         let f = Vector3::new(accel[0][i], accel[1][i], accel[2][i]);
         nav.propagate(w * dt, f * dt, dt).expect("mechanization");

@@ -11,7 +11,7 @@ use dynacal::sim::trajectory::Scenario;
 use dynacal::sim::{simulate, SimOptions, SimOutput};
 use dynacal_core::fusion::{BoardFusion, FusionConfig, FusionOutput, UnitReading, UNITS};
 use dynacal_core::log::FilterState;
-use nalgebra::RealField;
+use dynacal_core::scalar::FilterScalar;
 use nalgebra::Vector3;
 
 mod three_units;
@@ -200,7 +200,7 @@ fn the_units_own_noise_makes_the_boards_filter_consistent_where_the_built_in_mod
 
 /// The fusion driven directly with the board recording's sample sets (the units tick
 /// together) and fixes, its filter in scalar `T`; the states it reports.
-fn fused_states<T: RealField + Copy>(seed: u64) -> (SimOutput, Vec<FilterState>) {
+fn fused_states<T: FilterScalar>(seed: u64) -> (SimOutput, Vec<FilterState>) {
     let model = sim_model();
     let opts = SimOptions {
         scenario: Scenario::Car,

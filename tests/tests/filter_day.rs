@@ -75,7 +75,7 @@ impl Bounds {
     fn at_start(filter: &BoardFilter) -> Self {
         let config = filter.ekf.config();
         let p = filter.ekf.covariance();
-        let floor = core::array::from_fn(|i| f64::from(config.variance_floor[class_of(i)]));
+        let floor = core::array::from_fn(|i| f64::from(config.variance_floor[class_of(i)].value()));
         let stationary = |psd: f32, inv_tau_s: f32| {
             if inv_tau_s > 0.0 {
                 f64::from(psd) / (2.0 * f64::from(inv_tau_s))
@@ -83,8 +83,8 @@ impl Bounds {
                 f64::INFINITY
             }
         };
-        let accel = stationary(config.accel_bias_psd, config.accel_bias_inv_tau_s);
-        let gyro = stationary(config.gyro_bias_psd, config.gyro_bias_inv_tau_s);
+        let accel = stationary(config.accel_bias_psd.value(), config.accel_bias_inv_tau_s);
+        let gyro = stationary(config.gyro_bias_psd.value(), config.gyro_bias_inv_tau_s);
         let ceiling = core::array::from_fn(|i| {
             let initial = f64::from(p[(i, i)]);
             let model = match class_of(i) {

@@ -1,7 +1,7 @@
-//! The board's fusion filter in `f32` against `f64` on the same simulated drives
-//! (`dynacal::navsim`, what `dynacal navsim` runs): through GNSS outages the single-precision
-//! filter navigates as the double-precision one does, and neither meets a number out of its
-//! range.
+//! The board's fusion filter in `f32` and in Q32.32 fixed point against `f64` on the same
+//! simulated drives (`dynacal::navsim`, what `dynacal navsim` runs): through GNSS outages the
+//! single-precision and the fixed-point filters navigate as the double-precision one does,
+//! and none meets a number out of its range.
 
 use dynacal::navsim::{run, three_unit_model, NavSimOptions, NavSimReport, Scalar};
 
@@ -15,63 +15,72 @@ fn navigate(scalar: Scalar, seed: u64) -> NavSimReport {
     run(&three_unit_model(), &options).expect("the drive runs")
 }
 
-/// On three drives with a 30 s outage: the f32 filter's position error through the outage,
-/// with GNSS, and its attitude error are each within 10% of the f64 filter's, and both
-/// filters count no overflow.
+/// The f64 filter's figures and another scalar's, as a table row's cells.
+fn cells(r: &NavSimReport) -> String {
+    format!(
+        "{:.3} / {:.2} | {:.4} | {:.2}",
+        r.position_rms_m, r.position_rms_outage_m, r.attitude_rms_deg, r.nees_mean
+    )
+}
+
+/// The largest relative gap of `other`'s position error with GNSS, through outages and its
+/// attitude error to `wide`'s (the f64 filter's).
+fn worst_gap(wide: &NavSimReport, other: &NavSimReport) -> f64 {
+    [
+        (wide.position_rms_outage_m, other.position_rms_outage_m),
+        (wide.position_rms_m, other.position_rms_m),
+        (wide.attitude_rms_deg, other.attitude_rms_deg),
+    ]
+    .iter()
+    .map(|(a, b)| (b - a).abs() / a)
+    .fold(0.0, f64::max)
+}
+
+/// On three drives with a 30 s outage: the f32 filter's and the fixed-point filter's
+/// position error through the outage, with GNSS, and their attitude error are each within
+/// 10% of the f64 filter's, and no filter counts an overflow.
 #[test]
-fn single_precision_navigates_as_double_precision_does() {
+fn single_precision_and_fixed_point_navigate_as_double_precision_does() {
     for seed in 1..=3 {
-        let (wide, narrow) = (navigate(Scalar::F64, seed), navigate(Scalar::F32, seed));
-        println!(
-            "seed {seed}: f64 {:.3} / {:.3} m, {:.4} deg, NEES {:.2} {:?}; f32 {:.3} / {:.3} m, {:.4} deg, NEES {:.2}",
-            wide.position_rms_m,
-            wide.position_rms_outage_m,
-            wide.attitude_rms_deg,
-            wide.nees_mean,
-            wide.nees_bounds,
-            narrow.position_rms_m,
-            narrow.position_rms_outage_m,
-            narrow.attitude_rms_deg,
-            narrow.nees_mean
+        let wide = navigate(Scalar::F64, seed);
+        assert!(
+            wide.position_rms_outage_m > 0.0 && wide.attitude_rms_deg > 0.0,
+            "seed {seed}: {wide:?}"
         );
-        for (what, a, b) in [
-            (
-                "position in outages",
-                wide.position_rms_outage_m,
-                narrow.position_rms_outage_m,
-            ),
-            (
-                "position with GNSS",
-                wide.position_rms_m,
-                narrow.position_rms_m,
-            ),
-            ("attitude", wide.attitude_rms_deg, narrow.attitude_rms_deg),
-        ] {
-            assert!(a > 0.0 && a.is_finite(), "seed {seed}: f64 {what} {a}");
-            assert!(
-                (b - a).abs() <= 0.1 * a,
-                "seed {seed}: {what}: f32 {b} against f64 {a}"
-            );
-        }
         assert_eq!(wide.overflow_events, 0, "seed {seed}");
-        assert_eq!(narrow.overflow_events, 0, "seed {seed}");
         assert_eq!(wide.outages_s, [[135.0, 165.0]]);
+        for scalar in [Scalar::F32, Scalar::Fixed] {
+            let other = navigate(scalar, seed);
+            println!(
+                "seed {seed}: f64 {}; {} {}",
+                cells(&wide),
+                scalar.name(),
+                cells(&other)
+            );
+            let gap = worst_gap(&wide, &other);
+            assert!(
+                gap <= 0.1,
+                "seed {seed}: {} strays {gap:.3} from f64",
+                scalar.name()
+            );
+            assert_eq!(other.overflow_events, 0, "seed {seed}: {}", scalar.name());
+        }
     }
 }
 
 /// The measurement behind BENCHMARKS.md's "The board's filter in each scalar": 20 seeds of
-/// 600 s drives with 30 s and with 60 s outages, f64 against f32 (a measurement tool):
-/// `cargo test -p dynacal-tests --test navsim_scalars -- --ignored --nocapture` (the dev
-/// profile is optimised).
+/// 600 s drives with 30 s and with 60 s outages, f64 against f32 and fixed point (a
+/// measurement tool): `cargo test --release -p dynacal-tests --test navsim_scalars --
+/// --ignored --nocapture`.
 #[test]
-#[ignore = "measurement tool: cargo test -p dynacal-tests --test navsim_scalars -- --ignored --nocapture"]
+#[ignore = "measurement tool: cargo test --release -p dynacal-tests --test navsim_scalars -- --ignored --nocapture"]
 fn twenty_seeds_in_each_scalar() {
-    println!("| outage s | seed | f64: position RMS with GNSS / in outages m | f64: attitude RMS deg | f64: NEES [bounds] | f32: position RMS with GNSS / in outages m | f32: attitude RMS deg | f32: NEES | f32 / f64 in outages | overflow events |");
-    println!("|---|---|---|---|---|---|---|---|---|---|");
+    println!("| outage s | seed | f64: position RMS with GNSS / in outages m, attitude RMS deg, NEES | f32: the same | fixed: the same | NEES bounds | f32, fixed: largest gap to f64 | overflow events f64 / f32 / fixed |");
+    println!("|---|---|---|---|---|---|---|---|");
     for outage_s in [30.0, 60.0] {
-        let mut worst_ratio = 1.0f64;
-        let mut inside = [0, 0];
-        let mut spreads = Vec::new();
+        let mut worst = [0.0f64; 2];
+        let mut inside = [0; 3];
+        let (mut spreads, mut held) = (Vec::new(), Vec::new());
         for seed in 1..=20 {
             let run = |scalar| {
                 let options = NavSimOptions {
@@ -82,36 +91,60 @@ fn twenty_seeds_in_each_scalar() {
                 };
                 run(&three_unit_model(), &options).expect("the drive runs")
             };
-            let (wide, narrow) = (run(Scalar::F64), run(Scalar::F32));
+            let reports = [run(Scalar::F64), run(Scalar::F32), run(Scalar::Fixed)];
+            let [wide, narrow, fixed] = &reports;
             spreads.push(wide.covariance.clone());
-            let ratio = narrow.position_rms_outage_m / wide.position_rms_outage_m;
-            worst_ratio = worst_ratio.max(ratio).max(1.0 / ratio);
-            for (k, r) in [&wide, &narrow].into_iter().enumerate() {
+            held.push(fixed.covariance.clone());
+            let gaps = [worst_gap(wide, narrow), worst_gap(wide, fixed)];
+            for k in 0..2 {
+                worst[k] = worst[k].max(gaps[k]);
+            }
+            for (k, r) in reports.iter().enumerate() {
                 if r.nees_mean >= r.nees_bounds[0] && r.nees_mean <= r.nees_bounds[1] {
                     inside[k] += 1;
                 }
             }
             println!(
-                "| {outage_s} | {seed} | {:.3} / {:.2} | {:.4} | {:.2} [{:.2}, {:.2}] | {:.3} / {:.2} | {:.4} | {:.2} | {ratio:.3} | {} / {} |",
-                wide.position_rms_m,
-                wide.position_rms_outage_m,
-                wide.attitude_rms_deg,
-                wide.nees_mean,
+                "| {outage_s} | {seed} | {} | {} | {} | [{:.2}, {:.2}] | {:.3}, {:.3} | {} / {} / {} |",
+                cells(wide),
+                cells(narrow),
+                cells(fixed),
                 wide.nees_bounds[0],
                 wide.nees_bounds[1],
-                narrow.position_rms_m,
-                narrow.position_rms_outage_m,
-                narrow.attitude_rms_deg,
-                narrow.nees_mean,
+                gaps[0],
+                gaps[1],
                 wide.overflow_events,
-                narrow.overflow_events
+                narrow.overflow_events,
+                fixed.overflow_events
             );
         }
         println!(
-            "outages of {outage_s} s: f32 / f64 position in outages within a factor {worst_ratio:.3}; NEES inside its bounds on {} (f64) and {} (f32) of 20 seeds",
-            inside[0], inside[1]
+            "outages of {outage_s} s: largest gap to f64 (position with GNSS, in outages, attitude) {:.3} (f32), {:.3} (fixed); NEES inside its bounds on {} (f64), {} (f32), {} (fixed) of 20 seeds",
+            worst[0], worst[1], inside[0], inside[1], inside[2]
         );
         print_spread(&spreads);
+        let fold = |f: &dyn Fn(&dynacal::navsim::CovarianceSpread) -> f64, max: bool| {
+            held.iter().map(f).fold(
+                if max {
+                    f64::NEG_INFINITY
+                } else {
+                    f64::INFINITY
+                },
+                |a, b| {
+                    if max {
+                        a.max(b)
+                    } else {
+                        a.min(b)
+                    }
+                },
+            )
+        };
+        println!(
+            "  held by the fixed-point filter (scaled by each state's power of two): largest element {:.3}, smallest variance {:.3}, {:.2} decades",
+            fold(&|s| s.held_largest_element, true),
+            fold(&|s| s.held_smallest_variance, false),
+            fold(&|s| s.held_decades, true)
+        );
     }
 }
 

@@ -12,7 +12,8 @@
 //! biases or scale factors (paper Section II), so any such error would be absorbed into the
 //! boresight and lever arm, which is not what Fig. 1 is about.
 
-use nalgebra::{RealField, UnitQuaternion, Vector3};
+use dynacal_core::scalar::FilterScalar;
+use nalgebra::{UnitQuaternion, Vector3};
 use serde::Serialize;
 
 use dynacal_core::nav::ekf::{
@@ -177,7 +178,7 @@ pub fn simulate_fig1(seconds: f64, seed: u64) -> Result<SimOutput, Fig1Error> {
 
 /// What the loop needs of a filter: the bare [`ErrorStateEkf`] or the recording
 /// [`SmoothingEkf`], which must see every prediction and every epoch.
-pub trait CalibrationFilter<T: RealField + Copy> {
+pub trait CalibrationFilter<T: FilterScalar> {
     /// The filter.
     fn ekf(&self) -> &ErrorStateEkf<T, 2, 27>;
     /// One covariance prediction; `false` if refused.
@@ -190,7 +191,7 @@ pub trait CalibrationFilter<T: RealField + Copy> {
     ) -> NavCorrection<T>;
 }
 
-impl<T: RealField + Copy> CalibrationFilter<T> for ErrorStateEkf<T, 2, 27> {
+impl<T: FilterScalar> CalibrationFilter<T> for ErrorStateEkf<T, 2, 27> {
     fn ekf(&self) -> &ErrorStateEkf<T, 2, 27> {
         self
     }
@@ -307,13 +308,13 @@ pub fn inter_imu_noise(model: &SimModel) -> Vec<InterImuNoise> {
 /// Filter settings: [`EkfConfig::automotive_mems`] noise for the reference's navigation block
 /// (deliberately loose: it also covers the mechanization's error on point-sampled vibration),
 /// rigid mounts (constant boresight and lever arm).
-pub fn fig1_config<T: RealField + Copy>() -> EkfConfig<T> {
+pub fn fig1_config<T: FilterScalar>() -> EkfConfig<T> {
     EkfConfig::automotive_mems()
 }
 
 /// Initial sigmas: the navigation state starts at the truth (an aligned reference solution),
 /// the calibration states at zero with the paper's 20 deg and 20 cm.
-pub fn fig1_initial_sigmas<T: RealField + Copy>() -> InitialSigmas<T> {
+pub fn fig1_initial_sigmas<T: FilterScalar>() -> InitialSigmas<T> {
     let c = |x: f64| Vector3::repeat(nalgebra::convert::<f64, T>(x));
     InitialSigmas {
         position_m: c(0.05),
@@ -327,7 +328,7 @@ pub fn fig1_initial_sigmas<T: RealField + Copy>() -> InitialSigmas<T> {
 }
 
 /// A fresh 27-state filter with [`fig1_config`] and [`fig1_initial_sigmas`].
-pub fn fig1_filter<T: RealField + Copy>() -> NavEkf2<T> {
+pub fn fig1_filter<T: FilterScalar>() -> NavEkf2<T> {
     NavEkf2::new(fig1_config(), fig1_initial_sigmas())
 }
 
@@ -359,7 +360,7 @@ pub struct CalibrationTrace {
     pub gnss_rejected: u32,
 }
 
-fn v3<T: RealField + Copy>(triplet: &[Vec<f64>; 3], k: usize) -> Vector3<T> {
+fn v3<T: FilterScalar>(triplet: &[Vec<f64>; 3], k: usize) -> Vector3<T> {
     Vector3::new(
         nalgebra::convert(triplet[0][k]),
         nalgebra::convert(triplet[1][k]),
@@ -367,7 +368,7 @@ fn v3<T: RealField + Copy>(triplet: &[Vec<f64>; 3], k: usize) -> Vector3<T> {
     )
 }
 
-fn to_f64<T: RealField + Copy>(v: Vector3<T>) -> [f64; 3]
+fn to_f64<T: FilterScalar>(v: Vector3<T>) -> [f64; 3]
 where
     f64: From<T>,
 {
@@ -383,7 +384,7 @@ type Payload<T> = (Vector3<T>, [Vector3<T>; 2], [Vector3<T>; 2]);
 type InterImuInput<T> = (Vector3<T>, Vector3<T>, Payload<T>);
 
 /// `x` in the filter's precision.
-fn c<T: RealField + Copy>(x: f64) -> T {
+fn c<T: FilterScalar>(x: f64) -> T {
     nalgebra::convert::<f64, T>(x)
 }
 
@@ -464,7 +465,7 @@ impl<'a> RunInputs<'a> {
     }
 
     /// The navigation state of the first reference sample.
-    fn initial_state<T: RealField + Copy>(&self) -> NavState<T> {
+    fn initial_state<T: FilterScalar>(&self) -> NavState<T> {
         let (attitude, position) = (self.attitude, self.position);
         NavState::<T>::from_euler(
             c(attitude[0][0]),
@@ -478,7 +479,7 @@ impl<'a> RunInputs<'a> {
     }
 
     /// Both extra IMUs' rate and specific force at sample `k`.
-    fn extra_at<T: RealField + Copy>(&self, k: usize) -> ([Vector3<T>; 2], [Vector3<T>; 2]) {
+    fn extra_at<T: FilterScalar>(&self, k: usize) -> ([Vector3<T>; 2], [Vector3<T>; 2]) {
         (
             [0, 1].map(|i| v3::<T>(self.extra[i].0, k)),
             [0, 1].map(|i| v3::<T>(self.extra[i].1, k)),
@@ -488,7 +489,7 @@ impl<'a> RunInputs<'a> {
 
 impl CalibrationTrace {
     /// Appends the filter's nominal calibrations and sigmas at `t_s`.
-    fn record<T: RealField + Copy>(&mut self, t_s: f64, ekf: &ErrorStateEkf<T, 2, 27>)
+    fn record<T: FilterScalar>(&mut self, t_s: f64, ekf: &ErrorStateEkf<T, 2, 27>)
     where
         f64: From<T>,
     {
@@ -528,7 +529,7 @@ impl CalibrationTrace {
 }
 
 /// The measurement noise of the updates, in the filter's precision.
-struct UpdateSigmas<T: RealField + Copy> {
+struct UpdateSigmas<T: FilterScalar> {
     /// Per extra IMU: inter-IMU rate and specific-force one-sigma.
     rate: [Vector3<T>; 2],
     force: [Vector3<T>; 2],
@@ -536,7 +537,7 @@ struct UpdateSigmas<T: RealField + Copy> {
     gnss: Option<(Vector3<T>, Vector3<T>)>,
 }
 
-impl<T: RealField + Copy> UpdateSigmas<T> {
+impl<T: FilterScalar> UpdateSigmas<T> {
     fn new(noise: &[InterImuNoise], gnss: Option<&GnssFixes>) -> Self {
         Self {
             rate: [0, 1].map(|i| Vector3::repeat(c(noise[i].rate_rad_s))),
@@ -568,7 +569,7 @@ struct GnssReader<'a> {
 impl GnssReader<'_> {
     /// Position and velocity innovations against `nominal` of the fix within half a sample
     /// of `t_s`, if there is one.
-    fn innovations<T: RealField + Copy>(
+    fn innovations<T: FilterScalar>(
         &mut self,
         t_s: f64,
         dt_s: f64,
@@ -598,7 +599,7 @@ impl GnssReader<'_> {
 
 /// The updates of one epoch: the joint inter-IMU update of both extra IMUs when the
 /// differentiator released a sample, GNSS position and velocity when there is a fix.
-fn fuse_updates<T: RealField + Copy>(
+fn fuse_updates<T: FilterScalar>(
     ekf: &mut ErrorStateEkf<T, 2, 27>,
     inter_imu: Option<InterImuInput<T>>,
     fix: Option<(Vector3<T>, Vector3<T>)>,
@@ -645,7 +646,7 @@ fn propagate<T, F>(
     filter: &mut F,
 ) -> Result<(Vector3<T>, Vector3<T>), Fig1Error>
 where
-    T: RealField + Copy,
+    T: FilterScalar,
     F: CalibrationFilter<T>,
 {
     let t_s = inputs.t_s[k];
@@ -680,7 +681,7 @@ pub fn run_calibration<T, F>(
     filter: &mut F,
 ) -> Result<CalibrationTrace, Fig1Error>
 where
-    T: RealField + Copy,
+    T: FilterScalar,
     f64: From<T>,
     F: CalibrationFilter<T>,
 {

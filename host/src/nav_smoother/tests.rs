@@ -64,7 +64,7 @@ fn rts_with_resets_equals_textbook_rts_of_the_open_loop_filter() {
                 phi = step * phi;
             }
         }
-        open_p_predicted.push(*open.covariance());
+        open_p_predicted.push(open.covariance());
         open_phi.push(phi);
         phi = SMatrix::identity();
         let measure = |rng: &mut rand_chacha::ChaCha8Rng, s: &Vector3<f64>| {
@@ -94,7 +94,7 @@ fn rts_with_resets_equals_textbook_rts_of_the_open_loop_filter() {
             open.fuse_gnss_velocity(&z_v, &sigma_v);
         }
         open_updated.push(*open.error_estimate());
-        open_p_updated.push(*open.covariance());
+        open_p_updated.push(open.covariance());
     }
     // WHEN both are smoothed (the open loop with the textbook RTS)
     let smoothed = closed.smooth().unwrap();

@@ -33,8 +33,11 @@ pub mod sets;
 
 // Float methods without std.
 #[allow(unused_imports)]
+use crate::scalar::{FilterScalar, Pow2};
+// f32's `sqrt` and `round` on the board, without std (elsewhere the inherent methods serve).
+#[allow(unused_imports)]
 use nalgebra::ComplexField;
-use nalgebra::{Matrix3, Quaternion, RealField, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Quaternion, Rotation3, UnitQuaternion, Vector3};
 
 use crate::board_model::BoardModel;
 use crate::log::{FaultFrame, FilterState, GnssFix, NoiseFrame, MAX_IMUS};
@@ -60,20 +63,20 @@ pub type FusionFilter<T> = InsEkf<T, { UNITS - 1 }, 27>;
 pub type BoardFilter = FusionFilter<f32>;
 
 /// `x` in the filter's scalar.
-fn t<T: RealField + Copy>(x: f32) -> T {
+fn t<T: FilterScalar>(x: f32) -> T {
     nalgebra::convert(f64::from(x))
 }
 
 /// A filter value back in f32 (NaN for a scalar f32 cannot hold).
-fn f<T: RealField + Copy>(x: T) -> f32 {
+fn f<T: FilterScalar>(x: T) -> f32 {
     nalgebra::try_convert::<T, f64>(x).map_or(f32::NAN, |v| v as f32)
 }
 
-fn tv<T: RealField + Copy>(v: Vector3<f32>) -> Vector3<T> {
+fn tv<T: FilterScalar>(v: Vector3<f32>) -> Vector3<T> {
     v.map(t)
 }
 
-fn fv<T: RealField + Copy>(v: Vector3<T>) -> Vector3<f32> {
+fn fv<T: FilterScalar>(v: Vector3<T>) -> Vector3<f32> {
     v.map(f)
 }
 
@@ -295,7 +298,7 @@ struct Stillness {
 /// The fusion (see the module's note), its filter in scalar `T`: f32 on the board; f64 on
 /// the host, to measure what f32 costs. The monitors, live levels and alignment are f32
 /// either way.
-pub struct BoardFusion<T: RealField + Copy = f32> {
+pub struct BoardFusion<T: FilterScalar = f32> {
     config: FusionConfig,
     /// Board-model alignment of each unit: C_b^k and lever arm (body axes, m).
     model_alignment: [(Matrix3<f32>, Vector3<f32>); UNITS],
@@ -322,7 +325,7 @@ pub struct BoardFusion<T: RealField + Copy = f32> {
     counts: FusionCounts,
 }
 
-impl<T: RealField + Copy> BoardFusion<T> {
+impl<T: FilterScalar> BoardFusion<T> {
     /// A fusion of the units of `model` (its first three, in order: the header's IMUs).
     #[inline(always)]
     pub fn new(config: FusionConfig, model: &BoardModel) -> Self {
@@ -562,7 +565,9 @@ impl<T: RealField + Copy> BoardFusion<T> {
             return;
         };
         self.counts.filter_steps += 1;
-        filter.ekf.set_sensor_noise_psd(t(accel_psd), t(gyro_psd));
+        filter
+            .ekf
+            .set_sensor_noise_psd(Pow2::from_f32(accel_psd), Pow2::from_f32(gyro_psd));
         let interval_s = self.config.sample_interval_s;
         let Ok(delta_v) = filter.mechanize(
             tv(interval.rate_sum * interval_s),
@@ -760,9 +765,9 @@ impl<T: RealField + Copy> BoardFusion<T> {
     #[inline(never)]
     fn start(&mut self, start: &Start) {
         let mut config = self.config.ekf;
-        config.gyro_bias_psd = self.gyro_noise_model.bias_psd;
+        config.gyro_bias_psd = Pow2::from_f32(self.gyro_noise_model.bias_psd);
         config.gyro_bias_inv_tau_s = self.gyro_noise_model.bias_inv_tau_s;
-        config.accel_bias_psd = self.accel_noise_model.bias_psd;
+        config.accel_bias_psd = Pow2::from_f32(self.accel_noise_model.bias_psd);
         config.accel_bias_inv_tau_s = self.accel_noise_model.bias_inv_tau_s;
         let mut initial = self.config.initial;
         initial.attitude_rad.z = start.heading_sigma_rad;
@@ -786,7 +791,10 @@ impl<T: RealField + Copy> BoardFusion<T> {
         ekf.set_biases(Vector3::zeros(), tv(start.gyro_bias_rad_s));
         for k in 1..UNITS {
             let (c, r) = self.model_alignment[k];
-            let q = UnitQuaternion::from_matrix(&c.map(t));
+            // Shepperd's direct method: nalgebra's iterative `from_matrix` stops, in fixed
+            // point, where its update falls under one unit (4e-6 rad off for a half turn).
+            let q =
+                UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(c.map(t)));
             ekf.set_calibration(
                 k - 1,
                 InterImuCalibration {
@@ -971,24 +979,29 @@ fn moved_forward(fix: &GnssFix, age_s: f32) -> (f64, f64, f32) {
     )
 }
 
+/// A small constant of the board's settings, held to `T`'s precision.
+fn small<T: FilterScalar>(x: Pow2<f32>) -> Pow2<T> {
+    Pow2::from_f32(x.value())
+}
+
 /// The filter's settings in scalar `T`.
-fn ekf_config_in<T: RealField + Copy>(c: &EkfConfig<f32>) -> EkfConfig<T> {
+fn ekf_config_in<T: FilterScalar>(c: &EkfConfig<f32>) -> EkfConfig<T> {
     EkfConfig {
-        accel_noise_psd: t(c.accel_noise_psd),
-        gyro_noise_psd: t(c.gyro_noise_psd),
-        accel_bias_psd: t(c.accel_bias_psd),
-        gyro_bias_psd: t(c.gyro_bias_psd),
+        accel_noise_psd: small(c.accel_noise_psd),
+        gyro_noise_psd: small(c.gyro_noise_psd),
+        accel_bias_psd: small(c.accel_bias_psd),
+        gyro_bias_psd: small(c.gyro_bias_psd),
         accel_bias_inv_tau_s: t(c.accel_bias_inv_tau_s),
         gyro_bias_inv_tau_s: t(c.gyro_bias_inv_tau_s),
-        boresight_psd: t(c.boresight_psd),
-        lever_arm_psd: t(c.lever_arm_psd),
+        boresight_psd: small(c.boresight_psd),
+        lever_arm_psd: small(c.lever_arm_psd),
         innovation_gate: t(c.innovation_gate),
-        variance_floor: c.variance_floor.map(t),
+        variance_floor: c.variance_floor.map(small),
     }
 }
 
 /// The filter's initial sigmas in scalar `T`.
-fn initial_sigmas_in<T: RealField + Copy>(s: &InitialSigmas<f32>) -> InitialSigmas<T> {
+fn initial_sigmas_in<T: FilterScalar>(s: &InitialSigmas<f32>) -> InitialSigmas<T> {
     InitialSigmas {
         position_m: tv(s.position_m),
         velocity_m_s: tv(s.velocity_m_s),

@@ -77,10 +77,11 @@ impl<T: RealField + Copy> Latitude<T> {
             / (T::one() - c::<T>(WGS84_E2) * s2).sqrt();
         let m = WGS84_OMEGA_IE_RAD_S * WGS84_OMEGA_IE_RAD_S * WGS84_A_M * WGS84_A_M * WGS84_B_M
             / WGS84_GM_M3_S2;
-        let a: T = c(WGS84_A_M);
-        let linear = c::<T>(2.0) / a * (c::<T>(1.0 + WGS84_F + m) - c::<T>(2.0 * WGS84_F) * s2);
-        let quadratic = c::<T>(3.0) / (a * a);
-        gamma0 * (T::one() - linear * h_m + quadratic * h_m * h_m)
+        // In powers of h/a rather than of h with coefficients 2/a and 3/a²: a² (4e13 m²)
+        // is beyond a fixed-point range, and 2/a (3e-7 /m) keeps three digits there.
+        let h_over_a = h_m / c::<T>(WGS84_A_M);
+        let linear = c::<T>(2.0) * (c::<T>(1.0 + WGS84_F + m) - c::<T>(2.0 * WGS84_F) * s2);
+        gamma0 * (T::one() - linear * h_over_a + c::<T>(3.0) * h_over_a * h_over_a)
     }
 
     /// Gravity vector in NED at height `h_m`: see [`gravity_ned_m_s2`].

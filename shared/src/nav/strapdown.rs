@@ -13,7 +13,9 @@
 //! It is generic over the scalar: `f32` on the board, `f64` on the host. It never panics;
 //! numerical trouble is reported as a [`NavFault`] and leaves the state untouched.
 
-use nalgebra::{Matrix3, RealField, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, UnitQuaternion, Vector3};
+
+use crate::scalar::FilterScalar;
 
 use super::earth::Latitude;
 
@@ -22,14 +24,27 @@ use super::earth::Latitude;
 const LATITUDE_REFRESH_RAD: f64 = 1e-6;
 
 #[inline]
-fn c<T: RealField + Copy>(x: f64) -> T {
+fn c<T: FilterScalar>(x: f64) -> T {
     nalgebra::convert(x)
 }
 
 /// `x` in f64 (exact for `f32` and `f64`; NaN for a scalar f64 cannot hold).
 #[inline]
-pub fn to_f64<T: RealField + Copy>(x: T) -> f64 {
+pub fn to_f64<T: FilterScalar>(x: T) -> f64 {
     nalgebra::try_convert::<T, f64>(x).unwrap_or(f64::NAN)
+}
+
+/// The angle, rad, that `metres` along a radius of curvature `radius_m` subtends, in f64:
+/// how a displacement in the scalar moves the f64 latitude or longitude. A step's 0.1 m is
+/// 1.6e-8 rad, 68 units of a Q32.32 fixed-point number, so there the quotient is taken in
+/// f64 (a software division per call) rather than rounded to 1% in the scalar; floats take
+/// it in the scalar, as they always have.
+pub fn arc_angle_rad<T: FilterScalar>(metres: T, radius_m: T) -> f64 {
+    if T::SCALED {
+        to_f64(metres) / to_f64(radius_m)
+    } else {
+        to_f64(metres / radius_m)
+    }
 }
 
 /// Navigation state: attitude, Earth-relative velocity and geodetic position.
@@ -40,7 +55,7 @@ pub fn to_f64<T: RealField + Copy>(x: T) -> f64 {
 /// keeps its position against an f64 origin). Increments are computed in the scalar and
 /// added in f64, which costs the board a few software double additions per step.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NavState<T: RealField + Copy> {
+pub struct NavState<T: FilterScalar> {
     /// Attitude of the body (forward-right-down) w.r.t. NED: rotates body-frame vectors into
     /// NED (the quaternion of C_b^n).
     pub q_nb: UnitQuaternion<T>,
@@ -54,7 +69,7 @@ pub struct NavState<T: RealField + Copy> {
     pub h_m: T,
 }
 
-impl<T: RealField + Copy> NavState<T> {
+impl<T: FilterScalar> NavState<T> {
     /// A state from Z-Y-X Euler angles (roll, pitch, yaw of body w.r.t. NED, rad).
     pub fn from_euler(
         roll_rad: T,
@@ -105,14 +120,14 @@ pub enum NavFault {
 /// The strapdown integrator: a [`NavState`] plus the previous step's increments, which the
 /// two-sample coning and sculling corrections need.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct Strapdown<T: RealField + Copy> {
+pub struct Strapdown<T: FilterScalar> {
     state: NavState<T>,
     previous_increments: Option<(Vector3<T>, Vector3<T>)>,
     /// The Earth model's latitude terms, and the latitude (f64) they were computed at.
     latitude: (Latitude<T>, f64),
 }
 
-impl<T: RealField + Copy> Strapdown<T> {
+impl<T: FilterScalar> Strapdown<T> {
     /// Starts from `state` with no history (the first increment step gets no coning or
     /// sculling correction).
     pub fn new(state: NavState<T>) -> Self {
@@ -245,9 +260,10 @@ impl<T: RealField + Copy> Strapdown<T> {
             mid = (s.h_m + h_rate * dt_s * half, v_avg);
         }
         let (h_mid, v_avg) = mid;
-        let (lat_rate, lon_rate, h_rate) = latitude
+        let (_, _, h_rate) = latitude
             .position_rates(h_mid, &v_avg)
             .ok_or(NavFault::NearPole)?;
+        let radii = latitude.radii;
         let q_body = rotation_of(rotation_vector_b);
         let q_nav = rotation_of(-zeta_n);
         let mut q_nb = q_nav * s.q_nb * q_body;
@@ -255,8 +271,9 @@ impl<T: RealField + Copy> Strapdown<T> {
         let next = NavState {
             q_nb,
             v_ned_m_s: v_new,
-            lat_rad: s.lat_rad + to_f64(lat_rate * dt_s),
-            lon_rad: s.lon_rad + to_f64(lon_rate * dt_s),
+            lat_rad: s.lat_rad + arc_angle_rad(v_avg.x * dt_s, radii.meridian_m + h_mid),
+            lon_rad: s.lon_rad
+                + arc_angle_rad(v_avg.y * dt_s, (radii.transverse_m + h_mid) * latitude.cos),
             h_m: s.h_m + h_rate * dt_s,
         };
         if !all_finite(&next.v_ned_m_s)
@@ -276,7 +293,7 @@ impl<T: RealField + Copy> Strapdown<T> {
 /// from_scaled_axis`, with one `sin_cos` of the half angle where nalgebra calls `sin` and
 /// `cos` apart. On the board each is its own software routine of 1.6 KB of flash, and the
 /// filter needs no other plain `sin` or `cos`.
-pub fn rotation_of<T: RealField + Copy>(rotation_vector: Vector3<T>) -> UnitQuaternion<T> {
+pub fn rotation_of<T: FilterScalar>(rotation_vector: Vector3<T>) -> UnitQuaternion<T> {
     let angle = rotation_vector.norm();
     let half: T = c(0.5);
     if angle <= T::default_epsilon() {
@@ -289,7 +306,7 @@ pub fn rotation_of<T: RealField + Copy>(rotation_vector: Vector3<T>) -> UnitQuat
     UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(cos, v.x, v.y, v.z))
 }
 
-fn all_finite<T: RealField + Copy>(v: &Vector3<T>) -> bool {
+fn all_finite<T: FilterScalar>(v: &Vector3<T>) -> bool {
     v.iter().all(|x| x.is_finite())
 }
 

@@ -3,14 +3,15 @@
 
 use super::{tally, BatchOutcome, ErrorStateEkf, SparseRow, POS, VEL};
 use crate::nav::earth::Latitude;
-use crate::nav::strapdown::NavState;
-use nalgebra::{RealField, Vector3};
+use crate::nav::strapdown::{to_f64, NavState};
+use crate::scalar::FilterScalar;
+use nalgebra::Vector3;
 
 /// Position innovation `measured − nominal`, NED metres, of a measured geodetic position
 /// (latitude, longitude in rad, WGS84 height in m) against a navigation state: the formula
 /// of [`geodetic_difference_ned_m`] with the angles differenced in f64 before they are
 /// scaled in the filter's scalar (an f32 angle difference would lose the position).
-pub fn position_innovation_ned_m<T: RealField + Copy>(
+pub fn position_innovation_ned_m<T: FilterScalar>(
     measured_lat_rad: f64,
     measured_lon_rad: f64,
     measured_h_m: T,
@@ -19,18 +20,33 @@ pub fn position_innovation_ned_m<T: RealField + Copy>(
     let c = |x: f64| nalgebra::convert::<f64, T>(x);
     let latitude = Latitude::new(nominal.lat());
     let r = latitude.radii;
-    Vector3::new(
-        c(measured_lat_rad - nominal.lat_rad) * (r.meridian_m + nominal.h_m),
-        c(measured_lon_rad - nominal.lon_rad) * (r.transverse_m + nominal.h_m) * latitude.cos,
-        nominal.h_m - measured_h_m,
-    )
+    let (d_lat, d_lon) = (
+        measured_lat_rad - nominal.lat_rad,
+        measured_lon_rad - nominal.lon_rad,
+    );
+    let (north_radius, east_radius) = (r.meridian_m + nominal.h_m, r.transverse_m + nominal.h_m);
+    // In fixed point an angle of a metre (1.6e-7 rad) holds only 680 units: the product is
+    // formed in f64 there.
+    let (north, east) = if T::SCALED {
+        let east_radius = east_radius * latitude.cos;
+        (
+            c(d_lat * to_f64(north_radius)),
+            c(d_lon * to_f64(east_radius)),
+        )
+    } else {
+        (
+            c(d_lat) * north_radius,
+            c(d_lon) * east_radius * latitude.cos,
+        )
+    };
+    Vector3::new(north, east, nominal.h_m - measured_h_m)
 }
 
 /// Position innovation `measured − nominal` in NED metres from two geodetic positions
 /// (latitude, longitude in rad; WGS84 height in m), using the curvature radii plus height
 /// at the nominal position (see [`super::NavLinearization`]). Valid for differences of a few
 /// kilometres, far beyond any sensible innovation.
-pub fn geodetic_difference_ned_m<T: RealField + Copy>(
+pub fn geodetic_difference_ned_m<T: FilterScalar>(
     measured_lat_lon_h: [T; 3],
     nominal_lat_lon_h: [T; 3],
     meridian_radius_plus_h_m: T,
@@ -45,7 +61,7 @@ pub fn geodetic_difference_ned_m<T: RealField + Copy>(
     )
 }
 
-impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
+impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     /// Fuses a GNSS position: `innovation_ned_m` is measured minus nominal position (NED, m;
     /// see [`geodetic_difference_ned_m`]), `sigma_ned_m` the one-sigma measurement noise.
     pub fn fuse_gnss_position(
@@ -55,8 +71,11 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     ) -> BatchOutcome {
         let mut batch = BatchOutcome::default();
         for axis in 0..3 {
-            let r = sigma_ned_m[axis] * sigma_ned_m[axis];
-            let outcome = self.fuse_scalar(&SparseRow::unit(POS + axis), innovation_ned_m[axis], r);
+            let outcome = self.fuse_scalar(
+                &SparseRow::unit(POS + axis),
+                innovation_ned_m[axis],
+                sigma_ned_m[axis],
+            );
             tally(outcome, &mut self.stats.gnss_position, &mut batch);
         }
         self.apply_variance_floors();
@@ -72,9 +91,11 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     ) -> BatchOutcome {
         let mut batch = BatchOutcome::default();
         for axis in 0..3 {
-            let r = sigma_ned_m_s[axis] * sigma_ned_m_s[axis];
-            let outcome =
-                self.fuse_scalar(&SparseRow::unit(VEL + axis), innovation_ned_m_s[axis], r);
+            let outcome = self.fuse_scalar(
+                &SparseRow::unit(VEL + axis),
+                innovation_ned_m_s[axis],
+                sigma_ned_m_s[axis],
+            );
             tally(outcome, &mut self.stats.gnss_velocity, &mut batch);
         }
         self.apply_variance_floors();
@@ -86,9 +107,9 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     /// `sigma_m_s` covers residual motion (engine vibration, a rocking body).
     pub fn fuse_zero_velocity(&mut self, v_ned_m_s: &Vector3<T>, sigma_m_s: T) -> BatchOutcome {
         let mut batch = BatchOutcome::default();
-        let r = sigma_m_s * sigma_m_s;
         for axis in 0..3 {
-            let outcome = self.fuse_scalar(&SparseRow::unit(VEL + axis), -v_ned_m_s[axis], r);
+            let outcome =
+                self.fuse_scalar(&SparseRow::unit(VEL + axis), -v_ned_m_s[axis], sigma_m_s);
             tally(outcome, &mut self.stats.zero_velocity, &mut batch);
         }
         self.apply_variance_floors();

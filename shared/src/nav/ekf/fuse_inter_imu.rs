@@ -27,7 +27,8 @@ use super::{
     boresight_index, lever_arm_index, skew, small_rotation_vector, tally, BatchOutcome,
     ErrorStateEkf, SparseRow, ACCEL_BIAS, ATT, GYRO_BIAS,
 };
-use nalgebra::{Matrix3, RealField, Rotation3, UnitQuaternion, Vector3};
+use crate::scalar::FilterScalar;
+use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 
 /// One synchronised sample of the reference IMU (the filter's body frame `b`) and an extra
 /// IMU (frame `s`), for [`ErrorStateEkf::fuse_inter_imu`].
@@ -52,7 +53,7 @@ pub struct InterImuSample<T> {
     pub shares_reference_bias: bool,
 }
 
-impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
+impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     /// Joint boresight and lever-arm update of extra IMU `imu` (paper II-B, eqs. 8–12): three
     /// scalar angular-rate updates then three scalar specific-force updates. `sigma_rate_rad_s`
     /// and `sigma_force_m_s2` are the one-sigma noises of the difference between the extra
@@ -93,8 +94,7 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
                 row.push_block(GYRO_BIAS, row3(&bias_jacobian, axis));
             }
             let innovation = sample.omega_is_s_rad_s[axis] - predicted_rate_s[axis];
-            let r = sigma_rate_rad_s[axis] * sigma_rate_rad_s[axis];
-            let outcome = self.fuse_scalar(&row, innovation, r);
+            let outcome = self.fuse_scalar(&row, innovation, sigma_rate_rad_s[axis]);
             tally(outcome, &mut self.stats.inter_imu_rate, &mut batch);
         }
         for axis in 0..3 {
@@ -107,8 +107,7 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
                 row.push_block(ACCEL_BIAS, row3(&bias_jacobian, axis));
             }
             let innovation = sample.f_s_m_s2[axis] - predicted_force_s[axis];
-            let r = sigma_force_m_s2[axis] * sigma_force_m_s2[axis];
-            let outcome = self.fuse_scalar(&row, innovation, r);
+            let outcome = self.fuse_scalar(&row, innovation, sigma_force_m_s2[axis]);
             tally(outcome, &mut self.stats.inter_imu_force, &mut batch);
         }
         self.apply_variance_floors();
@@ -146,8 +145,7 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
             let mut unit = [T::zero(); 3];
             unit[axis] = T::one();
             let row = SparseRow::from_blocks(ATT, unit, Some((psi, row3(&psi_jacobian, axis))));
-            let r = sigma_rad[axis] * sigma_rad[axis];
-            let outcome = self.fuse_scalar(&row, innovation[axis], r);
+            let outcome = self.fuse_scalar(&row, innovation[axis], sigma_rad[axis]);
             tally(outcome, &mut self.stats.attitude, &mut batch);
         }
         self.apply_variance_floors();
@@ -155,7 +153,7 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     }
 }
 
-fn row3<T: RealField + Copy>(m: &Matrix3<T>, row: usize) -> [T; 3] {
+fn row3<T: FilterScalar>(m: &Matrix3<T>, row: usize) -> [T; 3] {
     [m[(row, 0)], m[(row, 1)], m[(row, 2)]]
 }
 
@@ -168,7 +166,7 @@ pub struct RateDifferentiator<T, P> {
     newer: Option<(Vector3<T>, P, T)>,
 }
 
-impl<T: RealField + Copy, P: Copy> Default for RateDifferentiator<T, P> {
+impl<T: FilterScalar, P: Copy> Default for RateDifferentiator<T, P> {
     fn default() -> Self {
         Self {
             older: None,
@@ -177,7 +175,7 @@ impl<T: RealField + Copy, P: Copy> Default for RateDifferentiator<T, P> {
     }
 }
 
-impl<T: RealField + Copy, P: Copy> RateDifferentiator<T, P> {
+impl<T: FilterScalar, P: Copy> RateDifferentiator<T, P> {
     /// An empty differentiator.
     pub fn new() -> Self {
         Self::default()

@@ -11,10 +11,11 @@ use super::{
     NavCorrection, NavLinearization,
 };
 use crate::nav::earth::Latitude;
-use crate::nav::strapdown::{to_f64, NavFault, NavState, Strapdown};
-use nalgebra::{RealField, Vector3};
+use crate::nav::strapdown::{arc_angle_rad, NavFault, NavState, Strapdown};
+use crate::scalar::FilterScalar;
+use nalgebra::Vector3;
 
-impl<T: RealField + Copy> NavLinearization<T> {
+impl<T: FilterScalar> NavLinearization<T> {
     /// The linearisation point at a mechanization state, with bias-corrected specific force
     /// `f_b_m_s2` (body, m/s²).
     pub fn from_state(state: &NavState<T>, f_b_m_s2: Vector3<T>) -> Self {
@@ -30,16 +31,13 @@ impl<T: RealField + Copy> NavLinearization<T> {
 
 /// Applies a filter correction to a mechanization state: position via the curvature radii,
 /// velocity additively, attitude as `C_b^n ← exp([ε×]) C_b^n`.
-pub fn apply_correction<T: RealField + Copy>(
-    state: &mut NavState<T>,
-    correction: &NavCorrection<T>,
-) {
+pub fn apply_correction<T: FilterScalar>(state: &mut NavState<T>, correction: &NavCorrection<T>) {
     let latitude = Latitude::new(state.lat());
     let (r, cos_lat) = (latitude.radii, latitude.cos);
     let d = correction.position_ned_m;
-    state.lat_rad += to_f64(d.x / (r.meridian_m + state.h_m));
+    state.lat_rad += arc_angle_rad(d.x, r.meridian_m + state.h_m);
     if cos_lat.abs() > nalgebra::convert(1e-9) {
-        state.lon_rad += to_f64(d.y / ((r.transverse_m + state.h_m) * cos_lat));
+        state.lon_rad += arc_angle_rad(d.y, (r.transverse_m + state.h_m) * cos_lat);
     }
     state.h_m -= d.z;
     state.v_ned_m_s += correction.velocity_ned_m_s;
@@ -49,14 +47,14 @@ pub fn apply_correction<T: RealField + Copy>(
 
 /// Strapdown INS with its error-state filter.
 #[derive(Clone, Debug)]
-pub struct InsEkf<T: RealField + Copy, const K: usize, const N: usize> {
+pub struct InsEkf<T: FilterScalar, const K: usize, const N: usize> {
     /// The mechanization (nominal navigation state).
     pub strapdown: Strapdown<T>,
     /// The error-state filter.
     pub ekf: ErrorStateEkf<T, K, N>,
 }
 
-impl<T: RealField + Copy, const K: usize, const N: usize> InsEkf<T, K, N> {
+impl<T: FilterScalar, const K: usize, const N: usize> InsEkf<T, K, N> {
     /// Pairs a mechanization with a filter.
     pub fn new(strapdown: Strapdown<T>, ekf: ErrorStateEkf<T, K, N>) -> Self {
         Self { strapdown, ekf }

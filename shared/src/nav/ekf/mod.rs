@@ -23,6 +23,14 @@
 //! into them in [`ErrorStateEkf::reset`], which also hands the navigation part back to the
 //! caller to correct its mechanization (closed-loop error-state filter).
 //!
+//! In fixed point ([`crate::fixed::I32F32`]) the covariance is held scaled: each state has a
+//! power-of-two scale `2^s_i`, `P_ij = p_ij 2^(s_i + s_j)`, renormalised after every
+//! prediction and update batch so each scaled variance stays within [1/4, 4), and the scalar
+//! updates are whitened (row and innovation divided by the measurement's sigma). Every
+//! number the updates form is then near unit size whatever the state's unit (the design and
+//! its measurements: `docs/navigation.md`, "Toward fixed point"). In floating point the
+//! scales stay 0 and the filter is the one described below, operation for operation.
+//!
 //! Numerics follow what works for `f32` on a microcontroller (PX4 EKF2, ArduPilot EKF3):
 //! block-sparse covariance prediction (only the 15-state navigation block is dynamic, the
 //! calibration states are constant), sequential scalar updates with a chi-square innovation
@@ -40,7 +48,9 @@ pub use fuse_inter_imu::{InterImuSample, RateDifferentiator};
 pub use ins::{apply_correction, InsEkf};
 pub use predict::{gauss_markov_step, NavLinearization};
 
-use nalgebra::{Matrix3, Quaternion, RealField, SMatrix, SVector, UnitQuaternion, Vector3};
+use nalgebra::{Matrix3, Quaternion, SMatrix, SVector, UnitQuaternion, Vector3};
+
+use crate::scalar::{FilterScalar, Pow2};
 
 /// Index of the first position-error state (NED, m).
 pub const POS: usize = 0;
@@ -79,55 +89,56 @@ pub type NavEkf2<T> = ErrorStateEkf<T, 2, 27>;
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EkfConfig<T> {
     /// Accelerometer white noise PSD, (m/s²)²/Hz = (m/s)²/s (velocity random walk squared).
-    pub accel_noise_psd: T,
+    pub accel_noise_psd: Pow2<T>,
     /// Gyroscope white noise PSD, (rad/s)²/Hz = rad²/s (angle random walk squared).
-    pub gyro_noise_psd: T,
+    pub gyro_noise_psd: Pow2<T>,
     /// Accelerometer bias driving-noise PSD, (m/s²)²/s.
-    pub accel_bias_psd: T,
+    pub accel_bias_psd: Pow2<T>,
     /// Gyroscope bias driving-noise PSD, (rad/s)²/s.
-    pub gyro_bias_psd: T,
+    pub gyro_bias_psd: Pow2<T>,
     /// Inverse correlation time of the accelerometer bias Gauss–Markov process, 1/s
     /// (0 makes it a random walk).
     pub accel_bias_inv_tau_s: T,
     /// Inverse correlation time of the gyroscope bias Gauss–Markov process, 1/s.
     pub gyro_bias_inv_tau_s: T,
     /// Boresight driving-noise PSD, rad²/s (0: a random constant, as the mount is rigid).
-    pub boresight_psd: T,
+    pub boresight_psd: Pow2<T>,
     /// Lever-arm driving-noise PSD, m²/s.
-    pub lever_arm_psd: T,
+    pub lever_arm_psd: Pow2<T>,
     /// Chi-square gate on the normalised squared innovation `ν²/S` of one scalar update
     /// (1 degree of freedom: 3.84 is 95 %, 10.83 is 99.9 %, 25 is PX4's 5-sigma gate).
     pub innovation_gate: T,
     /// Variance floors applied to the diagonal once per prediction and after each update
     /// batch, in state order: position, velocity, attitude, accel bias, gyro bias (each for
     /// all three axes), then boresight and lever arm for every extra IMU.
-    pub variance_floor: [T; 7],
+    pub variance_floor: [Pow2<T>; 7],
 }
 
-impl<T: RealField + Copy> EkfConfig<T> {
+impl<T: FilterScalar> EkfConfig<T> {
     /// Settings for a consumer MEMS IMU in a car (angle random walk 0.3 deg/√h, velocity
     /// random walk 0.1 m/s/√h raised to cover vibration, bias instabilities of tens of mg and
     /// tens of deg/h), with a 5-sigma innovation gate.
     pub fn automotive_mems() -> Self {
         let c = |x: f64| nalgebra::convert::<f64, T>(x);
+        let small = Pow2::<T>::from_f64;
         Self {
-            accel_noise_psd: c(0.02 * 0.02),
-            gyro_noise_psd: c(0.005_f64.to_radians() * 0.005_f64.to_radians()),
-            accel_bias_psd: c(1e-4 * 1e-4),
-            gyro_bias_psd: c(1e-5 * 1e-5),
+            accel_noise_psd: small(0.02 * 0.02),
+            gyro_noise_psd: small(0.005_f64.to_radians() * 0.005_f64.to_radians()),
+            accel_bias_psd: small(1e-4 * 1e-4),
+            gyro_bias_psd: small(1e-5 * 1e-5),
             accel_bias_inv_tau_s: c(0.0),
             gyro_bias_inv_tau_s: c(0.0),
-            boresight_psd: c(0.0),
-            lever_arm_psd: c(0.0),
+            boresight_psd: Pow2::zero(),
+            lever_arm_psd: Pow2::zero(),
             innovation_gate: c(25.0),
             variance_floor: [
-                c(1e-6),  // position, m²
-                c(1e-8),  // velocity, (m/s)²
-                c(1e-10), // attitude, rad²
-                c(1e-10), // accel bias, (m/s²)²
-                c(1e-14), // gyro bias, (rad/s)²
-                c(1e-12), // boresight, rad²
-                c(1e-10), // lever arm, m²
+                small(1e-6),  // position, m²
+                small(1e-8),  // velocity, (m/s)²
+                small(1e-10), // attitude, rad²
+                small(1e-10), // accel bias, (m/s²)²
+                small(1e-14), // gyro bias, (rad/s)²
+                small(1e-12), // boresight, rad²
+                small(1e-10), // lever arm, m²
             ],
         }
     }
@@ -154,14 +165,14 @@ pub struct InitialSigmas<T> {
 
 /// Nominal calibration of one extra IMU (the `s` frame) against the filter's body frame `b`.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct InterImuCalibration<T: RealField + Copy> {
+pub struct InterImuCalibration<T: FilterScalar> {
     /// Rotation taking body-frame vectors into the extra IMU's frame: `v_s = C_b^s v_b`.
     pub q_b_to_s: UnitQuaternion<T>,
     /// Lever arm from the body origin to the extra IMU's origin, m, body axes.
     pub lever_arm_b_m: Vector3<T>,
 }
 
-impl<T: RealField + Copy> InterImuCalibration<T> {
+impl<T: FilterScalar> InterImuCalibration<T> {
     /// Identity boresight and zero lever arm (the paper's initialisation).
     pub fn identity() -> Self {
         Self {
@@ -261,7 +272,7 @@ pub(crate) struct SparseRow<T> {
 /// Most non-zero entries of a [`SparseRow`].
 pub(crate) const SPARSE_ROW_MAX: usize = 9;
 
-impl<T: RealField + Copy> SparseRow<T> {
+impl<T: FilterScalar> SparseRow<T> {
     pub fn unit(index: usize) -> Self {
         let mut row = Self {
             index: [0; SPARSE_ROW_MAX],
@@ -303,11 +314,14 @@ impl<T: RealField + Copy> SparseRow<T> {
 
 /// The error-state EKF with `K` extra IMUs and `N = 15 + 6K` states (checked at compile time).
 #[derive(Clone, Debug)]
-pub struct ErrorStateEkf<T: RealField + Copy, const K: usize, const N: usize> {
+pub struct ErrorStateEkf<T: FilterScalar, const K: usize, const N: usize> {
     config: EkfConfig<T>,
     initial: InitialSigmas<T>,
-    /// Error-state covariance, exactly symmetric.
+    /// Error-state covariance, exactly symmetric, as scaled: `P_ij = p_ij 2^(s_i + s_j)`
+    /// with `s` = [`Self::scale`] (all 0 in floating point).
     p: SMatrix<T, N, N>,
+    /// Each state's power-of-two scale exponent `s_i` (a sigma of about `2^s_i`).
+    scale: [i32; N],
     /// Error-state mean since the last reset.
     dx: SVector<T, N>,
     accel_bias_b_m_s2: Vector3<T>,
@@ -318,7 +332,7 @@ pub struct ErrorStateEkf<T: RealField + Copy, const K: usize, const N: usize> {
     stats: FusionStats,
 }
 
-impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
+impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     const STATE_COUNT_CHECK: () = assert!(
         N == NAV_STATES + CALIBRATION_STATES_PER_IMU * K,
         "ErrorStateEkf<T, K, N> needs N = 15 + 6K"
@@ -333,6 +347,7 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
             config,
             initial,
             p: SMatrix::zeros(),
+            scale: [0; N],
             dx: SVector::zeros(),
             accel_bias_b_m_s2: Vector3::zeros(),
             gyro_bias_b_rad_s: Vector3::zeros(),
@@ -348,6 +363,7 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     /// numerical fault; callable by the application too (e.g. after a long GNSS outage).
     pub fn reset_covariance(&mut self) {
         self.p = SMatrix::zeros();
+        self.scale = [0; N];
         let blocks = [
             (POS, self.initial.position_m),
             (VEL, self.initial.velocity_m_s),
@@ -357,18 +373,32 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
         ];
         for (start, sigma) in blocks {
             for axis in 0..3 {
-                self.p[(start + axis, start + axis)] = sigma[axis] * sigma[axis];
+                self.set_lone_sigma(start + axis, sigma[axis]);
             }
         }
         for imu in 0..K {
             for axis in 0..3 {
-                let b = self.initial.boresight_rad[axis];
-                let l = self.initial.lever_arm_m[axis];
-                self.p[(boresight_index(imu) + axis, boresight_index(imu) + axis)] = b * b;
-                self.p[(lever_arm_index(imu) + axis, lever_arm_index(imu) + axis)] = l * l;
+                self.set_lone_sigma(
+                    boresight_index(imu) + axis,
+                    self.initial.boresight_rad[axis],
+                );
+                self.set_lone_sigma(lever_arm_index(imu) + axis, self.initial.lever_arm_m[axis]);
             }
         }
         self.apply_variance_floors();
+    }
+
+    /// Sets state `i`'s variance to `sigma²` (its row and column otherwise zero), choosing
+    /// its scale so the scaled variance is near 1.
+    fn set_lone_sigma(&mut self, i: usize, sigma: T) {
+        let s = if T::SCALED {
+            sigma.exponent().unwrap_or(0)
+        } else {
+            0
+        };
+        self.scale[i] = s;
+        let scaled = sigma.mul_pow2(-s);
+        self.p[(i, i)] = scaled * scaled;
     }
 
     /// The configuration in use.
@@ -380,25 +410,57 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     /// next predictions use: an adaptive filter drives them from the units' live noise level
     /// (a level s per sample at interval dt is a PSD of s² dt). Non-finite or negative
     /// values are ignored.
-    pub fn set_sensor_noise_psd(&mut self, accel_noise_psd: T, gyro_noise_psd: T) {
-        let usable = |x: T| x.is_finite() && x >= T::zero();
-        if usable(accel_noise_psd) && usable(gyro_noise_psd) {
+    pub fn set_sensor_noise_psd(&mut self, accel_noise_psd: Pow2<T>, gyro_noise_psd: Pow2<T>) {
+        if accel_noise_psd.is_usable() && gyro_noise_psd.is_usable() {
             self.config.accel_noise_psd = accel_noise_psd;
             self.config.gyro_noise_psd = gyro_noise_psd;
         }
     }
 
-    /// The error-state covariance (symmetric, units of the module table).
-    pub fn covariance(&self) -> &SMatrix<T, N, N> {
+    /// The error-state covariance (symmetric, units of the module table). In fixed point
+    /// its smallest elements round to zero and its largest may saturate: read it with
+    /// [`Self::covariance_f64`] there.
+    pub fn covariance(&self) -> SMatrix<T, N, N> {
+        if !T::SCALED {
+            return self.p;
+        }
+        SMatrix::from_fn(|i, j| self.p[(i, j)].mul_pow2(self.scale[i] + self.scale[j]))
+    }
+
+    /// The error-state covariance in `f64`, whatever the scalar (for reports: exact from
+    /// the scaled form).
+    pub fn covariance_f64(&self) -> SMatrix<f64, N, N> {
+        SMatrix::from_fn(|i, j| {
+            let v = nalgebra::try_convert::<T, f64>(self.p[(i, j)]).unwrap_or(f64::NAN);
+            libm::ldexp(v, self.scale[i] + self.scale[j])
+        })
+    }
+
+    /// The covariance as the filter holds it: scaled by each state's power of two in fixed
+    /// point (`P_ij 2^-(s_i + s_j)`, see [`Self::scale`]), the covariance itself in floating
+    /// point.
+    pub fn held_covariance(&self) -> &SMatrix<T, N, N> {
         &self.p
+    }
+
+    /// Each state's power-of-two scale exponent (all 0 in floating point).
+    pub fn scale(&self) -> &[i32; N] {
+        &self.scale
     }
 
     /// Replaces the covariance (e.g. to restore a saved filter). It is symmetrised and floored.
     pub fn set_covariance(&mut self, p: &SMatrix<T, N, N>) {
         let half: T = nalgebra::convert(0.5);
         for i in 0..N {
+            // A variance v in [2^k, 2^(k+1)) gets the scale (k + 1) div 2, so v 2^(-2s) lies in [1/2, 2).
+            self.scale[i] = match p[(i, i)].exponent() {
+                Some(k) if T::SCALED => (k + 1).div_euclid(2),
+                _ => 0,
+            };
+        }
+        for i in 0..N {
             for j in i..N {
-                let v = (p[(i, j)] + p[(j, i)]) * half;
+                let v = ((p[(i, j)] + p[(j, i)]) * half).mul_pow2(-(self.scale[i] + self.scale[j]));
                 self.p[(i, j)] = v;
                 self.p[(j, i)] = v;
             }
@@ -421,7 +483,7 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
                 self.p[(i, j)] = T::zero();
                 self.p[(j, i)] = T::zero();
             }
-            self.p[(i, i)] = sigma[a] * sigma[a];
+            self.set_lone_sigma(i, sigma[a]);
             self.dx[i] = T::zero();
         }
         self.apply_variance_floors();
@@ -473,7 +535,12 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     /// One-sigma uncertainty of state `index` (units of the module table); `None` if out of
     /// range.
     pub fn sigma(&self, index: usize) -> Option<T> {
-        (index < N).then(|| self.p[(index, index)].max(T::zero()).sqrt())
+        (index < N).then(|| {
+            self.p[(index, index)]
+                .max(T::zero())
+                .sqrt()
+                .mul_pow2(self.scale[index])
+        })
     }
 
     /// Folds the error estimate into the nominal values the filter owns (biases, boresights,
@@ -506,33 +573,48 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     }
 
     /// Sequential scalar update with measurement row `h`, raw innovation
-    /// `z − h(x_nominal)`, and measurement variance `r`. The current error estimate is taken
-    /// into account (`ν = raw − h·δx`), so several updates may precede one reset.
+    /// `z − h(x_nominal)`, and the measurement's one-sigma noise `sigma` (its variance is
+    /// `r = sigma²`). The current error estimate is taken into account (`ν = raw − h·δx`),
+    /// so several updates may precede one reset.
     ///
     /// The covariance update is the Joseph form `(I − k hᵀ) P (I − k hᵀ)ᵀ + k r kᵀ`,
-    /// evaluated on one triangle and mirrored so that `P` stays exactly symmetric.
+    /// evaluated on one triangle and mirrored so that `P` stays exactly symmetric. Scaled
+    /// (fixed point), it runs on the scaled covariance with the whitened row
+    /// `h_i 2^(s_i) / sigma`, innovation `ν / sigma` and `r = 1`.
     pub(crate) fn fuse_scalar(
         &mut self,
         h: &SparseRow<T>,
         raw_innovation: T,
-        r: T,
+        sigma: T,
     ) -> ScalarOutcome<T> {
         let len = h.len.min(SPARSE_ROW_MAX);
         let mut innovation = raw_innovation;
         for m in 0..len {
             innovation -= h.value[m] * self.dx[h.index[m]];
         }
+        let (row, innovation, r) = if T::SCALED {
+            if !(sigma.is_finite() && sigma > T::zero()) {
+                return ScalarOutcome::NumericalFault;
+            }
+            let whiten = sigma.recip();
+            let mut row = h.value;
+            for (value, &index) in row.iter_mut().zip(&h.index).take(len) {
+                *value = (*value * whiten).mul_pow2(self.scale[index]);
+            }
+            (row, innovation * whiten, T::one())
+        } else {
+            (h.value, innovation, sigma * sigma)
+        };
         // P h
         let mut pht = SVector::<T, N>::zeros();
-        for m in 0..len {
-            let (col, val) = (h.index[m], h.value[m]);
+        for (&col, &val) in h.index.iter().zip(&row).take(len) {
             for i in 0..N {
                 pht[i] += self.p[(i, col)] * val;
             }
         }
         let mut s = r;
         for m in 0..len {
-            s += h.value[m] * pht[h.index[m]];
+            s += row[m] * pht[h.index[m]];
         }
         if !(s.is_finite() && s > T::zero() && r >= T::zero() && innovation.is_finite()) {
             return ScalarOutcome::NumericalFault;
@@ -541,9 +623,24 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
         if test_ratio > self.config.innovation_gate {
             return ScalarOutcome::Rejected(test_ratio);
         }
-        let gain = pht / s;
-        self.dx += gain * innovation;
+        if T::SCALED {
+            // One division, not N: a fixed-point division costs tens of multiplications.
+            let gain = pht * s.recip();
+            for i in 0..N {
+                self.dx[i] += (gain[i] * innovation).mul_pow2(self.scale[i]);
+            }
+            self.joseph_update(&pht, &gain, s, r);
+        } else {
+            let gain = pht / s;
+            self.dx += gain * innovation;
+            self.joseph_update(&pht, &gain, s, r);
+        }
+        ScalarOutcome::Accepted(test_ratio)
+    }
 
+    /// The Joseph-form covariance update of one scalar measurement, from `P h`, the gain,
+    /// the innovation variance `s` and the measurement variance `r`.
+    fn joseph_update(&mut self, pht: &SVector<T, N>, gain: &SVector<T, N>, s: T, r: T) {
         // Joseph form P⁺ = A − (A h) kᵀ + r k kᵀ with A = (I − k hᵀ) P = P − k (P h)ᵀ, evaluated
         // element by element on the upper triangle without forming A: its needed product is
         // A h = P h − k (hᵀ P h). Each element is then
@@ -562,7 +659,6 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
                 self.p[(j, i)] = v;
             }
         }
-        ScalarOutcome::Accepted(test_ratio)
     }
 
     /// Clamps the diagonal to the configured floors; re-initialises the covariance if a
@@ -579,15 +675,42 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
                 6
             };
             let v = self.p[(i, i)];
+            let floor = floor[class].times_pow2(-2 * self.scale[i]);
             if !v.is_finite() {
                 finite = false;
-            } else if v < floor[class] {
-                self.p[(i, i)] = floor[class];
+            } else if v < floor {
+                self.p[(i, i)] = floor;
             }
         }
         if !finite {
             self.stats.covariance_resets = self.stats.covariance_resets.saturating_add(1);
             self.reset_covariance();
+        } else if T::SCALED {
+            self.renormalise();
+        }
+    }
+
+    /// Moves each state's scale so its scaled variance lies in [1/2, 2) again once it has
+    /// left [1/4, 4): its row and column are shifted, exactly.
+    fn renormalise(&mut self) {
+        for i in 0..N {
+            let Some(k) = self.p[(i, i)].exponent() else {
+                continue;
+            };
+            if (-2..=1).contains(&k) {
+                continue;
+            }
+            // v in [2^k, 2^(k+1)) times 2^(-2d) lies in [1/2, 2).
+            let d = (k + 1).div_euclid(2);
+            for j in 0..N {
+                if j != i {
+                    let v = self.p[(i, j)].mul_pow2(-d);
+                    self.p[(i, j)] = v;
+                    self.p[(j, i)] = v;
+                }
+            }
+            self.p[(i, i)] = self.p[(i, i)].mul_pow2(-2 * d);
+            self.scale[i] += d;
         }
     }
 }
@@ -618,7 +741,7 @@ pub(crate) fn tally<T>(
 /// normalised: exact to third order in |θ| and free of trigonometry, which matters on the
 /// Cortex-M4F where `sinf`/`cosf` run in software double precision. Used for corrections,
 /// which are small.
-pub fn small_rotation<T: RealField + Copy>(theta: Vector3<T>) -> UnitQuaternion<T> {
+pub fn small_rotation<T: FilterScalar>(theta: Vector3<T>) -> UnitQuaternion<T> {
     let half: T = nalgebra::convert(0.5);
     UnitQuaternion::new_normalize(Quaternion::new(
         T::one(),
@@ -632,7 +755,7 @@ pub fn small_rotation<T: RealField + Copy>(theta: Vector3<T>) -> UnitQuaternion<
 /// vector, `2 tan(θ/2)` along the axis), equal to the rotation vector to third order, free of
 /// trigonometry, and independent of the quaternion's sign. Rotations near 180° (|w| below
 /// 1e-6) are clamped rather than divided by zero.
-pub fn small_rotation_vector<T: RealField + Copy>(q: &UnitQuaternion<T>) -> Vector3<T> {
+pub fn small_rotation_vector<T: FilterScalar>(q: &UnitQuaternion<T>) -> Vector3<T> {
     let tiny: T = nalgebra::convert(1e-6);
     let two: T = nalgebra::convert(2.0);
     let w = if q.w.abs() < tiny {
@@ -648,7 +771,7 @@ pub fn small_rotation_vector<T: RealField + Copy>(q: &UnitQuaternion<T>) -> Vect
 }
 
 /// The skew-symmetric cross-product matrix `[v×]`.
-pub fn skew<T: RealField + Copy>(v: &Vector3<T>) -> Matrix3<T> {
+pub fn skew<T: FilterScalar>(v: &Vector3<T>) -> Matrix3<T> {
     Matrix3::new(
         T::zero(),
         -v.z,

@@ -18,7 +18,9 @@
 
 use super::{boresight_index, skew, ErrorStateEkf, ACCEL_BIAS, ATT, GYRO_BIAS, NAV_STATES, VEL};
 use crate::nav::earth::Latitude;
-use nalgebra::{Matrix3, RealField, SMatrix, Vector3};
+use nalgebra::{Matrix3, SMatrix, Vector3};
+
+use crate::scalar::{FilterScalar, Pow2};
 
 /// The nominal quantities the error model is linearised about, for one prediction step.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -43,7 +45,7 @@ pub struct NavLinearization<T> {
     pub tan_lat: T,
 }
 
-impl<T: RealField + Copy> NavLinearization<T> {
+impl<T: FilterScalar> NavLinearization<T> {
     /// Builds the linearisation point from a geodetic nominal state: latitude `lat_rad`,
     /// height `h_m` (WGS84), NED velocity, attitude `c_b_n` and bias-corrected specific force
     /// `f_b_m_s2`, with the WGS84 model of [`crate::nav::earth`].
@@ -97,13 +99,13 @@ impl<T: RealField + Copy> NavLinearization<T> {
 
 /// One 3×3 block of the transition matrix.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) enum Block3<T: RealField + Copy> {
+pub(crate) enum Block3<T: FilterScalar> {
     Zero,
     Diag(Vector3<T>),
     Full(Matrix3<T>),
 }
 
-impl<T: RealField + Copy> Block3<T> {
+impl<T: FilterScalar> Block3<T> {
     /// `self · x`.
     fn left_mul(&self, x: &Matrix3<T>) -> Option<Matrix3<T>> {
         match self {
@@ -138,6 +140,23 @@ impl<T: RealField + Copy> Block3<T> {
         }
     }
 
+    /// The block of the scaled transition `Φ_ij 2^(s_j − s_i)` for row states with scales
+    /// `rows` and column states with scales `cols` (a diagonal block stays diagonal).
+    fn scaled(&self, rows: &[i32], cols: &[i32]) -> Self
+    where
+        T: FilterScalar,
+    {
+        match self {
+            Block3::Zero => Block3::Zero,
+            Block3::Diag(d) => {
+                Block3::Diag(Vector3::from_fn(|r, _| d[r].mul_pow2(cols[r] - rows[r])))
+            }
+            Block3::Full(m) => Block3::Full(Matrix3::from_fn(|r, c| {
+                m[(r, c)].mul_pow2(cols[c] - rows[r])
+            })),
+        }
+    }
+
     /// `self · v` for a 3-vector.
     fn mul_vector(&self, v: &Vector3<T>) -> Vector3<T> {
         match self {
@@ -154,7 +173,7 @@ impl<T: RealField + Copy> Block3<T> {
 /// `inv_tau_s = 0`). The first-order `1 - dt/tau` turns unstable past `dt = 2 tau`: a bias
 /// model fitted with a correlation time of a millisecond, predicted every 10 ms, made the
 /// board's covariance explode within a second.
-pub fn gauss_markov_step<T: RealField + Copy>(inv_tau_s: T, psd: T, dt: T) -> (T, T) {
+pub fn gauss_markov_step<T: FilterScalar>(inv_tau_s: T, psd: T, dt: T) -> (T, T) {
     let x = inv_tau_s * dt;
     if x <= nalgebra::convert(1e-4) {
         // exp's series: the exact form loses its digits to the subtraction here.
@@ -169,11 +188,11 @@ pub fn gauss_markov_step<T: RealField + Copy>(inv_tau_s: T, psd: T, dt: T) -> (T
 
 /// `Φ_nav` as 5×5 blocks (position, velocity, attitude, accel bias, gyro bias).
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub(crate) struct BlockTransition<T: RealField + Copy> {
+pub(crate) struct BlockTransition<T: FilterScalar> {
     pub blocks: [[Block3<T>; 5]; 5],
 }
 
-impl<T: RealField + Copy> BlockTransition<T> {
+impl<T: FilterScalar> BlockTransition<T> {
     pub fn identity() -> Self {
         let mut blocks = [[Block3::Zero; 5]; 5];
         for (i, row) in blocks.iter_mut().enumerate() {
@@ -187,8 +206,9 @@ impl<T: RealField + Copy> BlockTransition<T> {
         let one = T::one();
         let two: T = nalgebra::convert(2.0);
         let identity = Matrix3::<T>::identity();
-        // Schuler (horizontal) and vertical-channel gravity gradients about a mean radius.
-        let radius = (lin.meridian_radius_plus_h_m * lin.transverse_radius_plus_h_m).sqrt();
+        // Schuler (horizontal) and vertical-channel gravity gradients about a mean radius
+        // (the product of the two radii, 4e13 m², is beyond a fixed-point range).
+        let radius = lin.meridian_radius_plus_h_m.sqrt() * lin.transverse_radius_plus_h_m.sqrt();
         let g_over_r = lin.gravity_m_s2 / radius;
         // ∂ω_en/∂v: transport rate dependence on velocity error.
         let mut d_omega_en_dv = Matrix3::<T>::zeros();
@@ -217,6 +237,24 @@ impl<T: RealField + Copy> BlockTransition<T> {
         Self { blocks }
     }
 
+    /// The transition of the scaled states `x_i 2^(−s_i)`: `Φ_ij 2^(s_j − s_i)`, for the
+    /// navigation states' scales `nav_scale`.
+    fn scaled(&self, nav_scale: &[i32]) -> Self
+    where
+        T: FilterScalar,
+    {
+        let mut blocks = self.blocks;
+        for (bi, row) in blocks.iter_mut().enumerate() {
+            for (bj, block) in row.iter_mut().enumerate() {
+                *block = block.scaled(
+                    &nav_scale[3 * bi..3 * bi + 3],
+                    &nav_scale[3 * bj..3 * bj + 3],
+                );
+            }
+        }
+        Self { blocks }
+    }
+
     /// The dense 15×15 matrix (for the host smoother).
     pub fn to_dense(self) -> SMatrix<T, NAV_STATES, NAV_STATES> {
         let mut dense = SMatrix::<T, NAV_STATES, NAV_STATES>::zeros();
@@ -231,7 +269,7 @@ impl<T: RealField + Copy> BlockTransition<T> {
     }
 }
 
-fn block<T: RealField + Copy, const N: usize>(
+fn block<T: FilterScalar, const N: usize>(
     p: &SMatrix<T, N, N>,
     bi: usize,
     bj: usize,
@@ -239,7 +277,7 @@ fn block<T: RealField + Copy, const N: usize>(
     p.fixed_view::<3, 3>(3 * bi, 3 * bj).into_owned()
 }
 
-impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
+impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     /// Propagates the error state and its covariance over `dt_s` seconds about the nominal
     /// trajectory `lin`. Returns `false` (and counts it) if `dt_s` is not positive and finite
     /// or `lin` holds a non-finite value; the filter is then unchanged.
@@ -249,7 +287,13 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
             return false;
         }
         let phi = BlockTransition::first_order(lin, &self.config, dt_s);
-        let blocks = &phi.blocks;
+        // The covariance is propagated in the scaled states (the float scales are all 0).
+        let scaled = if T::SCALED {
+            phi.scaled(&self.scale[..NAV_STATES])
+        } else {
+            phi
+        };
+        let blocks = &scaled.blocks;
 
         // M = Φ_nav P_nav,nav (block-sparse on the left).
         let mut m = SMatrix::<T, NAV_STATES, NAV_STATES>::zeros();
@@ -315,7 +359,7 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
         }
         for bi in 0..5 {
             let mut acc = Vector3::<T>::zeros();
-            for (bl, phi_block) in blocks[bi].iter().enumerate() {
+            for (bl, phi_block) in phi.blocks[bi].iter().enumerate() {
                 acc += phi_block.mul_vector(&nav[bl]);
             }
             for axis in 0..3 {
@@ -328,26 +372,31 @@ impl<T: RealField + Copy, const K: usize, const N: usize> ErrorStateEkf<T, K, N>
     }
 
     /// `Q_d ≈ G Q Gᵀ dt`: white accelerometer and gyro noise (isotropic, so rotating it into
-    /// NED leaves it diagonal), bias and calibration driving noise on the diagonal.
+    /// NED leaves it diagonal), bias and calibration driving noise on the diagonal. Each
+    /// density is brought to its state's scale before it meets `dt`, so a fixed-point
+    /// product never holds a number as small as the physical `psd dt`.
     fn add_process_noise(&mut self, dt: T) {
         let cfg = self.config;
-        let (_, accel_bias_q) = gauss_markov_step(cfg.accel_bias_inv_tau_s, cfg.accel_bias_psd, dt);
-        let (_, gyro_bias_q) = gauss_markov_step(cfg.gyro_bias_inv_tau_s, cfg.gyro_bias_psd, dt);
+        // The bias variance gained per unit of driving density.
+        let (_, accel_bias_per_psd) = gauss_markov_step(cfg.accel_bias_inv_tau_s, T::one(), dt);
+        let (_, gyro_bias_per_psd) = gauss_markov_step(cfg.gyro_bias_inv_tau_s, T::one(), dt);
+        let mut add = |i: usize, psd: Pow2<T>, per_psd: T| {
+            self.p[(i, i)] += psd.times_pow2(-2 * self.scale[i]) * per_psd;
+        };
         for axis in 0..3 {
-            self.p[(VEL + axis, VEL + axis)] += cfg.accel_noise_psd * dt;
-            self.p[(ATT + axis, ATT + axis)] += cfg.gyro_noise_psd * dt;
-            self.p[(ACCEL_BIAS + axis, ACCEL_BIAS + axis)] += accel_bias_q;
-            self.p[(GYRO_BIAS + axis, GYRO_BIAS + axis)] += gyro_bias_q;
+            add(VEL + axis, cfg.accel_noise_psd, dt);
+            add(ATT + axis, cfg.gyro_noise_psd, dt);
+            add(ACCEL_BIAS + axis, cfg.accel_bias_psd, accel_bias_per_psd);
+            add(GYRO_BIAS + axis, cfg.gyro_bias_psd, gyro_bias_per_psd);
         }
         for imu in 0..K {
             for axis in 0..6 {
-                let i = boresight_index(imu) + axis;
                 let psd = if axis < 3 {
                     cfg.boresight_psd
                 } else {
                     cfg.lever_arm_psd
                 };
-                self.p[(i, i)] += psd * dt;
+                add(boresight_index(imu) + axis, psd, dt);
             }
         }
     }

@@ -4,11 +4,12 @@
 //! inter-IMU calibration (paper II-B and II-A) and agreement of `f32` with `f64`.
 
 use super::*;
+use crate::fixed::I32F32;
 use nalgebra::{Matrix3, Rotation3, SMatrix, UnitQuaternion, Vector3};
 use proptest::prelude::*;
 use proptest::test_runner::{Config as ProptestConfig, FileFailurePersistence, RngSeed};
 
-fn initial_sigmas<T: RealField + Copy>() -> InitialSigmas<T> {
+fn initial_sigmas<T: FilterScalar>() -> InitialSigmas<T> {
     let c = |x: f64| nalgebra::convert::<f64, T>(x);
     InitialSigmas {
         position_m: Vector3::repeat(c(5.0)),
@@ -23,7 +24,7 @@ fn initial_sigmas<T: RealField + Copy>() -> InitialSigmas<T> {
 
 /// The priors of a paper II-B calibration: the reference is the tactical-grade IMU of the
 /// paper's Table I, so its biases are known far better than a MEMS unit's.
-fn reference_grade_sigmas<T: RealField + Copy>() -> InitialSigmas<T> {
+fn reference_grade_sigmas<T: FilterScalar>() -> InitialSigmas<T> {
     let c = |x: f64| nalgebra::convert::<f64, T>(x);
     InitialSigmas {
         accel_bias_m_s2: Vector3::repeat(c(1e-3)),
@@ -66,7 +67,7 @@ fn block_sparse_prediction_equals_dense_phi_p_phi_transpose_plus_q() {
             ekf.reset();
         }
     }
-    let before = *ekf.covariance();
+    let before = ekf.covariance();
     let dt = 0.01;
     assert!(ekf.predict(&lin, dt));
     let mut phi = SMatrix::<f64, 27, 27>::identity();
@@ -75,10 +76,10 @@ fn block_sparse_prediction_equals_dense_phi_p_phi_transpose_plus_q() {
     let cfg = ekf.config();
     let mut q = SMatrix::<f64, 27, 27>::zeros();
     for axis in 0..3 {
-        q[(VEL + axis, VEL + axis)] = cfg.accel_noise_psd * dt;
-        q[(ATT + axis, ATT + axis)] = cfg.gyro_noise_psd * dt;
-        q[(ACCEL_BIAS + axis, ACCEL_BIAS + axis)] = cfg.accel_bias_psd * dt;
-        q[(GYRO_BIAS + axis, GYRO_BIAS + axis)] = cfg.gyro_bias_psd * dt;
+        q[(VEL + axis, VEL + axis)] = cfg.accel_noise_psd.value() * dt;
+        q[(ATT + axis, ATT + axis)] = cfg.gyro_noise_psd.value() * dt;
+        q[(ACCEL_BIAS + axis, ACCEL_BIAS + axis)] = cfg.accel_bias_psd.value() * dt;
+        q[(GYRO_BIAS + axis, GYRO_BIAS + axis)] = cfg.gyro_bias_psd.value() * dt;
     }
     let dense = phi * before * phi.transpose() + q;
     let err = (ekf.covariance() - dense).abs().max();
@@ -102,7 +103,7 @@ fn joseph_scalar_update_equals_textbook_kalman_update() {
     for _ in 0..20 {
         ekf.predict(&lin, 0.01);
     }
-    let p = *ekf.covariance();
+    let p = &ekf.covariance();
     let row = SparseRow::from_blocks(
         boresight_index(0),
         [0.3, -0.1, 0.7],
@@ -112,9 +113,10 @@ fn joseph_scalar_update_equals_textbook_kalman_update() {
     for m in 0..row.len {
         h[row.index[m]] = row.value[m];
     }
-    let r = 0.02;
+    let sigma = 0.02f64.sqrt();
+    let r = sigma * sigma;
     let innovation = 0.05;
-    let outcome = ekf.fuse_scalar(&row, innovation, r);
+    let outcome = ekf.fuse_scalar(&row, innovation, sigma);
     assert!(matches!(outcome, ScalarOutcome::Accepted(_)));
     let s = (h.transpose() * p * h)[(0, 0)] + r;
     let k = p * h / s;
@@ -122,7 +124,7 @@ fn joseph_scalar_update_equals_textbook_kalman_update() {
     let expected_dx = k * innovation;
     assert!((ekf.covariance() - expected_p).abs().max() < 1e-12);
     assert!((ekf.error_estimate() - expected_dx).abs().max() < 1e-15);
-    assert_eq!(ekf.covariance(), &ekf.covariance().transpose());
+    assert_eq!(ekf.covariance(), ekf.covariance().transpose());
 }
 
 #[test]
@@ -144,9 +146,9 @@ fn innovation_gate_rejects_outliers_and_counts_them() {
     let outcome = ekf.fuse_gnss_velocity(&Vector3::new(0.1, 0.1, 0.1), &Vector3::repeat(f64::NAN));
     assert_eq!(outcome.faults, 3);
     // A non-positive step is refused and leaves the covariance alone.
-    let p = *ekf.covariance();
+    let p = ekf.covariance();
     assert!(!ekf.predict(&linearization(0.0, 1.0), -0.01));
-    assert_eq!(ekf.covariance(), &p);
+    assert_eq!(ekf.covariance(), p);
     assert_eq!(ekf.stats().rejected_predictions, 1);
 }
 
@@ -481,7 +483,7 @@ struct CalTrace {
 
 /// Runs the reference filter with one extra IMU in scalar type `T` over `data`: prediction at
 /// every sample, inter-IMU update at every sample (with the differenced angular acceleration).
-fn run_calibration<T: RealField + Copy>(data: &[CalEpoch]) -> CalTrace {
+fn run_calibration<T: FilterScalar>(data: &[CalEpoch]) -> CalTrace {
     let c = |x: f64| nalgebra::convert::<f64, T>(x);
     let v3 = |v: &Vector3<f64>| Vector3::new(c(v.x), c(v.y), c(v.z));
     let back = |v: Vector3<T>| {
@@ -782,8 +784,10 @@ fn op_strategy() -> impl Strategy<Value = Op> {
     ]
 }
 
-fn apply(ekf: &mut NavEkf2<f32>, op: &Op) {
-    let v = |a: &[f32; 3]| Vector3::new(a[0], a[1], a[2]);
+/// Applies `op` (its numbers given in f32) to a filter in scalar `T`.
+fn apply<T: FilterScalar>(ekf: &mut NavEkf2<T>, op: &Op) {
+    let c = |x: f32| nalgebra::convert::<f64, T>(f64::from(x));
+    let v = |a: &[f32; 3]| Vector3::new(c(a[0]), c(a[1]), c(a[2]));
     match op {
         Op::Predict {
             yaw,
@@ -793,19 +797,19 @@ fn apply(ekf: &mut NavEkf2<f32>, op: &Op) {
             f,
             dt,
         } => {
-            let c_b_n = Rotation3::from_euler_angles(*roll, *pitch, *yaw).into_inner();
-            let v_ned = Vector3::new(speed * yaw.cos(), speed * yaw.sin(), 0.1);
-            let lin = NavLinearization::from_geodetic(0.8f32, 500.0, v_ned, c_b_n, v(f));
-            ekf.predict(&lin, *dt);
+            let c_b_n = Rotation3::from_euler_angles(c(*roll), c(*pitch), c(*yaw)).into_inner();
+            let v_ned = Vector3::new(speed * yaw.cos(), speed * yaw.sin(), 0.1).map(c);
+            let lin = NavLinearization::from_geodetic(c(0.8), c(500.0), v_ned, c_b_n, v(f));
+            ekf.predict(&lin, c(*dt));
         }
         Op::GnssPosition { innovation, sigma } => {
-            ekf.fuse_gnss_position(&v(innovation), &Vector3::repeat(*sigma));
+            ekf.fuse_gnss_position(&v(innovation), &Vector3::repeat(c(*sigma)));
         }
         Op::GnssVelocity { innovation, sigma } => {
-            ekf.fuse_gnss_velocity(&v(innovation), &Vector3::repeat(*sigma));
+            ekf.fuse_gnss_velocity(&v(innovation), &Vector3::repeat(c(*sigma)));
         }
         Op::Zupt { v: vel, sigma } => {
-            ekf.fuse_zero_velocity(&v(vel), *sigma);
+            ekf.fuse_zero_velocity(&v(vel), c(*sigma));
         }
         Op::InterImu {
             imu,
@@ -817,32 +821,33 @@ fn apply(ekf: &mut NavEkf2<f32>, op: &Op) {
             sigma_force,
         } => {
             let cal = *ekf.calibration(*imu).unwrap();
-            let c = cal.c_b_s();
+            let c_b_s = cal.c_b_s();
             let w = v(omega);
+            let dz = dz.map(c);
             let sample = InterImuSample {
                 omega_ib_b_rad_s: w,
                 omega_dot_ib_b_rad_s2: v(omega_dot),
                 f_b_m_s2: v(f),
-                omega_is_s_rad_s: c * w + Vector3::new(dz[0], dz[1], dz[2]) * *sigma_rate,
-                f_s_m_s2: c * v(f) + Vector3::new(dz[3], dz[4], dz[5]) * *sigma_force,
+                omega_is_s_rad_s: c_b_s * w + Vector3::new(dz[0], dz[1], dz[2]) * c(*sigma_rate),
+                f_s_m_s2: c_b_s * v(f) + Vector3::new(dz[3], dz[4], dz[5]) * c(*sigma_force),
                 shares_reference_bias: false,
             };
             ekf.fuse_inter_imu(
                 *imu,
                 &sample,
-                &Vector3::repeat(*sigma_rate),
-                &Vector3::repeat(*sigma_force),
+                &Vector3::repeat(c(*sigma_rate)),
+                &Vector3::repeat(c(*sigma_force)),
             );
         }
         Op::Attitude { imu, rot, sigma } => {
-            let c_s_n = Rotation3::from_euler_angles(0.1f32, 0.2, 1.0).into_inner();
+            let c_s_n = Rotation3::from_euler_angles(c(0.1), c(0.2), c(1.0)).into_inner();
             let cal = *ekf.calibration(*imu).unwrap();
             let reference = UnitQuaternion::from_scaled_axis(v(rot))
                 .to_rotation_matrix()
                 .into_inner()
                 * c_s_n
                 * cal.c_b_s();
-            ekf.fuse_attitude(*imu, &reference, &c_s_n, &Vector3::repeat(*sigma));
+            ekf.fuse_attitude(*imu, &reference, &c_s_n, &Vector3::repeat(c(*sigma)));
         }
         Op::Reset => {
             ekf.reset();
@@ -877,13 +882,50 @@ proptest! {
         for (i, op) in ops.iter().enumerate() {
             apply(&mut ekf, op);
             if i % 500 == 0 || i + 1 == ops.len() {
-                let p = ekf.covariance();
+                let p = &ekf.covariance();
                 prop_assert_eq!(p, &p.transpose(), "asymmetric after op {}", i);
                 prop_assert!(is_positive_definite(p), "not positive definite after op {} ({:?})", i, op);
             }
         }
         prop_assert_eq!(ekf.stats().covariance_resets, 0);
     }
+
+    #[test]
+    fn fixed_point_filter_follows_the_f64_filter_over_random_runs(
+        ops in prop::collection::vec(op_strategy(), 500..1500)
+    ) {
+        let before = crate::fixed::overflows();
+        let mut wide = NavEkf2::<f64>::new(EkfConfig::automotive_mems(), initial_sigmas());
+        let mut fixed = NavEkf2::<I32F32>::new(EkfConfig::automotive_mems(), initial_sigmas());
+        for (i, op) in ops.iter().enumerate() {
+            apply(&mut wide, op);
+            apply(&mut fixed, op);
+            let (gap_p, gap_dx) = gap_in_sigmas(&wide, &fixed);
+            prop_assert!(
+                gap_p < 1e-4 && gap_dx < 1e-4,
+                "after op {} ({:?}): covariance {:e}, estimate {:e} sigmas apart", i, op, gap_p, gap_dx
+            );
+        }
+        prop_assert_eq!(fixed.stats().covariance_resets, 0);
+        prop_assert_eq!(crate::fixed::overflows(), before);
+    }
+}
+
+/// How far the fixed-point filter lies from the f64 one: the largest covariance difference
+/// as a fraction of `sqrt(P_ii P_jj)`, and the largest error-estimate difference in sigmas.
+fn gap_in_sigmas(wide: &NavEkf2<f64>, fixed: &NavEkf2<I32F32>) -> (f64, f64) {
+    let (p, q) = (wide.covariance(), fixed.covariance_f64());
+    let sigma = |i: usize| p[(i, i)].sqrt();
+    let mut gap_p = 0.0f64;
+    let mut gap_dx = 0.0f64;
+    for i in 0..27 {
+        for j in 0..27 {
+            gap_p = gap_p.max((p[(i, j)] - q[(i, j)]).abs() / (sigma(i) * sigma(j)));
+        }
+        let dx = fixed.error_estimate()[i].to_f64();
+        gap_dx = gap_dx.max((wide.error_estimate()[i] - dx).abs() / sigma(i));
+    }
+    (gap_p, gap_dx)
 }
 
 #[test]

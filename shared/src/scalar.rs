@@ -1,0 +1,186 @@
+//! The scalars the navigation filter runs in, and what it asks of them beyond nalgebra's
+//! `RealField`: `f64` (the host's reference), `f32` (the Cortex-M4F board) and
+//! [`I32F32`] (fixed point, for cores without an FPU).
+//!
+//! A float carries its own exponent, so the filter holds its covariance as it is. A fixed
+//! format resolves 2^-32 over a range of 2^31, about 19 decades, while the covariance spans
+//! 10 to 14 (`docs/navigation.md`, "Toward fixed point"): there the filter keeps each state's
+//! scale apart, as a power of two ([`FilterScalar::SCALED`]), and multiplies by powers of
+//! two ([`FilterScalar::mul_pow2`]), which is exact in both kinds of scalar. Constants far
+//! below the fixed format's resolution (the noise densities, the variance floors) are held
+//! as a mantissa and a power of two ([`Pow2`]).
+
+use nalgebra::RealField;
+
+use crate::fixed::I32F32;
+
+/// A scalar the filter runs in.
+pub trait FilterScalar: RealField + Copy {
+    /// Whether the filter scales each state by a power of two of its own (fixed point) or
+    /// holds the covariance as it is (floating point: the scale is the float's exponent,
+    /// and the float path stays what it was, operation for operation).
+    const SCALED: bool;
+
+    /// `self · 2^n`, exact unless the result leaves the scalar's range (fixed point then
+    /// saturates and counts it) or, in fixed point, falls below its resolution (rounded).
+    fn mul_pow2(self, n: i32) -> Self;
+
+    /// `floor(log2 |self|)`; `None` for zero and non-finite values.
+    fn exponent(self) -> Option<i32>;
+
+    /// `x` as a mantissa and a power of two this scalar holds to its full precision.
+    fn pow2_from_f64(x: f64) -> Pow2<Self>;
+}
+
+/// A number held as `mantissa · 2^exponent`, so a scalar with a narrow range (fixed point)
+/// keeps a tiny constant (a gyro-bias noise density of 1e-10 rad²/s³ is half a unit of
+/// [`I32F32`]) to its full precision. For floats the exponent is 0 and the mantissa the
+/// number itself.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Pow2<T> {
+    pub mantissa: T,
+    pub exponent: i32,
+}
+
+impl<T: FilterScalar> Pow2<T> {
+    /// `x`, held to the scalar's precision.
+    pub fn from_f64(x: f64) -> Self {
+        T::pow2_from_f64(x)
+    }
+
+    /// `x` (single precision: the board's configuration), held to the scalar's precision.
+    pub fn from_f32(x: f32) -> Self {
+        T::pow2_from_f64(f64::from(x))
+    }
+
+    /// Zero.
+    pub fn zero() -> Self {
+        Self {
+            mantissa: T::zero(),
+            exponent: 0,
+        }
+    }
+
+    /// The number times `2^n`, in the scalar.
+    pub fn times_pow2(self, n: i32) -> T {
+        self.mantissa.mul_pow2(self.exponent.saturating_add(n))
+    }
+
+    /// The number itself, in the scalar (for fixed point, only where it is in range).
+    pub fn value(self) -> T {
+        self.times_pow2(0)
+    }
+
+    /// Finite and not negative: usable as a variance or a density.
+    pub fn is_usable(self) -> bool {
+        self.mantissa.is_finite() && self.mantissa >= T::zero()
+    }
+}
+
+impl FilterScalar for f64 {
+    const SCALED: bool = false;
+    fn mul_pow2(self, n: i32) -> Self {
+        if n == 0 {
+            self
+        } else {
+            libm::ldexp(self, n)
+        }
+    }
+    fn exponent(self) -> Option<i32> {
+        (self != 0.0 && self.is_finite()).then(|| libm::ilogb(self))
+    }
+    fn pow2_from_f64(x: f64) -> Pow2<Self> {
+        Pow2 {
+            mantissa: x,
+            exponent: 0,
+        }
+    }
+}
+
+impl FilterScalar for f32 {
+    const SCALED: bool = false;
+    fn mul_pow2(self, n: i32) -> Self {
+        if n == 0 {
+            self
+        } else {
+            libm::ldexpf(self, n)
+        }
+    }
+    fn exponent(self) -> Option<i32> {
+        (self != 0.0 && self.is_finite()).then(|| libm::ilogbf(self))
+    }
+    fn pow2_from_f64(x: f64) -> Pow2<Self> {
+        Pow2 {
+            mantissa: x as f32,
+            exponent: 0,
+        }
+    }
+}
+
+impl FilterScalar for I32F32 {
+    const SCALED: bool = true;
+    fn mul_pow2(self, n: i32) -> Self {
+        self.shifted(n)
+    }
+    fn exponent(self) -> Option<i32> {
+        self.log2_floor()
+    }
+    fn pow2_from_f64(x: f64) -> Pow2<Self> {
+        if x == 0.0 || !x.is_finite() {
+            return Pow2 {
+                mantissa: I32F32::from_f64(x),
+                exponent: 0,
+            };
+        }
+        // x = m 2^e with |m| in [1/2, 1): the mantissa keeps 31 significant bits.
+        let (m, e) = libm::frexp(x);
+        Pow2 {
+            mantissa: I32F32::from_f64(m),
+            exponent: e,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_tiny_constant_keeps_its_digits_in_fixed_point() {
+        let psd = 1.0e-10;
+        // As a plain fixed-point value it rounds to nothing.
+        assert_eq!(I32F32::from_f64(psd).to_f64(), 0.0);
+        let held = Pow2::<I32F32>::from_f64(psd);
+        // Scaled up by the variance's own exponent it is exact to 31 bits.
+        let scaled = held.times_pow2(40).to_f64();
+        assert!(
+            (scaled / (psd * 2f64.powi(40)) - 1.0).abs() < 1e-9,
+            "{scaled}"
+        );
+    }
+
+    #[test]
+    fn powers_of_two_are_exact_and_exponents_agree_across_scalars() {
+        for x in [3.0e-7, 0.75, 1.0, 1.5, 6.0e3] {
+            let e = f64::exponent(x).unwrap();
+            assert_eq!(f32::exponent(x as f32), Some(e));
+            assert_eq!(I32F32::from_f64(x).exponent(), Some(e), "{x}");
+            assert_eq!(x.mul_pow2(-3), x / 8.0);
+            let fixed = I32F32::from_f64(x);
+            assert_eq!(fixed.mul_pow2(2).to_f64(), fixed.to_f64() * 4.0);
+        }
+        assert_eq!(I32F32::ZERO.exponent(), None);
+        assert_eq!(f64::exponent(0.0), None);
+    }
+
+    #[test]
+    fn a_shift_out_of_range_saturates_and_is_counted() {
+        let before = crate::fixed::overflows();
+        assert_eq!(I32F32::from_f64(3.0).mul_pow2(40), I32F32::INFINITY);
+        assert_eq!(I32F32::from_f64(-3.0).mul_pow2(40), I32F32::NEG_INFINITY);
+        assert_eq!(crate::fixed::overflows(), before + 2);
+        // Below the resolution it rounds to zero, which is not an overflow.
+        assert_eq!(I32F32::from_f64(3.0).mul_pow2(-40), I32F32::ZERO);
+        assert_eq!(crate::fixed::overflows(), before + 2);
+    }
+}
