@@ -77,14 +77,15 @@ impl<T: FilterScalar> Pow2<T> {
     }
 }
 
+// The floats' powers of two are built from their bits (no library call: the board's
+// `f32` filter never scales, and must not carry the code to).
 impl FilterScalar for f64 {
     const SCALED: bool = false;
     fn mul_pow2(self, n: i32) -> Self {
-        if n == 0 {
-            self
-        } else {
-            libm::ldexp(self, n)
-        }
+        // Two factors, each a normal power of two, cover any shift a finite value survives.
+        let half = n / 2;
+        let factor = |k: i32| f64::from_bits(((k.clamp(-1022, 1023) + 1023) as u64) << 52);
+        self * factor(half) * factor(n - half)
     }
     fn exponent(self) -> Option<i32> {
         (self != 0.0 && self.is_finite()).then(|| libm::ilogb(self))
@@ -100,11 +101,9 @@ impl FilterScalar for f64 {
 impl FilterScalar for f32 {
     const SCALED: bool = false;
     fn mul_pow2(self, n: i32) -> Self {
-        if n == 0 {
-            self
-        } else {
-            libm::ldexpf(self, n)
-        }
+        let half = n / 2;
+        let factor = |k: i32| f32::from_bits(((k.clamp(-126, 127) + 127) as u32) << 23);
+        self * factor(half) * factor(n - half)
     }
     fn exponent(self) -> Option<i32> {
         (self != 0.0 && self.is_finite()).then(|| libm::ilogbf(self))

@@ -397,7 +397,7 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
             0
         };
         self.scale[i] = s;
-        let scaled = sigma.mul_pow2(-s);
+        let scaled = if T::SCALED { sigma.mul_pow2(-s) } else { sigma };
         self.p[(i, i)] = scaled * scaled;
     }
 
@@ -452,15 +452,20 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     pub fn set_covariance(&mut self, p: &SMatrix<T, N, N>) {
         let half: T = nalgebra::convert(0.5);
         for i in 0..N {
-            // A variance v in [2^k, 2^(k+1)) gets the scale (k + 1) div 2, so v 2^(-2s) lies in [1/2, 2).
-            self.scale[i] = match p[(i, i)].exponent() {
-                Some(k) if T::SCALED => (k + 1).div_euclid(2),
-                _ => 0,
+            // A variance v in [2^k, 2^(k+1)) gets the scale (k + 1) div 2, so v 2^(-2s) lies
+            // in [1/2, 2).
+            self.scale[i] = if T::SCALED {
+                p[(i, i)].exponent().map_or(0, |k| (k + 1).div_euclid(2))
+            } else {
+                0
             };
         }
         for i in 0..N {
             for j in i..N {
-                let v = ((p[(i, j)] + p[(j, i)]) * half).mul_pow2(-(self.scale[i] + self.scale[j]));
+                let mut v = (p[(i, j)] + p[(j, i)]) * half;
+                if T::SCALED {
+                    v = v.mul_pow2(-(self.scale[i] + self.scale[j]));
+                }
                 self.p[(i, j)] = v;
                 self.p[(j, i)] = v;
             }
@@ -536,10 +541,12 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     /// range.
     pub fn sigma(&self, index: usize) -> Option<T> {
         (index < N).then(|| {
-            self.p[(index, index)]
-                .max(T::zero())
-                .sqrt()
-                .mul_pow2(self.scale[index])
+            let sigma = self.p[(index, index)].max(T::zero()).sqrt();
+            if T::SCALED {
+                sigma.mul_pow2(self.scale[index])
+            } else {
+                sigma
+            }
         })
     }
 
@@ -675,7 +682,11 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
                 6
             };
             let v = self.p[(i, i)];
-            let floor = floor[class].times_pow2(-2 * self.scale[i]);
+            let floor = if T::SCALED {
+                floor[class].times_pow2(-2 * self.scale[i])
+            } else {
+                floor[class].mantissa
+            };
             if !v.is_finite() {
                 finite = false;
             } else if v < floor {

@@ -380,8 +380,14 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
         // The bias variance gained per unit of driving density.
         let (_, accel_bias_per_psd) = gauss_markov_step(cfg.accel_bias_inv_tau_s, T::one(), dt);
         let (_, gyro_bias_per_psd) = gauss_markov_step(cfg.gyro_bias_inv_tau_s, T::one(), dt);
+        let scale = self.scale;
         let mut add = |i: usize, psd: Pow2<T>, per_psd: T| {
-            self.p[(i, i)] += psd.times_pow2(-2 * self.scale[i]) * per_psd;
+            let density = if T::SCALED {
+                psd.times_pow2(-2 * scale[i])
+            } else {
+                psd.mantissa
+            };
+            self.p[(i, i)] += density * per_psd;
         };
         for axis in 0..3 {
             add(VEL + axis, cfg.accel_noise_psd, dt);
