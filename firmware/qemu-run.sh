@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Cargo runner for thumbv7em-none-eabihf: runs a firmware ELF in QEMU's netduinoplus2 (an
 # emulated STM32F405) and exits with the guest's semihosting exit code, so `cargo run`
-# reports pass/fail.
+# reports pass/fail. An ELF built for thumbv7m-none-eabi (a core without an FPU) runs in
+# QEMU's netduino2 instead: an STM32F205, a Cortex-M3 with the F405's flash and SRAM
+# addresses, so the one memory map serves both.
 #
 #   firmware/qemu-run.sh ELF [ARG...]
 #
@@ -37,8 +39,12 @@ for arg in "$@"; do
   semihosting+=",arg=${arg//,/,,}"
 done
 
+board=(-cpu cortex-m4 -machine netduinoplus2)
+case "$elf" in
+  */thumbv7m-none-eabi/*) board=(-cpu cortex-m3 -machine netduino2) ;;
+esac
 qemu=(timeout "${DYNACAL_QEMU_TIMEOUT:-600}"
-  qemu-system-arm -cpu cortex-m4 -machine netduinoplus2 -nographic -monitor none
+  qemu-system-arm "${board[@]}" -nographic -monitor none
   -serial none -icount shift=0 -semihosting-config "$semihosting" -kernel "$elf")
 
 if command -v defmt-print >/dev/null 2>&1; then

@@ -25,14 +25,48 @@ pub fn qemu_or_skip() -> bool {
     false
 }
 
-/// Builds the firmware cost bench `firmware/src/bin/{bin}.rs` for thumbv7em-none-eabihf
-/// (release, `board-replay`, into `target/firmware-e2e`), runs it in QEMU's netduinoplus2
-/// with `-icount shift=0` (deterministic instruction counts) and returns what it printed on
-/// semihosting stderr; panics when the build or the run fails. None, after saying so, when
-/// qemu-system-arm is absent, except in CI (`CI` or `DYNACAL_REQUIRE_QEMU` set), where that
-/// panics.
+/// A core a cost bench runs on under QEMU.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CostCore {
+    /// The Cortex-M4F board (STM32F405, floats in hardware): QEMU's netduinoplus2.
+    M4F,
+    /// A Cortex-M3 without an FPU: QEMU's netduino2 (an STM32F205, the same flash and SRAM
+    /// addresses as the F405, so the firmware's one memory map serves).
+    M3,
+}
+
+impl CostCore {
+    /// The Rust target the bench is built for.
+    pub fn target(self) -> &'static str {
+        match self {
+            CostCore::M4F => "thumbv7em-none-eabihf",
+            CostCore::M3 => "thumbv7m-none-eabi",
+        }
+    }
+
+    /// QEMU's arguments for the board, `-icount shift=0` included.
+    fn qemu_args(self) -> Vec<&'static str> {
+        let mut args = dynacal::replay::QEMU_BOARD_ARGS.to_vec();
+        if self == CostCore::M3 {
+            args[1] = "cortex-m3";
+            args[3] = "netduino2";
+        }
+        args
+    }
+}
+
+/// Builds the firmware cost bench `firmware/src/bin/{bin}.rs` for the Cortex-M4F (release,
+/// `board-replay`, into `target/firmware-e2e`), runs it in QEMU with `-icount shift=0`
+/// (deterministic instruction counts) and returns what it printed on semihosting stderr;
+/// panics when the build or the run fails. None, after saying so, when qemu-system-arm is
+/// absent, except in CI (`CI` or `DYNACAL_REQUIRE_QEMU` set), where that panics.
 pub fn run_cost_bench(bin: &str) -> Option<String> {
-    use dynacal::replay::{workspace_root, QEMU_BOARD_ARGS};
+    run_cost_bench_on(bin, CostCore::M4F).map(|(stderr, _)| stderr)
+}
+
+/// As [`run_cost_bench`], on `core`; also returns the ELF's path.
+pub fn run_cost_bench_on(bin: &str, core: CostCore) -> Option<(String, PathBuf)> {
+    use dynacal::replay::workspace_root;
     use std::process::Command;
 
     if !qemu_or_skip() {
@@ -49,7 +83,7 @@ pub fn run_cost_bench(bin: &str) -> Option<String> {
             "dynacal-firmware",
             "--release",
             "--target",
-            "thumbv7em-none-eabihf",
+            core.target(),
             "--features",
             "board-replay",
             "--bin",
@@ -61,14 +95,15 @@ pub fn run_cost_bench(bin: &str) -> Option<String> {
         .expect("run cargo");
     assert!(
         build.status.success(),
-        "building {bin} failed (thumbv7em-none-eabihf installed? run scripts/setup):\n{}",
+        "building {bin} for {} failed (target installed? run scripts/setup):\n{}",
+        core.target(),
         String::from_utf8_lossy(&build.stderr)
     );
-    let elf = target_dir.join("thumbv7em-none-eabihf/release").join(bin);
+    let elf = target_dir.join(core.target()).join("release").join(bin);
     let run = Command::new("timeout")
         .arg("300")
         .arg("qemu-system-arm")
-        .args(QEMU_BOARD_ARGS)
+        .args(core.qemu_args())
         .arg("-semihosting-config")
         .arg(format!("enable=on,target=native,arg={bin}"))
         .arg("-kernel")
@@ -78,7 +113,28 @@ pub fn run_cost_bench(bin: &str) -> Option<String> {
     let stderr = String::from_utf8_lossy(&run.stderr).into_owned();
     assert!(run.status.success(), "{bin} failed under QEMU: {stderr}");
     eprintln!("{stderr}");
-    Some(stderr)
+    Some((stderr, elf))
+}
+
+/// Where SRAM starts on the boards (STM32F405 and, under QEMU, the F205): loaded segments
+/// from here on are RAM.
+pub const RAM_START: u64 = 0x2000_0000;
+
+/// Bytes an ELF puts in flash (its loadable segments' file contents: code, constants and the
+/// initialised data's load image) and in RAM (the loaded segments placed there, `.bss` and
+/// the RTT buffer included).
+pub fn flash_and_statics(elf: &std::path::Path) -> (u64, u64) {
+    use object::{Object, ObjectSegment};
+    let data = std::fs::read(elf).expect("read the ELF");
+    let file = object::File::parse(&*data).expect("an ELF");
+    let (mut flash, mut ram) = (0, 0);
+    for segment in file.segments() {
+        flash += segment.file_range().1;
+        if segment.address() >= RAM_START {
+            ram += segment.size();
+        }
+    }
+    (flash, ram)
 }
 
 /// A simulated car drive of `model` (`seconds` long, seeded) and its replay input, written

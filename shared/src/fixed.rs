@@ -7,10 +7,15 @@
 //! non-finite value (the largest raw value is `+inf`, the smallest two are `-inf` and NaN)
 //! and adds one to the overflow count ([`overflows`]); so does an invalid operation (a
 //! division by zero, the square root of a negative number, a non-finite `f64` converted
-//! in). Non-finite values propagate as IEEE infinities and NaN do, and `is_finite` reports
-//! them, so the filter's existing checks (`s.is_finite()`, the covariance-diagonal test)
-//! refuse them as they refuse a float's overflow. The count is per thread on the host (tests
-//! run in parallel) and one for the program on the board.
+//! in). `is_finite` reports the non-finite values, so the filter's existing checks
+//! (`s.is_finite()`, the covariance-diagonal test) refuse a saturated result as they refuse
+//! a float's overflow. Addition, subtraction and multiplication do not carry them on as IEEE
+//! infinities do (that check would cost the operations a third of their time on a 32-bit
+//! core): an infinite operand enters them as its raw extreme. The filter therefore also
+//! reads the count around each of its steps ([`crate::scalar::FilterScalar::overflows`])
+//! and treats a step that overflowed as a numerical fault. Division, the square root and
+//! the functions through `f64` do propagate them. The count is per thread on the host
+//! (tests run in parallel) and one for the program on the board.
 //!
 //! Addition, subtraction, multiplication (rounded to nearest), division (rounded to
 //! nearest) and the square root (rounded to nearest) are exact integer arithmetic, which is
@@ -156,16 +161,19 @@ impl I32F32 {
             return self;
         }
         if n > 0 {
-            // Past 62 bits every non-zero value is out of range (and i128 would wrap).
-            let n = n.min(62) as u32;
-            return Self::saturate(i128::from(self.0) << n);
+            // In range only while the magnitude keeps its top n + 1 bits clear.
+            let magnitude = self.0.unsigned_abs();
+            if n >= 63 || magnitude.leading_zeros() <= n as u32 {
+                return Self::saturated(self.0 > 0);
+            }
+            return Self(self.0 << n);
         }
         let right = n.unsigned_abs();
         if right >= 64 {
             return Self::ZERO;
         }
-        let half = 1i128 << (right - 1);
-        Self(((i128::from(self.0) + half) >> right) as i64)
+        // Nearest: the last bit shifted out rounds (an arithmetic shift: ties go up).
+        Self((self.0 >> right) + ((self.0 >> (right - 1)) & 1))
     }
 
     /// `floor(log2 |self|)`; `None` for zero and non-finite values.
@@ -175,19 +183,6 @@ impl I32F32 {
         }
         let magnitude = self.0.unsigned_abs();
         Some(63 - magnitude.leading_zeros() as i32 - FRACTION_BITS as i32)
-    }
-
-    /// A raw result computed in 128 bits, saturated (and counted) when out of range.
-    fn saturate(wide: i128) -> Self {
-        if wide > i128::from(MAX_FINITE_RAW) {
-            counter::bump();
-            Self::INFINITY
-        } else if wide < i128::from(MIN_FINITE_RAW) {
-            counter::bump();
-            Self::NEG_INFINITY
-        } else {
-            Self(wide as i64)
-        }
     }
 
     /// An operation with a non-finite operand, done as IEEE `f64` does it (not counted
@@ -252,38 +247,79 @@ impl PartialOrd for I32F32 {
     }
 }
 
+impl I32F32 {
+    /// A raw sum or difference and whether it overflowed, saturated (and counted) towards
+    /// `sign_if_overflowed`'s sign when it did or when it landed on a non-finite value.
+    #[inline(always)]
+    fn wrapped(raw: i64, overflowed: bool, sign_if_overflowed: i64) -> Self {
+        if overflowed || !Self(raw).is_finite_value() {
+            Self::saturated(sign_if_overflowed >= 0)
+        } else {
+            Self(raw)
+        }
+    }
+
+    /// The extreme finite-range value of a sign, counted as an overflow.
+    #[cold]
+    fn saturated(positive: bool) -> Self {
+        counter::bump();
+        if positive {
+            Self::INFINITY
+        } else {
+            Self::NEG_INFINITY
+        }
+    }
+}
+
 impl Add for I32F32 {
     type Output = Self;
+    /// The exact sum (saturated and counted out of range). Not sticky: an infinite operand is
+    /// added as its raw extreme (see the module documentation).
     #[inline]
     fn add(self, other: Self) -> Self {
-        if !self.both_finite(other) {
-            return self.non_finite(other, |a, b| a + b);
-        }
-        Self::saturate(i128::from(self.0) + i128::from(other.0))
+        let (raw, overflowed) = self.0.overflowing_add(other.0);
+        Self::wrapped(raw, overflowed, self.0)
     }
 }
 
 impl Sub for I32F32 {
     type Output = Self;
+    /// The exact difference (saturated and counted out of range).
     #[inline]
     fn sub(self, other: Self) -> Self {
-        if !self.both_finite(other) {
-            return self.non_finite(other, |a, b| a - b);
-        }
-        Self::saturate(i128::from(self.0) - i128::from(other.0))
+        let (raw, overflowed) = self.0.overflowing_sub(other.0);
+        Self::wrapped(raw, overflowed, self.0)
     }
 }
 
 impl Mul for I32F32 {
     type Output = Self;
-    /// The product rounded to nearest (ties up).
+    /// The product rounded to nearest (ties away from zero), saturated and counted out of
+    /// range.
+    ///
+    /// Four 32 x 32 -> 64-bit multiplications of the magnitudes' halves (one `UMULL` each on
+    /// a Cortex-M3) rather than a 128-bit product, which a 32-bit core computes in a
+    /// library call several times longer.
     #[inline]
     fn mul(self, other: Self) -> Self {
-        if !self.both_finite(other) {
-            return self.non_finite(other, |a, b| a * b);
+        const LOW: u64 = 0xFFFF_FFFF;
+        let negative = (self.0 ^ other.0) < 0;
+        let (x, y) = (self.0.unsigned_abs(), other.0.unsigned_abs());
+        let (xh, xl, yh, yl) = (x >> 32, x & LOW, y >> 32, y & LOW);
+        let (ll, lh, hl, hh) = (xl * yl, xl * yh, xh * yl, xh * yh);
+        // The product shifted right by 32: hh 2^32 + lh + hl + ll 2^-32, rounded at ll's
+        // bit 31. Its low 32 bits, then what carries above them (at most 2^34).
+        let low = (ll >> 32) + ((ll >> 31) & 1) + (lh & LOW) + (hl & LOW);
+        // x, y < 2^63, so hh < 2^62 and `high` cannot wrap.
+        let high = hh + (lh >> 32) + (hl >> 32) + (low >> 32);
+        if high >> 31 != 0 {
+            return Self::saturated(!negative);
         }
-        let wide = i128::from(self.0) * i128::from(other.0);
-        Self::saturate((wide + (1 << (FRACTION_BITS - 1))) >> FRACTION_BITS)
+        let magnitude = ((high << 32) | (low & LOW)) as i64;
+        if magnitude > MAX_FINITE_RAW {
+            return Self::saturated(!negative);
+        }
+        Self(if negative { -magnitude } else { magnitude })
     }
 }
 
@@ -303,21 +339,43 @@ impl Div for I32F32 {
                 _ => Self::NAN,
             };
         }
-        let numerator = i128::from(self.0) << FRACTION_BITS;
-        let divisor = i128::from(other.0);
-        let (q, r) = (numerator / divisor, numerator % divisor);
-        let away = if (numerator < 0) == (divisor < 0) {
-            1
-        } else {
-            -1
-        };
-        let rounded = if 2 * r.abs() >= divisor.abs() {
-            q + away
-        } else {
-            q
-        };
-        Self::saturate(rounded)
+        let negative = (self.0 ^ other.0) < 0;
+        match quotient_magnitude(self.0.unsigned_abs(), other.0.unsigned_abs()) {
+            Some(q) if q <= MAX_FINITE_RAW as u64 => {
+                let q = q as i64;
+                Self(if negative { -q } else { q })
+            }
+            _ => Self::saturated(!negative),
+        }
     }
+}
+
+/// `round(a 2^32 / b)` for magnitudes `a < 2^63` and `0 < b < 2^63`, by restoring binary
+/// long division over the quotient's bits only (about 33 steps when `a` and `b` are alike),
+/// rather than a general 128-bit division, which a 32-bit core runs in a library call
+/// several times longer; `None` when the quotient does not fit 64 bits.
+fn quotient_magnitude(a: u64, b: u64) -> Option<u64> {
+    let numerator = u128::from(a) << FRACTION_BITS;
+    let divisor = u128::from(b);
+    if numerator < divisor {
+        // Below one unit: rounds to one unit or to zero.
+        return Some(u64::from(2 * numerator >= divisor));
+    }
+    let steps = divisor.leading_zeros() - numerator.leading_zeros();
+    if steps >= 64 {
+        return None;
+    }
+    let (mut remainder, mut shifted, mut q) = (numerator, divisor << steps, 0u64);
+    for _ in 0..=steps {
+        q <<= 1;
+        if remainder >= shifted {
+            remainder -= shifted;
+            q |= 1;
+        }
+        shifted >>= 1;
+    }
+    // Nearest, ties away from zero.
+    q.checked_add(u64::from(2 * remainder >= divisor))
 }
 
 impl Rem for I32F32 {
@@ -615,22 +673,26 @@ mod tests {
     }
 
     #[test]
-    fn an_overflow_saturates_is_counted_and_propagates() {
+    fn an_overflow_saturates_and_is_counted() {
         let before = overflows();
         let big = fx(2.0e9);
         let sum = big + big;
         assert_eq!(sum, I32F32::INFINITY);
         assert!(!ComplexField::is_finite(&sum));
-        assert_eq!(overflows(), before + 1);
-        // Infinity propagates as in IEEE arithmetic, without being counted again.
-        assert_eq!(sum * fx(-0.5), I32F32::NEG_INFINITY);
-        assert!(!ComplexField::is_finite(&(sum - sum)));
-        assert!((sum - sum).partial_cmp(&I32F32::ZERO).is_none());
-        assert_eq!(overflows(), before + 1);
-        // Products beyond the range, and the smallest quotients' reciprocals.
+        assert_eq!(fx(-2.0e9) - big, I32F32::NEG_INFINITY);
+        assert_eq!(overflows(), before + 2);
+        // Products beyond the range, of either sign, and the smallest number's reciprocal.
         assert_eq!(fx(-5.0e4) * fx(5.0e4), I32F32::NEG_INFINITY);
+        assert_eq!(fx(5.0e4) * fx(5.0e4), I32F32::INFINITY);
         assert_eq!(fx(1.0) / I32F32::EPSILON, I32F32::INFINITY);
-        assert_eq!(overflows(), before + 3);
+        assert_eq!(overflows(), before + 5);
+        // Division and the square root carry an infinity on, without counting it again.
+        assert_eq!(sum / fx(-2.0), I32F32::NEG_INFINITY);
+        assert_eq!(sum.sqrt_fixed(), I32F32::INFINITY);
+        assert_eq!(overflows(), before + 5);
+        // Just inside the range nothing is counted.
+        assert_eq!((fx(46_340.0) * fx(46_340.0)).to_f64(), 46_340.0 * 46_340.0);
+        assert_eq!(overflows(), before + 5);
     }
 
     #[test]

@@ -30,6 +30,15 @@ pub trait FilterScalar: RealField + Copy {
 
     /// `x` as a mantissa and a power of two this scalar holds to its full precision.
     fn pow2_from_f64(x: f64) -> Pow2<Self>;
+
+    /// Results of this scalar that saturated or were invalid so far (never decreasing; 0
+    /// for floats, whose overflow the filter sees as non-finite values). The filter reads
+    /// it around each step, since fixed-point saturation does not propagate as IEEE
+    /// infinities do.
+    #[inline(always)]
+    fn overflows() -> u64 {
+        0
+    }
 }
 
 /// A number held as `mantissa · 2^exponent`, so a scalar with a narrow range (fixed point)
@@ -123,6 +132,9 @@ impl FilterScalar for I32F32 {
     }
     fn exponent(self) -> Option<i32> {
         self.log2_floor()
+    }
+    fn overflows() -> u64 {
+        crate::fixed::overflows()
     }
     fn pow2_from_f64(x: f64) -> Pow2<Self> {
         if x == 0.0 || !x.is_finite() {

@@ -12,34 +12,15 @@
 //!
 //! Skips when qemu-system-arm is absent, except in CI, where that fails.
 
-use std::path::Path;
-
 use dynacal::model::SimModel;
 use dynacal::replay::{
     build_firmware, run_replay_in_qemu, workspace_root, BOARD_CORE_HZ, FIRMWARE_TARGET_DIR,
 };
-use object::{Object, ObjectSegment};
+use dynacal_tests::flash_and_statics;
 
 const FLASH_BUDGET_BYTES: u64 = 128 * 1024;
-const RAM_START: u64 = 0x2000_0000;
 const RAM_BUDGET_BYTES: u64 = 64 * 1024;
 const CORE_SHARE_BUDGET: f64 = 0.15;
-
-/// Bytes an ELF puts in flash (its loadable segments' file contents: code, constants and the
-/// initialised data's load image) and in RAM (the loaded segments placed there, `.bss` and
-/// the RTT buffer included).
-fn flash_and_statics(elf: &Path) -> (u64, u64) {
-    let data = std::fs::read(elf).unwrap();
-    let file = object::File::parse(&*data).unwrap();
-    let (mut flash, mut ram) = (0, 0);
-    for segment in file.segments() {
-        flash += segment.file_range().1;
-        if segment.address() >= RAM_START {
-            ram += segment.size();
-        }
-    }
-    (flash, ram)
-}
 
 #[test]
 fn the_real_board_fits_its_flash_and_ram_and_the_fusion_its_core() {

@@ -1,12 +1,16 @@
-//! Cost of the navigation filter on the Cortex-M4F: builds `firmware/src/bin/ekf_cost.rs`
-//! for thumbv7em-none-eabihf, runs it in QEMU's netduinoplus2 with `-icount shift=0` (so
-//! instruction counts are deterministic) and holds the counts under fixed bounds, so a
-//! change that makes the filter markedly more expensive fails here.
+//! Cost of the navigation filter: builds `firmware/src/bin/ekf_cost.rs` for the Cortex-M4F
+//! (thumbv7em-none-eabihf, QEMU's netduinoplus2) and holds the `f32` counts under fixed
+//! bounds, so a change that makes the filter markedly more expensive fails here; and for a
+//! Cortex-M3 without an FPU (thumbv7m-none-eabi, QEMU's netduino2), where the fixed-point
+//! filter must cost at most half of software floats. QEMU runs with `-icount shift=0`, so
+//! instruction counts are deterministic.
 //!
 //! Skips with a message when qemu-system-arm is absent, except in CI (`CI` or
 //! `DYNACAL_REQUIRE_QEMU` set), where that fails the test.
 
 use std::collections::HashMap;
+
+use dynacal_tests::CostCore;
 
 /// Measured at this commit (rustc 1.95, release profile): 15 states, one GNSS epoch
 /// (linearisation + predict + position and velocity fusion + reset) 48 176 instructions.
@@ -19,23 +23,59 @@ const MAX_FULL_EPOCH_27: u64 = 245_000;
 /// times more).
 const MAX_PREDICT_27: u64 = 22_000;
 
-/// Parses `ekf-cost states=N key=value ...` lines into one map per state count.
-fn parse(stderr: &str) -> HashMap<u64, HashMap<String, u64>> {
+/// Parses `ekf-cost scalar=S states=N key=value ...` lines into one map per scalar and
+/// state count.
+fn parse(stderr: &str) -> HashMap<(String, u64), HashMap<String, u64>> {
     let mut out = HashMap::new();
-    for line in stderr.lines().filter(|l| l.starts_with("ekf-cost states=")) {
-        let fields: HashMap<String, u64> = line
+    for line in stderr.lines().filter(|l| l.starts_with("ekf-cost scalar=")) {
+        let mut scalar = String::new();
+        let mut fields = HashMap::new();
+        for (k, v) in line
             .split_whitespace()
             .skip(1)
-            .filter_map(|kv| {
-                let (k, v) = kv.split_once('=')?;
-                Some((k.to_string(), v.parse().ok()?))
-            })
-            .collect();
+            .filter_map(|kv| kv.split_once('='))
+        {
+            match v.parse() {
+                Ok(n) => {
+                    fields.insert(k.to_string(), n);
+                }
+                Err(_) if k == "scalar" => scalar = v.to_string(),
+                Err(_) => {}
+            }
+        }
         if let Some(&n) = fields.get("states") {
-            out.insert(n, fields);
+            out.insert((scalar, n), fields);
         }
     }
     out
+}
+
+/// One stage's instructions of the `scalar` filter with `states` states.
+fn stage(
+    costs: &HashMap<(String, u64), HashMap<String, u64>>,
+    scalar: &str,
+    states: u64,
+    key: &str,
+) -> u64 {
+    *costs
+        .get(&(scalar.to_string(), states))
+        .and_then(|m| m.get(key))
+        .unwrap_or_else(|| panic!("no {key} for {scalar} with {states} states in: {costs:?}"))
+}
+
+/// A full epoch of the 27-state filter: linearisation, prediction, GNSS position and
+/// velocity, both extra IMUs' inter-IMU updates, reset.
+fn full_epoch_27(costs: &HashMap<(String, u64), HashMap<String, u64>>, scalar: &str) -> u64 {
+    [
+        "linearization",
+        "predict",
+        "gnss_pos_vel",
+        "inter_imu_all",
+        "reset",
+    ]
+    .iter()
+    .map(|key| stage(costs, scalar, 27, key))
+    .sum()
 }
 
 #[test]
@@ -44,12 +84,7 @@ fn navigation_filter_epoch_cost_on_cortex_m4f_stays_within_bounds() {
         return;
     };
     let costs = parse(&stderr);
-    let get = |states: u64, key: &str| -> u64 {
-        *costs
-            .get(&states)
-            .and_then(|m| m.get(key))
-            .unwrap_or_else(|| panic!("no {key} for {states} states in: {stderr}"))
-    };
+    let get = |states: u64, key: &str| -> u64 { stage(&costs, "f32", states, key) };
     // The calibration must be sane (about 5.95 instructions per SysTick tick), or every
     // count below would be meaningless.
     let calibration: HashMap<String, u64> = stderr
@@ -74,11 +109,7 @@ fn navigation_filter_epoch_cost_on_cortex_m4f_stays_within_bounds() {
 
     let gnss_epoch_15 =
         get(15, "linearization") + get(15, "predict") + get(15, "gnss_pos_vel") + get(15, "reset");
-    let full_epoch_27 = get(27, "linearization")
-        + get(27, "predict")
-        + get(27, "gnss_pos_vel")
-        + get(27, "inter_imu_all")
-        + get(27, "reset");
+    let full_epoch_27 = full_epoch_27(&costs, "f32");
     eprintln!(
         "15-state GNSS epoch {gnss_epoch_15} instructions; 27-state full epoch {full_epoch_27}"
     );
@@ -107,4 +138,36 @@ fn navigation_filter_epoch_cost_on_cortex_m4f_stays_within_bounds() {
         eprintln!("{n} states: dense/block-sparse prediction = {ratio:.2}");
         assert!(ratio > 1.5, "{n} states: dense/sparse only {ratio}");
     }
+}
+
+/// On a core without an FPU (a Cortex-M3: QEMU's netduino2), the same bench in the same run:
+/// the 27-state filter's full epoch (two extra IMUs, one GNSS update) in Q32.32 fixed point
+/// takes at most half the instructions of `f32`, whose every operation is a library call
+/// there; and it is built for that core at all (the flash and RAM of the image are
+/// reported).
+#[test]
+fn fixed_point_takes_half_the_instructions_of_software_floats_without_an_fpu() {
+    let Some((stderr, elf)) = dynacal_tests::run_cost_bench_on("ekf_cost", CostCore::M3) else {
+        return;
+    };
+    let costs = parse(&stderr);
+    let (soft, fixed) = (full_epoch_27(&costs, "f32"), full_epoch_27(&costs, "fixed"));
+    let (flash, statics) = dynacal_tests::flash_and_statics(&elf);
+    eprintln!(
+        "Cortex-M3, 27-state epoch: software f32 {soft} instructions, fixed point {fixed} \
+         ({:.2}x fewer); the bench image: {flash} bytes of flash, {statics} of statics",
+        soft as f64 / fixed as f64
+    );
+    for key in ["predict", "gnss_pos_vel", "inter_imu_all", "reset"] {
+        eprintln!(
+            "  {key}: f32 {} fixed {}",
+            stage(&costs, "f32", 27, key),
+            stage(&costs, "fixed", 27, key)
+        );
+    }
+    assert!(stage(&costs, "fixed", 27, "predict") > 1_000, "{costs:?}");
+    assert!(
+        2 * fixed <= soft,
+        "fixed {fixed} against software f32 {soft}"
+    );
 }

@@ -594,6 +594,7 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
         raw_innovation: T,
         sigma: T,
     ) -> ScalarOutcome<T> {
+        let overflows_before = T::overflows();
         let len = h.len.min(SPARSE_ROW_MAX);
         let mut innovation = raw_innovation;
         for m in 0..len {
@@ -626,17 +627,38 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
         if !(s.is_finite() && s > T::zero() && r >= T::zero() && innovation.is_finite()) {
             return ScalarOutcome::NumericalFault;
         }
-        let test_ratio = innovation * innovation / s;
+        if T::overflows() != overflows_before {
+            return ScalarOutcome::NumericalFault;
+        }
+        // A whitened innovation this far out is an outlier whatever the gate; its square
+        // would leave the fixed-point range (2^31) and count as an overflow, where the gate
+        // must refuse it (repeated refusals are what resets the position after an outage).
+        if T::SCALED && innovation.abs() >= T::one().mul_pow2(15) {
+            return ScalarOutcome::Rejected(T::max_value().unwrap_or(innovation));
+        }
+        // In fixed point one division, not N + 1: a division there costs as much as tens of
+        // multiplications.
+        let inverse_s = if T::SCALED { s.recip() } else { T::one() };
+        let test_ratio = if T::SCALED {
+            innovation * innovation * inverse_s
+        } else {
+            innovation * innovation / s
+        };
         if test_ratio > self.config.innovation_gate {
             return ScalarOutcome::Rejected(test_ratio);
         }
         if T::SCALED {
-            // One division, not N: a fixed-point division costs tens of multiplications.
-            let gain = pht * s.recip();
+            let gain = pht * inverse_s;
             for i in 0..N {
                 self.dx[i] += (gain[i] * innovation).mul_pow2(self.scale[i]);
             }
             self.joseph_update(&pht, &gain, s, r);
+            if T::overflows() != overflows_before {
+                // Saturated numbers went into the state: start the covariance over.
+                self.stats.covariance_resets = self.stats.covariance_resets.saturating_add(1);
+                self.reset_covariance();
+                return ScalarOutcome::NumericalFault;
+            }
         } else {
             let gain = pht / s;
             self.dx += gain * innovation;
@@ -648,6 +670,9 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     /// The Joseph-form covariance update of one scalar measurement, from `P h`, the gain,
     /// the innovation variance `s` and the measurement variance `r`.
     fn joseph_update(&mut self, pht: &SVector<T, N>, gain: &SVector<T, N>, s: T, r: T) {
+        if T::SCALED {
+            return self.joseph_update_whitened(pht, gain, s);
+        }
         // Joseph form P⁺ = A − (A h) kᵀ + r k kᵀ with A = (I − k hᵀ) P = P − k (P h)ᵀ, evaluated
         // element by element on the upper triangle without forming A: its needed product is
         // A h = P h − k (hᵀ P h). Each element is then
@@ -662,6 +687,25 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
             let (kj, phtj, rkj) = (gain[j], pht[j], r * gain[j]);
             for i in 0..=j {
                 let v = self.p[(i, j)] - gain[i] * phtj - ah[i] * kj + gain[i] * rkj;
+                self.p[(i, j)] = v;
+                self.p[(j, i)] = v;
+            }
+        }
+    }
+
+    /// [`Self::joseph_update`] for a whitened measurement (`r = 1`): the terms
+    /// `− (A h)_i k_j + r k_i k_j` fold into `− w_i k_j` with `w = A h − k`, two products an
+    /// element instead of three.
+    fn joseph_update_whitened(&mut self, pht: &SVector<T, N>, gain: &SVector<T, N>, s: T) {
+        let h_p_h = s - T::one();
+        let mut w = SVector::<T, N>::zeros();
+        for i in 0..N {
+            w[i] = pht[i] - gain[i] * h_p_h - gain[i];
+        }
+        for j in 0..N {
+            let (kj, phtj) = (gain[j], pht[j]);
+            for i in 0..=j {
+                let v = self.p[(i, j)] - gain[i] * phtj - w[i] * kj;
                 self.p[(i, j)] = v;
                 self.p[(j, i)] = v;
             }

@@ -119,7 +119,7 @@ impl<T: FilterScalar> Block3<T> {
                 }
                 Some(y)
             }
-            Block3::Full(m) => Some(m * x),
+            Block3::Full(m) => Some(product_3x3(m, x, false)),
         }
     }
 
@@ -136,7 +136,7 @@ impl<T: FilterScalar> Block3<T> {
                 }
                 Some(y)
             }
-            Block3::Full(m) => Some(x * m.transpose()),
+            Block3::Full(m) => Some(product_3x3(x, m, true)),
         }
     }
 
@@ -162,9 +162,22 @@ impl<T: FilterScalar> Block3<T> {
         match self {
             Block3::Zero => Vector3::zeros(),
             Block3::Diag(d) => d.component_mul(v),
-            Block3::Full(m) => m * v,
+            Block3::Full(m) => {
+                Vector3::from_fn(|r, _| m[(r, 0)] * v[0] + m[(r, 1)] * v[1] + m[(r, 2)] * v[2])
+            }
         }
     }
+}
+
+/// `a b` (or `a bᵀ` when `transpose_b`) written out: nalgebra's general product scales each
+/// term by its `alpha` and `beta`, a multiplication by one that costs a fixed-point filter
+/// on a core without an FPU a third of its prediction. The sums run in nalgebra's order.
+#[inline(always)]
+fn product_3x3<T: FilterScalar>(a: &Matrix3<T>, b: &Matrix3<T>, transpose_b: bool) -> Matrix3<T> {
+    let b_at = |k: usize, c: usize| if transpose_b { b[(c, k)] } else { b[(k, c)] };
+    Matrix3::from_fn(|r, c| {
+        a[(r, 0)] * b_at(0, c) + a[(r, 1)] * b_at(1, c) + a[(r, 2)] * b_at(2, c)
+    })
 }
 
 /// A Gauss-Markov bias (inverse correlation time `inv_tau_s`, 1/s; driving PSD `psd`,
@@ -206,9 +219,16 @@ impl<T: FilterScalar> BlockTransition<T> {
         let one = T::one();
         let two: T = nalgebra::convert(2.0);
         let identity = Matrix3::<T>::identity();
-        // Schuler (horizontal) and vertical-channel gravity gradients about a mean radius
-        // (the product of the two radii, 4e13 m², is beyond a fixed-point range).
-        let radius = lin.meridian_radius_plus_h_m.sqrt() * lin.transverse_radius_plus_h_m.sqrt();
+        // Schuler (horizontal) and vertical-channel gravity gradients about a mean radius:
+        // the geometric mean, or in fixed point, where the radii's product (4e13 m²) is out
+        // of range and a square root costs a long integer loop, the arithmetic mean (9 m
+        // longer: the gradient differs by 1.4e-6 of itself).
+        let (north, east) = (lin.meridian_radius_plus_h_m, lin.transverse_radius_plus_h_m);
+        let radius = if T::SCALED {
+            (north + east) * nalgebra::convert::<f64, T>(0.5)
+        } else {
+            (north * east).sqrt()
+        };
         let g_over_r = lin.gravity_m_s2 / radius;
         // ∂ω_en/∂v: transport rate dependence on velocity error.
         let mut d_omega_en_dv = Matrix3::<T>::zeros();
@@ -286,14 +306,16 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
             self.stats.rejected_predictions = self.stats.rejected_predictions.saturating_add(1);
             return false;
         }
+        let overflows_before = T::overflows();
         let phi = BlockTransition::first_order(lin, &self.config, dt_s);
-        // The covariance is propagated in the scaled states (the float scales are all 0).
-        let scaled = if T::SCALED {
-            phi.scaled(&self.scale[..NAV_STATES])
+        // The covariance is propagated in the scaled states (floats have no scales).
+        let scaled_phi;
+        let blocks = if T::SCALED {
+            scaled_phi = phi.scaled(&self.scale[..NAV_STATES]);
+            &scaled_phi.blocks
         } else {
-            phi
+            &phi.blocks
         };
-        let blocks = &scaled.blocks;
 
         // M = Φ_nav P_nav,nav (block-sparse on the left).
         let mut m = SMatrix::<T, NAV_STATES, NAV_STATES>::zeros();
@@ -367,6 +389,13 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
             }
         }
         self.transition = phi;
+        if T::overflows() != overflows_before {
+            // A saturated number went into the covariance: start it over, as a non-finite
+            // variance makes the floors do.
+            self.stats.covariance_resets = self.stats.covariance_resets.saturating_add(1);
+            self.reset_covariance();
+            return true;
+        }
         self.apply_variance_floors();
         true
     }
@@ -380,10 +409,9 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
         // The bias variance gained per unit of driving density.
         let (_, accel_bias_per_psd) = gauss_markov_step(cfg.accel_bias_inv_tau_s, T::one(), dt);
         let (_, gyro_bias_per_psd) = gauss_markov_step(cfg.gyro_bias_inv_tau_s, T::one(), dt);
-        let scale = self.scale;
         let mut add = |i: usize, psd: Pow2<T>, per_psd: T| {
             let density = if T::SCALED {
-                psd.times_pow2(-2 * scale[i])
+                psd.times_pow2(-2 * self.scale[i])
             } else {
                 psd.mantissa
             };

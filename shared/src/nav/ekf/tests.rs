@@ -951,3 +951,36 @@ fn a_gauss_markov_bias_keeps_its_stationary_variance_at_any_step() {
     );
     assert!((series.0 - exact.0).abs() < 1e-6 && (series.1 - exact.1).abs() < 1e-6);
 }
+
+#[test]
+fn a_fixed_point_overflow_in_an_update_is_counted_and_refused() {
+    let fx = I32F32::from_f64;
+    // GIVEN a fixed-point filter
+    let mut ekf = NavEkf2::<I32F32>::new(EkfConfig::automotive_mems(), initial_sigmas());
+    let before = crate::fixed::overflows();
+    let p_before = ekf.covariance_f64();
+    // WHEN a velocity arrives with a sigma so small that its whitened innovation (1e4 m/s
+    // over 1e-6 m/s) leaves the Q32.32 range
+    let outcome = ekf.fuse_gnss_velocity(&Vector3::repeat(fx(1.0e4)), &Vector3::repeat(fx(1.0e-6)));
+    // THEN each overflow is counted, each update refused as a numerical fault, and the
+    // filter is as it was
+    assert!(crate::fixed::overflows() >= before + 3);
+    assert_eq!(outcome.faults, 3);
+    assert_eq!(ekf.stats().gnss_velocity.numerical_faults, 3);
+    assert_eq!(ekf.covariance_f64(), p_before);
+    assert!(ekf.error_estimate().iter().all(|x| *x == I32F32::ZERO));
+}
+
+#[test]
+fn a_fixed_point_outlier_far_out_is_gated_without_overflow() {
+    let fx = I32F32::from_f64;
+    // GIVEN a fixed-point filter
+    let mut ekf = NavEkf2::<I32F32>::new(EkfConfig::automotive_mems(), initial_sigmas());
+    let before = crate::fixed::overflows();
+    // WHEN a position 1 km off arrives with a 1 cm sigma (10^5 sigmas: its square would
+    // leave the range)
+    let outcome = ekf.fuse_gnss_position(&Vector3::repeat(fx(1.0e3)), &Vector3::repeat(fx(0.01)));
+    // THEN the gate refuses it, as it would in floating point, and nothing overflowed
+    assert_eq!(outcome.rejected, 3);
+    assert_eq!(crate::fixed::overflows(), before);
+}
