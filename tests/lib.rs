@@ -39,19 +39,14 @@ impl CostCore {
     /// The Rust target the bench is built for.
     pub fn target(self) -> &'static str {
         match self {
-            CostCore::M4F => "thumbv7em-none-eabihf",
-            CostCore::M3 => "thumbv7m-none-eabi",
+            CostCore::M4F => dynacal::replay::BOARD_TARGET,
+            CostCore::M3 => dynacal::replay::FPU_LESS_TARGET,
         }
     }
 
     /// QEMU's arguments for the board, `-icount shift=0` included.
-    fn qemu_args(self) -> Vec<&'static str> {
-        let mut args = dynacal::replay::QEMU_BOARD_ARGS.to_vec();
-        if self == CostCore::M3 {
-            args[1] = "cortex-m3";
-            args[3] = "netduino2";
-        }
-        args
+    fn qemu_args(self) -> [&'static str; 11] {
+        dynacal::replay::qemu_board_args(self.target())
     }
 }
 

@@ -2,8 +2,9 @@
 //! (`dynacal navsim`): three units and a GNSS receiver from a model file, GNSS outages spread
 //! through the run, and the filter measured against the truth (position and attitude error,
 //! with GNSS and through the outages, and its consistency: the normalised estimation error
-//! squared of position, velocity and attitude). The same source runs in `f64` and `f32`
-//! (`dynacal_core::fusion::BoardFusion<T>`), so what a scalar costs is measured on one drive.
+//! squared of position, velocity and attitude). The same source runs in `f64`, `f32` and
+//! Q32.32 fixed point (`dynacal_core::fusion::BoardFusion<T>`, `T` a
+//! `dynacal_core::scalar::FilterScalar`), so what a scalar costs is measured on one drive.
 //!
 //! The drive is streamed ([`drive::StreamedDrive`]): the trajectory and the fixes are built
 //! for the whole run, and each sample set is made when the filter needs it, so a day of

@@ -40,6 +40,34 @@ pub const QEMU_BOARD_ARGS: [&str; 11] = [
     "shift=0",
 ];
 
+/// The board's target (a Cortex-M4F: floats in hardware).
+pub const BOARD_TARGET: &str = "thumbv7em-none-eabihf";
+/// A core without an FPU (a Cortex-M3), for the fixed-point filter's board.
+pub const FPU_LESS_TARGET: &str = "thumbv7m-none-eabi";
+
+/// QEMU's arguments for an image built for `target`: [`QEMU_BOARD_ARGS`], or for
+/// [`FPU_LESS_TARGET`] a Cortex-M3 in `netduino2` (an STM32F205: the F405's flash and SRAM
+/// addresses, so the firmware's one memory map serves).
+pub fn qemu_board_args(target: &str) -> [&'static str; 11] {
+    let mut args = QEMU_BOARD_ARGS;
+    if target == FPU_LESS_TARGET {
+        args[1] = "cortex-m3";
+        args[3] = "netduino2";
+    }
+    args
+}
+
+/// The target an image at `elf` was built for, read from its path under the target
+/// directory (`.../TARGET/PROFILE/NAME`); the board's when the path does not say.
+fn target_of(elf: &Path) -> &'static str {
+    let built_for = |target: &str| elf.components().any(|c| c.as_os_str() == target);
+    if built_for(FPU_LESS_TARGET) {
+        FPU_LESS_TARGET
+    } else {
+        BOARD_TARGET
+    }
+}
+
 /// Standard gravity, m/s^2 (the conventional value, as the ADIS16405 "g" is taken to be).
 pub const STANDARD_GRAVITY_M_S2: f64 = 9.80665;
 /// ADIS16405 gyro scale: 0.05 deg/s per count, in rad/s per count.
@@ -379,6 +407,16 @@ pub fn replay_firmware_elf(dir: &Path, target_dir: &Path) -> Result<PathBuf, Rep
 /// `board-stm32f405`, the real one) with cargo into `target_dir` and returns the ELF's path.
 /// Both boards' images land at the same path: read one before building the other.
 pub fn build_firmware(target_dir: &Path, board_feature: &str) -> Result<PathBuf, ReplayFileError> {
+    build_firmware_for(target_dir, board_feature, BOARD_TARGET)
+}
+
+/// As [`build_firmware`], with `features` (comma-separated) for `target` ([`BOARD_TARGET`]
+/// or [`FPU_LESS_TARGET`]).
+pub fn build_firmware_for(
+    target_dir: &Path,
+    features: &str,
+    target: &str,
+) -> Result<PathBuf, ReplayFileError> {
     let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
     let root = workspace_root();
     let output = Command::new(cargo)
@@ -390,9 +428,9 @@ pub fn build_firmware(target_dir: &Path, board_feature: &str) -> Result<PathBuf,
             "--profile",
             FIRMWARE_PROFILE,
             "--target",
-            "thumbv7em-none-eabihf",
+            target,
             "--features",
-            board_feature,
+            features,
             "--target-dir",
         ])
         .arg(target_dir)
@@ -400,13 +438,13 @@ pub fn build_firmware(target_dir: &Path, board_feature: &str) -> Result<PathBuf,
         .map_err(|e| ReplayFileError::Tool(format!("cannot run cargo: {e}")))?;
     if !output.status.success() {
         return Err(ReplayFileError::Tool(format!(
-            "building the firmware ({board_feature}) failed (is the thumbv7em-none-eabihf \
-             target installed? run scripts/setup):\n{}",
+            "building the firmware ({features}) failed (is the {target} target \
+             installed? run scripts/setup):\n{}",
             String::from_utf8_lossy(&output.stderr)
         )));
     }
     Ok(target_dir
-        .join("thumbv7em-none-eabihf")
+        .join(target)
         .join(FIRMWARE_PROFILE)
         .join("dynacal-firmware"))
 }
@@ -582,7 +620,7 @@ pub fn run_replay_with_faults_in_qemu(
     let _part = crate::output::PartialPath::register(Path::new(&part));
     let started = Instant::now();
     let output = Command::new("qemu-system-arm")
-        .args(QEMU_BOARD_ARGS)
+        .args(qemu_board_args(target_of(elf)))
         .arg("-semihosting-config")
         .arg(semihosting)
         .arg("-kernel")

@@ -188,3 +188,40 @@ fn print_spread(spreads: &[dynacal::navsim::CovarianceSpread]) {
         fold(&|s| s.scaled_decades, true)
     );
 }
+
+/// Issue 25's day: the fixed-point filter over 24 h of simulated driving with a 60 s outage
+/// every 300 s meets no overflow or saturation (nor a covariance reset, a failed update or
+/// a restart), and navigates as through the shorter drives (a measurement tool, figures in
+/// BENCHMARKS.md): `cargo test --release -p dynacal-tests --test navsim_scalars --
+/// --ignored --nocapture a_day`.
+#[test]
+#[ignore = "a day of driving: cargo test --release -p dynacal-tests --test navsim_scalars -- --ignored --nocapture a_day"]
+fn a_day_in_fixed_point_meets_no_overflow() {
+    let options = NavSimOptions {
+        seconds: 86_400.0,
+        seed: 1,
+        outage_s: 60.0,
+        scalar: Scalar::Fixed,
+    };
+    let day = run(&three_unit_model(), &options).expect("the day runs");
+    let held = &day.covariance;
+    println!(
+        "a day in fixed point: {} outages; {}; held covariance: largest element {:.3}, \
+         smallest variance {:.3}; physical: {:.2e} to {:.2e} ({:.1} decades); overflow \
+         events {}",
+        day.outages_s.len(),
+        cells(&day),
+        held.held_largest_element,
+        held.held_smallest_variance,
+        held.smallest_variance,
+        held.largest_element,
+        held.decades,
+        day.overflow_events
+    );
+    assert_eq!(day.overflow_events, 0);
+    assert!(held.held_largest_element < 4.0 && held.held_smallest_variance >= 0.25);
+    assert!(
+        day.position_rms_m < 1.0 && day.attitude_rms_deg < 2.0,
+        "{day:?}"
+    );
+}

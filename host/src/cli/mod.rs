@@ -44,7 +44,7 @@ pub enum Command {
     Wv(wv::Args),
     /// Paper Fig. 1 on simulated data: boresight and lever-arm estimates of two IMUs (SVG, JSON).
     Fig1(fig1::Args),
-    /// The board's fusion filter on a simulated drive with GNSS outages, in f64 or f32.
+    /// The board's fusion filter on a simulated drive with GNSS outages, in f64, f32 or fixed point.
     Navsim(navsim::Args),
 }
 

@@ -1,4 +1,4 @@
-//! `dynacal navsim --scalar f64|f32 --seconds S --seed K --outage-s O --json OUT [--model
+//! `dynacal navsim --scalar f64|f32|fixed --seconds S --seed K --outage-s O --json OUT [--model
 //! M.json]`: the board's fusion filter on a simulated car drive with GNSS outages, on the
 //! host in the scalar asked, measured against the truth ([`dynacal::navsim`]).
 

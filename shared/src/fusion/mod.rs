@@ -59,8 +59,16 @@ pub const UNITS: usize = 3;
 pub const FUSED_LANE_ID: u8 = 0xFF;
 /// The fusion's filter in scalar `T`: two extra units' calibrations, 27 states.
 pub type FusionFilter<T> = InsEkf<T, { UNITS - 1 }, 27>;
-/// The board's filter (f32).
-pub type BoardFilter = FusionFilter<f32>;
+/// The scalar of the board's filter: `f32` on a board with an FPU; Q32.32 fixed point with
+/// the `fixed-point` feature, for boards without one (every float operation is a library
+/// call there: `firmware/src/bin/ekf_cost.rs` measures the two on a Cortex-M3).
+#[cfg(not(feature = "fixed-point"))]
+pub type BoardScalar = f32;
+/// The scalar of the board's filter (see the other definition).
+#[cfg(feature = "fixed-point")]
+pub type BoardScalar = crate::fixed::I32F32;
+/// The board's filter.
+pub type BoardFilter = FusionFilter<BoardScalar>;
 
 /// `x` in the filter's scalar.
 fn t<T: FilterScalar>(x: f32) -> T {
@@ -298,7 +306,7 @@ struct Stillness {
 /// The fusion (see the module's note), its filter in scalar `T`: f32 on the board; f64 on
 /// the host, to measure what f32 costs. The monitors, live levels and alignment are f32
 /// either way.
-pub struct BoardFusion<T: FilterScalar = f32> {
+pub struct BoardFusion<T: FilterScalar = BoardScalar> {
     config: FusionConfig,
     /// Board-model alignment of each unit: C_b^k and lever arm (body axes, m).
     model_alignment: [(Matrix3<f32>, Vector3<f32>); UNITS],

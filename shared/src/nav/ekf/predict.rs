@@ -119,7 +119,9 @@ impl<T: FilterScalar> Block3<T> {
                 }
                 Some(y)
             }
-            Block3::Full(m) => Some(product_3x3(m, x, false)),
+            // nalgebra's product for floats (vectorised on the M4F); written out in fixed point.
+            Block3::Full(m) if T::SCALED => Some(product_3x3(m, x, false)),
+            Block3::Full(m) => Some(m * x),
         }
     }
 
@@ -136,7 +138,8 @@ impl<T: FilterScalar> Block3<T> {
                 }
                 Some(y)
             }
-            Block3::Full(m) => Some(product_3x3(x, m, true)),
+            Block3::Full(m) if T::SCALED => Some(product_3x3(x, m, true)),
+            Block3::Full(m) => Some(x * m.transpose()),
         }
     }
 
@@ -162,16 +165,17 @@ impl<T: FilterScalar> Block3<T> {
         match self {
             Block3::Zero => Vector3::zeros(),
             Block3::Diag(d) => d.component_mul(v),
-            Block3::Full(m) => {
+            Block3::Full(m) if T::SCALED => {
                 Vector3::from_fn(|r, _| m[(r, 0)] * v[0] + m[(r, 1)] * v[1] + m[(r, 2)] * v[2])
             }
+            Block3::Full(m) => m * v,
         }
     }
 }
 
-/// `a b` (or `a bᵀ` when `transpose_b`) written out: nalgebra's general product scales each
-/// term by its `alpha` and `beta`, a multiplication by one that costs a fixed-point filter
-/// on a core without an FPU a third of its prediction. The sums run in nalgebra's order.
+/// `a b` (or `a bᵀ` when `transpose_b`) written out, for fixed point: nalgebra's general
+/// product scales each term by its `alpha` and `beta`, a multiplication by one that costs a
+/// fixed-point filter on a core without an FPU a third of its prediction.
 #[inline(always)]
 fn product_3x3<T: FilterScalar>(a: &Matrix3<T>, b: &Matrix3<T>, transpose_b: bool) -> Matrix3<T> {
     let b_at = |k: usize, c: usize| if transpose_b { b[(c, k)] } else { b[(k, c)] };
