@@ -20,6 +20,8 @@
 
 use nalgebra::ComplexField;
 
+use crate::scalar::FilterScalar;
+
 pub mod align;
 pub mod faults;
 
@@ -184,81 +186,132 @@ impl Default for MotionThresholds {
 /// the product (d z_k - d z_l)(d z_k - d z_m) of first differences (which remove the bias
 /// and slow drift) has mean Var(d e_k) = 2 s_k^2 when the errors are independent and white;
 /// it is averaged over the pairs (l, m), the three axes and, exponentially, over time.
+///
+/// Generic over the filter's scalar (`f32` on the board by default, `f64`, or Q32.32 fixed
+/// point). In fixed point the differences are scaled by a power of two of the triad's own
+/// (`2^-scale`, renormalised so the largest weighted product stays in [1/4, 4)): a gyro's
+/// products of 1e-6 (rad/s)² would otherwise hold three digits, and their exponential
+/// update, a thousandth of that, none.
 #[derive(Debug, Clone)]
-pub struct LiveNoise<const N: usize> {
-    previous: Option<[[f32; 3]; N]>,
-    /// Exponentially weighted mean of the products, per unit: 2 s_k^2.
-    weighted: [f32; N],
+pub struct LiveNoise<const N: usize, T: FilterScalar = f32> {
+    previous: Option<[[T; 3]; N]>,
+    /// Exponentially weighted mean of the products, per unit: 2 s_k^2, times `2^(-2 scale)`.
+    weighted: [T; N],
     /// Weight of a new sample, 1 - exp(-dt / time constant).
-    alpha: f32,
+    alpha: T,
     /// Samples seen, for the start-up weight (a plain mean until 1 / alpha samples).
     seen: u32,
-    smoothed_rate_rad_s: f32,
+    smoothed_rate_rad_s: T,
     moving: bool,
-    thresholds: MotionThresholds,
+    moving_rad_s: T,
+    still_rad_s: T,
+    /// The differences' power-of-two scale exponent (0 in floating point).
+    scale: i32,
 }
 
-impl<const N: usize> LiveNoise<N> {
+impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
     /// `sample_interval_s` between sets of samples, `time_constant_s` of the exponential
     /// weighting (a few seconds: Fig. 8's level follows the manoeuvres).
     pub fn new(sample_interval_s: f32, time_constant_s: f32, thresholds: MotionThresholds) -> Self {
         assert!(N >= 3, "a live noise level needs three units or more");
+        let c = |x: f32| nalgebra::convert::<f64, T>(f64::from(x));
         Self {
             previous: None,
-            weighted: [0.0; N],
-            alpha: 1.0 - (-sample_interval_s / time_constant_s).exp(),
+            weighted: [T::zero(); N],
+            alpha: c(1.0 - (-sample_interval_s / time_constant_s).exp()),
             seen: 0,
-            smoothed_rate_rad_s: 0.0,
+            smoothed_rate_rad_s: T::zero(),
             moving: false,
-            thresholds,
+            moving_rad_s: c(thresholds.moving_rad_s),
+            still_rad_s: c(thresholds.still_rad_s),
+            scale: 0,
         }
     }
 
     /// One set of aligned samples (body frame, one triad per unit), and for the motion state
     /// the platform's angular rate (rad/s, e.g. the mean of the units' gyros).
-    pub fn push(&mut self, samples: &[[f32; 3]; N], angular_rate_rad_s: [f32; 3]) {
-        let rate = (angular_rate_rad_s.iter().map(|w| w * w).sum::<f32>()).sqrt();
+    pub fn push(&mut self, samples: &[[T; 3]; N], angular_rate_rad_s: [T; 3]) {
+        let mut rate2 = T::zero();
+        for w in angular_rate_rad_s {
+            rate2 += w * w;
+        }
+        let rate = rate2.sqrt();
         self.smoothed_rate_rad_s += self.alpha * (rate - self.smoothed_rate_rad_s);
-        if self.moving && self.smoothed_rate_rad_s < self.thresholds.still_rad_s {
+        if self.moving && self.smoothed_rate_rad_s < self.still_rad_s {
             self.moving = false;
-        } else if !self.moving && self.smoothed_rate_rad_s > self.thresholds.moving_rad_s {
+        } else if !self.moving && self.smoothed_rate_rad_s > self.moving_rad_s {
             self.moving = true;
         }
         let Some(previous) = self.previous.replace(*samples) else {
             return;
         };
-        let mut delta = [[0.0f32; 3]; N];
+        let mut delta = [[T::zero(); 3]; N];
         for (d, (now, before)) in delta.iter_mut().zip(samples.iter().zip(&previous)) {
             for a in 0..3 {
                 d[a] = now[a] - before[a];
+                if T::SCALED {
+                    d[a] = d[a].mul_pow2(-self.scale);
+                }
             }
         }
         self.seen = self.seen.saturating_add(1);
         // A plain mean until the exponential weight is the smaller: no start-up bias to zero.
-        let weight = self.alpha.max(1.0 / self.seen as f32);
-        let pairs_per_unit = ((N - 1) * (N - 2) / 2) as f32;
+        let weight = self
+            .alpha
+            .max(T::one() / nalgebra::convert::<f64, T>(f64::from(self.seen)));
+        let pairs_per_unit: T = nalgebra::convert(((N - 1) * (N - 2) / 2) as f64);
+        let three: T = nalgebra::convert(3.0);
         for k in 0..N {
-            let mut sum = 0.0;
+            let mut sum = T::zero();
             for l in 0..N {
                 for m in l + 1..N {
                     if l == k || m == k {
                         continue;
                     }
-                    sum += (0..3)
-                        .map(|a| (delta[k][a] - delta[l][a]) * (delta[k][a] - delta[m][a]))
-                        .sum::<f32>();
+                    let mut axes = T::zero();
+                    for ((dk, dl), dm) in delta[k].iter().zip(&delta[l]).zip(&delta[m]) {
+                        axes += (*dk - *dl) * (*dk - *dm);
+                    }
+                    sum += axes;
                 }
             }
-            let product = sum / (3.0 * pairs_per_unit);
+            let product = sum / (three * pairs_per_unit);
             self.weighted[k] += weight * (product - self.weighted[k]);
         }
+        if T::SCALED {
+            self.renormalise();
+        }
+    }
+
+    /// Moves the differences' scale so the largest weighted product lies in [1/4, 4) (each
+    /// step halves or doubles the differences, so the products move by four).
+    fn renormalise(&mut self) {
+        let largest = self.weighted.iter().fold(T::zero(), |m, w| m.max(w.abs()));
+        let Some(k) = largest.exponent() else {
+            return;
+        };
+        // A product in [2^k, 2^(k+1)) times 2^(-2d) lies in [1/2, 2) for d = (k + 1) div 2.
+        if (-2..=1).contains(&k) {
+            return;
+        }
+        let d = (k + 1).div_euclid(2);
+        for w in &mut self.weighted {
+            *w = w.mul_pow2(-2 * d);
+        }
+        self.scale += d;
     }
 
     /// Unit k's own white-noise standard deviation per sample (sensor unit), 0 before two
     /// sets of samples; a negative weighted product (possible over a short window when the
     /// unit is much quieter than the others) reads 0.
-    pub fn sigma(&self, unit: usize) -> f32 {
-        (self.weighted[unit] / 2.0).max(0.0).sqrt()
+    pub fn sigma(&self, unit: usize) -> T {
+        let two: T = nalgebra::convert(2.0);
+        let sigma = (self.weighted[unit] / two).max(T::zero()).sqrt();
+        if T::SCALED {
+            sigma.mul_pow2(self.scale)
+        } else {
+            sigma
+        }
     }
 
     /// Whether the platform is moving (with hysteresis, see [`MotionThresholds`]).
@@ -395,6 +448,36 @@ mod tests {
         }
         // A residual around the mean would have given unit 0 sqrt((4 + 4 + 16) / 9) = 1.6
         // times its own level.
+    }
+
+    #[test]
+    fn the_live_level_in_fixed_point_is_the_one_in_floating_point() {
+        use crate::fixed::I32F32;
+        // GIVEN three gyros of 1, 2 and 4 mrad/s per sample on a common motion (a quiet
+        // triad: its products, 1e-6 (rad/s)², are 4 300 units of Q32.32)
+        let mut rng = ChaCha8Rng::seed_from_u64(29);
+        let sd = [0.001f32, 0.002, 0.004];
+        let mut single = LiveNoise::<3>::new(0.005, 5.0, MotionThresholds::default());
+        let mut fixed = LiveNoise::<3, I32F32>::new(0.005, 5.0, MotionThresholds::default());
+        let before = crate::fixed::overflows();
+        let to_fixed = |v: [f32; 3]| v.map(|x| I32F32::from_f64(f64::from(x)));
+        // WHEN both estimate the units' levels from the same samples
+        for t in 0..20_000 {
+            let set = three_units(&mut rng, t, sd);
+            let rate = [0.0, 0.0, 0.1];
+            single.push(&set, rate);
+            fixed.push(&set.map(to_fixed), to_fixed(rate));
+        }
+        // THEN the fixed-point levels are the f32 ones to 0.1% (the samples' own rounding to
+        // 2^-32 rad/s), each near the unit's truth, and nothing overflowed
+        for (k, truth) in sd.iter().enumerate() {
+            let (a, b) = (f64::from(single.sigma(k)), fixed.sigma(k).to_f64());
+            println!("unit {k}: f32 {a:.6e}, fixed {b:.6e}, truth {truth}");
+            assert!((b / a - 1.0).abs() < 1e-3, "unit {k}: f32 {a}, fixed {b}");
+            assert!((b / f64::from(*truth) - 1.0).abs() < 0.15, "unit {k}: {b}");
+        }
+        assert!(fixed.moving() && single.moving());
+        assert_eq!(crate::fixed::overflows(), before);
     }
 
     #[test]
