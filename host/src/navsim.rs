@@ -118,9 +118,16 @@ pub struct NavSimReport {
     /// Mean NEES of position, velocity and attitude (9 states), every [`NEES_EVERY_S`].
     pub nees_mean: f64,
     /// Two-sided 95% bounds of that mean for a consistent filter (chi-square with 9 x
-    /// samples degrees of freedom, over the samples).
+    /// samples degrees of freedom, over the samples), taking the samples as independent.
     pub nees_bounds: [f64; 2],
     pub nees_samples: u64,
+    /// The samples' worth as independent ones, from their autocorrelation
+    /// ([`effective_samples`]): errors [`NEES_EVERY_S`] apart are not independent (an
+    /// outage's drift lasts tens of seconds).
+    pub nees_effective_samples: f64,
+    /// The bounds of [`Self::nees_bounds`] for that many independent samples: what a
+    /// consistent filter's mean falls inside 95% of the time.
+    pub nees_bounds_correlated: [f64; 2],
     /// How far apart the covariance's numbers lay over the run (every [`NEES_EVERY_S`]).
     pub covariance: CovarianceSpread,
     /// Numbers the filter found out of its scalar's range or invalid (non-finite or
@@ -348,7 +355,7 @@ fn run_with<T: FilterScalar>(
     let nees_every = (NEES_EVERY_S * rate_hz).round() as u64;
     let (mut with_gnss, mut in_outage, mut attitude) =
         (Rms::default(), Rms::default(), Rms::default());
-    let (mut nees_sum, mut nees_samples) = (0.0, 0u64);
+    let mut nees_series = Vec::new();
     let mut aligned_after_s = None;
     let mut spread = SpreadGatherer::new();
     let fixed_overflows_before = dynacal_core::fixed::overflows();
@@ -382,8 +389,7 @@ fn run_with<T: FilterScalar>(
         if k % nees_every == 0 {
             spread.add(filter);
             if let Some(nees) = error.nees(filter) {
-                nees_sum += nees;
-                nees_samples += 1;
+                nees_series.push(nees);
             }
         }
     }
@@ -399,21 +405,57 @@ fn run_with<T: FilterScalar>(
         position_rms_m: with_gnss.value(),
         position_rms_outage_m: in_outage.value(),
         attitude_rms_deg: attitude.value(),
-        nees_mean: nees_sum / nees_samples.max(1) as f64,
-        nees_bounds: nees_bounds(nees_samples),
-        nees_samples,
+        nees_mean: nees_series.iter().sum::<f64>() / nees_series.len().max(1) as f64,
+        nees_bounds: nees_bounds(nees_series.len() as f64),
+        nees_samples: nees_series.len() as u64,
+        nees_effective_samples: effective_samples(&nees_series),
+        nees_bounds_correlated: nees_bounds(effective_samples(&nees_series)),
         covariance: spread.spread(),
         overflow_events: overflow_events(&fusion)
             + (dynacal_core::fixed::overflows() - fixed_overflows_before),
     })
 }
 
-/// Two-sided 95% bounds of the mean of `samples` NEES values of a consistent filter.
-pub fn nees_bounds(samples: u64) -> [f64; 2] {
-    let dof = (NEES_STATES as u64 * samples.max(1)) as f64;
-    let chi2 = ChiSquared::new(dof).expect("positive degrees of freedom");
-    let m = samples.max(1) as f64;
+/// Two-sided 95% bounds of the mean of `samples` independent NEES values of a consistent
+/// filter (chi-square with 9 x samples degrees of freedom over the samples; a fractional
+/// count, as [`effective_samples`] gives, is allowed).
+pub fn nees_bounds(samples: f64) -> [f64; 2] {
+    let m = samples.max(1.0);
+    let chi2 = ChiSquared::new(NEES_STATES as f64 * m).expect("positive degrees of freedom");
     [chi2.inverse_cdf(0.025) / m, chi2.inverse_cdf(0.975) / m]
+}
+
+/// How many independent samples a series' mean is worth: `n / (1 + 2 Σ ρ_k)`, the
+/// autocorrelations `ρ_k` summed until the first that is not positive (the initial positive
+/// sequence; Geyer 1992). Between 1 and `n`.
+pub fn effective_samples(series: &[f64]) -> f64 {
+    let n = series.len();
+    if n < 3 {
+        return n.max(1) as f64;
+    }
+    let mean = series.iter().sum::<f64>() / n as f64;
+    let centred: Vec<f64> = series.iter().map(|x| x - mean).collect();
+    let lag = |k: usize| -> f64 {
+        centred[..n - k]
+            .iter()
+            .zip(&centred[k..])
+            .map(|(a, b)| a * b)
+            .sum::<f64>()
+            / n as f64
+    };
+    let variance = lag(0);
+    if variance <= 0.0 {
+        return n as f64;
+    }
+    let mut tau = 1.0;
+    for k in 1..n / 2 {
+        let rho = lag(k) / variance;
+        if rho <= 0.0 {
+            break;
+        }
+        tau += 2.0 * rho;
+    }
+    (n as f64 / tau).clamp(1.0, n as f64)
 }
 
 /// The filter's count of numbers out of range or invalid, and its restarts.
@@ -515,10 +557,37 @@ mod tests {
 
     #[test]
     fn nees_bounds_narrow_around_the_dimension() {
-        let [low, high] = nees_bounds(1);
+        let [low, high] = nees_bounds(1.0);
         // chi-square with 9 degrees of freedom: 2.70 and 19.02.
         assert!((low - 2.700).abs() < 1e-3 && (high - 19.023).abs() < 1e-3);
-        let [low, high] = nees_bounds(1000);
+        let [low, high] = nees_bounds(1000.0);
         assert!(low > 8.7 && high < 9.3 && low < 9.0 && high > 9.0);
+    }
+
+    #[test]
+    fn effective_samples_count_independent_and_correlated_series() {
+        use rand::SeedableRng;
+        use rand_distr::{Distribution, StandardNormal};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
+        let n = 4000;
+        let white: Vec<f64> = (0..n).map(|_| StandardNormal.sample(&mut rng)).collect();
+        let independent = effective_samples(&white);
+        assert!(independent > 0.8 * n as f64, "{independent}");
+        // AR(1) with phi = 0.8: n (1 - phi) / (1 + phi) = n / 9.
+        let mut x = 0.0;
+        let ar: Vec<f64> = white
+            .iter()
+            .map(|e| {
+                x = 0.8 * x + e;
+                x
+            })
+            .collect();
+        let correlated = effective_samples(&ar);
+        let expected = n as f64 / 9.0;
+        assert!(
+            (correlated / expected - 1.0).abs() < 0.35,
+            "{correlated} against {expected}"
+        );
+        assert_eq!(effective_samples(&[1.0, 1.0, 1.0]), 3.0);
     }
 }

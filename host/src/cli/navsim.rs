@@ -64,7 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     dynacal::output::write_json_atomic(&args.json, &report)
         .with_context(|| format!("writing {}", args.json.display()))?;
     println!(
-        "{}: position RMS {:.3} m with GNSS, {:.3} m in outages; attitude RMS {:.3} deg; NEES {:.2} in [{:.2}, {:.2}]; {} overflow events",
+        "{}: position RMS {:.3} m with GNSS, {:.3} m in outages; attitude RMS {:.3} deg; NEES {:.2} in [{:.2}, {:.2}] (independent samples), [{:.2}, {:.2}] (the {:.1} its {} samples are worth); {} overflow events",
         args.scalar.name(),
         report.position_rms_m,
         report.position_rms_outage_m,
@@ -72,6 +72,10 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         report.nees_mean,
         report.nees_bounds[0],
         report.nees_bounds[1],
+        report.nees_bounds_correlated[0],
+        report.nees_bounds_correlated[1],
+        report.nees_effective_samples,
+        report.nees_samples,
         report.overflow_events
     );
     super::wrote(&[&args.json]);
