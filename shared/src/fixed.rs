@@ -10,8 +10,9 @@
 //! in). `is_finite` reports the non-finite values, so the filter's existing checks
 //! (`s.is_finite()`, the covariance-diagonal test) refuse a saturated result as they refuse
 //! a float's overflow. Addition, subtraction and multiplication do not carry them on as IEEE
-//! infinities do (that check would cost the operations a third of their time on a 32-bit
-//! core): an infinite operand enters them as its raw extreme. The filter therefore also
+//! infinities do (that would take two more 64-bit range tests in each, the filter's
+//! commonest operations, on a 32-bit core): an infinite operand enters them as its raw
+//! extreme. The filter therefore also
 //! reads the count around each of its steps ([`crate::scalar::FilterScalar::overflows`])
 //! and treats a step that overflowed as a numerical fault. Division, the square root and
 //! the functions through `f64` do propagate them. The count is per thread on the host
