@@ -465,17 +465,7 @@ fn overflow_events<T: FilterScalar>(fusion: &BoardFusion<T>) -> u64 {
         return restarts;
     };
     let stats = filter.ekf.stats();
-    let faults: u32 = [
-        stats.gnss_position,
-        stats.gnss_velocity,
-        stats.zero_velocity,
-        stats.inter_imu_rate,
-        stats.inter_imu_force,
-    ]
-    .iter()
-    .map(|c| c.numerical_faults)
-    .sum();
-    restarts + u64::from(faults) + u64::from(stats.covariance_resets)
+    restarts + u64::from(stats.numerical_faults()) + u64::from(stats.covariance_resets)
 }
 
 /// A filter value in f64.

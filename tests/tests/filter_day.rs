@@ -228,16 +228,7 @@ fn run_day(seconds: f64, outages: Vec<[f64; 2]>, seed: u64) -> DayFigures {
     if let Some(filter) = fusion.filter() {
         let stats = filter.ekf.stats();
         figures.covariance_resets = stats.covariance_resets;
-        figures.numerical_faults = [
-            stats.gnss_position,
-            stats.gnss_velocity,
-            stats.zero_velocity,
-            stats.inter_imu_rate,
-            stats.inter_imu_force,
-        ]
-        .iter()
-        .map(|c| c.numerical_faults)
-        .sum();
+        figures.numerical_faults = stats.numerical_faults();
     }
     figures.restarts = fusion.counts().restarts;
     figures.gnss_resets = fusion.counts().gnss_resets;

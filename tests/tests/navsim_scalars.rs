@@ -3,7 +3,9 @@
 //! single-precision and the fixed-point filters navigate as the double-precision one does,
 //! and none meets a number out of its range.
 
-use dynacal::navsim::{run, three_unit_model, NavSimOptions, NavSimReport, Scalar};
+use dynacal::navsim::{
+    run, three_unit_model, CovarianceSpread, NavSimOptions, NavSimReport, Scalar,
+};
 
 fn navigate(scalar: Scalar, seed: u64) -> NavSimReport {
     let options = NavSimOptions {
@@ -123,22 +125,7 @@ fn twenty_seeds_in_each_scalar() {
             worst[0], worst[1], inside, inside_correlated
         );
         print_spread(&spreads);
-        let fold = |f: &dyn Fn(&dynacal::navsim::CovarianceSpread) -> f64, max: bool| {
-            held.iter().map(f).fold(
-                if max {
-                    f64::NEG_INFINITY
-                } else {
-                    f64::INFINITY
-                },
-                |a, b| {
-                    if max {
-                        a.max(b)
-                    } else {
-                        a.min(b)
-                    }
-                },
-            )
-        };
+        let fold = |f: &dyn Fn(&CovarianceSpread) -> f64, max: bool| extreme(&held, f, max);
         println!(
             "  held by the fixed-point filter (scaled by each state's power of two): largest element {:.3}, smallest variance {:.3}, {:.2} decades",
             fold(&|s| s.held_largest_element, true),
@@ -148,26 +135,25 @@ fn twenty_seeds_in_each_scalar() {
     }
 }
 
+/// The largest (`max`) or smallest of a figure over runs' covariance spreads.
+fn extreme(
+    spreads: &[CovarianceSpread],
+    figure: &dyn Fn(&CovarianceSpread) -> f64,
+    max: bool,
+) -> f64 {
+    let values = spreads.iter().map(figure);
+    if max {
+        values.fold(f64::NEG_INFINITY, f64::max)
+    } else {
+        values.fold(f64::INFINITY, f64::min)
+    }
+}
+
 /// The covariance's numbers over every run (f64): each group's variances, and the decades
 /// a fixed-point format would have to span, as the filter holds the covariance and scaled by
 /// the sigmas it started with.
-fn print_spread(spreads: &[dynacal::navsim::CovarianceSpread]) {
-    let fold = |f: &dyn Fn(&dynacal::navsim::CovarianceSpread) -> f64, max: bool| {
-        spreads.iter().map(f).fold(
-            if max {
-                f64::NEG_INFINITY
-            } else {
-                f64::INFINITY
-            },
-            |a, b| {
-                if max {
-                    a.max(b)
-                } else {
-                    a.min(b)
-                }
-            },
-        )
-    };
+fn print_spread(spreads: &[CovarianceSpread]) {
+    let fold = |f: &dyn Fn(&CovarianceSpread) -> f64, max: bool| extreme(spreads, f, max);
     for (k, (name, _)) in spreads[0].variances.iter().enumerate() {
         println!(
             "  {name}: {:.2e} to {:.2e}",

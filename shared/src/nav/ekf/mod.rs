@@ -227,6 +227,23 @@ pub struct FusionStats {
     pub covariance_resets: u32,
 }
 
+impl FusionStats {
+    /// Scalar updates refused for numerical reasons, over every kind of measurement.
+    pub fn numerical_faults(&self) -> u32 {
+        [
+            self.gnss_position,
+            self.gnss_velocity,
+            self.zero_velocity,
+            self.inter_imu_rate,
+            self.inter_imu_force,
+            self.attitude,
+        ]
+        .iter()
+        .map(|c| c.numerical_faults)
+        .fold(0, u32::saturating_add)
+    }
+}
+
 /// What happened to a batch of scalar updates (one measurement vector).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct BatchOutcome {
