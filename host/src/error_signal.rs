@@ -46,6 +46,19 @@ pub const DYNAMICS_COLUMNS: [&str; 15] = [
     "a_dot_z_m_s3",
 ];
 
+/// The error of a file at `path` that has none of [`ERROR_COLUMNS`].
+pub(crate) fn no_error_column(path: &Path) -> TableError {
+    TableError::Csv {
+        path: path.to_path_buf(),
+        line: 1,
+        message: format!(
+            "no error column ({} .. {}): not an error-signal file of `dynacal errors`",
+            ERROR_COLUMNS[0],
+            ERROR_COLUMNS[ERROR_COLUMNS.len() - 1]
+        ),
+    }
+}
+
 /// Sensor errors with the dynamics they occurred under, column by column.
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ErrorSignals {
@@ -141,15 +154,7 @@ impl ErrorSignals {
         check_time_increasing_at(path, &t_s, table.row_lines)?;
         let errors = ERROR_COLUMNS.map(|c| table.column(c).map(<[f64]>::to_vec));
         if errors.iter().all(Option::is_none) {
-            return Err(TableError::Csv {
-                path: path.to_path_buf(),
-                line: 1,
-                message: format!(
-                    "no error column ({} .. {}): not an error-signal file of `dynacal errors`",
-                    ERROR_COLUMNS[0],
-                    ERROR_COLUMNS[ERROR_COLUMNS.len() - 1]
-                ),
-            });
+            return Err(no_error_column(path));
         }
         let mut dynamics: [Vec<f64>; 15] = Default::default();
         for (slot, name) in dynamics.iter_mut().zip(DYNAMICS_COLUMNS) {

@@ -265,6 +265,116 @@ pub fn csv_reader<R: Read>(reader: R, comments: bool) -> csv::Reader<R> {
         .from_reader(reader)
 }
 
+/// Where a row is in its file: a CSV's 1-based line (the header being line 1), or a Parquet
+/// file's 1-based data row.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum RowPlace {
+    Line(u64),
+    Row(u64),
+}
+
+impl std::fmt::Display for RowPlace {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::Line(line) => write!(f, "line {line}"),
+            Self::Row(row) => write!(f, "row {row}"),
+        }
+    }
+}
+
+/// Reads a numeric table (CSV, CSV.gz or Parquet) that must have all of `columns` (others
+/// are ignored), giving `row` each data row's place and values in `columns` order, one row
+/// at a time, in memory that does not grow with the file. Every field must be a finite
+/// number, and a `t_s` among the columns must strictly increase. Errors name the file and
+/// the line (CSV) or row (Parquet); a table without data rows is an error.
+pub fn for_each_row<E: From<TableError>>(
+    path: &Path,
+    columns: &[&str],
+    mut row: impl FnMut(RowPlace, &[f64]) -> Result<(), E>,
+) -> Result<(), E> {
+    let time = columns.iter().position(|c| *c == "t_s");
+    let mut previous_t_s: Option<f64> = None;
+    let mut check_time = |place: RowPlace, values: &[f64]| -> Result<(), TableError> {
+        let Some(k) = time else { return Ok(()) };
+        let t_s = values[k];
+        if let Some(previous_t_s) = previous_t_s.filter(|p| !(t_s > *p)) {
+            let path = path.to_path_buf();
+            return Err(match place {
+                RowPlace::Line(line) => TableError::TimeNotIncreasing {
+                    path,
+                    line,
+                    t_s,
+                    previous_t_s,
+                },
+                RowPlace::Row(sample) => TableError::TimeNotIncreasingAtSample {
+                    path,
+                    sample,
+                    t_s,
+                    previous_t_s,
+                },
+            });
+        }
+        previous_t_s = Some(t_s);
+        Ok(())
+    };
+    let mut values = vec![0.0; columns.len()];
+    let mut any_row = false;
+    if parquet::is_parquet(path) {
+        let mut reader = parquet::ParquetColumns::open(path, Some(columns))?;
+        let order = column_order(path, reader.headers(), columns)?;
+        while let Some(block) = reader.next_block()? {
+            let rows = block.columns.first().map_or(0, Vec::len);
+            for k in 0..rows {
+                for (value, &i) in values.iter_mut().zip(&order) {
+                    *value = block.columns[i][k];
+                }
+                let place = RowPlace::Row(block.first_row + k as u64);
+                check_time(place, &values)?;
+                any_row = true;
+                row(place, &values)?;
+            }
+        }
+    } else {
+        let mut rows = TableRows::open(path, Some(columns))?;
+        let order = column_order(path, rows.headers(), columns)?;
+        while let Some((line, parsed)) = rows.next_row()? {
+            for (value, &i) in values.iter_mut().zip(&order) {
+                *value = parsed[i];
+            }
+            check_time(RowPlace::Line(line), &values)?;
+            any_row = true;
+            row(RowPlace::Line(line), &values)?;
+        }
+    }
+    if !any_row {
+        return Err(TableError::Empty {
+            path: path.to_path_buf(),
+        }
+        .into());
+    }
+    Ok(())
+}
+
+/// Where each of `columns` is among a reader's `headers`, or the first one missing.
+fn column_order(
+    path: &Path,
+    headers: &[String],
+    columns: &[&str],
+) -> Result<Vec<usize>, TableError> {
+    columns
+        .iter()
+        .map(|name| {
+            headers
+                .iter()
+                .position(|h| h == name)
+                .ok_or_else(|| TableError::MissingColumn {
+                    path: path.to_path_buf(),
+                    column: (*name).to_string(),
+                })
+        })
+        .collect()
+}
+
 /// A numeric CSV (or CSV.gz) read one row at a time, with [`read_table`]'s rules: `#` lines
 /// skipped, fields trimmed, only the wanted columns parsed, each a finite number, every error
 /// naming the file and line. What a reader whose memory must not grow with the file uses.

@@ -1,14 +1,14 @@
 //! `dynacal regress ERRORS.csv`: the paper's Tables II and III. Regresses each error channel
-//! on the 15 dynamics quantities with backward elimination and prints the table.
+//! on the 15 dynamics quantities with backward elimination and prints the table. The file is
+//! streamed ([`dynacal::regress::stream`]): memory does not grow with its length.
 
 use std::path::PathBuf;
 
 use anyhow::Context;
-use dynacal::error_signal::ErrorSignals;
+use dynacal::error_signal::ERROR_COLUMNS;
 use dynacal::interchange::CHANNELS;
-use dynacal::regress::{
-    backward_elimination, Inference, RegressionOptions, RegressionReport, DYNAMICS_REGRESSORS,
-};
+use dynacal::regress::stream::regress_file;
+use dynacal::regress::{Inference, RegressionOptions, RegressionReport, DYNAMICS_REGRESSORS};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -37,7 +37,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         "--alpha must lie in (0, 1), got {}",
         args.alpha
     );
-    let sig = ErrorSignals::read(&args.errors)?;
     let opts = RegressionOptions {
         alpha: args.alpha,
         inference: if args.inference == "classical" {
@@ -50,28 +49,19 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         },
         intercept: true,
     };
-    let regs = sig.regressors();
-    let mut reports: Vec<(&str, RegressionReport)> = Vec::new();
     let bar = super::working(&format!("regressing {}", args.errors.display()));
-    for ch in CHANNELS {
-        if let Some(y) = sig.error(ch) {
-            bar.set_message(format!(
-                "regressing {}: channel {ch}",
-                args.errors.display()
-            ));
-            let rep = backward_elimination(y, &regs, &opts)
-                .with_context(|| format!("{}: channel {ch}", args.errors.display()));
-            let rep = match rep {
-                Ok(rep) => rep,
-                Err(e) => {
-                    bar.finish_and_clear();
-                    return Err(e);
-                }
-            };
-            reports.push((ch, rep));
-        }
-    }
+    let outcomes = regress_file(&args.errors, &opts);
     bar.finish_and_clear();
+    let mut reports: Vec<(&str, RegressionReport)> = Vec::new();
+    for (column, outcome) in outcomes? {
+        let k = ERROR_COLUMNS
+            .iter()
+            .position(|c| *c == column)
+            .expect("an error column");
+        let report = outcome
+            .with_context(|| format!("{}: channel {}", args.errors.display(), CHANNELS[k]))?;
+        reports.push((CHANNELS[k], report));
+    }
     print!("{}", format_table(&reports));
     if let Some(out) = &args.json {
         let map: serde_json::Map<String, serde_json::Value> = reports

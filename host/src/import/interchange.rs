@@ -9,11 +9,11 @@
 use std::path::Path;
 
 use super::rows::{SensorLayout, SensorRows};
-use super::{for_each_column_row, ImportError};
-use crate::interchange::parquet::{self, ParquetColumns};
+use super::ImportError;
+use crate::interchange::parquet;
 use crate::interchange::{
-    check_lat_lon, check_stated_rate, interchange_columns, is_interchange_column, read_stated_rate,
-    TableError, TableRows,
+    check_lat_lon, check_stated_rate, for_each_row, interchange_columns, is_interchange_column,
+    read_stated_rate, TableError, TableRows,
 };
 
 /// Steps of time the stated rate is checked on: the median step over them must agree with
@@ -58,21 +58,10 @@ pub(crate) fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), Impor
         rate_hz: stated.as_ref().map(|(_, rate)| *rate),
     }])?;
     let mut checks = RowChecks::new(path, &columns);
-    if parquet::is_parquet(path) {
-        let reader = ParquetColumns::open(path, Some(&columns))?;
-        stream_parquet(path, reader, &columns, &mut checks, sink)?;
-    } else {
-        for_each_column_row(path, &columns, |_, row| {
-            checks.check(row)?;
-            sink.push(0, row)
-        })?;
-    }
-    if checks.first_t_s.is_empty() {
-        return Err(TableError::Empty {
-            path: path.to_path_buf(),
-        }
-        .into());
-    }
+    for_each_row(path, &columns, |_, row| -> Result<(), ImportError> {
+        checks.check(row)?;
+        sink.push(0, row)
+    })?;
     if let Some((place, stated_hz)) = stated {
         check_stated_rate(path, place, stated_hz, &checks.first_t_s)?;
     }
@@ -108,44 +97,6 @@ impl<'a> RowChecks<'a> {
             None => Ok(()),
         }
     }
-}
-
-/// The rows of a Parquet recording, `t_s` strictly increasing (errors name the row).
-fn stream_parquet(
-    path: &Path,
-    mut reader: ParquetColumns,
-    columns: &[&str],
-    checks: &mut RowChecks<'_>,
-    sink: &mut dyn SensorRows,
-) -> Result<(), ImportError> {
-    let order: Vec<usize> = columns
-        .iter()
-        .filter_map(|name| reader.headers().iter().position(|h| h == name))
-        .collect();
-    let mut row = vec![0.0; columns.len()];
-    let mut previous_t_s: Option<f64> = None;
-    while let Some(block) = reader.next_block()? {
-        let rows = block.columns.first().map_or(0, Vec::len);
-        for k in 0..rows {
-            for (value, &i) in row.iter_mut().zip(&order) {
-                *value = block.columns[i][k];
-            }
-            let t_s = row[0];
-            if let Some(previous_t_s) = previous_t_s.filter(|p| !(t_s > *p)) {
-                return Err(TableError::TimeNotIncreasingAtSample {
-                    path: path.to_path_buf(),
-                    sample: block.first_row + k as u64,
-                    t_s,
-                    previous_t_s,
-                }
-                .into());
-            }
-            previous_t_s = Some(t_s);
-            checks.check(&row)?;
-            sink.push(0, &row)?;
-        }
-    }
-    Ok(())
 }
 
 #[cfg(test)]

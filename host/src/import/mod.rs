@@ -26,8 +26,7 @@ use std::io::{BufRead, Read as _};
 use std::path::{Path, PathBuf};
 
 use crate::interchange::{
-    open_maybe_gz, FileFormat, ImuRecording, RowWriter, TableError, TableRows, CHANNELS,
-    CHANNEL_COLUMNS,
+    open_maybe_gz, FileFormat, ImuRecording, RowWriter, TableError, CHANNELS, CHANNEL_COLUMNS,
 };
 use crate::output::FileSet;
 use rows::{CheckUnits, Collect, Named, SensorLayout, SensorRows};
@@ -537,57 +536,18 @@ pub(crate) fn for_each_csv_row(
 }
 
 /// Reads a numeric CSV that must have all of `columns` (others are ignored), giving `row`
-/// each data row's 1-based line and values in `columns` order, one row at a time. A `t_s`
-/// among them must strictly increase. Errors name the file and line; no row is an error.
+/// each data row's 1-based line and values in `columns` order, one row at a time
+/// ([`crate::interchange::for_each_row`]'s checks). The importers that use it read text.
 pub(crate) fn for_each_column_row(
     path: &Path,
     columns: &[&str],
     mut row: impl FnMut(u64, &[f64]) -> Result<(), ImportError>,
 ) -> Result<(), ImportError> {
-    let mut rows = TableRows::open(path, Some(columns))?;
-    let order = columns
-        .iter()
-        .map(|name| {
-            rows.headers()
-                .iter()
-                .position(|h| h == name)
-                .ok_or_else(|| TableError::MissingColumn {
-                    path: path.to_path_buf(),
-                    column: (*name).to_string(),
-                })
-        })
-        .collect::<Result<Vec<usize>, _>>()?;
-    let time = columns.iter().position(|c| *c == "t_s");
-    let mut values = vec![0.0; columns.len()];
-    let mut previous_t_s: Option<f64> = None;
-    let mut any_row = false;
-    while let Some((line, parsed)) = rows.next_row()? {
-        any_row = true;
-        for (value, &i) in values.iter_mut().zip(&order) {
-            *value = parsed[i];
+    crate::interchange::for_each_row(path, columns, |place, values| match place {
+        crate::interchange::RowPlace::Line(line) | crate::interchange::RowPlace::Row(line) => {
+            row(line, values)
         }
-        if let Some(k) = time {
-            let t_s = values[k];
-            if let Some(previous_t_s) = previous_t_s.filter(|p| !(t_s > *p)) {
-                return Err(TableError::TimeNotIncreasing {
-                    path: path.to_path_buf(),
-                    line,
-                    t_s,
-                    previous_t_s,
-                }
-                .into());
-            }
-            previous_t_s = Some(t_s);
-        }
-        row(line, &values)?;
-    }
-    if !any_row {
-        return Err(TableError::Empty {
-            path: path.to_path_buf(),
-        }
-        .into());
-    }
-    Ok(())
+    })
 }
 
 #[cfg(test)]

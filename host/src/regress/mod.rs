@@ -26,6 +26,8 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use statrs::distribution::{ChiSquared, ContinuousCDF, FisherSnedecor, Normal, StudentsT};
 
+pub mod stream;
+
 /// Names of the 15 dynamics regressors of paper eq. 13, in the paper's order: body angular
 /// rate (rad/s), angular acceleration (rad/s^2), angular jerk (rad/s^3), linear acceleration
 /// (m/s^2, specific force plus gravity, body frame) and linear jerk (m/s^3).
@@ -225,32 +227,38 @@ pub fn backward_elimination(
             });
         }
     }
-    let mut active: Vec<usize> = (0..regressors.len())
-        .filter(|&k| regressors[k].1.iter().any(|&v| v != regressors[k].1[0]))
-        .collect();
-    // Constant columns are collinear with the intercept: they are dropped up front.
+    let mut active =
+        varying_regressors(regressors.iter().map(|(_, x)| x.iter().any(|&v| v != x[0])));
     let mut eliminated: Vec<String> = (0..regressors.len())
         .filter(|k| !active.contains(k))
         .map(|k| regressors[k].0.to_string())
         .collect();
     loop {
         let fit = fit_ols(y, regressors, &active, opts)?;
-        let offset = usize::from(opts.intercept);
-        let worst = (0..active.len())
-            .map(|i| (i, fit.p_values[i + offset]))
-            .filter(|(_, p)| !(*p <= opts.alpha))
-            .max_by(|a, b| a.1.total_cmp(&b.1));
-        match worst {
-            Some((i, _)) => {
+        match fit.least_significant(opts) {
+            Some(i) => {
                 eliminated.push(regressors[active[i]].0.to_string());
                 active.remove(i);
             }
-            None => return Ok(fit.into_report(regressors, &active, opts, eliminated)),
+            None => {
+                let names: Vec<&str> = regressors.iter().map(|(name, _)| *name).collect();
+                return Ok(fit.into_report(&names, &active, opts, eliminated));
+            }
         }
     }
 }
 
-struct OlsFit {
+/// The regressors (indices into `regressors`) backward elimination starts from: those that
+/// vary, given each column's first value and whether any later value differs. A constant
+/// column is collinear with the intercept and is dropped up front.
+pub(crate) fn varying_regressors(varies: impl Iterator<Item = bool>) -> Vec<usize> {
+    varies
+        .enumerate()
+        .filter_map(|(k, v)| v.then_some(k))
+        .collect()
+}
+
+pub(crate) struct OlsFit {
     beta: DVector<f64>,
     cov: DMatrix<f64>,
     p_values: Vec<f64>,
@@ -298,30 +306,12 @@ fn fit_ols(
     }
     let x = design(regressors, active, opts.intercept, n);
     let yv = DVector::from_column_slice(y);
-    // Column scaling keeps X'X well conditioned when regressors differ by orders of
-    // magnitude (rates ~1 rad/s, jerks ~100 m/s^3).
-    let scale: Vec<f64> = (0..p)
-        .map(|j| {
-            let norm = x.column(j).norm();
-            if norm > 0.0 {
-                norm
-            } else {
-                1.0
-            }
-        })
-        .collect();
+    let scale: Vec<f64> = (0..p).map(|j| column_scale(x.column(j).norm())).collect();
     let mut xs = x.clone();
     for (j, s) in scale.iter().enumerate() {
         xs.column_mut(j).scale_mut(1.0 / s);
     }
-    let xtx = xs.tr_mul(&xs);
-    let xtx_inv = xtx
-        .clone()
-        .cholesky()
-        .map(|c| c.inverse())
-        .or_else(|| xtx.clone().pseudo_inverse(1e-12).ok())
-        .unwrap_or_else(|| DMatrix::zeros(p, p));
-    let beta_s = &xtx_inv * xs.tr_mul(&yv);
+    let (xtx_inv, beta_s) = solve_scaled(&xs.tr_mul(&xs), &xs.tr_mul(&yv));
     let fitted = &xs * &beta_s;
     let resid: Vec<f64> = (0..n).map(|i| y[i] - fitted[i]).collect();
     let sse: f64 = resid.iter().map(|e| e * e).sum();
@@ -331,105 +321,199 @@ fn fit_ols(
     } else {
         y.iter().map(|v| v * v).sum()
     };
-    let df_resid = (n - p) as f64;
-    let sigma2 = sse / df_resid;
-    let r2 = if sst > 0.0 { 1.0 - sse / sst } else { 0.0 };
-    let df_model = active.len();
-    let adj_r2 = if opts.intercept {
-        1.0 - (1.0 - r2) * (n as f64 - 1.0) / df_resid
-    } else {
-        1.0 - (1.0 - r2) * n as f64 / df_resid
+    let hac = match opts.inference {
+        Inference::Classical => None,
+        Inference::NeweyWest { lag, prewhite } => Some(hac_long_run_covariance(
+            &scores(&xs, &resid),
+            &bandwidth_weights(p, opts.intercept),
+            lag,
+            prewhite,
+        )),
     };
-
-    let (cov_s, lag, bandwidth) = match opts.inference {
-        Inference::Classical => (&xtx_inv * sigma2, 0, None),
-        Inference::NeweyWest { lag, prewhite } => {
-            // The bandwidth rule weighs the slope scores only (NW94; sandwich does the same):
-            // the intercept's score is the residual itself.
-            let weights: Vec<f64> = (0..p)
-                .map(|j| if opts.intercept && j == 0 { 0.0 } else { 1.0 })
-                .collect();
-            let hac = hac_long_run_covariance(&scores(&xs, &resid), &weights, lag, prewhite);
-            let cov = &xtx_inv * hac.meat * &xtx_inv * (n as f64 / df_resid);
-            (cov, hac.lag, hac.bandwidth)
-        }
-    };
-    // Undo the column scaling.
-    let beta = DVector::from_fn(p, |j, _| beta_s[j] / scale[j]);
-    let cov = DMatrix::from_fn(p, p, |i, j| cov_s[(i, j)] / (scale[i] * scale[j]));
-
-    let t_dist = StudentsT::new(0.0, 1.0, df_resid).ok();
-    let normal = Normal::new(0.0, 1.0).expect("standard normal");
-    let p_values: Vec<f64> = (0..p)
-        .map(|j| {
-            let se = cov[(j, j)].max(0.0).sqrt();
-            let t = if se > 0.0 {
-                beta[j] / se
-            } else {
-                f64::INFINITY
-            };
-            let tail = match (&opts.inference, &t_dist) {
-                (Inference::Classical, Some(d)) => d.cdf(-t.abs()),
-                _ => normal.cdf(-t.abs()),
-            };
-            (2.0 * tail).clamp(0.0, 1.0)
-        })
-        .collect();
-
-    let (f, f_p) = if df_model > 0 && sst > 0.0 {
-        let f = ((sst - sse) / df_model as f64) / sigma2;
-        let p = FisherSnedecor::new(df_model as f64, df_resid)
-            .map(|d| d.sf(f))
-            .unwrap_or(f64::NAN);
-        (f, p)
-    } else {
-        (0.0, 1.0)
-    };
-    let (wald_f, wald_p) = if df_model == 0 {
-        (0.0, 1.0)
-    } else {
-        match opts.inference {
-            Inference::Classical => (f, f_p),
-            Inference::NeweyWest { .. } => {
-                let off = usize::from(opts.intercept);
-                let b = beta.rows(off, df_model).into_owned();
-                let v = cov.view((off, off), (df_model, df_model)).into_owned();
-                let w = v
-                    .clone()
-                    .cholesky()
-                    .map(|c| (b.transpose() * c.inverse() * &b)[(0, 0)])
-                    .unwrap_or(f64::INFINITY);
-                let p = ChiSquared::new(df_model as f64)
-                    .map(|d| d.sf(w))
-                    .unwrap_or(f64::NAN);
-                (w / df_model as f64, p)
-            }
-        }
-    };
-    Ok(OlsFit {
-        beta,
-        cov,
-        p_values,
-        residuals: resid,
+    let solution = ScaledSolution {
         n,
-        p,
-        r2,
-        adj_r2,
-        sigma2,
-        f,
-        f_p,
-        wald_f,
-        wald_p,
-        lag,
-        bandwidth,
-        t_dist,
-    })
+        scale,
+        xtx_inv,
+        beta_s,
+        sse,
+        sst,
+    };
+    Ok(solution.conclude(active.len(), hac, resid, opts))
+}
+
+/// Column scaling keeps X'X well conditioned when regressors differ by orders of magnitude
+/// (rates ~1 rad/s, jerks ~100 m/s^3): each column is divided by its Euclidean norm, an
+/// all-zero column by 1.
+pub(crate) fn column_scale(norm: f64) -> f64 {
+    if norm > 0.0 {
+        norm
+    } else {
+        1.0
+    }
+}
+
+/// (X'X)^-1 and the coefficients of the column-scaled normal equations; a singular X'X falls
+/// back to the pseudo-inverse, then to zeros.
+pub(crate) fn solve_scaled(xtx: &DMatrix<f64>, xty: &DVector<f64>) -> (DMatrix<f64>, DVector<f64>) {
+    let p = xtx.nrows();
+    let xtx_inv = xtx
+        .clone()
+        .cholesky()
+        .map(|c| c.inverse())
+        .or_else(|| xtx.clone().pseudo_inverse(1e-12).ok())
+        .unwrap_or_else(|| DMatrix::zeros(p, p));
+    let beta_s = &xtx_inv * xty;
+    (xtx_inv, beta_s)
+}
+
+/// The weights the NW94 bandwidth rule gives the score columns: the slopes only (NW94 and
+/// sandwich do the same), since the intercept's score is the residual itself.
+pub(crate) fn bandwidth_weights(p: usize, intercept: bool) -> Vec<f64> {
+    (0..p)
+        .map(|j| if intercept && j == 0 { 0.0 } else { 1.0 })
+        .collect()
+}
+
+/// A least-squares fit in column-scaled form with the sums its tests need, however the data
+/// were passed over (whole, or streamed by [`stream`]).
+pub(crate) struct ScaledSolution {
+    /// Observations.
+    pub n: usize,
+    /// Column scales (norms), one per parameter.
+    pub scale: Vec<f64>,
+    /// (Xs'Xs)^-1 of the scaled columns.
+    pub xtx_inv: DMatrix<f64>,
+    /// Coefficients of the scaled columns.
+    pub beta_s: DVector<f64>,
+    /// Residual sum of squares.
+    pub sse: f64,
+    /// Total sum of squares (about the mean with an intercept, about zero without).
+    pub sst: f64,
+}
+
+impl ScaledSolution {
+    /// Standard errors, p-values and the overall tests under `opts.inference` (`hac` is
+    /// the long-run covariance of the scaled scores for Newey-West, `None` for classical).
+    pub(crate) fn conclude(
+        self,
+        regressors: usize,
+        hac: Option<HacEstimate>,
+        residuals: Vec<f64>,
+        opts: &RegressionOptions,
+    ) -> OlsFit {
+        let Self {
+            n,
+            scale,
+            xtx_inv,
+            beta_s,
+            sse,
+            sst,
+        } = self;
+        let p = scale.len();
+        let df_resid = (n - p) as f64;
+        let sigma2 = sse / df_resid;
+        let r2 = if sst > 0.0 { 1.0 - sse / sst } else { 0.0 };
+        let df_model = regressors;
+        let adj_r2 = if opts.intercept {
+            1.0 - (1.0 - r2) * (n as f64 - 1.0) / df_resid
+        } else {
+            1.0 - (1.0 - r2) * n as f64 / df_resid
+        };
+        let (cov_s, lag, bandwidth) = match hac {
+            None => (&xtx_inv * sigma2, 0, None),
+            Some(hac) => {
+                let cov = &xtx_inv * hac.meat * &xtx_inv * (n as f64 / df_resid);
+                (cov, hac.lag, hac.bandwidth)
+            }
+        };
+        // Undo the column scaling.
+        let beta = DVector::from_fn(p, |j, _| beta_s[j] / scale[j]);
+        let cov = DMatrix::from_fn(p, p, |i, j| cov_s[(i, j)] / (scale[i] * scale[j]));
+
+        let t_dist = StudentsT::new(0.0, 1.0, df_resid).ok();
+        let normal = Normal::new(0.0, 1.0).expect("standard normal");
+        let p_values: Vec<f64> = (0..p)
+            .map(|j| {
+                let se = cov[(j, j)].max(0.0).sqrt();
+                let t = if se > 0.0 {
+                    beta[j] / se
+                } else {
+                    f64::INFINITY
+                };
+                let tail = match (&opts.inference, &t_dist) {
+                    (Inference::Classical, Some(d)) => d.cdf(-t.abs()),
+                    _ => normal.cdf(-t.abs()),
+                };
+                (2.0 * tail).clamp(0.0, 1.0)
+            })
+            .collect();
+
+        let (f, f_p) = if df_model > 0 && sst > 0.0 {
+            let f = ((sst - sse) / df_model as f64) / sigma2;
+            let p = FisherSnedecor::new(df_model as f64, df_resid)
+                .map(|d| d.sf(f))
+                .unwrap_or(f64::NAN);
+            (f, p)
+        } else {
+            (0.0, 1.0)
+        };
+        let (wald_f, wald_p) = if df_model == 0 {
+            (0.0, 1.0)
+        } else {
+            match opts.inference {
+                Inference::Classical => (f, f_p),
+                Inference::NeweyWest { .. } => {
+                    let off = usize::from(opts.intercept);
+                    let b = beta.rows(off, df_model).into_owned();
+                    let v = cov.view((off, off), (df_model, df_model)).into_owned();
+                    let w = v
+                        .clone()
+                        .cholesky()
+                        .map(|c| (b.transpose() * c.inverse() * &b)[(0, 0)])
+                        .unwrap_or(f64::INFINITY);
+                    let p = ChiSquared::new(df_model as f64)
+                        .map(|d| d.sf(w))
+                        .unwrap_or(f64::NAN);
+                    (w / df_model as f64, p)
+                }
+            }
+        };
+        OlsFit {
+            beta,
+            cov,
+            p_values,
+            residuals,
+            n,
+            p,
+            r2,
+            adj_r2,
+            sigma2,
+            f,
+            f_p,
+            wald_f,
+            wald_p,
+            lag,
+            bandwidth,
+            t_dist,
+        }
+    }
 }
 
 impl OlsFit {
-    fn into_report(
+    /// The position among the active regressors of the least significant one when it is
+    /// not significant at `opts.alpha` (the next to eliminate); `None` when all are.
+    pub(crate) fn least_significant(&self, opts: &RegressionOptions) -> Option<usize> {
+        let offset = usize::from(opts.intercept);
+        (0..self.p - offset)
+            .map(|i| (i, self.p_values[i + offset]))
+            .filter(|(_, p)| !(*p <= opts.alpha))
+            .max_by(|a, b| a.1.total_cmp(&b.1))
+            .map(|(i, _)| i)
+    }
+
+    pub(crate) fn into_report(
         self,
-        regressors: &[(&str, &[f64])],
+        names: &[&str],
         active: &[usize],
         opts: &RegressionOptions,
         eliminated: Vec<String>,
@@ -443,9 +527,7 @@ impl OlsFit {
                 let name = if opts.intercept && j == 0 {
                     "intercept".to_string()
                 } else {
-                    regressors[active[j - usize::from(opts.intercept)]]
-                        .0
-                        .to_string()
+                    names[active[j - usize::from(opts.intercept)]].to_string()
                 };
                 let se = self.cov[(j, j)].max(0.0).sqrt();
                 let est = self.beta[j];
@@ -565,7 +647,7 @@ pub fn newey_west_meat_from_scores(u: &[f64], p: usize, lag: usize) -> DMatrix<f
     // Chunks of windows in parallel; each chunk starts its moving sum afresh, which also
     // bounds the rounding drift of the running update.
     let windows = n + lag;
-    let chunk = 4096;
+    let chunk = MEAT_CHUNK;
     let upper: Vec<f64> = (0..windows.div_ceil(chunk))
         .into_par_iter()
         .map(|c| {
@@ -592,12 +674,7 @@ pub fn newey_west_meat_from_scores(u: &[f64], p: usize, lag: usize) -> DMatrix<f
                         }
                     }
                 }
-                for i in 0..p {
-                    let vi = v[i];
-                    for k in i..p {
-                        acc[i * p + k] += vi * v[k];
-                    }
-                }
+                add_outer_upper(&mut acc, &v);
             }
             acc
         })
@@ -608,6 +685,26 @@ pub fn newey_west_meat_from_scores(u: &[f64], p: usize, lag: usize) -> DMatrix<f
                 a
             },
         );
+    meat_from_upper(&upper, p, lag)
+}
+
+/// Windows of the Bartlett moving sums that one run of additions and subtractions covers
+/// before the sum is formed afresh, which bounds its rounding drift.
+pub(crate) const MEAT_CHUNK: usize = 4096;
+
+/// acc += v v', upper triangle only (row-major p x p).
+pub(crate) fn add_outer_upper(acc: &mut [f64], v: &[f64]) {
+    let p = v.len();
+    for i in 0..p {
+        let vi = v[i];
+        for k in i..p {
+            acc[i * p + k] += vi * v[k];
+        }
+    }
+}
+
+/// The symmetric meat (1 / (lag + 1)) sum v v' from its accumulated upper triangle.
+pub(crate) fn meat_from_upper(upper: &[f64], p: usize, lag: usize) -> DMatrix<f64> {
     let scale = 1.0 / (lag as f64 + 1.0);
     DMatrix::from_fn(p, p, |i, k| {
         let (a, b) = if i <= k { (i, k) } else { (k, i) };
@@ -677,7 +774,7 @@ pub fn hac_long_run_covariance(
                 })
                 .collect();
             let bw = newey_west_1994_bandwidth(&h, n - n_e, prewhite);
-            ((bw.floor().max(0.0) as usize).min(n_e - 1), Some(bw))
+            (lag_of_bandwidth(bw, n_e), Some(bw))
         }
     };
     let s = newey_west_meat_from_scores(&resid, p, lag);
@@ -692,22 +789,40 @@ pub fn hac_long_run_covariance(
     }
 }
 
+/// The Bartlett lag a bandwidth gives over `n` (prewhitened) scores: its floor, at most
+/// n - 1.
+pub(crate) fn lag_of_bandwidth(bandwidth: f64, n: usize) -> usize {
+    (bandwidth.floor().max(0.0) as usize).min(n - 1)
+}
+
 /// Newey & West (1994) automatic Bartlett bandwidth of the scalar series `h` (after
 /// `dropped` prewhitening samples), Table II C's pre-lag m and the Bartlett constants.
 fn newey_west_1994_bandwidth(h: &[f64], dropped: usize, prewhite: bool) -> f64 {
     let n = h.len();
-    let c = if prewhite { 3.0 } else { 4.0 };
-    let m = ((c * (n as f64 / 100.0).powf(2.0 / 9.0)).floor() as usize).min(n.saturating_sub(1));
-    let sigma: Vec<f64> = (0..=m)
+    let m = nw94_prelag(n, prewhite);
+    let sums: Vec<f64> = (0..=m)
         .map(|j| {
             h[..n - j]
                 .iter()
                 .zip(&h[j..])
                 .map(|(a, b)| a * b)
                 .sum::<f64>()
-                / n as f64
         })
         .collect();
+    nw94_bandwidth(&sums, n, dropped)
+}
+
+/// NW94's pre-lag m = floor(c (n/100)^(2/9)), c = 3 prewhitened and 4 otherwise, at most
+/// n - 1: the autocovariances the bandwidth rule looks at.
+pub(crate) fn nw94_prelag(n: usize, prewhite: bool) -> usize {
+    let c = if prewhite { 3.0 } else { 4.0 };
+    ((c * (n as f64 / 100.0).powf(2.0 / 9.0)).floor() as usize).min(n.saturating_sub(1))
+}
+
+/// The NW94 Bartlett bandwidth from the lag products `sums[j] = sum_t h_t h_{t+j}`
+/// (j = 0 ..= m) of `n` values of h, after `dropped` prewhitening samples.
+pub(crate) fn nw94_bandwidth(sums: &[f64], n: usize, dropped: usize) -> f64 {
+    let sigma: Vec<f64> = sums.iter().map(|s| s / n as f64).collect();
     let s0 = sigma[0] + 2.0 * sigma[1..].iter().sum::<f64>();
     let s1 = 2.0
         * sigma[1..]
@@ -731,13 +846,55 @@ fn var1_prewhiten(u: &[f64], p: usize) -> (Vec<f64>, Option<DMatrix<f64>>) {
     for t in 1..n {
         let prev = &u[(t - 1) * p..t * p];
         let cur = &u[t * p..(t + 1) * p];
-        for i in 0..p {
-            for k in 0..p {
-                sxx[(i, k)] += prev[i] * prev[k];
-                syx[(i, k)] += cur[i] * prev[k];
-            }
+        add_var1_sums(&mut sxx, &mut syx, prev, cur);
+    }
+    let Some((a, recolour)) = var1_fit(&sxx, &syx) else {
+        return (u.to_vec(), None);
+    };
+    let mut e = vec![0.0; (n - 1) * p];
+    for t in 1..n {
+        var1_residual(
+            &a,
+            &u[(t - 1) * p..t * p],
+            &u[t * p..(t + 1) * p],
+            &mut e[(t - 1) * p..t * p],
+        );
+    }
+    (e, Some(recolour))
+}
+
+/// Adds one step's VAR(1) normal-equation sums: Sxx += prev prev', Syx += cur prev'.
+pub(crate) fn add_var1_sums(
+    sxx: &mut DMatrix<f64>,
+    syx: &mut DMatrix<f64>,
+    prev: &[f64],
+    cur: &[f64],
+) {
+    let p = prev.len();
+    for i in 0..p {
+        for k in 0..p {
+            sxx[(i, k)] += prev[i] * prev[k];
+            syx[(i, k)] += cur[i] * prev[k];
         }
     }
+}
+
+/// e = cur - A prev, the prewhitened score.
+pub(crate) fn var1_residual(a: &DMatrix<f64>, prev: &[f64], cur: &[f64], e: &mut [f64]) {
+    for (i, ei) in e.iter_mut().enumerate() {
+        let pred: f64 = (0..prev.len()).map(|k| a[(i, k)] * prev[k]).sum();
+        *ei = cur[i] - pred;
+    }
+}
+
+/// The least-squares VAR(1) coefficient A = Syx Sxx^-1 with its singular values capped at
+/// 0.97 (Andrews & Monahan 1992, so I - A stays invertible) and the recolouring matrix
+/// (I - A)^-1; `None` when either inverse fails (then the scores are used as they are).
+pub(crate) fn var1_fit(
+    sxx: &DMatrix<f64>,
+    syx: &DMatrix<f64>,
+) -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+    let p = sxx.nrows();
     // Scale to unit diagonal: score columns differ by orders of magnitude.
     let d: Vec<f64> = (0..p)
         .map(|i| {
@@ -750,17 +907,13 @@ fn var1_prewhiten(u: &[f64], p: usize) -> (Vec<f64>, Option<DMatrix<f64>>) {
         })
         .collect();
     let sxx_s = DMatrix::from_fn(p, p, |i, k| sxx[(i, k)] / (d[i] * d[k]));
-    let Some(inv_s) = sxx_s
+    let inv_s = sxx_s
         .clone()
         .cholesky()
         .map(|c| c.inverse())
-        .or_else(|| sxx_s.pseudo_inverse(1e-12).ok())
-    else {
-        return (u.to_vec(), None);
-    };
+        .or_else(|| sxx_s.pseudo_inverse(1e-12).ok())?;
     let sxx_inv = DMatrix::from_fn(p, p, |i, k| inv_s[(i, k)] / (d[i] * d[k]));
-    let mut a = &syx * sxx_inv;
-    // Andrews & Monahan (1992): cap the singular values so I - A stays invertible.
+    let mut a = syx * sxx_inv;
     let svd = a.clone().svd(true, true);
     if svd.singular_values.iter().any(|s| *s > 0.97) {
         if let (Some(uu), Some(vt)) = (&svd.u, &svd.v_t) {
@@ -768,18 +921,8 @@ fn var1_prewhiten(u: &[f64], p: usize) -> (Vec<f64>, Option<DMatrix<f64>>) {
             a = uu * s * vt;
         }
     }
-    let Some(recolour) = (DMatrix::<f64>::identity(p, p) - &a).try_inverse() else {
-        return (u.to_vec(), None);
-    };
-    let mut e = vec![0.0; (n - 1) * p];
-    for t in 1..n {
-        let prev = &u[(t - 1) * p..t * p];
-        for i in 0..p {
-            let pred: f64 = (0..p).map(|k| a[(i, k)] * prev[k]).sum();
-            e[(t - 1) * p + i] = u[t * p + i] - pred;
-        }
-    }
-    (e, Some(recolour))
+    let recolour = (DMatrix::<f64>::identity(p, p) - &a).try_inverse()?;
+    Some((a, recolour))
 }
 
 #[cfg(test)]
