@@ -10,16 +10,18 @@
 //! for the whole run, and each sample set is made when the filter needs it, so a day of
 //! driving fits in memory.
 
+pub mod consistency;
 pub mod drive;
 
 use dynacal_core::scalar::FilterScalar;
-use nalgebra::{SMatrix, UnitQuaternion, Vector3};
+use nalgebra::{DMatrix, SMatrix, UnitQuaternion, Vector3};
 use serde::Serialize;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
 use crate::model::SimModel;
 use crate::progress::Tally;
 use crate::sim::trajectory::Truth;
+use consistency::ClosedLoop;
 use drive::{DriveError, StreamedDrive};
 use dynacal_core::fusion::{BoardFusion, FusionConfig, FusionFilter, UNITS};
 use dynacal_core::nav::ekf::{
@@ -117,17 +119,21 @@ pub struct NavSimReport {
     pub attitude_rms_deg: f64,
     /// Mean NEES of position, velocity and attitude (9 states), every [`NEES_EVERY_S`].
     pub nees_mean: f64,
-    /// Two-sided 95% bounds of that mean for a consistent filter (chi-square with 9 x
-    /// samples degrees of freedom, over the samples), taking the samples as independent.
+    /// Two-sided 95% bounds of that mean for a consistent filter: a chi-square matched to
+    /// the mean's variance that the filter's own closed-loop error correlation between the
+    /// samples predicts ([`consistency::ClosedLoop`]); the independent samples' bounds
+    /// where that cannot be stated ([`Self::nees_judged_by`] says which).
     pub nees_bounds: [f64; 2],
     pub nees_samples: u64,
-    /// The samples' worth as independent ones, from their autocorrelation
-    /// ([`effective_samples`]): errors [`NEES_EVERY_S`] apart are not independent (an
-    /// outage's drift lasts tens of seconds).
+    /// What the samples are worth as independent ones, by that prediction: errors
+    /// [`NEES_EVERY_S`] apart are not independent (a heading error lasts the drive, an
+    /// outage's drift tens of seconds).
     pub nees_effective_samples: f64,
-    /// The bounds of [`Self::nees_bounds`] for that many independent samples: what a
-    /// consistent filter's mean falls inside 95% of the time.
-    pub nees_bounds_correlated: [f64; 2],
+    /// The bounds if the samples were independent (chi-square with 9 x samples degrees of
+    /// freedom, over the samples): too narrow for correlated samples.
+    pub nees_bounds_independent: [f64; 2],
+    /// How [`Self::nees_bounds`] were found: `the filter's error correlation`, or why not.
+    pub nees_judged_by: String,
     /// How far apart the covariance's numbers lay over the run (every [`NEES_EVERY_S`]).
     pub covariance: CovarianceSpread,
     /// Numbers the filter found out of its scalar's range or invalid (non-finite or
@@ -356,6 +362,8 @@ fn run_with<T: FilterScalar>(
     let (mut with_gnss, mut in_outage, mut attitude) =
         (Rms::default(), Rms::default(), Rms::default());
     let mut nees_series = Vec::new();
+    // The closed-loop error transition, from the alignment on, and the restarts then.
+    let mut closed_loop: Option<(ClosedLoop, u32)> = None;
     let mut aligned_after_s = None;
     let mut spread = SpreadGatherer::new();
     let fixed_overflows_before = dynacal_core::fixed::overflows();
@@ -368,14 +376,21 @@ fn run_with<T: FilterScalar>(
         let (t_us, truth, readings) = drive.next_set();
         for fix in drive.fixes_until(t_us) {
             fusion.push_gnss(t_us, fix);
+            follow(&fusion, &mut closed_loop);
         }
         fusion.push_set(t_us, &readings, &mut |_| {});
+        follow(&fusion, &mut closed_loop);
         let Some(filter) = fusion.filter() else {
             continue;
         };
         if aligned_after_s.is_none() {
             aligned_after_s = Some(truth.t_s);
             spread.start(filter);
+            let (predictions, _) = filter.ekf.last_prediction();
+            closed_loop = Some((
+                ClosedLoop::start(covariance_of(filter), predictions),
+                fusion.counts().restarts,
+            ));
         }
         let error = NavError::of(filter, &truth);
         if k % every_second == 0 {
@@ -390,12 +405,16 @@ fn run_with<T: FilterScalar>(
             spread.add(filter);
             if let Some(nees) = error.nees(filter) {
                 nees_series.push(nees);
+                if let Some((tracker, _)) = &mut closed_loop {
+                    tracker.sample();
+                }
             }
         }
     }
     let aligned_after_s = aligned_after_s.ok_or(NavSimError::NeverAligned {
         seconds: opts.seconds,
     })?;
+    let judged = judge_nees(closed_loop.as_ref().map(|(c, _)| c), nees_series.len());
     Ok(NavSimReport {
         scalar: opts.scalar,
         seconds: opts.seconds,
@@ -406,10 +425,11 @@ fn run_with<T: FilterScalar>(
         position_rms_outage_m: in_outage.value(),
         attitude_rms_deg: attitude.value(),
         nees_mean: nees_series.iter().sum::<f64>() / nees_series.len().max(1) as f64,
-        nees_bounds: nees_bounds(nees_series.len() as f64),
+        nees_bounds: nees_bounds(judged.0),
         nees_samples: nees_series.len() as u64,
-        nees_effective_samples: effective_samples(&nees_series),
-        nees_bounds_correlated: nees_bounds(effective_samples(&nees_series)),
+        nees_effective_samples: judged.0,
+        nees_bounds_independent: nees_bounds(nees_series.len() as f64),
+        nees_judged_by: judged.1,
         covariance: spread.spread(),
         overflow_events: overflow_events(&fusion)
             + (dynacal_core::fixed::overflows() - fixed_overflows_before),
@@ -418,44 +438,62 @@ fn run_with<T: FilterScalar>(
 
 /// Two-sided 95% bounds of the mean of `samples` independent NEES values of a consistent
 /// filter (chi-square with 9 x samples degrees of freedom over the samples; a fractional
-/// count, as [`effective_samples`] gives, is allowed).
+/// count, as a correlated series' worth in independent samples, is allowed).
 pub fn nees_bounds(samples: f64) -> [f64; 2] {
     let m = samples.max(1.0);
     let chi2 = ChiSquared::new(NEES_STATES as f64 * m).expect("positive degrees of freedom");
     [chi2.inverse_cdf(0.025) / m, chi2.inverse_cdf(0.975) / m]
 }
 
-/// How many independent samples a series' mean is worth: `n / (1 + 2 Σ ρ_k)`, the
-/// autocorrelations `ρ_k` summed until the first that is not positive (the initial positive
-/// sequence; Geyer 1992). Between 1 and `n`.
-pub fn effective_samples(series: &[f64]) -> f64 {
-    let n = series.len();
-    if n < 3 {
-        return n.max(1) as f64;
-    }
-    let mean = series.iter().sum::<f64>() / n as f64;
-    let centred: Vec<f64> = series.iter().map(|x| x - mean).collect();
-    let lag = |k: usize| -> f64 {
-        centred[..n - k]
-            .iter()
-            .zip(&centred[k..])
-            .map(|(a, b)| a * b)
-            .sum::<f64>()
-            / n as f64
+/// Follows the fusion's closed-loop error transition after one call into it; a restart
+/// breaks the chain.
+fn follow<T: FilterScalar>(fusion: &BoardFusion<T>, closed_loop: &mut Option<(ClosedLoop, u32)>) {
+    let (Some((tracker, restarts)), Some(filter)) = (closed_loop.as_mut(), fusion.filter()) else {
+        return;
     };
-    let variance = lag(0);
-    if variance <= 0.0 {
-        return n as f64;
+    if fusion.counts().restarts != *restarts {
+        tracker.break_chain("the filter restarted");
+        return;
     }
-    let mut tau = 1.0;
-    for k in 1..n / 2 {
-        let rho = lag(k) / variance;
-        if rho <= 0.0 {
-            break;
+    let (predictions, predicted) = filter.ekf.last_prediction();
+    let nav = filter.ekf.last_transition_nav();
+    let transition = DMatrix::from_fn(STATES, STATES, |i, j| {
+        if i < NAV_STATES && j < NAV_STATES {
+            to_f64(nav[(i, j)])
+        } else if i == j {
+            1.0
+        } else {
+            0.0
         }
-        tau += 2.0 * rho;
+    });
+    let predicted = DMatrix::from_fn(STATES, STATES, |i, j| predicted[(i, j)]);
+    tracker.step(predictions, &predicted, &transition, covariance_of(filter));
+}
+
+/// The filter's physical covariance, f64.
+fn covariance_of<T: FilterScalar>(filter: &FusionFilter<T>) -> DMatrix<f64> {
+    let p = filter.ekf.covariance_f64();
+    DMatrix::from_fn(STATES, STATES, |i, j| p[(i, j)])
+}
+
+/// What the NEES samples are worth as independent ones, by the filter's own error
+/// correlation, and how that was found (their count where it cannot be).
+fn judge_nees(closed_loop: Option<&ClosedLoop>, samples: usize) -> (f64, String) {
+    let judged: Vec<usize> = [POS, VEL, ATT]
+        .iter()
+        .flat_map(|&first| first..first + 3)
+        .collect();
+    let variance = closed_loop
+        .ok_or("the filter never started")
+        .and_then(|c| c.mean_nees_variance(&judged));
+    match variance {
+        Ok(v) if v > 0.0 => (
+            2.0 * NEES_STATES as f64 / v,
+            "the filter's error correlation".into(),
+        ),
+        Ok(_) => (samples as f64, "independent samples (no variance)".into()),
+        Err(why) => (samples as f64, format!("independent samples ({why})")),
     }
-    (n as f64 / tau).clamp(1.0, n as f64)
 }
 
 /// The filter's count of numbers out of range or invalid, and its restarts.
@@ -552,32 +590,5 @@ mod tests {
         assert!((low - 2.700).abs() < 1e-3 && (high - 19.023).abs() < 1e-3);
         let [low, high] = nees_bounds(1000.0);
         assert!(low > 8.7 && high < 9.3 && low < 9.0 && high > 9.0);
-    }
-
-    #[test]
-    fn effective_samples_count_independent_and_correlated_series() {
-        use rand::SeedableRng;
-        use rand_distr::{Distribution, StandardNormal};
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(42);
-        let n = 4000;
-        let white: Vec<f64> = (0..n).map(|_| StandardNormal.sample(&mut rng)).collect();
-        let independent = effective_samples(&white);
-        assert!(independent > 0.8 * n as f64, "{independent}");
-        // AR(1) with phi = 0.8: n (1 - phi) / (1 + phi) = n / 9.
-        let mut x = 0.0;
-        let ar: Vec<f64> = white
-            .iter()
-            .map(|e| {
-                x = 0.8 * x + e;
-                x
-            })
-            .collect();
-        let correlated = effective_samples(&ar);
-        let expected = n as f64 / 9.0;
-        assert!(
-            (correlated / expected - 1.0).abs() < 0.35,
-            "{correlated} against {expected}"
-        );
-        assert_eq!(effective_samples(&[1.0, 1.0, 1.0]), 3.0);
     }
 }

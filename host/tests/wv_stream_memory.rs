@@ -3,8 +3,10 @@
 //! temporary folder (the largest about 3 GB, removed afterwards) and the release `dynacal wv`
 //! and `dynacal fit --model WN+RW` are run on each under `/usr/bin/time -v`, streamed, and
 //! loaded whole at 1e7 rows for comparison; and `dynacal import` is run on seeded ADIS16405
-//! count files of the same lengths (the text importers convert row by row). Ignored: it runs
-//! for minutes and needs the disk. Run with
+//! count files of the same lengths (the text importers convert row by row); and
+//! `dynacal regress` on seeded error-signal files of 1e5, 1e6 and 1e7 rows (each row 15
+//! dynamics and 3 gyro error columns; the largest about 2 GB). Ignored: it runs for minutes
+//! and needs the disk. Run with
 //! `cargo test --release -p dynacal --test wv_stream_memory -- --ignored --nocapture`.
 
 use std::io::Write;
@@ -44,6 +46,38 @@ fn write_adis_counts(path: &Path, rows: u64) {
         let mut count = || noise.sample(&mut rng).round() as i32;
         let (gx, gy, gz, ax, ay) = (count(), count(), count(), count(), count());
         writeln!(out, "{gx},{gy},{gz},{ax},{ay},{}", -300 + count()).unwrap();
+    }
+    out.flush().unwrap();
+}
+
+/// An error-signal file of `rows` rows at 100 Hz: 15 slowly varying dynamics columns and
+/// gyro errors with a bias, one true term each (on omega_x, omega_y, a_z) and white noise,
+/// printed to 7 significant digits.
+fn write_error_signals(path: &Path, rows: u64) {
+    let file = std::fs::File::create(path).unwrap();
+    let mut out = std::io::BufWriter::with_capacity(1 << 20, file);
+    let mut rng = ChaCha8Rng::seed_from_u64(rows);
+    let unit = Normal::new(0.0, 1.0).unwrap();
+    let mut dynamics = [0.0f64; 15];
+    let names = dynacal::error_signal::DYNAMICS_COLUMNS.join(",");
+    writeln!(out, "t_s,{names},gx_err_rad_s,gy_err_rad_s,gz_err_rad_s").unwrap();
+    for i in 0..rows {
+        for d in &mut dynamics {
+            *d = 0.999 * *d + 0.05 * unit.sample(&mut rng);
+        }
+        write!(out, "{}", i as f64 * 0.01).unwrap();
+        for d in &dynamics {
+            write!(out, ",{d:.6e}").unwrap();
+        }
+        let truth = [
+            1e-3 + 2e-3 * dynamics[0],
+            -1e-3 + 1e-3 * dynamics[1],
+            5e-4 + 4e-4 * dynamics[11],
+        ];
+        for t in truth {
+            write!(out, ",{:.6e}", t + 1e-2 * unit.sample(&mut rng)).unwrap();
+        }
+        writeln!(out).unwrap();
     }
     out.flush().unwrap();
 }
@@ -166,5 +200,45 @@ fn import_memory_is_flat_from_1e6_to_1e8_rows() {
     assert!(
         spread < 16.0,
         "`import`'s memory grows with the length: {rss:?}"
+    );
+}
+
+#[test]
+#[ignore = "minutes and ~2 GB of temporary disk; run by hand for the benchmark"]
+fn regress_memory_is_flat_from_1e5_to_1e7_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("regress.json");
+    println!("| rows | file MB | peak RSS MiB | wall s |\n|---|---|---|---|");
+    let mut rss = vec![];
+    for rows in [100_000u64, 1_000_000, 10_000_000] {
+        let input = dir.path().join(format!("errors-{rows}.csv"));
+        write_error_signals(&input, rows);
+        let mb = std::fs::metadata(&input).unwrap().len() as f64 / 1e6;
+        let (peak, wall) = time_dynacal(&[
+            "regress",
+            input.to_str().unwrap(),
+            "--json",
+            json.to_str().unwrap(),
+        ]);
+        let report: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+        let kept = |ch: &str, name: &str| {
+            report[ch]["coefficients"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .any(|c| c["name"] == name)
+        };
+        assert!(kept("gx", "omega_x") && kept("gy", "omega_y") && kept("gz", "a_z"));
+        println!("| {rows:.0e} | {mb:.0} | {peak:.1} | {wall:.1} |");
+        rss.push(peak);
+        std::fs::remove_file(&input).unwrap();
+    }
+    let spread =
+        rss.iter().cloned().fold(f64::MIN, f64::max) - rss.iter().cloned().fold(f64::MAX, f64::min);
+    println!("`regress` peak RSS spread from 1e5 to 1e7 rows {spread:.1} MiB");
+    assert!(
+        spread < 16.0,
+        "`regress`'s memory grows with the length: {rss:?}"
     );
 }

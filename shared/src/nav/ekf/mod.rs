@@ -347,6 +347,9 @@ pub struct ErrorStateEkf<T: FilterScalar, const K: usize, const N: usize> {
     /// The navigation block of the last prediction's transition matrix, as 5×5 blocks of 3×3.
     transition: predict::BlockTransition<T>,
     stats: FusionStats,
+    /// Predictions run, and the physical covariance right after the last one.
+    #[cfg(feature = "probe")]
+    probe: (u64, SMatrix<f64, N, N>),
 }
 
 impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
@@ -371,6 +374,8 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
             calibration: [InterImuCalibration::identity(); K],
             transition: predict::BlockTransition::identity(),
             stats: FusionStats::default(),
+            #[cfg(feature = "probe")]
+            probe: (0, SMatrix::zeros()),
         };
         filter.reset_covariance();
         filter

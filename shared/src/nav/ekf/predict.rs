@@ -401,6 +401,10 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
             return true;
         }
         self.apply_variance_floors();
+        #[cfg(feature = "probe")]
+        {
+            self.probe = (self.probe.0 + 1, self.covariance_f64());
+        }
         true
     }
 
@@ -443,5 +447,13 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     /// 15×15; the calibration block is the identity). Identity before the first prediction.
     pub fn last_transition_nav(&self) -> SMatrix<T, NAV_STATES, NAV_STATES> {
         self.transition.to_dense()
+    }
+
+    /// The predictions run so far and the physical covariance right after the last one, in
+    /// f64: with [`Self::last_transition_nav`] and the covariance after the updates that
+    /// followed, what the closed-loop error transition `P⁺ (P⁻)⁻¹ Φ` is made of.
+    #[cfg(feature = "probe")]
+    pub fn last_prediction(&self) -> (u64, &SMatrix<f64, N, N>) {
+        (self.probe.0, &self.probe.1)
     }
 }
