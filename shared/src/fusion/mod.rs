@@ -300,8 +300,22 @@ struct Stillness {
     slow_force: Vector3<f32>,
     rate_deviation2: f32,
     force_deviation2: f32,
+    /// [`FAST_MEAN_S`] means of the rate and the specific force.
+    fast_rate: Vector3<f32>,
+    fast_force: Vector3<f32>,
+    /// Where the rate and the force stood when the standstill began, following the slow
+    /// means over [`ANCHOR_S`] while it lasts; `None` once the vehicle clearly moved.
+    anchor: Option<(Vector3<f32>, Vector3<f32>)>,
     started: bool,
 }
+
+/// Time constant of the standstill test's slow means and deviations, s.
+const SLOW_MEAN_S: f32 = 0.5;
+/// Time constant of the means compared with the standstill's anchor, s.
+const FAST_MEAN_S: f32 = 0.1;
+/// Time constant over which the anchor follows the slow means during a standstill, s: long
+/// against a drive-off's first second, short against a bias's drift.
+const ANCHOR_S: f32 = 5.0;
 
 /// The fusion (see the module's note), its filter in scalar `T`: f32 on the board; f64 on
 /// the host, to measure what f32 costs. The monitors, live levels and alignment are f32
@@ -687,16 +701,27 @@ impl<T: FilterScalar> BoardFusion<T> {
     }
 
     /// Updates the standstill test with one filter interval's means.
+    ///
+    /// A car's drive-off ramps its acceleration up from zero, so gently at first that the
+    /// deviation from the slow means stays within the noise until the car moves at walking
+    /// pace, while zero-velocity updates pin the filter's speed (and so its speed test) to
+    /// zero (measured: 3.7 s and 0.3 m/s with the deviation test alone). The standstill
+    /// also ends when the fast means leave where the rate and force stood when it began.
     fn update_stillness(&mut self, rate: Vector3<f32>, force: Vector3<f32>, dt_s: f32) {
         let s = &mut self.stillness;
         if !s.started {
             s.slow_rate = rate;
             s.slow_force = force;
+            s.fast_rate = rate;
+            s.fast_force = force;
             s.started = true;
         }
-        let alpha = (dt_s / 0.5).min(1.0);
+        let alpha = (dt_s / SLOW_MEAN_S).min(1.0);
+        let fast = (dt_s / FAST_MEAN_S).min(1.0);
         s.slow_rate += (rate - s.slow_rate) * alpha;
         s.slow_force += (force - s.slow_force) * alpha;
+        s.fast_rate += (rate - s.fast_rate) * fast;
+        s.fast_force += (force - s.fast_force) * fast;
         s.rate_deviation2 += ((rate - s.slow_rate).norm_squared() - s.rate_deviation2) * alpha;
         s.force_deviation2 += ((force - s.slow_force).norm_squared() - s.force_deviation2) * alpha;
         // The means' own noise: three axes of the noisiest unit's level (the live levels are
@@ -712,7 +737,28 @@ impl<T: FilterScalar> BoardFusion<T> {
             .filter
             .as_ref()
             .is_none_or(|filter| f(filter.state().v_ned_m_s.norm()) < self.config.still_speed_m_s);
-        self.still = slow && s.rate_deviation2 < rate_limit && s.force_deviation2 < force_limit;
+        let steady = s.rate_deviation2 < rate_limit && s.force_deviation2 < force_limit;
+        let anchored = s.anchor.is_none_or(|(r, f)| {
+            (s.fast_rate - r).norm_squared() < rate_limit
+                && (s.fast_force - f).norm_squared() < force_limit
+        });
+        self.still = slow && steady && anchored;
+        // Left by the anchor test alone, the anchor stays where it was: the slow test and
+        // the deviations cannot tell a gentle drive-off from a standstill, so a standstill
+        // resumes only where the vehicle stood, or after it clearly moved.
+        s.anchor = if self.still {
+            let follow = (dt_s / ANCHOR_S).min(1.0);
+            Some(s.anchor.map_or((s.slow_rate, s.slow_force), |(r, f)| {
+                (
+                    r + (s.slow_rate - r) * follow,
+                    f + (s.slow_force - f) * follow,
+                )
+            }))
+        } else if slow && steady {
+            s.anchor
+        } else {
+            None
+        };
     }
 
     /// A GNSS solution that arrived at `t_us`.
