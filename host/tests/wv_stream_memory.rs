@@ -93,10 +93,22 @@ fn measure(command: &[&str], input: &Path, stream: &str, json: &Path) -> (f64, f
 
 /// Peak resident memory (MiB) and wall time (s) of `dynacal ARGS`.
 fn time_dynacal(args: &[&str]) -> (f64, f64) {
+    let mut command = Command::new(env!("CARGO_BIN_EXE_dynacal"));
+    command.args(args);
+    timed(command)
+}
+
+/// Peak resident memory (MiB) and wall time (s) of `command`, under `/usr/bin/time -v`.
+fn timed(command: Command) -> (f64, f64) {
     let o = Command::new("/usr/bin/time")
         .arg("-v")
-        .arg(env!("CARGO_BIN_EXE_dynacal"))
-        .args(args)
+        .arg(command.get_program())
+        .args(command.get_args())
+        .envs(
+            command
+                .get_envs()
+                .filter_map(|(k, v)| v.map(|v| (k.to_owned(), v.to_owned()))),
+        )
         .output()
         .expect("/usr/bin/time (apt-get install time)");
     let report = String::from_utf8_lossy(&o.stderr);
@@ -203,12 +215,46 @@ fn import_memory_is_flat_from_1e6_to_1e8_rows() {
     );
 }
 
+/// What `dynacal regress` did before it streamed: the whole file loaded
+/// (`ErrorSignals::read`) and each channel's elimination on the loaded columns
+/// (`backward_elimination`). Run as a child of [`regress_memory_is_flat_from_1e5_to_1e7_rows`]
+/// (the file in `REGRESS_BATCH_INPUT`), so its peak memory is its own.
+#[test]
+#[ignore = "run by regress_memory_is_flat_from_1e5_to_1e7_rows"]
+fn regress_loaded_whole() {
+    let Ok(input) = std::env::var("REGRESS_BATCH_INPUT") else {
+        return;
+    };
+    let signals = dynacal::error_signal::ErrorSignals::read(Path::new(&input)).unwrap();
+    let regressors = signals.regressors();
+    let options = dynacal::regress::RegressionOptions::default();
+    for errors in signals.errors.iter().flatten() {
+        dynacal::regress::backward_elimination(errors, &regressors, &options).unwrap();
+    }
+}
+
+/// Peak resident memory (MiB) and wall time (s) of [`regress_loaded_whole`] on `input`.
+fn time_loaded_whole(input: &Path) -> (f64, f64) {
+    let mut command = Command::new(std::env::current_exe().unwrap());
+    command
+        .args([
+            "--exact",
+            "regress_loaded_whole",
+            "--ignored",
+            "--test-threads=1",
+        ])
+        .env("REGRESS_BATCH_INPUT", input);
+    timed(command)
+}
+
 #[test]
 #[ignore = "minutes and ~2 GB of temporary disk; run by hand for the benchmark"]
 fn regress_memory_is_flat_from_1e5_to_1e7_rows() {
     let dir = tempfile::tempdir().unwrap();
     let json = dir.path().join("regress.json");
-    println!("| rows | file MB | peak RSS MiB | wall s |\n|---|---|---|---|");
+    println!(
+        "| rows | file MB | streamed: peak RSS MiB | wall s | loaded whole: peak RSS MiB | wall s |\n|---|---|---|---|---|---|"
+    );
     let mut rss = vec![];
     for rows in [100_000u64, 1_000_000, 10_000_000] {
         let input = dir.path().join(format!("errors-{rows}.csv"));
@@ -220,6 +266,7 @@ fn regress_memory_is_flat_from_1e5_to_1e7_rows() {
             "--json",
             json.to_str().unwrap(),
         ]);
+        let (whole_peak, whole_wall) = time_loaded_whole(&input);
         let report: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
         let kept = |ch: &str, name: &str| {
@@ -230,7 +277,9 @@ fn regress_memory_is_flat_from_1e5_to_1e7_rows() {
                 .any(|c| c["name"] == name)
         };
         assert!(kept("gx", "omega_x") && kept("gy", "omega_y") && kept("gz", "a_z"));
-        println!("| {rows:.0e} | {mb:.0} | {peak:.1} | {wall:.1} |");
+        println!(
+            "| {rows:.0e} | {mb:.0} | {peak:.1} | {wall:.1} | {whole_peak:.1} | {whole_wall:.1} |"
+        );
         rss.push(peak);
         std::fs::remove_file(&input).unwrap();
     }

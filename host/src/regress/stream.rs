@@ -1,5 +1,6 @@
 //! Backward elimination over an error-signal file of any length, in memory that does not grow
-//! with it (`dynacal regress`). The file is read once, row by row, into a binary spill file
+//! with it (`dynacal regress`). The file is read once (a CSV by the fast block reader, else
+//! row by row) into a binary spill file
 //! in the temporary folder (`TMPDIR`; 8 bytes a value, the dynamics and error columns only),
 //! and the Gram matrix of [1, dynamics, errors] is summed on the way: every least-squares
 //! solution of the elimination comes from it. Each round of the elimination then passes over
@@ -30,6 +31,7 @@ use super::{
     DYNAMICS_REGRESSORS, MEAT_CHUNK,
 };
 use crate::error_signal::{no_error_column, DYNAMICS_COLUMNS, ERROR_COLUMNS};
+use crate::interchange::fast::{Fallback, FastBlocks};
 use crate::interchange::{for_each_row, parquet, TableError, TableRows};
 
 /// Rows handed to the channels at a time.
@@ -185,34 +187,64 @@ struct RowStore {
 
 impl RowStore {
     /// Reads the file at `path` (its `t_s`, dynamics and `errors` columns, checked row by
-    /// row) into a spill file, summing the Gram matrix on the way.
+    /// row) into a spill file, summing the Gram matrix on the way: a CSV by the fast block
+    /// reader where it can, else (and any file it gives up on, read again from its start)
+    /// row by row, whose errors name the line or row.
     fn read(path: &Path, errors: &[&'static str]) -> Result<(Self, Gram), StreamError> {
         let mut wanted: Vec<&str> = vec!["t_s"];
         wanted.extend(DYNAMICS_COLUMNS);
         wanted.extend(errors);
-        let columns = wanted.len() - 1;
-        let mut gram = Gram::new(errors.len());
-        let mut z = vec![0.0; gram.dim];
-        let file = tempfile::tempfile().map_err(spill_error)?;
-        let mut out = BufWriter::with_capacity(1 << 20, file);
-        let mut bytes = Vec::with_capacity(columns * 8);
-        for_each_row(path, &wanted, |_, values| -> Result<(), StreamError> {
-            let row = &values[1..];
-            gram.add(row, &mut z);
-            bytes.clear();
-            row.iter().for_each(|v| bytes.extend(v.to_le_bytes()));
-            out.write_all(&bytes).map_err(spill_error)
-        })?;
-        let file = out.into_inner().map_err(|e| spill_error(e.into_error()))?;
-        let rows = gram.rows;
-        Ok((
-            Self {
-                file,
-                columns,
-                rows,
-            },
-            gram,
-        ))
+        if !parquet::is_parquet(path) {
+            if let Some(read) = Self::read_fast(path, &wanted, errors.len())? {
+                return Ok(read);
+            }
+        }
+        let mut spill = Spill::new(errors.len())?;
+        for_each_row(path, &wanted, |_, values| spill.push(&values[1..]))?;
+        spill.finish()
+    }
+
+    /// [`Self::read`] by [`FastBlocks`]; `None` where it gives up (a row out of time order
+    /// too: the row reader names it).
+    fn read_fast(
+        path: &Path,
+        wanted: &[&str],
+        errors: usize,
+    ) -> Result<Option<(Self, Gram)>, StreamError> {
+        let Some(mut blocks) = FastBlocks::open(path, Some(wanted)) else {
+            return Ok(None);
+        };
+        let order: Option<Vec<usize>> = wanted
+            .iter()
+            .map(|name| blocks.headers().iter().position(|h| h == name))
+            .collect();
+        let Some(order) = order else {
+            return Ok(None);
+        };
+        let mut spill = Spill::new(errors)?;
+        let mut row = vec![0.0; wanted.len()];
+        let mut previous_t_s = f64::NEG_INFINITY;
+        loop {
+            let block = match blocks.next_block() {
+                Ok(Some(block)) => block,
+                Ok(None) => break,
+                Err(Fallback) => return Ok(None),
+            };
+            for piece in block.pieces() {
+                for k in 0..piece.first().map_or(0, Vec::len) {
+                    gather_row(piece, &order, k, &mut row);
+                    if !(row[0] > previous_t_s) {
+                        return Ok(None);
+                    }
+                    previous_t_s = row[0];
+                    spill.push(&row[1..])?;
+                }
+            }
+        }
+        if spill.gram.rows == 0 {
+            return Ok(None);
+        }
+        spill.finish().map(Some)
     }
 
     /// Calls `block` with the stored rows, [`BLOCK_ROWS`] at a time, in order.
@@ -233,6 +265,55 @@ impl RowStore {
             left -= rows;
         }
         Ok(())
+    }
+}
+
+/// Row `k` of a block's columns, the columns taken in `order`.
+fn gather_row(columns: &[Vec<f64>], order: &[usize], k: usize, row: &mut [f64]) {
+    for (value, &i) in row.iter_mut().zip(order) {
+        *value = columns[i][k];
+    }
+}
+
+/// Rows on their way into a [`RowStore`], with their Gram matrix.
+struct Spill {
+    out: BufWriter<File>,
+    gram: Gram,
+    z: Vec<f64>,
+    bytes: Vec<u8>,
+}
+
+impl Spill {
+    fn new(errors: usize) -> Result<Self, StreamError> {
+        let gram = Gram::new(errors);
+        let file = tempfile::tempfile().map_err(spill_error)?;
+        Ok(Self {
+            out: BufWriter::with_capacity(1 << 20, file),
+            z: vec![0.0; gram.dim],
+            bytes: Vec::with_capacity(gram.dim * 8),
+            gram,
+        })
+    }
+
+    /// Adds a row (dynamics, then errors).
+    fn push(&mut self, row: &[f64]) -> Result<(), StreamError> {
+        self.gram.add(row, &mut self.z);
+        self.bytes.clear();
+        row.iter().for_each(|v| self.bytes.extend(v.to_le_bytes()));
+        self.out.write_all(&self.bytes).map_err(spill_error)
+    }
+
+    fn finish(self) -> Result<(RowStore, Gram), StreamError> {
+        let file = self
+            .out
+            .into_inner()
+            .map_err(|e| spill_error(e.into_error()))?;
+        let store = RowStore {
+            file,
+            columns: self.gram.dim - 1,
+            rows: self.gram.rows,
+        };
+        Ok((store, self.gram))
     }
 }
 
@@ -871,7 +952,7 @@ mod tests {
     }
 
     #[test]
-    fn a_short_file_is_too_short_for_each_channel_and_a_recording_has_no_error_column() {
+    fn short_blank_lined_disordered_and_foreign_files_are_read_or_refused_as_rows_are() {
         let sig = signals(13, 12);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("short.csv");
@@ -884,6 +965,31 @@ mod tests {
                 "{e}"
             );
         }
+        // Rows the fast reader gives up on (a blank line), and a row out of time order,
+        // which the row reader names.
+        let long = signals(14, 3_000);
+        let path = dir.path().join("long.csv");
+        long.write(&path).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let blank = text.replacen("\n0.5,", "\n\n0.5,", 1);
+        assert_ne!(blank, text);
+        std::fs::write(&path, &blank).unwrap();
+        let fast = dir.path().join("fast.csv");
+        std::fs::write(&fast, &text).unwrap();
+        let opts = RegressionOptions::default();
+        let (slow, quick) = (
+            regress_file(&path, &opts).unwrap(),
+            regress_file(&fast, &opts).unwrap(),
+        );
+        for ((_, a), (_, b)) in slow.iter().zip(&quick) {
+            assert_eq!(a.as_ref().unwrap(), b.as_ref().unwrap());
+        }
+        let lines: Vec<&str> = text.lines().collect();
+        let mut swapped = lines.clone();
+        swapped.swap(100, 101);
+        std::fs::write(&path, swapped.join("\n")).unwrap();
+        let e = regress_file(&path, &opts).unwrap_err().to_string();
+        assert!(e.contains("long.csv") && e.contains("line 102"), "{e}");
         let rec = dir.path().join("rec.csv");
         std::fs::write(&rec, "t_s,gx_rad_s\n0,1\n0.01,2\n").unwrap();
         let e = regress_file(&rec, &RegressionOptions::default()).unwrap_err();
