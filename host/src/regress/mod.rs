@@ -932,7 +932,8 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
     use rand_distr::StandardNormal;
 
-    fn ar1(rng: &mut ChaCha8Rng, n: usize, phi: f64, sigma: f64) -> Vec<f64> {
+    /// AR(1) series of `n` values, coefficient `phi`, innovation sigma `sigma`.
+    pub(super) fn ar1(rng: &mut ChaCha8Rng, n: usize, phi: f64, sigma: f64) -> Vec<f64> {
         let mut x = 0.0;
         (0..n)
             .map(|_| {

@@ -821,22 +821,12 @@ impl RoundPass {
 
 #[cfg(test)]
 mod tests {
+    use super::super::tests::ar1;
     use super::*;
     use crate::error_signal::ErrorSignals;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use rand_distr::StandardNormal;
-
-    /// AR(1) series of `n` values, coefficient `phi`, innovation sigma `sigma`.
-    fn ar1(rng: &mut ChaCha8Rng, n: usize, phi: f64, sigma: f64) -> Vec<f64> {
-        let mut x = 0.0;
-        (0..n)
-            .map(|_| {
-                x = phi * x + sigma * rng.sample::<f64, _>(StandardNormal);
-                x
-            })
-            .collect()
-    }
 
     /// Error signals of `n` rows at 100 Hz: slow dynamics of several magnitudes (one column
     /// constant), and four error channels each with two true terms, a bias and AR(1) plus
