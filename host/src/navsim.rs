@@ -456,18 +456,23 @@ fn follow<T: FilterScalar>(fusion: &BoardFusion<T>, closed_loop: &mut Option<(Cl
         return;
     }
     let (predictions, predicted) = filter.ekf.last_prediction();
-    let nav = filter.ekf.last_transition_nav();
-    let transition = DMatrix::from_fn(STATES, STATES, |i, j| {
-        if i < NAV_STATES && j < NAV_STATES {
-            to_f64(nav[(i, j)])
-        } else if i == j {
-            1.0
-        } else {
-            0.0
-        }
-    });
-    let predicted = DMatrix::from_fn(STATES, STATES, |i, j| predicted[(i, j)]);
-    tracker.step(predictions, &predicted, &transition, covariance_of(filter));
+    let prediction = || {
+        let nav = filter.ekf.last_transition_nav();
+        let transition = DMatrix::from_fn(STATES, STATES, |i, j| {
+            if i < NAV_STATES && j < NAV_STATES {
+                to_f64(nav[(i, j)])
+            } else if i == j {
+                1.0
+            } else {
+                0.0
+            }
+        });
+        (
+            DMatrix::from_fn(STATES, STATES, |i, j| predicted[(i, j)]),
+            transition,
+        )
+    };
+    tracker.step(predictions, prediction, covariance_of(filter));
 }
 
 /// The filter's physical covariance, f64.

@@ -50,14 +50,13 @@ impl ClosedLoop {
     }
 
     /// One look at the filter after it worked: its prediction count, the covariance right
-    /// after its last prediction (`predicted`) and that prediction's transition, and its
-    /// covariance now. Between looks the filter may have run one prediction followed by
-    /// updates, or updates only.
+    /// after its last prediction and that prediction's transition (`prediction`, asked for
+    /// only when a prediction ran), and its covariance now. Between looks the filter may have
+    /// run one prediction followed by updates, or updates only.
     pub fn step(
         &mut self,
         predictions: u64,
-        predicted: &DMatrix<f64>,
-        transition: &DMatrix<f64>,
+        prediction: impl FnOnce() -> (DMatrix<f64>, DMatrix<f64>),
         covariance: DMatrix<f64>,
     ) {
         if self.broken.is_some() {
@@ -66,7 +65,10 @@ impl ClosedLoop {
         let step = match predictions.checked_sub(self.predictions) {
             Some(0) if covariance == self.covariance => None,
             Some(0) => right_divide(&covariance, &self.covariance),
-            Some(1) => right_divide(&covariance, predicted).map(|u| u * transition),
+            Some(1) => {
+                let (predicted, transition) = prediction();
+                right_divide(&covariance, &predicted).map(|u| u * transition)
+            }
             _ => {
                 self.broken = Some("more than one prediction between two looks");
                 return;
@@ -200,7 +202,7 @@ mod tests {
                         - &gain * DMatrix::from_row_slice(1, 2, &[1.0, 0.0]);
                     p = &i_kh * &p * i_kh.transpose() + &gain * gain.transpose() * r_pos;
                 }
-                tracker.step(k as u64, &predicted, &f, p.clone());
+                tracker.step(k as u64, || (predicted, f.clone()), p.clone());
                 if k % sample_every == 0 {
                     tracker.sample();
                     nees.push(e.dot(&(p.clone().try_inverse().unwrap() * &e)));

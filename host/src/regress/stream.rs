@@ -508,12 +508,6 @@ struct Var1Sums {
     previous: Option<Vec<f64>>,
 }
 
-/// The VAR(1) prewhitening of a round: A and (I - A)^-1, when the fit succeeded.
-struct Prewhitening {
-    a: Option<DMatrix<f64>>,
-    recolour: Option<DMatrix<f64>>,
-}
-
 /// Turns scores u_t into prewhitened ones e_t = u_t - A u_{t-1} (t >= 1), or u_t without A.
 struct Whitener {
     a: Option<DMatrix<f64>>,
@@ -653,7 +647,9 @@ struct RoundPass {
     /// The error's mean, when this round measures the total sum of squares.
     mean: Option<f64>,
     sums: Option<ResidualSums>,
-    prewhitening: Option<Prewhitening>,
+    /// The round's VAR(1) prewhitening, A and (I - A)^-1, when asked for and fitted (else
+    /// the scores are used as they are).
+    prewhitening: Option<(DMatrix<f64>, DMatrix<f64>)>,
     bandwidth: Option<BandwidthSums>,
     meat: Option<BartlettSums>,
     /// The long-run covariance, once measured (its lag and bandwidth once chosen).
@@ -678,7 +674,7 @@ impl RoundPass {
 
     fn whitener(&self) -> Whitener {
         Whitener {
-            a: self.prewhitening.as_ref().and_then(|w| w.a.clone()),
+            a: self.prewhitening.as_ref().map(|(a, _)| a.clone()),
             previous: vec![0.0; self.p()],
             started: false,
             e: vec![0.0; self.p()],
@@ -687,7 +683,7 @@ impl RoundPass {
 
     /// Scores after prewhitening: one fewer when A was fitted.
     fn whitened_count(&self) -> usize {
-        self.solution.n - usize::from(self.prewhitening.as_ref().is_some_and(|w| w.a.is_some()))
+        self.solution.n - usize::from(self.prewhitening.is_some())
     }
 
     fn begin(&mut self, stage: Stage, opts: &RegressionOptions) {
@@ -775,13 +771,7 @@ impl RoundPass {
         match stage {
             Stage::Sums => {
                 let Some(sums) = &mut self.sums else { return };
-                self.prewhitening = sums.var1.take().map(|v| {
-                    let fitted = var1_fit(&v.sxx, &v.syx);
-                    Prewhitening {
-                        a: fitted.as_ref().map(|(a, _)| a.clone()),
-                        recolour: fitted.map(|(_, d)| d),
-                    }
-                });
+                self.prewhitening = sums.var1.take().and_then(|v| var1_fit(&v.sxx, &v.syx));
             }
             Stage::Bandwidth => {
                 let Some(b) = self.bandwidth.take() else {
@@ -799,7 +789,7 @@ impl RoundPass {
                 let Some(m) = self.meat.take() else { return };
                 let lag = m.lag;
                 let s = m.finish();
-                let meat = match self.prewhitening.as_ref().and_then(|w| w.recolour.as_ref()) {
+                let meat = match self.prewhitening.as_ref().map(|(_, d)| d) {
                     Some(d) => d * s * d.transpose(),
                     None => s,
                 };
