@@ -13,8 +13,9 @@
 pub mod consistency;
 pub mod drive;
 
+use dynacal_core::board_model::BoardModel;
 use dynacal_core::scalar::FilterScalar;
-use nalgebra::{DMatrix, SMatrix, UnitQuaternion, Vector3};
+use nalgebra::{DMatrix, Matrix3, SMatrix, UnitQuaternion, Vector3};
 use serde::Serialize;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
@@ -134,6 +135,10 @@ pub struct NavSimReport {
     pub nees_bounds_independent: [f64; 2],
     /// How [`Self::nees_bounds`] were found: `the filter's error correlation`, or why not.
     pub nees_judged_by: String,
+    /// Mean NEES of the extra units' calibration states (boresight and lever arm of both
+    /// units, 12 states) against the mounts the drive built, every [`NEES_EVERY_S`]: a
+    /// consistent filter's is near 12, a filter too sure of its calibrations far above.
+    pub calibration_nees_mean: f64,
     /// How far apart the covariance's numbers lay over the run (every [`NEES_EVERY_S`]).
     pub covariance: CovarianceSpread,
     /// Numbers the filter found out of its scalar's range or invalid (non-finite or
@@ -362,6 +367,8 @@ fn run_with<T: FilterScalar>(
     let (mut with_gnss, mut in_outage, mut attitude) =
         (Rms::default(), Rms::default(), Rms::default());
     let mut nees_series = Vec::new();
+    let mounts = extra_unit_mounts(&drive.board_model());
+    let mut calibration_nees = Vec::new();
     // The closed-loop error transition, from the alignment on, and the restarts then.
     let mut closed_loop: Option<(ClosedLoop, u32)> = None;
     let mut aligned_after_s = None;
@@ -403,6 +410,7 @@ fn run_with<T: FilterScalar>(
         }
         if k % nees_every == 0 {
             spread.add(filter);
+            calibration_nees.extend(calibration_nees_of(filter, &mounts));
             if let Some(nees) = error.nees(filter) {
                 nees_series.push(nees);
                 if let Some((tracker, _)) = &mut closed_loop {
@@ -430,10 +438,53 @@ fn run_with<T: FilterScalar>(
         nees_effective_samples: judged.0,
         nees_bounds_independent: nees_bounds(nees_series.len() as f64),
         nees_judged_by: judged.1,
+        calibration_nees_mean: calibration_nees.iter().sum::<f64>()
+            / calibration_nees.len().max(1) as f64,
         covariance: spread.spread(),
         overflow_events: overflow_events(&fusion)
             + (dynacal_core::fixed::overflows() - fixed_overflows_before),
     })
+}
+
+/// Each extra unit's true mount as the board model states it: `C_b^s` (body to unit axes,
+/// as the fusion turns roll, pitch and yaw into it) and the lever arm (body axes, m).
+fn extra_unit_mounts(model: &BoardModel) -> [(Matrix3<f64>, Vector3<f64>); UNITS - 1] {
+    core::array::from_fn(|k| {
+        let unit = &model.units[k + 1];
+        let [roll, pitch, yaw] = unit.rotation_rpy_rad.map(f64::from);
+        (
+            UnitQuaternion::from_euler_angles(roll, pitch, yaw)
+                .to_rotation_matrix()
+                .into_inner(),
+            Vector3::from(unit.lever_arm_m.map(f64::from)),
+        )
+    })
+}
+
+/// The NEES of the filter's calibration states (boresight and lever arm of each extra unit)
+/// against the true `mounts`; None if their covariance block is not positive definite.
+fn calibration_nees_of<T: FilterScalar>(
+    filter: &FusionFilter<T>,
+    mounts: &[(Matrix3<f64>, Vector3<f64>); UNITS - 1],
+) -> Option<f64> {
+    const STATES: usize = CALIBRATION_STATES_PER_IMU * (UNITS - 1);
+    let p = filter.ekf.covariance_f64();
+    let mut error = nalgebra::SVector::<f64, STATES>::zeros();
+    for (k, (c_b_s, lever_arm_m)) in mounts.iter().enumerate() {
+        let estimate = filter.ekf.calibration(k)?;
+        let c_hat = estimate.c_b_s().map(to_f64);
+        // C_b^s = (I - [dpsi x]) C_hat: the error angle is the rotation vector of C_hat C^T.
+        let boresight_rad =
+            nalgebra::Rotation3::from_matrix_unchecked(c_hat * c_b_s.transpose()).scaled_axis();
+        let lever_m = estimate.lever_arm_b_m.map(to_f64) - lever_arm_m;
+        let at = CALIBRATION_STATES_PER_IMU * k;
+        error.fixed_rows_mut::<3>(at).copy_from(&boresight_rad);
+        error.fixed_rows_mut::<3>(at + 3).copy_from(&lever_m);
+    }
+    let first = boresight_index(0);
+    let block = SMatrix::<f64, STATES, STATES>::from_fn(|i, j| p[(first + i, first + j)]);
+    let cholesky = block.cholesky()?;
+    Some(error.dot(&cholesky.solve(&error)))
 }
 
 /// Two-sided 95% bounds of the mean of `samples` independent NEES values of a consistent
