@@ -509,9 +509,12 @@ fn follow<T: FilterScalar>(fusion: &BoardFusion<T>, closed_loop: &mut Option<(Cl
     let (predictions, predicted) = filter.ekf.last_prediction();
     let prediction = || {
         let nav = filter.ekf.last_transition_nav();
+        let coupling = filter.ekf.last_transition_coupling();
         let transition = DMatrix::from_fn(STATES, STATES, |i, j| {
             if i < NAV_STATES && j < NAV_STATES {
                 to_f64(nav[(i, j)])
+            } else if (VEL..VEL + 6).contains(&i) && j >= NAV_STATES {
+                coupling[(i - VEL, j)]
             } else if i == j {
                 1.0
             } else {

@@ -31,6 +31,13 @@ pub trait FilterScalar: RealField + Copy {
     /// `x` as a mantissa and a power of two this scalar holds to its full precision.
     fn pow2_from_f64(x: f64) -> Pow2<Self>;
 
+    /// `(sin x, cos x)` of `self` in rad. The board's `f32` takes a compact routine
+    /// ([`sin_cos_f32`]); the other scalars their own `sin_cos`.
+    #[inline(always)]
+    fn sin_cos_rad(self) -> (Self, Self) {
+        self.sin_cos()
+    }
+
     /// Results of this scalar that saturated or were invalid so far (never decreasing; 0
     /// for floats, whose overflow the filter sees as non-finite values). The filter reads
     /// it around each step, since fixed-point saturation does not propagate as IEEE
@@ -109,6 +116,9 @@ impl FilterScalar for f64 {
 
 impl FilterScalar for f32 {
     const SCALED: bool = false;
+    fn sin_cos_rad(self) -> (Self, Self) {
+        sin_cos_f32(self)
+    }
     fn mul_pow2(self, n: i32) -> Self {
         let half = n / 2;
         let factor = |k: i32| f32::from_bits(((k.clamp(-126, 127) + 127) as u32) << 23);
@@ -193,5 +203,78 @@ mod tests {
         // Below the resolution it rounds to zero, which is not an overflow.
         assert_eq!(I32F32::from_f64(3.0).mul_pow2(-40), I32F32::ZERO);
         assert_eq!(crate::fixed::overflows(), before + 2);
+    }
+}
+
+/// `(sin x, cos x)` in `f32` for any finite `x` (rad), within 2e-7 of the exact values:
+/// the angle reduced by multiples of `π/2` in `f64` (exact enough for `|x|` up to 1e9),
+/// then Cephes' minimax polynomials on `[−π/4, π/4]`. Written here because libm's
+/// `sincosf` carries a reduction for arguments up to 1e38 (its Payne-Hanek table and code,
+/// 6.7 KB of the board's flash) that no angle the board meets needs.
+pub fn sin_cos_f32(x: f32) -> (f32, f32) {
+    let quarter_turns = libm::round(f64::from(x) * core::f64::consts::FRAC_2_PI);
+    let r = (f64::from(x) - quarter_turns * core::f64::consts::FRAC_PI_2) as f32;
+    let z = r * r;
+    let sin = r + r * z * (-1.666_665_5e-1 + z * (8.332_161e-3 + z * -1.951_529_6e-4));
+    let cos = 1.0 - 0.5 * z + z * z * (4.166_664_6e-2 + z * (-1.388_731_6e-3 + z * 2.443_315_7e-5));
+    match (quarter_turns as i64).rem_euclid(4) {
+        0 => (sin, cos),
+        1 => (cos, -sin),
+        2 => (-sin, -cos),
+        _ => (-cos, sin),
+    }
+}
+
+/// The rotation of roll, pitch and yaw (rad) as nalgebra's `UnitQuaternion::
+/// from_euler_angles` builds it (yaw about z, then pitch about y, then roll about x), with
+/// the scalar's [`FilterScalar::sin_cos_rad`].
+pub fn quaternion_from_euler<T: FilterScalar>(
+    roll: T,
+    pitch: T,
+    yaw: T,
+) -> nalgebra::UnitQuaternion<T> {
+    let half: T = nalgebra::convert(0.5);
+    let (sr, cr) = (roll * half).sin_cos_rad();
+    let (sp, cp) = (pitch * half).sin_cos_rad();
+    let (sy, cy) = (yaw * half).sin_cos_rad();
+    nalgebra::UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(
+        cr * cp * cy + sr * sp * sy,
+        sr * cp * cy - cr * sp * sy,
+        cr * sp * cy + sr * cp * sy,
+        cr * cp * sy - sr * sp * cy,
+    ))
+}
+
+#[cfg(test)]
+mod trig_tests {
+    use super::*;
+
+    #[test]
+    fn the_compact_sine_and_cosine_hold_to_two_parts_in_ten_million() {
+        let mut worst = 0.0f64;
+        for i in -200_000..=200_000 {
+            let x = i as f32 * 1.3e-4 * (1.0 + (i as f32).abs() * 1e-3);
+            let (s, c) = sin_cos_f32(x);
+            let (es, ec) = (f64::from(x).sin(), f64::from(x).cos());
+            worst = worst
+                .max((f64::from(s) - es).abs())
+                .max((f64::from(c) - ec).abs());
+        }
+        assert!(worst < 2e-7, "{worst}");
+        let (s, c) = sin_cos_f32(f32::NAN);
+        assert!(s.is_nan() && c.is_nan());
+    }
+
+    #[test]
+    fn euler_angles_turn_as_nalgebra_turns_them() {
+        for (r, p, y) in [(0.3, -0.2, 2.5), (-3.0, 1.2, -0.7), (0.0, 0.0, 1.2)] {
+            let ours = quaternion_from_euler::<f64>(r, p, y);
+            let theirs = nalgebra::UnitQuaternion::from_euler_angles(r, p, y);
+            assert!(ours.angle_to(&theirs) < 1e-12, "{r} {p} {y}");
+            let small = quaternion_from_euler::<f32>(r as f32, p as f32, y as f32);
+            let theirs32 =
+                nalgebra::UnitQuaternion::from_euler_angles(r as f32, p as f32, y as f32);
+            assert!(small.angle_to(&theirs32) < 1e-6, "{r} {p} {y}");
+        }
     }
 }

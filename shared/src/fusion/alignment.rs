@@ -207,7 +207,7 @@ impl Alignment {
             return None;
         }
         let heading = dv_gnss.y.atan2(dv_gnss.x) - w.dv_w_m_s.y.atan2(w.dv_w_m_s.x);
-        let q_nw = UnitQuaternion::from_axis_angle(&Vector3::z_axis(), heading);
+        let q_nw = crate::scalar::quaternion_from_euler(0.0, 0.0, heading);
         let velocity_noise = 2.0 * fix.vel_sigma_m_s.max(0.02);
         // The gyro's drift over the window: a 1e-3 rad/s bias residual, at most.
         let drift = 1e-3 * w.elapsed_s;
@@ -228,7 +228,7 @@ impl Alignment {
 fn levelled(f_b: &Vector3<f32>) -> UnitQuaternion<f32> {
     let roll = (-f_b.y).atan2(-f_b.z);
     let pitch = f_b.x.atan2(f_b.y.hypot(f_b.z));
-    UnitQuaternion::from_euler_angles(roll, pitch, 0.0)
+    crate::scalar::quaternion_from_euler(roll, pitch, 0.0)
 }
 
 #[cfg(test)]

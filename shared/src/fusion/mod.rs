@@ -43,15 +43,15 @@ use crate::board_model::BoardModel;
 use crate::log::{FaultFrame, FilterState, GnssFix, NoiseFrame, MAX_IMUS};
 use crate::nav::earth::Latitude;
 use crate::nav::ekf::{
-    EkfConfig, ErrorStateEkf, InitialSigmas, InsEkf, InterImuCalibration, InterImuSample,
-    RateDifferentiator, ACCEL_BIAS, ATT, GYRO_BIAS, POS, VEL,
+    AbsorbedMeans, CalibrationCoupling, EkfConfig, ErrorStateEkf, InitialSigmas, InsEkf,
+    InterImuCalibration, InterImuSample, RateDifferentiator, ACCEL_BIAS, ATT, GYRO_BIAS, POS, VEL,
 };
 use crate::nav::strapdown::{NavState, Strapdown};
 use crate::redundancy::faults::Step;
 use crate::redundancy::{FaultConfig, FaultEvent, FaultMonitor, LiveNoise, MotionThresholds};
 
 use alignment::{Alignment, Start};
-use process_noise::{fused_noise, FusedNoise};
+use process_noise::{fused_noise, offset_tracking_variance, FusedNoise};
 
 /// Units the board fuses.
 pub const UNITS: usize = 3;
@@ -288,9 +288,32 @@ struct CalibrationWindow {
 #[derive(Debug, Clone, Copy)]
 struct WindowMeans {
     force: Vector3<f32>,
+    /// The fused output's running means as the window closed (see [`OffsetMeans`]).
+    absorbed: OffsetMeans,
     unit_rate: [Vector3<f32>; UNITS - 1],
     unit_force: [Vector3<f32>; UNITS - 1],
     sets: u32,
+}
+
+/// The fused rate's and specific force's running means at the fault monitors' offset time
+/// constant (body axes; rad/s, m/s^2): what a unit's offset, learned against the fused
+/// output, took away of a boresight error's effect along with its relative bias.
+#[derive(Debug, Clone, Copy, Default)]
+struct OffsetMeans {
+    rate: Vector3<f32>,
+    force: Vector3<f32>,
+    /// Intervals seen: a plain mean until the exponential weight is the smaller, as the
+    /// monitors' offsets learn.
+    seen: u32,
+}
+
+impl OffsetMeans {
+    fn push(&mut self, rate: Vector3<f32>, force: Vector3<f32>, alpha: [f32; 2]) {
+        self.seen = self.seen.saturating_add(1);
+        let startup = 1.0 / self.seen as f32;
+        self.rate += alpha[0].max(startup) * (rate - self.rate);
+        self.force += alpha[1].max(startup) * (force - self.force);
+    }
 }
 
 /// Standstill test on the filter interval's means.
@@ -307,6 +330,25 @@ struct Stillness {
     /// means over [`ANCHOR_S`] while it lasts; `None` once the vehicle clearly moved.
     anchor: Option<(Vector3<f32>, Vector3<f32>)>,
     started: bool,
+}
+
+/// What the mechanization ran since the last covariance prediction: the bias-corrected
+/// velocity increment (body, m/s), the angle increment as measured (body, rad) and the time
+/// (s).
+struct PendingPrediction<T: FilterScalar> {
+    delta_v_b_m_s: Vector3<T>,
+    delta_theta_b_rad: Vector3<T>,
+    span_s: T,
+}
+
+impl<T: FilterScalar> PendingPrediction<T> {
+    fn empty() -> Self {
+        Self {
+            delta_v_b_m_s: Vector3::zeros(),
+            delta_theta_b_rad: Vector3::zeros(),
+            span_s: T::zero(),
+        }
+    }
 }
 
 /// Time constant of the standstill test's slow means and deviations, s.
@@ -339,11 +381,18 @@ pub struct BoardFusion<T: FilterScalar = BoardScalar> {
     differentiator: RateDifferentiator<f32, WindowMeans>,
     stillness: Stillness,
     still: bool,
+    offset_means: OffsetMeans,
+    /// The exponential weights of [`OffsetMeans`] per interval (gyro, accelerometer).
+    offset_alpha: [f32; 2],
+    /// Each unit's offset-tracking error variance, gyro ((rad/s)^2) and accelerometer
+    /// ((m/s^2)^2), from the board model ([`offset_tracking_variance`]).
+    offset_error_variance: [[f32; 2]; UNITS],
     /// Consecutive fixes whose position was refused.
     gnss_refused: u32,
-    /// Bias-corrected velocity increment (body, m/s) and time (s) mechanized since the last
-    /// covariance prediction.
-    pending_prediction: (Vector3<T>, T),
+    pending_prediction: PendingPrediction<T>,
+    /// Each unit's weight in the fused rate and in the fused specific force over the last
+    /// interval (zero until the monitors fuse).
+    fused_shares: [[f32; UNITS]; 2],
     counts: FusionCounts,
 }
 
@@ -357,7 +406,7 @@ impl<T: FilterScalar> BoardFusion<T> {
                 .get(k)
                 .map_or((Matrix3::identity(), Vector3::zeros()), |u| {
                     let [r, p, y] = u.rotation_rpy_rad;
-                    let c = UnitQuaternion::from_euler_angles(r, p, y)
+                    let c = crate::scalar::quaternion_from_euler(r, p, y)
                         .to_rotation_matrix()
                         .into_inner();
                     (c, Vector3::from(u.lever_arm_m))
@@ -389,8 +438,17 @@ impl<T: FilterScalar> BoardFusion<T> {
             differentiator: RateDifferentiator::new(),
             stillness: Stillness::default(),
             still: false,
+            offset_means: OffsetMeans::default(),
+            offset_alpha: [config.gyro_monitor, config.accel_monitor]
+                .map(|m| m.alpha(m.mean_time_constant_s)),
+            offset_error_variance: core::array::from_fn(|k| {
+                [(false, config.gyro_monitor), (true, config.accel_monitor)].map(|(accel, m)| {
+                    offset_tracking_variance(units, accel, k, m.mean_time_constant_s)
+                })
+            }),
             gnss_refused: 0,
-            pending_prediction: (Vector3::zeros(), T::zero()),
+            pending_prediction: PendingPrediction::empty(),
+            fused_shares: [[0.0; UNITS]; 2],
             counts: FusionCounts::default(),
             config,
         }
@@ -460,6 +518,11 @@ impl<T: FilterScalar> BoardFusion<T> {
         let omega = fused_rate.unwrap_or_else(Vector3::zeros);
         let accel_body = accel_in_body(&means, &alignment, &omega);
         let fused_force = self.accel_monitor.fused(&accel_body).map(Vector3::from);
+        self.fused_shares = [
+            self.gyro_monitor.shares(&gyro_body),
+            self.accel_monitor.shares(&accel_body),
+        ]
+        .map(|shares| shares.unwrap_or([0.0; UNITS]));
         if let (Some(g), Some(a)) = (all_present(&gyro_body), all_present(&accel_body)) {
             self.gyro_live.push(&g, omega.into());
             self.accel_live.push(&a, omega.into());
@@ -469,6 +532,7 @@ impl<T: FilterScalar> BoardFusion<T> {
             self.counts.sets_without_output += u64::from(sums.sets);
             return;
         };
+        self.offset_means.push(rate, force, self.offset_alpha);
         self.add_to_window(&means, &alignment, rate, force);
         let interval = Interval {
             rate_sum: rate * sums.sets as f32,
@@ -599,8 +663,10 @@ impl<T: FilterScalar> BoardFusion<T> {
             self.restart();
             return;
         };
-        self.pending_prediction.0 += delta_v;
-        self.pending_prediction.1 += t::<T>(dt_s);
+        let pending = &mut self.pending_prediction;
+        pending.delta_v_b_m_s += delta_v;
+        pending.delta_theta_b_rad += tv(interval.rate_sum * interval_s);
+        pending.span_s += t::<T>(dt_s);
         let steps = self.counts.filter_steps;
         if steps.is_multiple_of(u64::from(self.config.predict_every)) && !self.flush_prediction() {
             return;
@@ -628,12 +694,26 @@ impl<T: FilterScalar> BoardFusion<T> {
     /// Predicts the covariance over the steps mechanized since the last prediction (before
     /// an update, and every `predict_every` steps). False if the filter had to start over.
     fn flush_prediction(&mut self) -> bool {
-        let (delta_v, span_s) =
-            core::mem::replace(&mut self.pending_prediction, (Vector3::zeros(), T::zero()));
+        let pending = core::mem::replace(&mut self.pending_prediction, PendingPrediction::empty());
+        let span_s = pending.span_s;
         let Some(filter) = &mut self.filter else {
             return false;
         };
-        if span_s <= T::zero() || filter.predict_covariance(delta_v / span_s, span_s).is_ok() {
+        if span_s <= T::zero() {
+            return true;
+        }
+        // The extra units' shares of the fused output carry their calibration errors into it.
+        let [gyro, accel] = self.fused_shares;
+        let coupling = CalibrationCoupling {
+            omega_b_rad_s: pending.delta_theta_b_rad / span_s - filter.ekf.gyro_bias_b_rad_s(),
+            gyro_share: core::array::from_fn(|k| t(gyro[k + 1])),
+            accel_share: core::array::from_fn(|k| t(accel[k + 1])),
+        };
+        let f_b_m_s2 = pending.delta_v_b_m_s / span_s;
+        if filter
+            .predict_covariance_coupled(f_b_m_s2, Some(&coupling), span_s)
+            .is_ok()
+        {
             return true;
         }
         self.restart();
@@ -644,7 +724,7 @@ impl<T: FilterScalar> BoardFusion<T> {
     fn restart(&mut self) {
         self.counts.restarts += 1;
         self.filter = None;
-        self.pending_prediction = (Vector3::zeros(), T::zero());
+        self.pending_prediction = PendingPrediction::empty();
     }
 
     /// The inter-IMU update on the window just closed, `window_s` long.
@@ -662,6 +742,7 @@ impl<T: FilterScalar> BoardFusion<T> {
         let n = w.sets as f32;
         let means = WindowMeans {
             force: w.force_sum / n - fv(filter.ekf.accel_bias_b_m_s2()),
+            absorbed: self.offset_means,
             unit_rate: w.unit_rate_sum.map(|s| s / n),
             unit_force: w.unit_force_sum.map(|s| s / n),
             sets: w.sets,
@@ -672,9 +753,24 @@ impl<T: FilterScalar> BoardFusion<T> {
         };
         let per_set = |live: &LiveNoise<UNITS>, k: usize| live.sigma(k) * live.sigma(k);
         let m_sets = m.sets.max(1) as f32;
+        let absorbed = AbsorbedMeans {
+            omega_ib_b_rad_s: tv(m.absorbed.rate),
+            f_b_m_s2: tv(m.absorbed.force),
+        };
+        // The offsets' tracking error lasts about their time constant: over that time the
+        // updates see one error, so each counts it as many times as one independent error's
+        // worth (twice the time constant over the window, an AR(1) mean's variance).
+        let repeats = |m: &FaultConfig| 2.0 * m.mean_time_constant_s / window_s.max(1e-3);
+        let (gyro_repeats, accel_repeats) = (
+            repeats(&self.config.gyro_monitor),
+            repeats(&self.config.accel_monitor),
+        );
         for k in 1..UNITS {
-            let rate_var = (per_set(&self.gyro_live, k) + per_set(&self.gyro_live, 0)) / m_sets;
-            let force_var = (per_set(&self.accel_live, k) + per_set(&self.accel_live, 0)) / m_sets;
+            let [gyro_offset_var, accel_offset_var] = self.offset_error_variance[k];
+            let rate_var = (per_set(&self.gyro_live, k) + per_set(&self.gyro_live, 0)) / m_sets
+                + gyro_repeats * gyro_offset_var;
+            let force_var = (per_set(&self.accel_live, k) + per_set(&self.accel_live, 0)) / m_sets
+                + accel_repeats * accel_offset_var;
             let sigma_rate = rate_var
                 .sqrt()
                 .max(self.config.calibration_rate_floor_rad_s);
@@ -689,9 +785,10 @@ impl<T: FilterScalar> BoardFusion<T> {
                 f_s_m_s2: tv(m.unit_force[k - 1]),
                 shares_reference_bias: true,
             };
-            filter.fuse_inter_imu(
+            filter.fuse_inter_imu_absorbed(
                 k - 1,
                 &sample,
+                &absorbed,
                 &Vector3::repeat(t(sigma_rate)),
                 &Vector3::repeat(t(sigma_force)),
             );
@@ -859,7 +956,7 @@ impl<T: FilterScalar> BoardFusion<T> {
         self.filter = Some(InsEkf::new(Strapdown::new(state), ekf));
         self.window = CalibrationWindow::default();
         self.differentiator = RateDifferentiator::new();
-        self.pending_prediction = (Vector3::zeros(), T::zero());
+        self.pending_prediction = PendingPrediction::empty();
     }
 
     /// The filter's state for the log.
@@ -1083,6 +1180,7 @@ fn initial_sigmas_in<T: FilterScalar>(s: &InitialSigmas<f32>) -> InitialSigmas<T
 fn empty_means() -> WindowMeans {
     WindowMeans {
         force: Vector3::zeros(),
+        absorbed: OffsetMeans::default(),
         unit_rate: [Vector3::zeros(); UNITS - 1],
         unit_force: [Vector3::zeros(); UNITS - 1],
         sets: 0,

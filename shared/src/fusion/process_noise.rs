@@ -88,10 +88,71 @@ pub fn fused_noise(units: &[UnitModel], accelerometer: bool) -> FusedNoise {
     fused
 }
 
+/// The variance (sensor unit², per axis) of the error with which a running mean of time
+/// constant `time_constant_s` (the fault monitor's offsets) follows extra unit `unit`'s bias
+/// relative to the fused output (gyros, or `accelerometer`s): that bias is the unit's own
+/// less the weighted mean's, `(1 − w_k) b_k − Σ_{j≠k} w_j b_j`, and a running mean of rate
+/// `a = 1 / time_constant_s` lags a Gauss-Markov process of variance `s²` and rate `β` by a
+/// variance `β s² / (a + β)`, a random walk of PSD `q` by `q / (2a)`, and averages the
+/// relative white noise of PSD `q_w` down to `q_w a / 2`.
+pub fn offset_tracking_variance(
+    units: &[UnitModel],
+    accelerometer: bool,
+    unit: usize,
+    time_constant_s: f32,
+) -> f32 {
+    let first = if accelerometer { 3 } else { 0 };
+    let mut triads = [None; crate::log::MAX_IMUS];
+    for (slot, u) in triads.iter_mut().zip(units) {
+        *slot = Some(triad_mean(&u.channels[first..first + 3]));
+    }
+    let all_weighted = triads.iter().flatten().all(|c| c.white_psd > 0.0);
+    let weight = |c: &ChannelNoise| if all_weighted { 1.0 / c.white_psd } else { 1.0 };
+    let total: f32 = triads.iter().flatten().map(weight).sum();
+    if total <= 0.0 || unit >= units.len() || !(time_constant_s > 0.0) {
+        return 0.0;
+    }
+    let a = 1.0 / time_constant_s;
+    let mut variance = 0.0;
+    for (j, c) in triads.iter().flatten().enumerate() {
+        let w = weight(c) / total;
+        // The unit's coefficient in its relative bias: 1 − w_k for itself, −w_j for the others.
+        let coefficient = if j == unit { 1.0 - w } else { w };
+        let mut own = c.random_walk_psd / (2.0 * a) + c.white_psd * a / 2.0;
+        if c.gauss_markov_sigma2 > 0.0 && c.gauss_markov_tau_s > 0.0 {
+            let beta = 1.0 / c.gauss_markov_tau_s;
+            own += c.gauss_markov_sigma2 * beta / (a + beta);
+        }
+        variance += coefficient * coefficient * own;
+    }
+    variance
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::board_model::BoardModel;
+
+    #[test]
+    fn a_running_offset_lags_a_fast_relative_bias_more_than_a_slow_one() {
+        let mut model = BoardModel::built_in(&[0, 1, 2]);
+        let mut with_tau = |tau_s: f32| {
+            for unit in model.units.iter_mut() {
+                for c in &mut unit.channels[3..6] {
+                    c.white_psd = 0.0;
+                    c.gauss_markov_sigma2 = 1e-4;
+                    c.gauss_markov_tau_s = tau_s;
+                    c.random_walk_psd = 0.0;
+                }
+            }
+            offset_tracking_variance(&model.units, true, 1, 10.0)
+        };
+        // Equal units: the relative bias has variance (4/9 + 1/9 + 1/9) 1e-4; a 10 s mean
+        // lags a 20 s process by beta / (a + beta) = 1/3 of it, a 300 s one by 1/31.
+        let relative = 6.0 / 9.0 * 1e-4;
+        assert!((with_tau(20.0) - relative / 3.0).abs() < 1e-3 * relative);
+        assert!((with_tau(300.0) - relative / 31.0).abs() < 1e-3 * relative);
+    }
 
     #[test]
     fn equal_units_average_their_white_noise_down_by_their_number() {

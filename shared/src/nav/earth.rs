@@ -52,9 +52,9 @@ pub struct Latitude<T> {
     pub radii: Radii<T>,
 }
 
-impl<T: RealField + Copy> Latitude<T> {
+impl<T: crate::scalar::FilterScalar> Latitude<T> {
     pub fn new(lat_rad: T) -> Self {
-        let (sin, cos) = lat_rad.sin_cos();
+        let (sin, cos) = lat_rad.sin_cos_rad();
         let w2 = T::one() - c::<T>(WGS84_E2) * sin * sin;
         let w = w2.sqrt();
         let a: T = c(WGS84_A_M);
@@ -120,7 +120,7 @@ impl<T: RealField + Copy> Latitude<T> {
 }
 
 /// Radii of curvature at geodetic latitude `lat_rad`.
-pub fn radii<T: RealField + Copy>(lat_rad: T) -> Radii<T> {
+pub fn radii<T: crate::scalar::FilterScalar>(lat_rad: T) -> Radii<T> {
     Latitude::new(lat_rad).radii
 }
 
@@ -128,25 +128,25 @@ pub fn radii<T: RealField + Copy>(lat_rad: T) -> Radii<T> {
 /// m/s^2, at geodetic latitude `lat_rad` and ellipsoidal height `h_m`: Somigliana's closed
 /// form on the ellipsoid with the usual second-order free-air height correction
 /// (NIMA TR8350.2 eq. 4-3), good to a few ugal up to aircraft heights.
-pub fn normal_gravity_m_s2<T: RealField + Copy>(lat_rad: T, h_m: T) -> T {
+pub fn normal_gravity_m_s2<T: crate::scalar::FilterScalar>(lat_rad: T, h_m: T) -> T {
     Latitude::new(lat_rad).normal_gravity_m_s2(h_m)
 }
 
 /// Gravity vector (plumb-bob: gravitation plus centrifugal) in NED, m/s^2. The model keeps
 /// only the component along the ellipsoid normal (the north component at height is below
 /// 1e-5 m/s^2 at car heights).
-pub fn gravity_ned_m_s2<T: RealField + Copy>(lat_rad: T, h_m: T) -> Vector3<T> {
+pub fn gravity_ned_m_s2<T: crate::scalar::FilterScalar>(lat_rad: T, h_m: T) -> Vector3<T> {
     Latitude::new(lat_rad).gravity_ned_m_s2(h_m)
 }
 
 /// Earth rate w.r.t. inertial space resolved in NED, omega_ie^n, rad/s.
-pub fn earth_rate_ned_rad_s<T: RealField + Copy>(lat_rad: T) -> Vector3<T> {
+pub fn earth_rate_ned_rad_s<T: crate::scalar::FilterScalar>(lat_rad: T) -> Vector3<T> {
     Latitude::new(lat_rad).earth_rate_ned_rad_s()
 }
 
 /// Transport rate (rotation of NED w.r.t. the Earth caused by moving over it), omega_en^n,
 /// rad/s, for Earth-relative velocity `v_ned_m_s` at latitude `lat_rad`, height `h_m`.
-pub fn transport_rate_ned_rad_s<T: RealField + Copy>(
+pub fn transport_rate_ned_rad_s<T: crate::scalar::FilterScalar>(
     lat_rad: T,
     h_m: T,
     v_ned_m_s: &Vector3<T>,
@@ -157,7 +157,7 @@ pub fn transport_rate_ned_rad_s<T: RealField + Copy>(
 /// Rates of change of geodetic position for Earth-relative velocity `v_ned_m_s`:
 /// (d lat/dt rad/s, d lon/dt rad/s, d h/dt m/s). `None` at the poles, where longitude rate
 /// is undefined.
-pub fn position_rates<T: RealField + Copy>(
+pub fn position_rates<T: crate::scalar::FilterScalar>(
     lat_rad: T,
     h_m: T,
     v_ned_m_s: &Vector3<T>,

@@ -81,7 +81,7 @@ impl<T: FilterScalar> NavState<T> {
         h_m: T,
     ) -> Self {
         Self {
-            q_nb: UnitQuaternion::from_euler_angles(roll_rad, pitch_rad, yaw_rad),
+            q_nb: crate::scalar::quaternion_from_euler(roll_rad, pitch_rad, yaw_rad),
             v_ned_m_s,
             lat_rad,
             lon_rad,
@@ -301,7 +301,7 @@ pub fn rotation_of<T: FilterScalar>(rotation_vector: Vector3<T>) -> UnitQuaterni
         let v = rotation_vector * half;
         return UnitQuaternion::new_normalize(nalgebra::Quaternion::new(T::one(), v.x, v.y, v.z));
     }
-    let (sin, cos) = (angle * half).sin_cos();
+    let (sin, cos) = (angle * half).sin_cos_rad();
     let v = rotation_vector * (sin / angle);
     UnitQuaternion::new_unchecked(nalgebra::Quaternion::new(cos, v.x, v.y, v.z))
 }

@@ -134,7 +134,8 @@ impl FaultConfig {
         (seconds / self.sample_interval_s) as u32
     }
 
-    fn alpha(&self, time_constant_s: f32) -> f32 {
+    /// The weight a sample set gets in a running mean of `time_constant_s`.
+    pub fn alpha(&self, time_constant_s: f32) -> f32 {
         1.0 - (-self.sample_interval_s / time_constant_s).exp()
     }
 }
@@ -1312,8 +1313,23 @@ impl<const N: usize> FaultMonitor<N> {
     /// output than none only where its fault is gross, and those are the direct ones; a
     /// board left without a fused output loses its navigation until it can align again.
     pub fn fused(&self, samples: &[Option<[f32; 3]>; N]) -> Option<[f32; 3]> {
+        let shares = self.shares(samples)?;
         let mut sum = [0.0f32; 3];
-        let mut weights = 0.0;
+        for (k, s) in samples.iter().enumerate() {
+            let Some(s) = s.filter(|_| shares[k] > 0.0) else {
+                continue;
+            };
+            let offset = self.offset(k);
+            for a in 0..3 {
+                sum[a] += shares[k] * (s[a] - offset[a]);
+            }
+        }
+        Some(sum)
+    }
+
+    /// Each unit's weight in [`Self::fused`] (summing to 1; 0 for a unit left out), None
+    /// when no unit is in use.
+    pub fn shares(&self, samples: &[Option<[f32; 3]>; N]) -> Option<[f32; N]> {
         let any_healthy = (0..N).any(|k| self.units[k].healthy && samples[k].is_some());
         let in_use = |k: usize| {
             samples[k].is_some()
@@ -1325,22 +1341,13 @@ impl<const N: usize> FaultMonitor<N> {
         };
         // Equal weights until every unit in use has a noise level.
         let levels_known = (0..N).all(|k| !in_use(k) || self.noise_variance(k) > 0.0);
-        for (k, s) in samples.iter().enumerate() {
-            let Some(s) = s.filter(|_| in_use(k)) else {
-                continue;
-            };
-            let w = if levels_known {
-                1.0 / self.noise_variance(k)
-            } else {
-                1.0
-            };
-            let offset = self.offset(k);
-            for a in 0..3 {
-                sum[a] += w * (s[a] - offset[a]);
-            }
-            weights += w;
-        }
-        (weights > 0.0).then(|| sum.map(|v| v / weights))
+        let weights: [f32; N] = core::array::from_fn(|k| match (in_use(k), levels_known) {
+            (false, _) => 0.0,
+            (true, true) => 1.0 / self.noise_variance(k),
+            (true, false) => 1.0,
+        });
+        let total: f32 = weights.iter().sum();
+        (total > 0.0).then(|| weights.map(|w| w / total))
     }
 }
 

@@ -56,7 +56,7 @@ pub fn geodetic_difference_ned_m<T: FilterScalar>(
     let [lat_n, lon_n, h_n] = nominal_lat_lon_h;
     Vector3::new(
         (lat_m - lat_n) * meridian_radius_plus_h_m,
-        (lon_m - lon_n) * transverse_radius_plus_h_m * lat_n.cos(),
+        (lon_m - lon_n) * transverse_radius_plus_h_m * lat_n.sin_cos_rad().1,
         h_n - h_m,
     )
 }

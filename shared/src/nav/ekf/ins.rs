@@ -7,8 +7,8 @@
 //! `correct` after the updates of each epoch.
 
 use super::{
-    position_innovation_ned_m, small_rotation, BatchOutcome, ErrorStateEkf, InterImuSample,
-    NavCorrection, NavLinearization,
+    position_innovation_ned_m, small_rotation, AbsorbedMeans, BatchOutcome, CalibrationCoupling,
+    ErrorStateEkf, InterImuSample, NavCorrection, NavLinearization,
 };
 use crate::nav::earth::Latitude;
 use crate::nav::strapdown::{arc_angle_rad, NavFault, NavState, Strapdown};
@@ -96,10 +96,21 @@ impl<T: FilterScalar, const K: usize, const N: usize> InsEkf<T, K, N> {
     /// The covariance carried `dt_s` forward about the current mechanization state, with the
     /// mean bias-corrected specific force `f_b_m_s2` (body) over that time.
     pub fn predict_covariance(&mut self, f_b_m_s2: Vector3<T>, dt_s: T) -> Result<(), NavFault> {
+        self.predict_covariance_coupled(f_b_m_s2, None, dt_s)
+    }
+
+    /// [`Self::predict_covariance`] for a fused IMU turned by the estimated calibrations
+    /// (see [`ErrorStateEkf::predict_coupled`]).
+    pub fn predict_covariance_coupled(
+        &mut self,
+        f_b_m_s2: Vector3<T>,
+        coupling: Option<&CalibrationCoupling<T, K>>,
+        dt_s: T,
+    ) -> Result<(), NavFault> {
         let latitude = self.strapdown.latitude();
         let s = self.strapdown.state();
         let lin = NavLinearization::at_latitude(&latitude, s.h_m, s.v_ned_m_s, s.c_bn(), f_b_m_s2);
-        if self.ekf.predict(&lin, dt_s) {
+        if self.ekf.predict_coupled(&lin, coupling, dt_s) {
             Ok(())
         } else {
             Err(NavFault::NonFinite)
@@ -147,6 +158,20 @@ impl<T: FilterScalar, const K: usize, const N: usize> InsEkf<T, K, N> {
     ) -> Option<BatchOutcome> {
         self.ekf
             .fuse_inter_imu(imu, sample, sigma_rate_rad_s, sigma_force_m_s2)
+    }
+
+    /// [`ErrorStateEkf::fuse_inter_imu_absorbed`]: the update of a unit de-biased by a running
+    /// mean against the reference; `None` if `imu >= K`.
+    pub fn fuse_inter_imu_absorbed(
+        &mut self,
+        imu: usize,
+        sample: &InterImuSample<T>,
+        absorbed: &AbsorbedMeans<T>,
+        sigma_rate_rad_s: &Vector3<T>,
+        sigma_force_m_s2: &Vector3<T>,
+    ) -> Option<BatchOutcome> {
+        self.ekf
+            .fuse_inter_imu_absorbed(imu, sample, absorbed, sigma_rate_rad_s, sigma_force_m_s2)
     }
 
     /// Puts the position and velocity at a measurement's (WGS84 latitude, longitude in rad,

@@ -44,9 +44,9 @@ mod ins;
 mod predict;
 
 pub use fuse_gnss::{geodetic_difference_ned_m, position_innovation_ned_m};
-pub use fuse_inter_imu::{InterImuSample, RateDifferentiator};
+pub use fuse_inter_imu::{AbsorbedMeans, InterImuSample, RateDifferentiator};
 pub use ins::{apply_correction, InsEkf};
-pub use predict::{gauss_markov_step, NavLinearization};
+pub use predict::{gauss_markov_step, CalibrationCoupling, NavLinearization};
 
 use nalgebra::{Matrix3, Quaternion, SMatrix, SVector, UnitQuaternion, Vector3};
 
@@ -350,6 +350,10 @@ pub struct ErrorStateEkf<T: FilterScalar, const K: usize, const N: usize> {
     /// Predictions run, and the physical covariance right after the last one.
     #[cfg(feature = "probe")]
     probe: (u64, SMatrix<f64, N, N>),
+    /// The last prediction's calibration-to-navigation rows (see
+    /// [`Self::last_transition_coupling`]).
+    #[cfg(feature = "probe")]
+    probe_coupling: SMatrix<f64, 6, N>,
 }
 
 impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
@@ -376,6 +380,8 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
             stats: FusionStats::default(),
             #[cfg(feature = "probe")]
             probe: (0, SMatrix::zeros()),
+            #[cfg(feature = "probe")]
+            probe_coupling: SMatrix::zeros(),
         };
         filter.reset_covariance();
         filter

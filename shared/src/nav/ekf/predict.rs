@@ -97,6 +97,29 @@ impl<T: FilterScalar> NavLinearization<T> {
     }
 }
 
+/// How the filter's IMU error depends on the extra units' calibration errors when that IMU
+/// is the weighted mean of the units, each turned into the body frame by its *estimated*
+/// calibration (the board's fusion), rather than an IMU of its own (the paper's setting,
+/// where the calibrations do not touch the navigation). A boresight error `δψ_k` of a unit
+/// with weight `w_k` puts `w_k [ω×] Ĉ_kᵀ δψ_k` into the fused rate and `w_k [f×] Ĉ_kᵀ δψ_k`
+/// into the fused specific force, and a lever-arm error `δr_k` (the centripetal term moved
+/// with the estimated arm) `w_k Ω Ω δr_k`: errors that act as the bias errors do.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CalibrationCoupling<T, const K: usize> {
+    /// Bias-corrected angular rate over the step, rad/s, body axes.
+    pub omega_b_rad_s: Vector3<T>,
+    /// Each extra unit's weight in the fused angular rate (the weights sum to 1 with the
+    /// body unit's).
+    pub gyro_share: [T; K],
+    /// Each extra unit's weight in the fused specific force.
+    pub accel_share: [T; K],
+}
+
+/// One block of the transition's navigation-from-calibration part: its first row counted
+/// from [`VEL`] (0: velocity, 3: attitude), its first column (a calibration state), the
+/// block.
+type CouplingBlock<T> = (usize, usize, Matrix3<T>);
+
 /// One 3×3 block of the transition matrix.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) enum Block3<T: FilterScalar> {
@@ -306,6 +329,18 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     /// trajectory `lin`. Returns `false` (and counts it) if `dt_s` is not positive and finite
     /// or `lin` holds a non-finite value; the filter is then unchanged.
     pub fn predict(&mut self, lin: &NavLinearization<T>, dt_s: T) -> bool {
+        self.predict_coupled(lin, None, dt_s)
+    }
+
+    /// [`Self::predict`] for a filter whose IMU is the units' fused output turned by the
+    /// estimated calibrations: with `coupling`, the transition also carries the calibration
+    /// errors into the velocity and attitude errors ([`CalibrationCoupling`]).
+    pub fn predict_coupled(
+        &mut self,
+        lin: &NavLinearization<T>,
+        coupling: Option<&CalibrationCoupling<T, K>>,
+        dt_s: T,
+    ) -> bool {
         if !(dt_s.is_finite() && dt_s > T::zero() && lin.is_finite()) {
             self.stats.rejected_predictions = self.stats.rejected_predictions.saturating_add(1);
             return false;
@@ -376,6 +411,10 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
                 }
             }
         }
+        let coupling_blocks = coupling.map(|c| self.coupling_blocks(lin, c, dt_s));
+        if let Some(blocks) = &coupling_blocks {
+            self.shear_by_calibrations(blocks.as_flattened());
+        }
         self.add_process_noise(dt_s);
 
         // Error mean: δx_nav ← Φ_nav δx_nav (zero right after a reset).
@@ -392,7 +431,24 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
                 self.dx[3 * bi + axis] = acc[axis];
             }
         }
+        // δx_nav += B δx_cal (the mean is held physical).
+        for &(row, col, b) in coupling_blocks.iter().flatten().flatten() {
+            let moved = b * Vector3::new(self.dx[col], self.dx[col + 1], self.dx[col + 2]);
+            for r in 0..3 {
+                self.dx[VEL + row + r] += moved[r];
+            }
+        }
         self.transition = phi;
+        #[cfg(feature = "probe")]
+        {
+            self.probe_coupling = SMatrix::zeros();
+            for &(row, col, b) in coupling_blocks.iter().flatten().flatten() {
+                for (r, c) in (0..3).flat_map(|r| (0..3).map(move |c| (r, c))) {
+                    self.probe_coupling[(row + r, col + c)] =
+                        nalgebra::try_convert::<T, f64>(b[(r, c)]).unwrap_or(f64::NAN);
+                }
+            }
+        }
         if T::overflows() != overflows_before {
             // A saturated number went into the covariance: start it over, as a non-finite
             // variance makes the floors do.
@@ -406,6 +462,115 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
             self.probe = (self.probe.0 + 1, self.covariance_f64());
         }
         true
+    }
+
+    /// The blocks of the transition that carry the calibration errors into the velocity and
+    /// attitude errors over `dt`, physical units: `−Ĉ_b^n dt` (the bias columns' block)
+    /// times each unit's share of its errors. Each is (first row from [`VEL`], first
+    /// column, block).
+    #[inline(never)]
+    fn coupling_blocks(
+        &self,
+        lin: &NavLinearization<T>,
+        coupling: &CalibrationCoupling<T, K>,
+        dt: T,
+    ) -> [[CouplingBlock<T>; 3]; K] {
+        let to_nav = -lin.c_b_n * dt;
+        let omega_skew = skew(&coupling.omega_b_rad_s);
+        let rate_to_nav = to_nav * omega_skew;
+        let force_to_nav = to_nav * skew(&lin.f_b_m_s2);
+        let centripetal_to_nav = rate_to_nav * omega_skew;
+        let mut blocks = [[(0, 0, Matrix3::zeros()); 3]; K];
+        for (k, unit) in blocks.iter_mut().enumerate() {
+            let shares = (coupling.accel_share[k], coupling.gyro_share[k]);
+            *unit = self.unit_coupling(
+                k,
+                shares,
+                [&force_to_nav, &centripetal_to_nav, &rate_to_nav],
+            );
+        }
+        blocks
+    }
+
+    /// Extra unit `k`'s three coupling blocks from the shared factors `[−Ĉ_b^n dt [f×],
+    /// −Ĉ_b^n dt Ω Ω, −Ĉ_b^n dt [ω×]]` and its (accelerometer, gyro) shares; out of line, so
+    /// the board carries it once.
+    #[inline(never)]
+    fn unit_coupling(
+        &self,
+        k: usize,
+        (accel, gyro): (T, T),
+        [force_to_nav, centripetal_to_nav, rate_to_nav]: [&Matrix3<T>; 3],
+    ) -> [CouplingBlock<T>; 3] {
+        let c_s_b = self.calibration[k].c_b_s().transpose();
+        let (psi, arm) = (boresight_index(k), boresight_index(k) + 3);
+        [
+            (0, psi, force_to_nav * c_s_b * accel),
+            (0, arm, centripetal_to_nav * accel),
+            (3, psi, rate_to_nav * c_s_b * gyro),
+        ]
+    }
+
+    /// `P ← S P Sᵀ` for the shear `S = [[I, B], [0, I]]`, `B` the calibration columns of the
+    /// velocity and attitude rows (`blocks`, physical): with the navigation part of the
+    /// transition applied before, the whole `Φ = S · diag(Φ_nav, I)`. Only the velocity and
+    /// attitude rows and columns change. Kept out of line and over a slice: the board's
+    /// flash has no room for these loops unrolled.
+    #[inline(never)]
+    fn shear_by_calibrations(&mut self, blocks: &[CouplingBlock<T>]) {
+        // X = B P (6 × N), B as the covariance is held (scaled in fixed point).
+        let mut x = SMatrix::<T, 6, N>::zeros();
+        for block in blocks {
+            let (row, col, b) = self.held_block(block);
+            for j in 0..N {
+                for r in 0..3 {
+                    let mut acc = x[(row + r, j)];
+                    for c in 0..3 {
+                        acc += b[(r, c)] * self.p[(col + c, j)];
+                    }
+                    x[(row + r, j)] = acc;
+                }
+            }
+        }
+        // B P Bᵀ = X Bᵀ (6 × 6), before P changes.
+        let mut corner = SMatrix::<T, 6, 6>::zeros();
+        for block in blocks {
+            let (row, col, b) = self.held_block(block);
+            for i in 0..6 {
+                for r in 0..3 {
+                    let mut acc = corner[(i, row + r)];
+                    for c in 0..3 {
+                        acc += x[(i, col + c)] * b[(r, c)];
+                    }
+                    corner[(i, row + r)] = acc;
+                }
+            }
+        }
+        // P += E X + Xᵀ Eᵀ + E (X Bᵀ) Eᵀ, E placing six rows at the velocity's.
+        let half: T = nalgebra::convert(0.5);
+        for r in 0..6 {
+            for j in 0..N {
+                let inner = (VEL..VEL + 6).contains(&j);
+                let corner_part = if inner {
+                    (corner[(r, j - VEL)] + corner[(j - VEL, r)]) * half + x[(j - VEL, VEL + r)]
+                } else {
+                    self.p[(j, VEL + r)] += x[(r, j)];
+                    T::zero()
+                };
+                self.p[(VEL + r, j)] += x[(r, j)] + corner_part;
+            }
+        }
+    }
+
+    /// A coupling block as the covariance is held: `B_ij 2^(s_j − s_i)` in fixed point.
+    fn held_block(&self, &(row, col, block): &CouplingBlock<T>) -> CouplingBlock<T> {
+        if !T::SCALED {
+            return (row, col, block);
+        }
+        let scaled = Matrix3::from_fn(|r, c| {
+            block[(r, c)].mul_pow2(self.scale[col + c] - self.scale[VEL + row + r])
+        });
+        (row, col, scaled)
     }
 
     /// `Q_d ≈ G Q Gᵀ dt`: white accelerometer and gyro noise (isotropic, so rotating it into
@@ -441,6 +606,13 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
                 add(boresight_index(imu) + axis, psd, dt);
             }
         }
+    }
+
+    /// The calibration columns of the last prediction's transition, rows from the velocity
+    /// error on (six; zero without a [`CalibrationCoupling`]), physical units, f64.
+    #[cfg(feature = "probe")]
+    pub fn last_transition_coupling(&self) -> &SMatrix<f64, 6, N> {
+        &self.probe_coupling
     }
 
     /// The navigation block of the last prediction's transition matrix `Φ_nav` (dense

@@ -271,6 +271,91 @@ fn an_extra_imu_debiased_against_the_reference_leaves_the_bias_states_alone() {
     assert!(dx[boresight_index(0)].abs() > 0.0);
 }
 
+/// After one coupled prediction from a diagonal covariance, the velocity-, attitude- and
+/// lever-arm cross-covariances of the first extra unit's calibration, physical units.
+fn coupled_cross_covariances<T: FilterScalar>(dt_s: f64) -> [Matrix3<f64>; 3] {
+    let c = |x: f64| nalgebra::convert::<f64, T>(x);
+    let mut ekf = NavEkf2::<T>::new(EkfConfig::automotive_mems(), initial_sigmas());
+    // A turned unit: the error lands in body axes through its estimated C_s^b.
+    let turned = UnitQuaternion::from_euler_angles(c(0.0), c(0.0), c(0.5 * core::f64::consts::PI));
+    ekf.set_calibration(
+        0,
+        InterImuCalibration {
+            q_b_to_s: turned,
+            lever_arm_b_m: Vector3::zeros(),
+        },
+    );
+    let lin = linearization(0.3, 12.0);
+    let lin_t = NavLinearization {
+        c_b_n: lin.c_b_n.map(c),
+        f_b_m_s2: lin.f_b_m_s2.map(c),
+        v_ned_m_s: lin.v_ned_m_s.map(c),
+        omega_ie_n_rad_s: lin.omega_ie_n_rad_s.map(c),
+        omega_en_n_rad_s: lin.omega_en_n_rad_s.map(c),
+        gravity_m_s2: c(lin.gravity_m_s2),
+        meridian_radius_plus_h_m: c(lin.meridian_radius_plus_h_m),
+        transverse_radius_plus_h_m: c(lin.transverse_radius_plus_h_m),
+        tan_lat: c(lin.tan_lat),
+    };
+    let coupling = CalibrationCoupling {
+        omega_b_rad_s: Vector3::new(c(0.1), c(-0.2), c(0.5)),
+        gyro_share: [c(0.3), c(0.3)],
+        accel_share: [c(0.25), c(0.25)],
+    };
+    assert!(ekf.predict_coupled(&lin_t, Some(&coupling), c(dt_s)));
+    let p = ekf.covariance_f64();
+    let (psi, arm) = (boresight_index(0), lever_arm_index(0));
+    [
+        p.fixed_view::<3, 3>(VEL, psi).into_owned(),
+        p.fixed_view::<3, 3>(ATT, psi).into_owned(),
+        p.fixed_view::<3, 3>(VEL, arm).into_owned(),
+    ]
+}
+
+#[test]
+fn a_fused_imu_carries_its_units_calibration_errors_into_velocity_and_attitude() {
+    // The fused output turns each unit by its estimated calibration: a boresight error tilts
+    // the fused rate by w [ω×] C_s^b δψ and force by w [f×] C_s^b δψ, a lever-arm error moves
+    // the force by w Ω Ω δr, each entering as a bias error does (−C_b^n dt per unit).
+    let dt = 0.01;
+    let lin = linearization(0.3, 12.0);
+    let c_s_b = Rotation3::from_euler_angles(0.0, 0.0, 0.5 * core::f64::consts::PI)
+        .into_inner()
+        .transpose();
+    let omega = Vector3::new(0.1, -0.2, 0.5);
+    let (var_psi, var_arm) = (20f64.to_radians().powi(2), 0.2f64.powi(2));
+    let to_nav = -lin.c_b_n * dt;
+    let expected = [
+        to_nav * skew(&lin.f_b_m_s2) * c_s_b * 0.25 * var_psi,
+        to_nav * skew(&omega) * c_s_b * 0.3 * var_psi,
+        to_nav * skew(&omega) * skew(&omega) * 0.25 * var_arm,
+    ];
+    let f64_cross = coupled_cross_covariances::<f64>(dt);
+    let fixed_cross = coupled_cross_covariances::<I32F32>(dt);
+    for (k, want) in expected.iter().enumerate() {
+        let scale = want.abs().max();
+        assert!(scale > 0.0);
+        assert!(
+            (f64_cross[k] - want).abs().max() < 1e-9 * scale,
+            "block {k}: {} vs {want}",
+            f64_cross[k]
+        );
+        assert!(
+            (fixed_cross[k] - want).abs().max() < 1e-4 * scale,
+            "fixed point, block {k}: {} vs {want}",
+            fixed_cross[k]
+        );
+    }
+    // Without the coupling the calibrations stay out of the navigation errors.
+    let mut plain = NavEkf2::<f64>::new(EkfConfig::automotive_mems(), initial_sigmas());
+    assert!(plain.predict(&lin, dt));
+    let p = plain.covariance_f64();
+    assert_eq!(
+        p.fixed_view::<6, 12>(VEL, boresight_index(0)).abs().max(),
+        0.0
+    );
+}
+
 #[test]
 fn reset_folds_calibration_error_into_nominal_with_the_documented_convention() {
     let mut ekf = NavEkf1::<f64>::new(EkfConfig::automotive_mems(), reference_grade_sigmas());
