@@ -15,7 +15,7 @@ pub mod drive;
 
 use dynacal_core::board_model::BoardModel;
 use dynacal_core::scalar::FilterScalar;
-use nalgebra::{DMatrix, Matrix3, SMatrix, UnitQuaternion, Vector3};
+use nalgebra::{DMatrix, SMatrix, UnitQuaternion, Vector3};
 use serde::Serialize;
 use statrs::distribution::{ChiSquared, ContinuousCDF};
 
@@ -448,14 +448,12 @@ fn run_with<T: FilterScalar>(
 
 /// Each extra unit's true mount as the board model states it: `C_b^s` (body to unit axes,
 /// as the fusion turns roll, pitch and yaw into it) and the lever arm (body axes, m).
-fn extra_unit_mounts(model: &BoardModel) -> [(Matrix3<f64>, Vector3<f64>); UNITS - 1] {
+fn extra_unit_mounts(model: &BoardModel) -> [(UnitQuaternion<f64>, Vector3<f64>); UNITS - 1] {
     core::array::from_fn(|k| {
         let unit = &model.units[k + 1];
         let [roll, pitch, yaw] = unit.rotation_rpy_rad.map(f64::from);
         (
-            UnitQuaternion::from_euler_angles(roll, pitch, yaw)
-                .to_rotation_matrix()
-                .into_inner(),
+            UnitQuaternion::from_euler_angles(roll, pitch, yaw),
             Vector3::from(unit.lever_arm_m.map(f64::from)),
         )
     })
@@ -465,17 +463,20 @@ fn extra_unit_mounts(model: &BoardModel) -> [(Matrix3<f64>, Vector3<f64>); UNITS
 /// against the true `mounts`; None if their covariance block is not positive definite.
 fn calibration_nees_of<T: FilterScalar>(
     filter: &FusionFilter<T>,
-    mounts: &[(Matrix3<f64>, Vector3<f64>); UNITS - 1],
+    mounts: &[(UnitQuaternion<f64>, Vector3<f64>); UNITS - 1],
 ) -> Option<f64> {
     const STATES: usize = CALIBRATION_STATES_PER_IMU * (UNITS - 1);
     let p = filter.ekf.covariance_f64();
     let mut error = nalgebra::SVector::<f64, STATES>::zeros();
-    for (k, (c_b_s, lever_arm_m)) in mounts.iter().enumerate() {
+    for (k, (q_b_to_s, lever_arm_m)) in mounts.iter().enumerate() {
         let estimate = filter.ekf.calibration(k)?;
-        let c_hat = estimate.c_b_s().map(to_f64);
-        // C_b^s = (I - [dpsi x]) C_hat: the error angle is the rotation vector of C_hat C^T.
-        let boresight_rad =
-            nalgebra::Rotation3::from_matrix_unchecked(c_hat * c_b_s.transpose()).scaled_axis();
+        let q_hat = UnitQuaternion::new_normalize(nalgebra::Quaternion::from(
+            estimate.q_b_to_s.into_inner().coords.map(to_f64),
+        ));
+        // C_b^s = (I - [dpsi x]) C_hat: the error angle is the rotation vector of C_hat C^T,
+        // taken through quaternions (from a single-precision matrix the trace of a
+        // near-identity product can round above 3, and its angle is NaN).
+        let boresight_rad = (q_hat * q_b_to_s.inverse()).scaled_axis();
         let lever_m = estimate.lever_arm_b_m.map(to_f64) - lever_arm_m;
         let at = CALIBRATION_STATES_PER_IMU * k;
         error.fixed_rows_mut::<3>(at).copy_from(&boresight_rad);
