@@ -514,15 +514,14 @@ impl<T: FilterScalar> BoardFusion<T> {
         let means = sums.means();
         self.test_units(t_us, &means, &alignment, out);
         let gyro_body = gyro_in_body(&means, &alignment);
-        let fused_rate = self.gyro_monitor.fused(&gyro_body).map(Vector3::from);
+        let gyro_fused = self.gyro_monitor.fused_and_shares(&gyro_body);
+        let fused_rate = gyro_fused.map(|(rate, _)| Vector3::from(rate));
         let omega = fused_rate.unwrap_or_else(Vector3::zeros);
         let accel_body = accel_in_body(&means, &alignment, &omega);
-        let fused_force = self.accel_monitor.fused(&accel_body).map(Vector3::from);
-        self.fused_shares = [
-            self.gyro_monitor.shares(&gyro_body),
-            self.accel_monitor.shares(&accel_body),
-        ]
-        .map(|shares| shares.unwrap_or([0.0; UNITS]));
+        let accel_fused = self.accel_monitor.fused_and_shares(&accel_body);
+        let fused_force = accel_fused.map(|(force, _)| Vector3::from(force));
+        self.fused_shares = [gyro_fused.map(|(_, s)| s), accel_fused.map(|(_, s)| s)]
+            .map(|shares| shares.unwrap_or([0.0; UNITS]));
         if let (Some(g), Some(a)) = (all_present(&gyro_body), all_present(&accel_body)) {
             self.gyro_live.push(&g, omega.into());
             self.accel_live.push(&a, omega.into());

@@ -1313,6 +1313,14 @@ impl<const N: usize> FaultMonitor<N> {
     /// output than none only where its fault is gross, and those are the direct ones; a
     /// board left without a fused output loses its navigation until it can align again.
     pub fn fused(&self, samples: &[Option<[f32; 3]>; N]) -> Option<[f32; 3]> {
+        self.fused_and_shares(samples).map(|(fused, _)| fused)
+    }
+
+    /// [`Self::fused`] with the units' [`Self::shares`] that made it, computed once.
+    pub fn fused_and_shares(
+        &self,
+        samples: &[Option<[f32; 3]>; N],
+    ) -> Option<([f32; 3], [f32; N])> {
         let shares = self.shares(samples)?;
         let mut sum = [0.0f32; 3];
         for (k, s) in samples.iter().enumerate() {
@@ -1324,7 +1332,7 @@ impl<const N: usize> FaultMonitor<N> {
                 sum[a] += shares[k] * (s[a] - offset[a]);
             }
         }
-        Some(sum)
+        Some((sum, shares))
     }
 
     /// Each unit's weight in [`Self::fused`] (summing to 1; 0 for a unit left out), None

@@ -63,6 +63,17 @@ pub struct AbsorbedMeans<T> {
     pub f_b_m_s2: Vector3<T>,
 }
 
+impl<T: FilterScalar> AbsorbedMeans<T> {
+    /// Nothing absorbed: an extra IMU compared with an independent reference (the paper's
+    /// setting).
+    pub fn nothing() -> Self {
+        Self {
+            omega_ib_b_rad_s: Vector3::zeros(),
+            f_b_m_s2: Vector3::zeros(),
+        }
+    }
+}
+
 impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
     /// Joint boresight and lever-arm update of extra IMU `imu` (paper II-B, eqs. 8–12): three
     /// scalar angular-rate updates then three scalar specific-force updates. `sigma_rate_rad_s`
@@ -77,14 +88,10 @@ impl<T: FilterScalar, const K: usize, const N: usize> ErrorStateEkf<T, K, N> {
         sigma_rate_rad_s: &Vector3<T>,
         sigma_force_m_s2: &Vector3<T>,
     ) -> Option<BatchOutcome> {
-        let nothing_absorbed = AbsorbedMeans {
-            omega_ib_b_rad_s: Vector3::zeros(),
-            f_b_m_s2: Vector3::zeros(),
-        };
         self.fuse_inter_imu_absorbed(
             imu,
             sample,
-            &nothing_absorbed,
+            &AbsorbedMeans::nothing(),
             sigma_rate_rad_s,
             sigma_force_m_s2,
         )
