@@ -9,7 +9,7 @@
 //! gravity) `a_{x,y,z}_m_s2` and linear jerk `a_dot_{x,y,z}_m_s3`.
 
 use std::io::Write;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use crate::interchange::{
     check_time_increasing, check_time_increasing_at, read_table, TableError, CHANNELS,
@@ -187,26 +187,26 @@ impl ErrorSignals {
     /// Writes the file whole or not at all (gzip when the name ends in `.gz`, Parquet when
     /// it ends in `.parquet`).
     pub fn write(&self, path: &Path) -> Result<(), TableError> {
-        let io = |source| TableError::Io {
-            path: path.to_path_buf(),
-            source,
-        };
         let n = self.t_s.len();
-        let mut columns: Vec<(&str, &[f64])> = vec![("t_s", &self.t_s)];
+        let mut columns: Vec<&[f64]> = vec![&self.t_s];
+        let mut names = vec!["t_s"];
         for (name, e) in ERROR_COLUMNS.iter().zip(&self.errors) {
             if let Some(e) = e {
-                columns.push((name, e));
+                columns.push(e);
+                names.push(name);
             }
         }
         for (name, d) in DYNAMICS_COLUMNS.iter().zip(&self.dynamics) {
-            columns.push((name, d));
+            columns.push(d);
+            names.push(name);
         }
         if let Some(f) = &self.specific_force_b_m_s2 {
             for (name, d) in SPECIFIC_FORCE_COLUMNS.iter().zip(f) {
-                columns.push((name, d));
+                columns.push(d);
+                names.push(name);
             }
         }
-        for (name, c) in &columns {
+        for (name, c) in names.iter().zip(&columns) {
             if c.len() != n {
                 return Err(TableError::LengthMismatch {
                     path: path.to_path_buf(),
@@ -217,30 +217,150 @@ impl ErrorSignals {
             }
         }
         check_time_increasing(path, &self.t_s)?;
-        if crate::interchange::parquet::writes_parquet(path) {
-            return crate::interchange::parquet::write_columns(path, &columns);
+        let present = self.errors.each_ref().map(Option::is_some);
+        let mut out =
+            ErrorSignalWriter::create(path, present, self.specific_force_b_m_s2.is_some())?;
+        let mut row = vec![0.0; columns.len()];
+        for k in 0..n {
+            row.iter_mut().zip(&columns).for_each(|(v, c)| *v = c[k]);
+            out.push(&row)?;
         }
-        let mut out = AtomicFile::create(path).map_err(io)?;
-        {
-            let mut w = out.writer();
-            let header: Vec<&str> = columns.iter().map(|c| c.0).collect();
-            writeln!(w, "{}", header.join(",")).map_err(io)?;
-            let mut line = String::new();
-            for row in 0..n {
-                line.clear();
-                for (k, (_, c)) in columns.iter().enumerate() {
-                    if k > 0 {
-                        line.push(',');
-                    }
-                    use std::fmt::Write as _;
-                    let _ = write!(line, "{}", c[row]);
-                }
-                line.push('\n');
-                w.write_all(line.as_bytes()).map_err(io)?;
+        out.finish()
+    }
+}
+
+/// An error-signal file written one row at a time, in memory that does not grow with it (a
+/// streamed calibration, and [`ErrorSignals::write`]): CSV text, gzip-compressed when the
+/// name ends in `.gz`, or Parquet when it ends in `.parquet`. Rows are `t_s`, the error
+/// columns present, the 15 dynamics, and the specific force when present, in
+/// [`ErrorSignalWriter::columns`] order; time must strictly increase. The file appears
+/// whole on [`ErrorSignalWriter::finish`], or not at all.
+pub struct ErrorSignalWriter {
+    path: PathBuf,
+    file: AtomicFile,
+    sink: SignalSink,
+    columns: Vec<&'static str>,
+    rows: u64,
+    previous_t_s: f64,
+}
+
+/// Where an [`ErrorSignalWriter`]'s rows go.
+enum SignalSink {
+    Text {
+        out: Box<dyn Write + Send>,
+        line: Vec<u8>,
+        digits: zmij::Buffer,
+    },
+    Parquet(crate::interchange::parquet::ParquetSink),
+}
+
+impl ErrorSignalWriter {
+    /// Starts `path` with the error columns `errors` says are present (gx .. az) and the
+    /// specific force when `specific_force`.
+    pub fn create(
+        path: &Path,
+        errors: [bool; 6],
+        specific_force: bool,
+    ) -> Result<Self, TableError> {
+        let io = |source| TableError::Io {
+            path: path.to_path_buf(),
+            source,
+        };
+        let mut columns = vec!["t_s"];
+        columns.extend(
+            ERROR_COLUMNS
+                .iter()
+                .zip(errors)
+                .filter(|e| e.1)
+                .map(|e| *e.0),
+        );
+        columns.extend(DYNAMICS_COLUMNS);
+        if specific_force {
+            columns.extend(SPECIFIC_FORCE_COLUMNS);
+        }
+        let file = AtomicFile::create(path).map_err(io)?;
+        let mut out = file.owned_writer().map_err(io)?;
+        let sink = if crate::interchange::parquet::writes_parquet(path) {
+            SignalSink::Parquet(crate::interchange::parquet::ParquetSink::create(
+                path, out, &columns,
+            )?)
+        } else {
+            writeln!(out, "{}", columns.join(",")).map_err(io)?;
+            SignalSink::Text {
+                out,
+                line: Vec::with_capacity(1 << 16),
+                digits: zmij::Buffer::new(),
             }
-            w.flush().map_err(io)?;
+        };
+        Ok(Self {
+            path: path.to_path_buf(),
+            file,
+            sink,
+            columns,
+            rows: 0,
+            previous_t_s: f64::NEG_INFINITY,
+        })
+    }
+
+    /// The file's columns, in the order rows give them.
+    pub fn columns(&self) -> &[&'static str] {
+        &self.columns
+    }
+
+    /// Appends one row, one value per column.
+    pub fn push(&mut self, row: &[f64]) -> Result<(), TableError> {
+        assert_eq!(row.len(), self.columns.len(), "one value per column");
+        self.rows += 1;
+        if !(row[0] > self.previous_t_s) {
+            return Err(TableError::TimeNotIncreasingAtSample {
+                path: self.path.clone(),
+                sample: self.rows,
+                t_s: row[0],
+                previous_t_s: self.previous_t_s,
+            });
         }
-        out.commit().map_err(io)
+        self.previous_t_s = row[0];
+        let io = |source| TableError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        match &mut self.sink {
+            SignalSink::Parquet(sink) => sink.push(row),
+            SignalSink::Text { out, line, digits } => {
+                for (k, value) in row.iter().enumerate() {
+                    if k > 0 {
+                        line.push(b',');
+                    }
+                    crate::interchange::push_f64_display(line, *value, digits);
+                }
+                line.push(b'\n');
+                if line.len() >= (1 << 16) - 1024 {
+                    out.write_all(line).map_err(io)?;
+                    line.clear();
+                }
+                Ok(())
+            }
+        }
+    }
+
+    /// Writes what is held and moves the file into place; a file with no row is an error
+    /// (and is not written).
+    pub fn finish(self) -> Result<(), TableError> {
+        let io = |source| TableError::Io {
+            path: self.path.clone(),
+            source,
+        };
+        if self.rows == 0 {
+            return Err(TableError::Empty { path: self.path });
+        }
+        match self.sink {
+            SignalSink::Parquet(sink) => sink.finish(None)?,
+            SignalSink::Text { mut out, line, .. } => {
+                out.write_all(&line).map_err(io)?;
+                out.flush().map_err(io)?;
+            }
+        }
+        self.file.commit().map_err(io)
     }
 }
 

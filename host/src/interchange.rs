@@ -551,7 +551,18 @@ pub(crate) fn check_stated_rate(
     stated_hz: f64,
     t_s: &[f64],
 ) -> Result<(), TableError> {
-    let Some(step) = median_step_s(t_s) else {
+    check_stated_rate_against(path, place, stated_hz, median_step_s(t_s))
+}
+
+/// [`check_stated_rate`] against a median step found otherwise (`None`: fewer than two
+/// samples, nothing to check).
+pub(crate) fn check_stated_rate_against(
+    path: &Path,
+    place: String,
+    stated_hz: f64,
+    median_step_s: Option<f64>,
+) -> Result<(), TableError> {
+    let Some(step) = median_step_s else {
         return Ok(());
     };
     if (step * stated_hz - 1.0).abs() > 0.01 {
@@ -646,6 +657,49 @@ pub fn interchange_columns(
     }
     Ok(columns)
 }
+
+/// How a file holds one triplet of interchange columns.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum TripletPresence {
+    Absent,
+    Full,
+    /// One gyro or accelerometer axis alone: that channel (index into [`CHANNEL_COLUMNS`]).
+    LoneAxis {
+        channel: usize,
+    },
+}
+
+/// The rule for a triplet `names` of which the columns `present` are in `path`: all three, or
+/// none, or one gyro or accelerometer axis alone; any other part of a triplet is an error
+/// naming what is there and what is missing.
+pub(crate) fn triplet_presence(
+    path: &Path,
+    names: &[&str; 3],
+    present: [bool; 3],
+) -> Result<TripletPresence, TableError> {
+    let count = present.iter().filter(|p| **p).count();
+    let lone_imu_channel = CHANNEL_COLUMNS.iter().position(|c| c == &names[0]);
+    match (count, lone_imu_channel) {
+        (0, _) => Ok(TripletPresence::Absent),
+        (3, _) => Ok(TripletPresence::Full),
+        (1, Some(first)) => Ok(TripletPresence::LoneAxis {
+            channel: first + present.iter().position(|p| *p).unwrap_or(0),
+        }),
+        _ => {
+            let present_at = present.iter().position(|p| *p).unwrap_or(0);
+            let missing_at = present.iter().position(|p| !*p).unwrap_or(0);
+            Err(TableError::IncompleteTriplet {
+                path: path.to_path_buf(),
+                present: names[present_at].to_string(),
+                missing: names[missing_at].to_string(),
+            })
+        }
+    }
+}
+
+/// The five triplets of interchange columns, in [`ImuRecording`]'s order: gyro,
+/// accelerometer, attitude, position, velocity.
+pub(crate) const TRIPLETS: [&[&str; 3]; 5] = [&GYRO, &ACCEL, &ATTITUDE, &POSITION, &VELOCITY];
 
 const GYRO: [&str; 3] = ["gx_rad_s", "gy_rad_s", "gz_rad_s"];
 const ACCEL: [&str; 3] = ["ax_m_s2", "ay_m_s2", "az_m_s2"];
@@ -902,30 +956,16 @@ impl ImuRecording {
         let mut triplet = |names: &[&str; 3]| -> Result<Option<Triplet>, TableError> {
             let [x, y, z] = names.map(&mut take);
             let present = [x.is_some(), y.is_some(), z.is_some()];
-            let count = present.iter().filter(|p| **p).count();
-            if count == 0 {
-                return Ok(None);
-            }
-            let lone_imu_channel = CHANNEL_COLUMNS.iter().position(|c| c == &names[0]);
-            if let (Some(first), 1) = (lone_imu_channel, count) {
-                let axis = present.iter().position(|p| *p).unwrap_or(0);
-                single_axis.push(SingleAxis {
-                    channel: first + axis,
-                    values: x.or(y).or(z).unwrap_or_default(),
-                });
-                return Ok(None);
-            }
-            match (x, y, z) {
-                (Some(x), Some(y), Some(z)) => Ok(Some([x, y, z])),
-                _ => {
-                    let present_at = present.iter().position(|p| *p).unwrap_or(0);
-                    let missing_at = present.iter().position(|p| !*p).unwrap_or(0);
-                    Err(TableError::IncompleteTriplet {
-                        path: path.to_path_buf(),
-                        present: names[present_at].to_string(),
-                        missing: names[missing_at].to_string(),
-                    })
+            match triplet_presence(path, names, present)? {
+                TripletPresence::Absent => Ok(None),
+                TripletPresence::LoneAxis { channel } => {
+                    single_axis.push(SingleAxis {
+                        channel,
+                        values: x.or(y).or(z).unwrap_or_default(),
+                    });
+                    Ok(None)
                 }
+                TripletPresence::Full => Ok(x.zip(y).zip(z).map(|((x, y), z)| [x, y, z])),
             }
         };
         let recording = ImuRecording {

@@ -2,7 +2,8 @@
 //! nine-point central stencil for signals sampled on their own (nearly even) grid, a plain
 //! central difference for derived epoch series (the calibration and the diagnosis), and a
 //! streaming sixth-order central difference for filters fed one sample at a time (Fig. 1).
-//! Also the median of a sample, used where a check must not move with a few outliers.
+//! Also the median of a sample, used where a check must not move with a few outliers, held
+//! whole ([`median`]) or passed over as often as needed ([`select_by_passes`]).
 
 use nalgebra::{RealField, Vector3};
 
@@ -10,6 +11,76 @@ use nalgebra::{RealField, Vector3};
 pub fn median(mut values: Vec<f64>) -> Option<f64> {
     values.sort_by(f64::total_cmp);
     values.get(values.len() / 2).copied()
+}
+
+/// Bits of a radix digit in [`select_by_passes`]: 2^16 buckets a pass (1.5 MiB of counts and
+/// bounds), four passes at most for 64-bit keys.
+const SELECT_DIGIT_BITS: u32 = 16;
+
+/// `x`'s bits as an unsigned key in the order of [`f64::total_cmp`].
+fn total_order_key(x: f64) -> u64 {
+    let bits = x.to_bits();
+    if bits >> 63 == 1 {
+        !bits
+    } else {
+        bits | (1 << 63)
+    }
+}
+
+fn from_total_order_key(key: u64) -> f64 {
+    f64::from_bits(if key >> 63 == 1 {
+        key & !(1 << 63)
+    } else {
+        !key
+    })
+}
+
+/// The value of rank `rank` (0-based, in [`f64::total_cmp`] order) among the values each
+/// call of `pass` yields (the same values on every call, in any order), in memory that does
+/// not grow with their number: what [`median`] gives of a sample held whole, for one that is
+/// not (`rank = count / 2`). Radix selection on the values' bits, [`SELECT_DIGIT_BITS`] a
+/// pass, most significant first; a pass whose chosen bucket holds one distinct value ends
+/// it, so evenly sampled times take one or two passes and any values at most four. `None`
+/// when `rank` is not below the number of values.
+pub fn select_by_passes<E>(
+    rank: u64,
+    mut pass: impl FnMut(&mut dyn FnMut(f64)) -> Result<(), E>,
+) -> Result<Option<f64>, E> {
+    let buckets = 1usize << SELECT_DIGIT_BITS;
+    let (mut known_bits, mut prefix, mut rank) = (0u32, 0u64, rank);
+    let mut counts = vec![0u64; buckets];
+    let mut lowest = vec![u64::MAX; buckets];
+    let mut highest = vec![0u64; buckets];
+    loop {
+        counts.fill(0);
+        lowest.fill(u64::MAX);
+        highest.fill(0);
+        let shift = 64 - known_bits - SELECT_DIGIT_BITS;
+        pass(&mut |x| {
+            let key = total_order_key(x);
+            if known_bits > 0 && key >> (64 - known_bits) != prefix {
+                return;
+            }
+            let b = ((key >> shift) as usize) & (buckets - 1);
+            counts[b] += 1;
+            lowest[b] = lowest[b].min(key);
+            highest[b] = highest[b].max(key);
+        })?;
+        let Some(b) = (0..buckets).find(|&b| {
+            if rank < counts[b] {
+                return true;
+            }
+            rank -= counts[b];
+            false
+        }) else {
+            return Ok(None);
+        };
+        if lowest[b] == highest[b] {
+            return Ok(Some(from_total_order_key(lowest[b])));
+        }
+        prefix = (prefix << SELECT_DIGIT_BITS) | b as u64;
+        known_bits += SELECT_DIGIT_BITS;
+    }
 }
 
 /// Derivative of `x` sampled at `t_s` by a nine-point central stencil (exact for polynomials
@@ -167,5 +238,46 @@ mod tests {
             assert!((c[k] - 4.0 * t[k]).abs() < 1e-12);
         }
         assert_eq!(central_difference(&[0.0], &[1.0]), vec![0.0]);
+    }
+
+    #[test]
+    fn selection_by_passes_is_the_sorted_sample_at_its_rank() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut mixed: Vec<f64> = (0..5001)
+            .map(|_| rng.random_range(-1e3..1e3) * 10f64.powi(rng.random_range(-12..12)))
+            .collect();
+        mixed.extend([0.0, -0.0, f64::INFINITY, -1e300, 1e-300, 7.0, 7.0]);
+        let steps: Vec<f64> = (0..4000)
+            .map(|k| if k % 7 == 0 { 0.011 } else { 0.01 })
+            .collect();
+        for values in [mixed, steps, vec![3.5]] {
+            let mut sorted = values.clone();
+            sorted.sort_by(f64::total_cmp);
+            let mut passes = 0;
+            for rank in [0, sorted.len() / 3, sorted.len() / 2, sorted.len() - 1] {
+                let got = select_by_passes::<()>(rank as u64, |visit| {
+                    passes += 1;
+                    values.iter().for_each(|&x| visit(x));
+                    Ok(())
+                })
+                .unwrap();
+                assert_eq!(
+                    got.map(f64::to_bits),
+                    Some(sorted[rank].to_bits()),
+                    "rank {rank}"
+                );
+            }
+            assert!(passes <= 16, "{passes} passes for four ranks");
+            assert_eq!(
+                median(values.clone()),
+                sorted.get(sorted.len() / 2).copied()
+            );
+        }
+        let beyond = select_by_passes::<()>(3, |visit| {
+            [1.0, 2.0].iter().for_each(|&x| visit(x));
+            Ok(())
+        });
+        assert_eq!(beyond, Ok(None));
     }
 }

@@ -5,8 +5,9 @@
 //! loaded whole at 1e7 rows for comparison; and `dynacal import` is run on seeded ADIS16405
 //! count files of the same lengths (the text importers convert row by row); and
 //! `dynacal regress` on seeded error-signal files of 1e5, 1e6 and 1e7 rows (each row 15
-//! dynamics and 3 gyro error columns; the largest about 2 GB). Ignored: it runs for minutes
-//! and needs the disk. Run with
+//! dynamics and 3 gyro error columns; the largest about 2 GB); and `dynacal errors` on
+//! seeded sensor and reference-IMU pairs of 1e5, 1e6 and 1e7 rows, streamed and loaded
+//! whole. Ignored: it runs for minutes and needs the disk. Run with
 //! `cargo test --release -p dynacal --test wv_stream_memory -- --ignored --nocapture`.
 
 use std::io::Write;
@@ -299,5 +300,141 @@ fn regress_memory_is_flat_from_1e5_to_1e7_rows() {
     assert!(
         spread < 16.0,
         "`regress`'s memory grows with the length: {rss:?}"
+    );
+}
+
+/// A 100 Hz reference IMU (rates, specific force, attitude) on a turning, accelerating
+/// motion, and a sensor on it: boresight (0.01, -0.02, 0.015) rad, biases, white noise.
+fn write_imu_pair(sensor: &Path, reference: &Path, rows: u64) {
+    let open =
+        |p: &Path| std::io::BufWriter::with_capacity(1 << 20, std::fs::File::create(p).unwrap());
+    let (mut s, mut r) = (open(sensor), open(reference));
+    writeln!(
+        s,
+        "# sample_rate_hz: 100\nt_s,gx_rad_s,gy_rad_s,gz_rad_s,ax_m_s2,ay_m_s2,az_m_s2"
+    )
+    .unwrap();
+    writeln!(
+        r,
+        "# sample_rate_hz: 100\nt_s,gx_rad_s,gy_rad_s,gz_rad_s,ax_m_s2,ay_m_s2,az_m_s2,roll_rad,pitch_rad,yaw_rad"
+    )
+    .unwrap();
+    let mut rng = ChaCha8Rng::seed_from_u64(rows);
+    let (gyro_noise, accel_noise) = (
+        Normal::new(0.0, 2e-3).unwrap(),
+        Normal::new(0.0, 2e-2).unwrap(),
+    );
+    let psi = nalgebra::Vector3::new(0.01, -0.02, 0.015);
+    let c_sb = nalgebra::Rotation3::new(-psi);
+    for i in 0..rows {
+        let t = i as f64 * 0.01;
+        let w = nalgebra::Vector3::new(
+            0.3 * (0.11 * t).sin() + 0.1 * (0.7 * t + 1.0).sin(),
+            0.25 * (0.13 * t + 2.0).sin() + 0.08 * (0.9 * t).sin(),
+            0.5 * (0.05 * t + 1.0).sin() + 0.2 * (0.6 * t + 3.0).sin(),
+        );
+        let f = nalgebra::Vector3::new(
+            2.0 * (0.2 * t).sin(),
+            1.5 * (0.17 * t + 1.0).sin(),
+            -9.81 + 0.5 * (0.8 * t).sin(),
+        );
+        let g = c_sb * w + nalgebra::Vector3::new(1e-3, -2e-3, 5e-4);
+        let a = c_sb * f + nalgebra::Vector3::new(0.05, -0.03, 0.08);
+        writeln!(
+            r,
+            "{t},{},{},{},{},{},{},0,0,{}",
+            w.x,
+            w.y,
+            w.z,
+            f.x,
+            f.y,
+            f.z,
+            (0.01 * t).sin()
+        )
+        .unwrap();
+        writeln!(
+            s,
+            "{t},{},{},{},{},{},{}",
+            g.x + gyro_noise.sample(&mut rng),
+            g.y + gyro_noise.sample(&mut rng),
+            g.z + gyro_noise.sample(&mut rng),
+            a.x + accel_noise.sample(&mut rng),
+            a.y + accel_noise.sample(&mut rng),
+            a.z + accel_noise.sample(&mut rng),
+        )
+        .unwrap();
+    }
+    s.flush().unwrap();
+    r.flush().unwrap();
+}
+
+#[test]
+#[ignore = "many minutes and ~4 GB of temporary disk; run by hand for the benchmark"]
+fn errors_memory_is_flat_from_1e5_to_1e7_rows() {
+    let dir = tempfile::tempdir().unwrap();
+    let (sensor, reference, out, json) = (
+        dir.path().join("sensor.csv"),
+        dir.path().join("reference.csv"),
+        dir.path().join("errors.csv"),
+        dir.path().join("errors.json"),
+    );
+    println!(
+        "| rows | files MB | streamed: peak RSS MiB | wall s | loaded whole: peak RSS MiB | wall s |\n|---|---|---|---|---|---|"
+    );
+    // ERRORS_MEMORY_ROWS=1e8 (say) runs that length alone, streamed only.
+    let lengths: Vec<u64> = match std::env::var("ERRORS_MEMORY_ROWS") {
+        Ok(rows) => vec![rows.parse::<f64>().expect("a row count") as u64],
+        Err(_) => vec![100_000, 1_000_000, 10_000_000],
+    };
+    let mut rss = vec![];
+    for rows in lengths {
+        write_imu_pair(&sensor, &reference, rows);
+        let mb = (std::fs::metadata(&sensor).unwrap().len()
+            + std::fs::metadata(&reference).unwrap().len()) as f64
+            / 1e6;
+        let run = |stream: &str| {
+            let measured = time_dynacal(&[
+                "errors",
+                "--sensor",
+                sensor.to_str().unwrap(),
+                "--reference",
+                reference.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--json",
+                json.to_str().unwrap(),
+                "--stream",
+                stream,
+            ]);
+            let summary: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+            let boresight = &summary["boresight_rad"]["value"];
+            for (i, truth) in [0.01, -0.02, 0.015].into_iter().enumerate() {
+                let got = boresight[i].as_f64().unwrap();
+                assert!(
+                    (got - truth).abs() < 1e-4,
+                    "{stream}: boresight {boresight}"
+                );
+            }
+            (measured, summary)
+        };
+        let ((peak, wall), streamed) = run("always");
+        let ((whole_peak, whole_wall), whole) = if rows <= 10_000_000 {
+            run("never")
+        } else {
+            ((f64::NAN, f64::NAN), streamed.clone())
+        };
+        assert_eq!(streamed["hac_lag"], whole["hac_lag"]);
+        println!(
+            "| {rows:.0e} | {mb:.0} | {peak:.1} | {wall:.1} | {whole_peak:.1} | {whole_wall:.1} |"
+        );
+        rss.push(peak);
+    }
+    let spread =
+        rss.iter().cloned().fold(f64::MIN, f64::max) - rss.iter().cloned().fold(f64::MAX, f64::min);
+    println!("`errors` streamed peak RSS spread {spread:.1} MiB");
+    assert!(
+        spread < 32.0,
+        "`errors`'s memory grows with the length: {rss:?}"
     );
 }

@@ -3,7 +3,8 @@
 //! with uncertainties, and the calibration must explain most of the raw sensor-minus-reference
 //! difference. Skips with a message when the dataset is absent.
 
-use dynacal::calibration::{build_error_signals, ErrorOptions};
+use dynacal::calibration::{build_error_signals, write_error_signals_streamed, ErrorOptions};
+use dynacal::error_signal::ErrorSignals;
 use dynacal::import::psins_fog_mems::{read_fog, read_mems};
 use dynacal::regress::{backward_elimination, RegressionOptions};
 
@@ -82,5 +83,87 @@ fn psins_mems_against_fog_calibration_and_error_signals() {
         .unwrap();
         assert!(rep.inference.starts_with("Newey-West"));
         assert!((0.0..=1.0).contains(&rep.r2));
+    }
+}
+
+/// The streamed calibration (`dynacal errors --stream always`) of the real PSINS pair in
+/// blocks of 97 epochs gives what the calibration of the pair held whole gives: against a
+/// navigation solution only the sensor's running integrals differ (they start at each
+/// block), so the estimates agree far inside their uncertainty and the signals to rounding.
+#[test]
+fn psins_streamed_in_blocks_equals_held_whole() {
+    let dir = dynacal_tests::data_dir().join("psins-fog-mems");
+    if !dir.exists() {
+        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", dir.display());
+        return;
+    }
+    let mems = read_mems(&dir.join("mems_increments.csv.gz")).unwrap();
+    let fog = read_fog(&dir.join("fog_ins_reference.csv.gz")).unwrap();
+    let (held, held_cal) = build_error_signals(&mems, &fog, &ErrorOptions::default()).unwrap();
+    let work = tempfile::tempdir().unwrap();
+    let (sensor, reference, out) = (
+        work.path().join("mems.csv"),
+        work.path().join("fog.csv.gz"),
+        work.path().join("errors.csv"),
+    );
+    mems.write(&sensor).unwrap();
+    fog.write(&reference).unwrap();
+    let opts = ErrorOptions {
+        block_epochs: 97,
+        ..Default::default()
+    };
+    let cal = write_error_signals_streamed(&sensor, &reference, &out, &opts).unwrap();
+    assert_eq!(
+        (cal.epochs, cal.epoch_dt_s),
+        (held_cal.epochs, held_cal.epoch_dt_s)
+    );
+    assert_eq!(cal.reference_kind, "navigation_solution");
+    let pairs = [
+        (cal.boresight_rad, held_cal.boresight_rad),
+        (cal.lever_arm_m.unwrap(), held_cal.lever_arm_m.unwrap()),
+        (
+            cal.gyro_bias_rad_s.unwrap(),
+            held_cal.gyro_bias_rad_s.unwrap(),
+        ),
+        (
+            cal.accel_bias_m_s2.unwrap(),
+            held_cal.accel_bias_m_s2.unwrap(),
+        ),
+    ];
+    for (a, b) in pairs {
+        for i in 0..3 {
+            assert!(
+                (a.value[i] - b.value[i]).abs() < 1e-6 * b.sigma[i],
+                "{a:?} {b:?}"
+            );
+            assert!((a.sigma[i] / b.sigma[i] - 1.0).abs() < 1e-6, "{a:?} {b:?}");
+        }
+    }
+    let (t, held_t) = (cal.time_offset_s.unwrap(), held_cal.time_offset_s.unwrap());
+    assert!(
+        (t.value - held_t.value).abs() < 1e-6 * held_t.sigma,
+        "{t:?} {held_t:?}"
+    );
+    assert_eq!(cal.hac_lag, held_cal.hac_lag);
+    let streamed = ErrorSignals::read(&out).unwrap();
+    assert_eq!(streamed.t_s, held.t_s);
+    for (c, (a, b)) in streamed.errors.iter().zip(&held.errors).enumerate() {
+        let (a, b) = (a.as_ref().unwrap(), b.as_ref().unwrap());
+        let scale = held_cal.error_std[c].unwrap();
+        let worst = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        assert!(worst < 1e-6 * scale, "channel {c}: {worst} of {scale}");
+    }
+    for (a, b) in streamed.dynamics.iter().zip(&held.dynamics) {
+        let worst = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f64::max);
+        let scale = b.iter().map(|x| x.abs()).fold(0.0, f64::max);
+        assert!(worst <= 1e-9 * scale, "{worst} of {scale}");
     }
 }

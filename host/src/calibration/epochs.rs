@@ -11,6 +11,10 @@
 use dynacal_core::nav::{earth_rate_ned_rad_s, gravity_ned_m_s2, transport_rate_ned_rad_s};
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};
 
+use std::borrow::Cow;
+use std::ops::Range;
+
+use super::recordings::Samples;
 use super::{ErrorOptions, ErrorsError};
 use crate::interchange::{ImuRecording, Triplet};
 use crate::numeric::{central_difference_3, stencil_derivative};
@@ -86,48 +90,85 @@ fn attitude_at(rec: &ImuRecording, att: &[Vec<f64>; 3], t: f64) -> UnitQuaternio
     q(i).slerp(&q(i + 1), frac)
 }
 
-fn lerp_at(t_s: &[f64], x: &[f64], t: f64) -> f64 {
-    let n = t_s.len();
-    if t <= t_s[0] {
-        return x[0];
-    }
-    if t >= t_s[n - 1] {
-        return x[n - 1];
-    }
-    let i = t_s.partition_point(|&s| s <= t) - 1;
-    let frac = (t - t_s[i]) / (t_s[i + 1] - t_s[i]);
-    x[i] + frac * (x[i + 1] - x[i])
-}
-
-/// Points of [`lagrange_at`]: an 8-point (7th-degree) Lagrange interpolation.
+/// Points of [`Interpolant::new`]: an 8-point (7th-degree) Lagrange interpolation.
 const LAGRANGE_POINTS: usize = 8;
 
-/// Lagrange interpolation of `x` sampled at `t_s` (increasing) on the [`LAGRANGE_POINTS`]
-/// samples around `t`, linear where the series has too few samples on one side. Linear
-/// interpolation of a reference IMU is not good enough once the epochs fall between its
-/// samples: at 200 Hz it loses 8% of a 26 Hz vibration at mid-interval, which then shows in
-/// the error as a false scale factor; a cubic loses about 1%, which with a time offset of
-/// 5-20 ms (every epoch between reference samples) leaves a 1-2 mm/s^2 line of a car's
-/// vertical vibration in the error that the diagnosis names; eight points lose about 0.02%.
-fn lagrange_at(t_s: &[f64], x: &[f64], t: f64) -> f64 {
-    let n = t_s.len();
-    let half = LAGRANGE_POINTS / 2;
-    if n < LAGRANGE_POINTS || t <= t_s[half - 1] || t >= t_s[n - half] {
-        return lerp_at(t_s, x, t);
-    }
-    let i = t_s.partition_point(|&s| s <= t) - 1;
-    let idx = i + 1 - half..i + 1 + half;
-    let mut value = 0.0;
-    for ia in idx.clone() {
-        let mut w = 1.0;
-        for ib in idx.clone() {
-            if ia != ib {
-                w *= (t - t_s[ib]) / (t_s[ia] - t_s[ib]);
+/// How a series sampled at given times is read at one time: the weights of the
+/// [`LAGRANGE_POINTS`] samples around it, or linear between two where the series has too few
+/// samples on one side (held at the ends). Found once per time and applied to every series
+/// of the recording, which is most of the cost of forming the epochs.
+enum Interpolant {
+    Lagrange {
+        first: usize,
+        weights: [f64; LAGRANGE_POINTS],
+    },
+    Linear {
+        i: usize,
+        frac: f64,
+    },
+    Sample(usize),
+}
+
+impl Interpolant {
+    /// Lagrange interpolation at `t` of a series sampled at `t_s` (increasing). Linear
+    /// interpolation of a reference IMU is not good enough once the epochs fall between its
+    /// samples: at 200 Hz it loses 8% of a 26 Hz vibration at mid-interval, which then shows
+    /// in the error as a false scale factor; a cubic loses about 1%, which with a time
+    /// offset of 5-20 ms (every epoch between reference samples) leaves a 1-2 mm/s^2 line of
+    /// a car's vertical vibration in the error that the diagnosis names; eight points lose
+    /// about 0.02%.
+    fn new(t_s: &[f64], t: f64) -> Self {
+        let n = t_s.len();
+        let half = LAGRANGE_POINTS / 2;
+        if n < LAGRANGE_POINTS || t <= t_s[half - 1] || t >= t_s[n - half] {
+            return Self::linear(t_s, t);
+        }
+        let first = t_s.partition_point(|&s| s <= t) - half;
+        let points = first..first + LAGRANGE_POINTS;
+        let mut weights = [0.0; LAGRANGE_POINTS];
+        for (w, ia) in weights.iter_mut().zip(points.clone()) {
+            *w = 1.0;
+            for ib in points.clone() {
+                if ia != ib {
+                    *w *= (t - t_s[ib]) / (t_s[ia] - t_s[ib]);
+                }
             }
         }
-        value += w * x[ia];
+        Self::Lagrange { first, weights }
     }
-    value
+
+    /// Linear interpolation at `t`, held at the ends.
+    fn linear(t_s: &[f64], t: f64) -> Self {
+        let n = t_s.len();
+        if t <= t_s[0] {
+            return Self::Sample(0);
+        }
+        if t >= t_s[n - 1] {
+            return Self::Sample(n - 1);
+        }
+        let i = t_s.partition_point(|&s| s <= t) - 1;
+        let frac = (t - t_s[i]) / (t_s[i + 1] - t_s[i]);
+        Self::Linear { i, frac }
+    }
+
+    /// The series `x` at the interpolant's time.
+    fn read(&self, x: &[f64]) -> f64 {
+        match *self {
+            Self::Lagrange { first, weights } => {
+                let mut value = 0.0;
+                for (w, x) in weights.iter().zip(&x[first..]) {
+                    value += w * x;
+                }
+                value
+            }
+            Self::Linear { i, frac } => x[i] + frac * (x[i + 1] - x[i]),
+            Self::Sample(i) => x[i],
+        }
+    }
+
+    fn read_triplet(&self, x: &Triplet) -> Vector3<f64> {
+        Vector3::new(self.read(&x[0]), self.read(&x[1]), self.read(&x[2]))
+    }
 }
 
 /// The reference over the epochs: mean body rate and specific force, attitude and gravity at
@@ -144,33 +185,48 @@ pub(super) struct ReferenceEpochs {
     pub g_ned_mid_m_s2: Vec<Vector3<f64>>,
 }
 
+/// A reference's angular acceleration (rad/s^2) and rate of change of specific force (m/s^3)
+/// over the epochs.
+type Derivatives = [Vec<Vector3<f64>>; 2];
+
+/// A reference IMU (rates, specific force and their derivatives at its own rate) read at
+/// `times_s`: the reference over the epochs, with its angular acceleration (rad/s^2) and
+/// rate of change of specific force (m/s^3) there.
 fn reference_at_points(
     rec: &ImuRecording,
-    gyro: &[Vec<f64>; 3],
-    accel: &[Vec<f64>; 3],
-    times_s: &[f64],
-) -> Result<ReferenceEpochs, ErrorsError> {
+    [gyro, accel, omega_dot, f_dot]: [&Triplet; 4],
+    times_s: impl ExactSizeIterator<Item = f64>,
+) -> Result<(ReferenceEpochs, Derivatives), ErrorsError> {
     let att = rec
         .attitude_rad
         .as_ref()
         .ok_or(ErrorsError::ReferenceIncomplete(
             "roll_rad, pitch_rad, yaw_rad columns to express gravity in the body frame",
         ))?;
-    let at = |t: f64, x: &[Vec<f64>; 3]| Vector3::from_fn(|i, _| lagrange_at(&rec.t_s, &x[i], t));
-    Ok(ReferenceEpochs {
-        omega_ib_b_rad_s: times_s.iter().map(|&t| at(t, gyro)).collect(),
-        f_b_m_s2: times_s.iter().map(|&t| at(t, accel)).collect(),
-        q_nb_mid: times_s.iter().map(|&t| attitude_at(rec, att, t)).collect(),
-        g_ned_mid_m_s2: times_s
-            .iter()
-            .map(|&t| match &rec.position {
-                Some(p) => {
-                    gravity_ned_m_s2(lerp_at(&rec.t_s, &p[0], t), lerp_at(&rec.t_s, &p[2], t))
-                }
-                None => gravity_ned_m_s2(0.0, 0.0),
-            })
-            .collect(),
-    })
+    let n = times_s.len();
+    let mut out = ReferenceEpochs {
+        omega_ib_b_rad_s: Vec::with_capacity(n),
+        f_b_m_s2: Vec::with_capacity(n),
+        q_nb_mid: Vec::with_capacity(n),
+        g_ned_mid_m_s2: Vec::with_capacity(n),
+    };
+    let mut derivatives = [Vec::with_capacity(n), Vec::with_capacity(n)];
+    for t in times_s {
+        let at = Interpolant::new(&rec.t_s, t);
+        out.omega_ib_b_rad_s.push(at.read_triplet(gyro));
+        out.f_b_m_s2.push(at.read_triplet(accel));
+        derivatives[0].push(at.read_triplet(omega_dot));
+        derivatives[1].push(at.read_triplet(f_dot));
+        out.q_nb_mid.push(attitude_at(rec, att, t));
+        out.g_ned_mid_m_s2.push(match &rec.position {
+            Some(p) => {
+                let linear = Interpolant::linear(&rec.t_s, t);
+                gravity_ned_m_s2(linear.read(&p[0]), linear.read(&p[2]))
+            }
+            None => gravity_ned_m_s2(0.0, 0.0),
+        });
+    }
+    Ok((out, derivatives))
 }
 
 /// Reference rates and specific force derived from a navigation solution sampled at the
@@ -240,43 +296,161 @@ fn native_derivative(t_s: &[f64], x: &[Vec<f64>; 3]) -> [Vec<f64>; 3] {
 const MIN_OVERLAP_S: f64 = 1.0;
 /// Fewest epochs a calibration is attempted on.
 const MIN_EPOCHS: usize = 10;
+/// Epochs a block reads beyond its own at either end: the dynamics' central differences
+/// over epochs reach two epochs out (a derivative of a derivative).
+const APRON_EPOCHS: usize = 2;
+/// Samples a block reads beyond its span at either end: an interpolation's eight points
+/// of a nine-point derivative reach eight samples out.
+const APRON_SAMPLES: usize = 16;
 
-/// The span both recordings cover, less the largest time offset searched at either end, s.
-fn overlap_s(
-    sensor: &ImuRecording,
-    reference: &ImuRecording,
-    opts: &ErrorOptions,
-) -> Result<(f64, f64), ErrorsError> {
-    let margin = if opts.estimate_time_offset {
-        opts.max_time_offset_s
-    } else {
-        0.0
-    };
-    let start = sensor.t_s[0].max(reference.t_s[0]) + margin;
-    let end = sensor.t_s[sensor.len() - 1].min(reference.t_s[reference.len() - 1]) - margin;
-    if !(end - start >= MIN_OVERLAP_S) {
-        return Err(no_overlap(sensor, reference, (end - start).max(0.0)));
-    }
-    Ok((start, end))
+/// First and last time of a recording, s.
+fn span_s(r: &dyn Samples) -> Result<[f64; 2], ErrorsError> {
+    Ok([r.time_s(0)?, r.time_s(r.len() - 1)?])
 }
 
-fn no_overlap(sensor: &ImuRecording, reference: &ImuRecording, overlap_s: f64) -> ErrorsError {
-    let span = |r: &ImuRecording| [r.t_s[0], r.t_s[r.len() - 1]];
-    ErrorsError::NoOverlap {
-        overlap_s,
-        needed_s: MIN_OVERLAP_S,
-        sensor_s: span(sensor),
-        reference_s: span(reference),
-    }
+/// How the epochs are made over the whole overlap.
+#[derive(Debug, Clone, Copy)]
+enum GridKind {
+    /// Against a reference IMU: the epochs are sensor samples `first ..`.
+    ReferenceImu { first_sensor: usize },
+    /// Against a navigation solution: the intervals between reference samples `first ..`.
+    NavigationSolution { first_bound: usize },
 }
 
-/// The samples of `t_s` inside `[start, end]`: their times and indices.
-fn samples_within(t_s: &[f64], start: f64, end: f64) -> (Vec<f64>, Vec<usize>) {
-    t_s.iter()
-        .enumerate()
-        .filter(|(_, &t)| t >= start && t <= end)
-        .map(|(i, &t)| (t, i))
-        .unzip()
+/// The epochs of a sensor and its reference over their overlap (less the time-offset
+/// margin): which samples make them, read a block at a time ([`EpochGrid::block`]).
+pub(super) struct EpochGrid {
+    kind: GridKind,
+    /// Number of epochs.
+    pub epochs: usize,
+    /// Largest time offset applied, s: a block reads the other recording this far beyond it.
+    margin_s: f64,
+    /// The sensor's triplets (gyro, accelerometer, ...), as [`Samples::triplets`].
+    sensor_triplets: [bool; 5],
+}
+
+/// The samples of a block of epochs, and which of their epochs are the block's own.
+pub(super) struct BlockSamples<'a> {
+    sensor: Cow<'a, ImuRecording>,
+    reference: Cow<'a, ImuRecording>,
+    /// The epochs read (the block's and its aprons), as sensor rows or reference bounds
+    /// of the recordings above.
+    local: Range<usize>,
+    kind: GridKind,
+    /// The block's own epochs among those read.
+    pub own: Range<usize>,
+}
+
+impl EpochGrid {
+    /// The epoch grid over the overlap of `sensor` and `reference` (less the time-offset
+    /// margin).
+    pub(super) fn new(
+        sensor: &dyn Samples,
+        reference: &dyn Samples,
+        opts: &ErrorOptions,
+    ) -> Result<Self, ErrorsError> {
+        let spans = [span_s(sensor)?, span_s(reference)?];
+        let no_overlap = |overlap_s: f64| ErrorsError::NoOverlap {
+            overlap_s,
+            needed_s: MIN_OVERLAP_S,
+            sensor_s: spans[0],
+            reference_s: spans[1],
+        };
+        let margin_s = if opts.estimate_time_offset {
+            opts.max_time_offset_s
+        } else {
+            0.0
+        };
+        let start = spans[0][0].max(spans[1][0]) + margin_s;
+        let end = spans[0][1].min(spans[1][1]) - margin_s;
+        if !(end - start >= MIN_OVERLAP_S) {
+            return Err(no_overlap((end - start).max(0.0)));
+        }
+        let [gyro, accel, ..] = reference.triplets();
+        let (kind, epochs) = if gyro && accel {
+            let first_sensor = sensor.count_before(start, false)?;
+            let epochs = sensor.count_before(end, true)? - first_sensor;
+            (GridKind::ReferenceImu { first_sensor }, epochs)
+        } else {
+            let first_bound = reference.count_before(start, false)?;
+            let bounds = reference.count_before(end, true)? - first_bound;
+            (
+                GridKind::NavigationSolution { first_bound },
+                bounds.saturating_sub(1),
+            )
+        };
+        if epochs < MIN_EPOCHS {
+            return Err(no_overlap(end - start));
+        }
+        Ok(Self {
+            kind,
+            epochs,
+            margin_s,
+            sensor_triplets: sensor.triplets(),
+        })
+    }
+
+    /// Whether the reference is an IMU (else a navigation solution).
+    pub(super) fn reference_is_imu(&self) -> bool {
+        matches!(self.kind, GridKind::ReferenceImu { .. })
+    }
+
+    /// Whether the sensor has gyros.
+    pub(super) fn has_gyro(&self) -> bool {
+        self.sensor_triplets[0]
+    }
+
+    /// Whether the sensor has accelerometers.
+    pub(super) fn has_accel(&self) -> bool {
+        self.sensor_triplets[1]
+    }
+
+    /// The samples of epochs `own` and of [`APRON_EPOCHS`] beyond it either side.
+    pub(super) fn block<'a>(
+        &self,
+        sensor: &'a dyn Samples,
+        reference: &'a dyn Samples,
+        own: Range<usize>,
+    ) -> Result<BlockSamples<'a>, ErrorsError> {
+        let read =
+            own.start.saturating_sub(APRON_EPOCHS)..(own.end + APRON_EPOCHS).min(self.epochs);
+        // The recording the epochs are made of, the rows that make them, and the other one.
+        let (first, last, epoch_rows, other): (usize, usize, &dyn Samples, &dyn Samples) =
+            match self.kind {
+                GridKind::ReferenceImu { first_sensor } => (
+                    first_sensor + read.start,
+                    first_sensor + read.end - 1,
+                    sensor,
+                    reference,
+                ),
+                GridKind::NavigationSolution { first_bound } => (
+                    first_bound + read.start,
+                    first_bound + read.end,
+                    reference,
+                    sensor,
+                ),
+            };
+        let lo_s = epoch_rows.time_s(first)? - self.margin_s;
+        let hi_s = epoch_rows.time_s(last)? + self.margin_s;
+        let other_rows = other
+            .count_before(lo_s, false)?
+            .saturating_sub(APRON_SAMPLES)
+            ..(other.count_before(hi_s, true)? + APRON_SAMPLES).min(other.len());
+        let (epoch_rec, epoch_at) = epoch_rows.rows(first..last + 1)?;
+        let (other_rec, _) = other.rows(other_rows)?;
+        let local = first - epoch_at..first - epoch_at + read.len();
+        let (sensor, reference) = match self.kind {
+            GridKind::ReferenceImu { .. } => (epoch_rec, other_rec),
+            GridKind::NavigationSolution { .. } => (other_rec, epoch_rec),
+        };
+        Ok(BlockSamples {
+            sensor,
+            reference,
+            local,
+            kind: self.kind,
+            own: own.start - read.start..own.end - read.start,
+        })
+    }
 }
 
 /// How the reference and the sensor are read over the epochs.
@@ -287,8 +461,8 @@ enum EpochKind<'a> {
     /// reaches the error signal unfiltered and a fitted model can be simulated directly),
     /// with the smooth reference interpolated to them.
     ReferenceImu {
-        /// Sensor sample of each epoch.
-        sensor_idx: Vec<usize>,
+        /// Sensor samples of the epochs.
+        sensor_rows: Range<usize>,
         gyro_rad_s: &'a Triplet,
         accel_m_s2: &'a Triplet,
         /// Derivatives of the reference at its own rate (nine-point stencils), interpolated
@@ -308,7 +482,7 @@ enum EpochKind<'a> {
     },
 }
 
-/// A sensor and its reference on one epoch grid, readable at any time offset.
+/// A block of epochs of a sensor and its reference, readable at any time offset.
 pub(super) struct EpochSource<'a> {
     sensor: &'a ImuRecording,
     reference: &'a ImuRecording,
@@ -354,38 +528,25 @@ impl EpochData {
 }
 
 impl<'a> EpochSource<'a> {
-    /// The epoch grid over the overlap of `sensor` and `reference` (less the time-offset
-    /// margin), and what is needed to read both over it.
-    pub(super) fn new(
-        sensor: &'a ImuRecording,
-        reference: &'a ImuRecording,
-        opts: &ErrorOptions,
-    ) -> Result<Self, ErrorsError> {
-        let (start, end) = overlap_s(sensor, reference, opts)?;
-        let too_few = |t_s: &[f64]| {
-            if t_s.len() < MIN_EPOCHS {
-                Err(no_overlap(sensor, reference, end - start))
-            } else {
-                Ok(())
-            }
-        };
-        let (t_s, kind) = match (&reference.gyro_rad_s, &reference.accel_m_s2) {
-            (Some(gyro_rad_s), Some(accel_m_s2)) => {
-                let (t_s, sensor_idx) = samples_within(&sensor.t_s, start, end);
-                too_few(&t_s)?;
+    /// The epochs of `block`, and what is needed to read both recordings over them.
+    pub(super) fn new(block: &'a BlockSamples<'_>) -> Result<Self, ErrorsError> {
+        let (sensor, reference): (&ImuRecording, &ImuRecording) = (&block.sensor, &block.reference);
+        let (t_s, kind) = match (block.kind, &reference.gyro_rad_s, &reference.accel_m_s2) {
+            (GridKind::ReferenceImu { .. }, Some(gyro_rad_s), Some(accel_m_s2)) => {
                 let kind = EpochKind::ReferenceImu {
-                    sensor_idx,
+                    sensor_rows: block.local.clone(),
                     gyro_rad_s,
                     accel_m_s2,
                     omega_dot_rad_s2: native_derivative(&reference.t_s, gyro_rad_s),
                     f_dot_m_s3: native_derivative(&reference.t_s, accel_m_s2),
                 };
-                (t_s, kind)
+                (sensor.t_s[block.local.clone()].to_vec(), kind)
             }
             _ => {
-                let (bounds_s, bounds_idx) = samples_within(&reference.t_s, start, end);
+                let bounds = block.local.start..block.local.end + 1;
+                let bounds_s = reference.t_s[bounds.clone()].to_vec();
+                let bounds_idx: Vec<usize> = bounds.collect();
                 let t_s: Vec<f64> = bounds_s.windows(2).map(|w| 0.5 * (w[0] + w[1])).collect();
-                too_few(&t_s)?;
                 let kind = EpochKind::NavigationSolution {
                     reference: reference_from_solution(reference, &bounds_idx)?,
                     bounds_s,
@@ -409,55 +570,32 @@ impl<'a> EpochSource<'a> {
         })
     }
 
-    /// Whether the reference is an IMU (else a navigation solution).
-    pub(super) fn reference_is_imu(&self) -> bool {
-        matches!(self.kind, EpochKind::ReferenceImu { .. })
-    }
-
-    /// Whether the sensor has gyros.
-    pub(super) fn has_gyro(&self) -> bool {
-        self.sensor.gyro_rad_s.is_some()
-    }
-
-    /// Whether the sensor has accelerometers.
-    pub(super) fn has_accel(&self) -> bool {
-        self.sensor.accel_m_s2.is_some()
-    }
-
     /// Reference and sensor over the epochs for a time offset `shift_s` (positive: the
     /// sensor lags, so its epoch k shows the truth at epoch time - shift).
     pub(super) fn at(&self, shift_s: f64) -> Result<EpochData, ErrorsError> {
         match &self.kind {
             EpochKind::ReferenceImu {
-                sensor_idx,
+                sensor_rows,
                 gyro_rad_s,
                 accel_m_s2,
                 omega_dot_rad_s2,
                 f_dot_m_s3,
             } => {
-                let shifted: Vec<f64> = self.t_s.iter().map(|t| t - shift_s).collect();
-                let reference =
-                    reference_at_points(self.reference, gyro_rad_s, accel_m_s2, &shifted)?;
+                let (reference, [omega_dot, f_dot]) = reference_at_points(
+                    self.reference,
+                    [gyro_rad_s, accel_m_s2, omega_dot_rad_s2, f_dot_m_s3],
+                    self.t_s.iter().map(|t| t - shift_s),
+                )?;
                 let raw_at = |x: &Triplet| -> Vec<Vector3<f64>> {
-                    sensor_idx
-                        .iter()
-                        .map(|&i| Vector3::new(x[0][i], x[1][i], x[2][i]))
-                        .collect()
-                };
-                let interpolated = |x: &Triplet| -> Vec<Vector3<f64>> {
-                    self.t_s
-                        .iter()
-                        .map(|&t| {
-                            Vector3::from_fn(|i, _| {
-                                lagrange_at(&self.reference.t_s, &x[i], t - shift_s)
-                            })
-                        })
+                    sensor_rows
+                        .clone()
+                        .map(|i| Vector3::new(x[0][i], x[1][i], x[2][i]))
                         .collect()
                 };
                 Ok(EpochData {
                     reference,
-                    omega_dot_b_rad_s2: interpolated(omega_dot_rad_s2),
-                    f_dot_b_m_s3: interpolated(f_dot_m_s3),
+                    omega_dot_b_rad_s2: omega_dot,
+                    f_dot_b_m_s3: f_dot,
                     gyro_rad_s: self.sensor.gyro_rad_s.as_ref().map(raw_at),
                     accel_m_s2: self.sensor.accel_m_s2.as_ref().map(raw_at),
                 })
@@ -496,8 +634,8 @@ mod tests {
                 })
                 .fold(0.0f64, f64::max)
         };
-        let lagrange = worst(&|t| lagrange_at(&t_s, &x, t));
-        let linear = worst(&|t| lerp_at(&t_s, &x, t));
+        let lagrange = worst(&|t| Interpolant::new(&t_s, t).read(&x));
+        let linear = worst(&|t| Interpolant::linear(&t_s, t).read(&x));
         assert!(linear > 0.07, "{linear}");
         assert!(lagrange < 5e-4, "{lagrange}");
     }

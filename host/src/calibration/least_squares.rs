@@ -5,10 +5,12 @@
 
 use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, Vector3};
 
-use super::epochs::{EpochData, EpochSource};
+use super::epochs::EpochData;
+use super::passes::{Epochs, View};
 use super::{ErrorOptions, ErrorsError, Estimate3};
 use crate::model::Channel;
-use crate::regress::{andrews_bartlett_lag_from_scores, newey_west_meat_from_scores};
+use crate::regress::stream::{BartlettSums, Whitener};
+use crate::regress::AndrewsSums;
 
 pub(super) fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
@@ -136,61 +138,116 @@ pub(super) fn normal_matrix_inverse(xtwx: &DMatrix<f64>) -> Option<DMatrix<f64>>
     }))
 }
 
-/// What visits a design row: (epoch, row, error, weight).
-type RowVisitor<'v> = dyn FnMut(usize, &[f64; MAX_PARAMETERS], f64, f64) + 'v;
-
-/// One weighted least-squares solve of the linearised error model over all epochs.
-fn solve(layout: &Layout, data: &EpochData, weights: [f64; 2]) -> Option<Solution> {
+/// Calls `visit(row, error, weight)` for each design row of epoch `k` of `data`: three for
+/// the gyros, three for the accelerometers, of those the layout estimates.
+fn epoch_rows(
+    layout: &Layout,
+    weights: [f64; 2],
+    data: &EpochData,
+    k: usize,
+    visit: &mut dyn FnMut(&[f64; MAX_PARAMETERS], f64, f64),
+) {
     let reference = &data.reference;
-    let (omega_dot, f_dot) = (&data.omega_dot_b_rad_s2, &data.f_dot_b_m_s3);
-    let (omega_s, f_s) = (data.gyro_rad_s.as_deref(), data.accel_m_s2.as_deref());
-    let n = reference.omega_ib_b_rad_s.len();
+    let w = &reference.omega_ib_b_rad_s[k];
+    let f = &reference.f_b_m_s2[k];
+    let sensed = [
+        (
+            data.gyro_rad_s.as_deref().filter(|_| layout.gyro),
+            w,
+            false,
+            weights[0],
+        ),
+        (
+            data.accel_m_s2.as_deref().filter(|_| layout.accel),
+            f,
+            true,
+            weights[1],
+        ),
+    ];
+    for (samples, truth, accel, weight) in sensed {
+        let Some(samples) = samples else { continue };
+        let e = samples[k] - truth;
+        for i in 0..3 {
+            // Each epoch's rows are made again on each pass rather than held: six rows of
+            // MAX_PARAMETERS numbers an epoch would be the largest item of a long drive.
+            let x = design_row(
+                layout,
+                w,
+                f,
+                &data.omega_dot_b_rad_s2[k],
+                &data.f_dot_b_m_s3[k],
+                accel,
+                i,
+            );
+            visit(&x, e[i], weight);
+        }
+    }
+}
+
+/// Calls `score` with each epoch's score (the sum over its rows of w x e, e the residual of
+/// `theta`), in epoch order.
+fn score_pass(
+    layout: &Layout,
+    view: &View,
+    weights: [f64; 2],
+    theta: &DVector<f64>,
+    score: &mut dyn FnMut(&[f64]),
+) -> Result<(), ErrorsError> {
+    let p = layout.len();
+    let mut u = vec![0.0; p];
+    view.pass(&mut |block| {
+        for k in block.own.clone() {
+            u.fill(0.0);
+            epoch_rows(layout, weights, block.data, k, &mut |x, y, w| {
+                let pred: f64 = (0..p).map(|a| x[a] * theta[a]).sum();
+                let e = y - pred;
+                for a in 0..p {
+                    u[a] += w * x[a] * e;
+                }
+            });
+            score(&u);
+        }
+        Ok(())
+    })
+}
+
+/// One weighted least-squares solve of the linearised error model over all epochs: the
+/// normal equations in one pass, the Newey-West lag's sums in a second, its Bartlett meat in
+/// a third. `None` when the normal matrix is near singular.
+fn solve(layout: &Layout, view: &View, weights: [f64; 2]) -> Result<Option<Solution>, ErrorsError> {
     let p = layout.len();
     let mut xtwx = DMatrix::<f64>::zeros(p, p);
     let mut xtwy = DVector::<f64>::zeros(p);
-    // Each epoch's rows (k, x, y, w), made again on each pass rather than held: six rows of
-    // MAX_PARAMETERS numbers an epoch would be the largest item of a long drive.
-    let for_each_row = |visit: &mut RowVisitor| {
-        for k in 0..n {
-            let w = &reference.omega_ib_b_rad_s[k];
-            let f = &reference.f_b_m_s2[k];
-            let sensed = [
-                (omega_s.filter(|_| layout.gyro), w, false, weights[0]),
-                (f_s.filter(|_| layout.accel), f, true, weights[1]),
-            ];
-            for (samples, truth, accel, weight) in sensed {
-                let Some(samples) = samples else { continue };
-                let e = samples[k] - truth;
-                for i in 0..3 {
-                    let x = design_row(layout, w, f, &omega_dot[k], &f_dot[k], accel, i);
-                    visit(k, &x, e[i], weight);
+    view.pass(&mut |block| {
+        for k in block.own.clone() {
+            epoch_rows(layout, weights, block.data, k, &mut |x, y, w| {
+                // The rows are sparse and the matrix symmetric: the upper triangle's nonzero
+                // products, each summed in epoch order (so the same to the bit as all of them).
+                for a in (0..p).filter(|&a| x[a] != 0.0) {
+                    xtwy[a] += w * x[a] * y;
+                    for b in (a..p).filter(|&b| x[b] != 0.0) {
+                        xtwx[(a, b)] += w * x[a] * x[b];
+                    }
                 }
-            }
+            });
         }
+        Ok(())
+    })?;
+    xtwx.fill_lower_triangle_with_upper_triangle();
+    let Some(bread) = normal_matrix_inverse(&xtwx) else {
+        return Ok(None);
     };
-    for_each_row(&mut |_, x, y, w| {
-        for a in 0..p {
-            xtwy[a] += w * x[a] * y;
-            for b in 0..p {
-                xtwx[(a, b)] += w * x[a] * x[b];
-            }
-        }
-    });
-    let bread = normal_matrix_inverse(&xtwx)?;
     let theta = &bread * &xtwy;
-    // Epoch scores for the sandwich: sum over the epoch's rows of w x e.
-    let mut scores = vec![0.0; n * p];
-    for_each_row(&mut |k, x, y, w| {
-        let pred: f64 = (0..p).map(|a| x[a] * theta[a]).sum();
-        let e = y - pred;
-        for a in 0..p {
-            scores[k * p + a] += w * x[a] * e;
-        }
-    });
-    let lag = andrews_bartlett_lag_from_scores(&scores, p);
-    let meat = newey_west_meat_from_scores(&scores, p, lag);
-    let cov = &bread * meat * &bread;
-    Some(Solution { theta, cov, lag })
+    let (mut andrews, mut n) = (AndrewsSums::new(p), 0usize);
+    score_pass(layout, view, weights, &theta, &mut |u| {
+        andrews.push(u);
+        n += 1;
+    })?;
+    let lag = andrews.lag().min(n.saturating_sub(1));
+    let mut bartlett = BartlettSums::new(Whitener::none(p), p, lag, n);
+    score_pass(layout, view, weights, &theta, &mut |u| bartlett.push(u))?;
+    let cov = &bread * bartlett.finish() * &bread;
+    Ok(Some(Solution { theta, cov, lag }))
 }
 
 /// The time offset common to a sensor's channels, from the per-channel offsets of one solve.
@@ -291,12 +348,13 @@ const MAX_ITERATIONS: usize = 12;
 /// boresight estimate and only a small residual rotation is solved for linearly, so the
 /// small-angle model of eqs. 10-11 holds at convergence even for boresights of several
 /// degrees; the time offset moves by the common offset of each solve.
-pub(super) fn fit(source: &EpochSource<'_>, opts: &ErrorOptions) -> Result<Fit, ErrorsError> {
+pub(super) fn fit(epochs: &Epochs<'_>, opts: &ErrorOptions) -> Result<Fit, ErrorsError> {
+    let grid = epochs.grid();
     let mut notes = Vec::new();
     let mut layout = Layout {
-        gyro: source.has_gyro(),
-        accel: source.has_accel(),
-        lever: source.has_accel() && opts.estimate_lever_arm,
+        gyro: grid.has_gyro(),
+        accel: grid.has_accel(),
+        lever: grid.has_accel() && opts.estimate_lever_arm,
         time: opts.estimate_time_offset,
     };
     let mut shift_s = 0.0;
@@ -305,25 +363,20 @@ pub(super) fn fit(source: &EpochSource<'_>, opts: &ErrorOptions) -> Result<Fit, 
     let mut solution = None;
     let mut common_time: Option<CommonTimeOffset> = None;
     for iteration in 0..MAX_ITERATIONS {
-        let data = source.at(shift_s)?.rotated(&r_sb);
-        let sol = solve_observable(&mut layout, &data, weights, &mut notes)?;
+        let view = epochs.at(shift_s, r_sb)?;
+        let sol = solve_observable(&mut layout, &view, weights, &mut notes)?;
         // Reweight gyro and accelerometer rows by their residual variances once, so neither
         // sensor type dominates through its units.
         if iteration == 0 {
-            weights = residual_weights(&layout, &data, &sol, weights);
+            weights = residual_weights(&layout, &view, &sol, weights)?;
             continue;
         }
         // The residual rotation solved for is psi in C_b^s' = exp(-[psi x]) of the rotated
         // sensor, so the sensor-to-body rotation is refined by exp([psi x]).
         let dpsi = Vector3::new(sol.theta[0], sol.theta[1], sol.theta[2]);
-        let common = layout.time().map(|t| {
-            common_time_offset(
-                &sol,
-                t,
-                data.gyro_rad_s.is_some(),
-                data.accel_m_s2.is_some(),
-            )
-        });
+        let common = layout
+            .time()
+            .map(|t| common_time_offset(&sol, t, grid.has_gyro(), grid.has_accel()));
         let step = common.as_ref().map_or(0.0, |c| c.value);
         common_time = common;
         r_sb = Rotation3::new(dpsi) * r_sb;
@@ -349,12 +402,12 @@ pub(super) fn fit(source: &EpochSource<'_>, opts: &ErrorOptions) -> Result<Fit, 
 /// the normal matrix is singular.
 fn solve_observable(
     layout: &mut Layout,
-    data: &EpochData,
+    view: &View,
     weights: [f64; 2],
     notes: &mut Vec<String>,
 ) -> Result<Solution, ErrorsError> {
     loop {
-        match solve(layout, data, weights) {
+        match solve(layout, view, weights)? {
             Some(s) => return Ok(s),
             None if layout.lever => {
                 layout.lever = false;
@@ -377,47 +430,53 @@ fn solve_observable(
 /// (a sensor type without residuals keeps its weight from `weights`).
 fn residual_weights(
     layout: &Layout,
-    data: &EpochData,
+    view: &View,
     sol: &Solution,
     mut weights: [f64; 2],
-) -> [f64; 2] {
-    let reference = &data.reference;
-    let (omega_dot, f_dot) = (&data.omega_dot_b_rad_s2, &data.f_dot_b_m_s3);
+) -> Result<[f64; 2], ErrorsError> {
     let theta = &sol.theta;
     let (mut sg, mut ng, mut sa, mut na) = (0.0, 0.0, 0.0, 0.0);
-    for k in 0..data.len() {
-        let w = &reference.omega_ib_b_rad_s[k];
-        let f = &reference.f_b_m_s2[k];
-        let psi = Vector3::new(theta[0], theta[1], theta[2]);
-        if let (Some(o), Some(bg)) = (&data.gyro_rad_s, layout.bg()) {
-            let mut pred = skew(w) * psi + Vector3::new(theta[bg], theta[bg + 1], theta[bg + 2]);
-            if let Some(t) = layout.time() {
-                pred -=
-                    Vector3::new(theta[t], theta[t + 1], theta[t + 2]).component_mul(&omega_dot[k]);
+    view.pass(&mut |block| {
+        let data = block.data;
+        let reference = &data.reference;
+        let (omega_dot, f_dot) = (&data.omega_dot_b_rad_s2, &data.f_dot_b_m_s3);
+        for k in block.own.clone() {
+            let w = &reference.omega_ib_b_rad_s[k];
+            let f = &reference.f_b_m_s2[k];
+            let psi = Vector3::new(theta[0], theta[1], theta[2]);
+            if let (Some(o), Some(bg)) = (&data.gyro_rad_s, layout.bg()) {
+                let mut pred =
+                    skew(w) * psi + Vector3::new(theta[bg], theta[bg + 1], theta[bg + 2]);
+                if let Some(t) = layout.time() {
+                    pred -= Vector3::new(theta[t], theta[t + 1], theta[t + 2])
+                        .component_mul(&omega_dot[k]);
+                }
+                sg += (o[k] - w - pred).norm_squared();
+                ng += 3.0;
             }
-            sg += (o[k] - w - pred).norm_squared();
-            ng += 3.0;
+            if let (Some(fs), Some(ba)) = (&data.accel_m_s2, layout.ba()) {
+                let mut pred =
+                    skew(f) * psi + Vector3::new(theta[ba], theta[ba + 1], theta[ba + 2]);
+                if let Some(l) = layout.lever() {
+                    let ww = skew(w);
+                    pred += (skew(&omega_dot[k]) + ww * ww)
+                        * Vector3::new(theta[l], theta[l + 1], theta[l + 2]);
+                }
+                if let Some(t) = layout.time() {
+                    pred -= Vector3::new(theta[t + 3], theta[t + 4], theta[t + 5])
+                        .component_mul(&f_dot[k]);
+                }
+                sa += (fs[k] - f - pred).norm_squared();
+                na += 3.0;
+            }
         }
-        if let (Some(fs), Some(ba)) = (&data.accel_m_s2, layout.ba()) {
-            let mut pred = skew(f) * psi + Vector3::new(theta[ba], theta[ba + 1], theta[ba + 2]);
-            if let Some(l) = layout.lever() {
-                let ww = skew(w);
-                pred += (skew(&omega_dot[k]) + ww * ww)
-                    * Vector3::new(theta[l], theta[l + 1], theta[l + 2]);
-            }
-            if let Some(t) = layout.time() {
-                pred -=
-                    Vector3::new(theta[t + 3], theta[t + 4], theta[t + 5]).component_mul(&f_dot[k]);
-            }
-            sa += (fs[k] - f - pred).norm_squared();
-            na += 3.0;
-        }
-    }
+        Ok(())
+    })?;
     if ng > 0.0 && sg > 0.0 {
         weights[0] = ng / sg;
     }
     if na > 0.0 && sa > 0.0 {
         weights[1] = na / sa;
     }
-    weights
+    Ok(weights)
 }

@@ -37,13 +37,22 @@ mod design;
 mod epochs;
 mod least_squares;
 pub(crate) mod motion;
+mod passes;
+mod recordings;
 mod signals;
 
 pub use design::{CalibrationDesign, DesignRows};
+pub use recordings::SpilledRecording;
 
-use crate::error_signal::ErrorSignals;
+use std::path::Path;
+
+use nalgebra::Rotation3;
+
+use crate::error_signal::{ErrorSignalWriter, ErrorSignals};
 use crate::interchange::ImuRecording;
-use epochs::EpochSource;
+use epochs::{EpochGrid, EpochSource};
+use passes::{Epochs, View};
+use recordings::Samples;
 
 /// Errors building error signals.
 #[derive(Debug, thiserror::Error)]
@@ -75,6 +84,18 @@ pub enum ErrorsError {
     /// The calibration is not observable from these data.
     #[error("calibration not observable from these data: {0}")]
     Unobservable(String),
+    /// A recording could not be read (streamed).
+    #[error(transparent)]
+    Read(#[from] crate::interchange::TableError),
+    /// A streamed recording's spill file could not be written or read back.
+    #[error(
+        "the spill file in {dir}: {source} (set TMPDIR to a folder with room for 8 bytes a value)"
+    )]
+    Spill {
+        dir: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
 }
 
 /// A vector estimate with its 1-sigma uncertainty per component.
@@ -134,6 +155,9 @@ pub struct ErrorOptions {
     /// [`ErrorSignals::release_jerks_and_acceleration`] leaves them, without ever holding
     /// them (nine series of the drive's length).
     pub rates_only: bool,
+    /// Epochs a streamed calibration ([`write_error_signals_streamed`]) forms at a time
+    /// (about 200 bytes each, a few blocks held at once); the result does not depend on it.
+    pub block_epochs: usize,
 }
 
 impl Default for ErrorOptions {
@@ -143,6 +167,7 @@ impl Default for ErrorOptions {
             estimate_time_offset: true,
             max_time_offset_s: 0.2,
             rates_only: false,
+            block_epochs: passes::BLOCK_EPOCHS,
         }
     }
 }
@@ -166,28 +191,125 @@ pub fn build_error_signals_with_design(
         return Err(ErrorsError::SensorHasNoChannels);
     }
     crate::progress::stage(|| "aligning the sensor's samples with the reference".into());
-    let source = EpochSource::new(sensor, reference, opts)?;
-    motion::check_same_motion(&source.t_s, &source.at(0.0)?)?;
-    crate::progress::stage(|| {
-        "estimating boresight, lever arm and time offset (searched over shifts)".into()
-    });
-    let fit = least_squares::fit(&source, opts)?;
+    let grid = EpochGrid::new(sensor, reference, opts)?;
+    let block = grid.block(sensor, reference, 0..grid.epochs)?;
+    let epochs = Epochs::Held {
+        grid: &grid,
+        source: EpochSource::new(&block)?,
+    };
+    let fit = calibrate(&epochs, opts)?;
     // Final errors at the estimated boresight and time offset.
-    let data = source.at(fit.shift_s)?.rotated(&fit.r_sb);
+    let View::Held { t_s, data } = epochs.at(fit.shift_s, fit.r_sb)? else {
+        unreachable!("held epochs give a held view")
+    };
     crate::progress::stage(|| "forming the error signals and the dynamics".into());
     let design = CalibrationDesign::new(&fit.layout, fit.weights, &data);
     let errors = signals::error_columns(&data, fit.lever_arm_b_m());
-    let dynamics = signals::dynamics_columns(&source.t_s, &data, opts.rates_only);
-    let summary = signals::summary(fit, &source, &errors);
+    let dynamics = signals::dynamics_columns(t_s, &data, opts.rates_only);
+    let mut spread = signals::ErrorSpread::default();
+    spread.add(&errors, 0..t_s.len());
+    let epoch_dt_s = crate::interchange::median_step_s(t_s).unwrap_or(0.0);
+    let summary = signals::summary(fit, &grid, spread.std_dev(), epoch_dt_s);
     let signals = ErrorSignals {
         specific_force_b_m_s2: Some(std::array::from_fn(|i| {
             data.reference.f_b_m_s2.iter().map(|v| v[i]).collect()
         })),
-        t_s: source.t_s,
+        t_s: t_s.to_vec(),
         errors,
         dynamics,
     };
     Ok((signals, summary, design))
+}
+
+/// The motion check and the fit, over epochs held or streamed.
+fn calibrate(epochs: &Epochs<'_>, opts: &ErrorOptions) -> Result<least_squares::Fit, ErrorsError> {
+    motion::check_same_motion(&epochs.at(0.0, Rotation3::identity())?)?;
+    crate::progress::stage(|| {
+        "estimating boresight, lever arm and time offset (searched over shifts)".into()
+    });
+    least_squares::fit(epochs, opts)
+}
+
+/// [`build_error_signals`] for recordings of any length: the interchange files `sensor` and
+/// `reference` (CSV, CSV.gz or Parquet) are read once into spill files in the temporary
+/// folder, the calibration passes over them a block of epochs at a time, and the error
+/// signals (every dynamics column, and the specific force) are written to `out` as they are
+/// formed, whole or not at all. Memory holds a few blocks, not the recordings. The result is
+/// [`build_error_signals`]' to rounding (the sandwich's sums and the spread are pooled over
+/// blocks; against a navigation solution the sensor's running integrals start at each
+/// block).
+pub fn write_error_signals_streamed(
+    sensor: &Path,
+    reference: &Path,
+    out: &Path,
+    opts: &ErrorOptions,
+) -> Result<CalibrationSummary, ErrorsError> {
+    crate::progress::stage(|| format!("reading {} into a spill file", sensor.display()));
+    let sensor = SpilledRecording::read(sensor)?;
+    crate::progress::stage(|| format!("reading {} into a spill file", reference.display()));
+    let reference = SpilledRecording::read(reference)?;
+    calibrate_streamed(&sensor, &reference, out, opts)
+}
+
+/// [`write_error_signals_streamed`] over any [`Samples`].
+fn calibrate_streamed(
+    sensor: &(dyn Samples + Sync),
+    reference: &(dyn Samples + Sync),
+    out: &Path,
+    opts: &ErrorOptions,
+) -> Result<CalibrationSummary, ErrorsError> {
+    let [gyro, accel, ..] = sensor.triplets();
+    if !gyro && !accel {
+        return Err(ErrorsError::SensorHasNoChannels);
+    }
+    crate::progress::stage(|| "aligning the sensor's samples with the reference".into());
+    let grid = EpochGrid::new(sensor, reference, opts)?;
+    let epochs = Epochs::Streamed {
+        grid: &grid,
+        sensor,
+        reference,
+        block_epochs: opts.block_epochs.max(1),
+    };
+    let fit = calibrate(&epochs, opts)?;
+    crate::progress::stage(|| "writing the error signals and the dynamics".into());
+    let view = epochs.at(fit.shift_s, fit.r_sb)?;
+    let present = [gyro, gyro, gyro, accel, accel, accel];
+    let mut writer = ErrorSignalWriter::create(out, present, true)?;
+    let mut spread = signals::ErrorSpread::default();
+    let lever_arm_b_m = fit.lever_arm_b_m();
+    let mut row = Vec::with_capacity(writer.columns().len());
+    view.pass(&mut |block| {
+        let errors = signals::error_columns(block.data, lever_arm_b_m);
+        let dynamics = signals::dynamics_columns(block.t_s, block.data, false);
+        spread.add(&errors, block.own.clone());
+        for k in block.own.clone() {
+            signals::file_row(block.t_s, &errors, &dynamics, block.data, k, &mut row);
+            writer.push(&row)?;
+        }
+        Ok(())
+    })?;
+    let epoch_dt_s = median_epoch_step_s(&view, grid.epochs)?;
+    writer.finish()?;
+    Ok(signals::summary(fit, &grid, spread.std_dev(), epoch_dt_s))
+}
+
+/// The median length of the epochs of `view` (`epochs` of them), s, as
+/// [`crate::interchange::median_step_s`] gives it of their times held whole.
+fn median_epoch_step_s(view: &View, epochs: usize) -> Result<f64, ErrorsError> {
+    let steps = epochs.saturating_sub(1) as u64;
+    let median = crate::numeric::select_by_passes(steps / 2, |visit| {
+        let mut previous: Option<f64> = None;
+        view.pass(&mut |block| {
+            for &t in &block.t_s[block.own.clone()] {
+                if let Some(p) = previous {
+                    visit(t - p);
+                }
+                previous = Some(t);
+            }
+            Ok(())
+        })
+    })?;
+    Ok(median.unwrap_or(0.0))
 }
 
 #[cfg(test)]
@@ -222,17 +344,25 @@ mod tests {
         (omega, omega_dot, f)
     }
 
-    #[test]
-    fn recovers_boresight_lever_arm_biases_and_time_offset() {
+    /// The truth of [`simulated_pair`]: boresight (rad), lever arm (m), gyro bias (rad/s),
+    /// accelerometer bias (m/s^2), time offset (s).
+    fn simulated_truth() -> (Vector3<f64>, Vector3<f64>, Vector3<f64>, Vector3<f64>, f64) {
+        (
+            Vector3::new(0.02, -0.01, 0.03),
+            Vector3::new(0.4, -0.25, 0.15),
+            Vector3::new(1e-3, -2e-3, 5e-4),
+            Vector3::new(0.05, -0.03, 0.08),
+            0.012,
+        )
+    }
+
+    /// A sensor (with white noise) and a reference IMU on one rich motion, `n` samples at
+    /// 100 Hz.
+    fn simulated_pair(n: usize) -> (ImuRecording, ImuRecording) {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let psi_true = Vector3::new(0.02, -0.01, 0.03);
-        let r_true = Vector3::new(0.4, -0.25, 0.15);
-        let bg = Vector3::new(1e-3, -2e-3, 5e-4);
-        let ba = Vector3::new(0.05, -0.03, 0.08);
-        let dt_true = 0.012;
+        let (psi_true, r_true, bg, ba, dt_true) = simulated_truth();
         let c_bs = Rotation3::new(-psi_true);
         let dt = 0.01;
-        let n = 30_000;
         let t_s: Vec<f64> = (0..n).map(|i| i as f64 * dt).collect();
         let mut reference = ImuRecording {
             t_s: t_s.clone(),
@@ -267,6 +397,13 @@ mod tests {
         reference.attitude_rad = Some([vec![0.0; n], vec![0.0; n], vec![0.0; n]]);
         sensor.gyro_rad_s = Some(sg);
         sensor.accel_m_s2 = Some(sa);
+        (sensor, reference)
+    }
+
+    #[test]
+    fn recovers_boresight_lever_arm_biases_and_time_offset() {
+        let (psi_true, r_true, bg, ba, dt_true) = simulated_truth();
+        let (sensor, reference) = simulated_pair(30_000);
         let (sig, s) = build_error_signals(&sensor, &reference, &ErrorOptions::default()).unwrap();
         let within = |est: f64, sigma: f64, truth: f64, what: &str| {
             assert!(
@@ -321,5 +458,74 @@ mod tests {
         assert_eq!(lean.dynamics[..6], sig.dynamics[..6]);
         assert!(lean.dynamics[6..].iter().all(Vec::is_empty));
         assert!(sig.dynamics.iter().all(|d| d.len() == sig.t_s.len()));
+    }
+
+    #[test]
+    fn streamed_in_blocks_equals_held_whole() {
+        let (sensor, reference) = simulated_pair(20_000);
+        let dir = tempfile::tempdir().unwrap();
+        let (sensor_path, reference_path) = (dir.path().join("s.csv"), dir.path().join("r.csv"));
+        sensor.write(&sensor_path).unwrap();
+        reference.write(&reference_path).unwrap();
+        let (held, held_summary) =
+            build_error_signals(&sensor, &reference, &ErrorOptions::default()).unwrap();
+        let (sensor, reference) = (
+            SpilledRecording::read(&sensor_path).unwrap(),
+            SpilledRecording::read(&reference_path).unwrap(),
+        );
+        for (block_epochs, name) in [(997, "e.csv"), (4096, "e.parquet")] {
+            let out = dir.path().join(name);
+            let opts = ErrorOptions {
+                block_epochs,
+                ..Default::default()
+            };
+            let summary = calibrate_streamed(&sensor, &reference, &out, &opts).unwrap();
+            // Every epoch is formed from the same samples and summed in the same order: the
+            // fit is the same to the bit; only the pooled spread differs, by rounding.
+            let spread = |s: &CalibrationSummary| s.error_std.map(|e| e.unwrap());
+            for (a, b) in spread(&summary).iter().zip(spread(&held_summary)) {
+                assert!((a - b).abs() <= 1e-12 * b, "{a} {b}");
+            }
+            let exact = CalibrationSummary {
+                error_std: held_summary.error_std,
+                ..summary
+            };
+            assert_eq!(exact, held_summary);
+            let streamed = ErrorSignals::read(&out).unwrap();
+            assert_eq!(streamed.t_s, held.t_s);
+            assert_eq!(streamed.errors, held.errors);
+            assert_eq!(streamed.dynamics, held.dynamics);
+            assert_eq!(streamed.specific_force_b_m_s2, held.specific_force_b_m_s2);
+        }
+    }
+
+    #[test]
+    fn a_streamed_calibration_refuses_what_the_held_one_refuses_and_writes_nothing() {
+        let (sensor, reference) = simulated_pair(3_000);
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("e.csv");
+        let opts = ErrorOptions {
+            block_epochs: 500,
+            ..Default::default()
+        };
+        let later = ImuRecording {
+            t_s: reference.t_s.iter().map(|t| t + 1000.0).collect(),
+            ..reference.clone()
+        };
+        let still = ImuRecording {
+            gyro_rad_s: Some(std::array::from_fn(|_| vec![1e-4; sensor.len()])),
+            accel_m_s2: None,
+            ..sensor.clone()
+        };
+        for (sensor, reference) in [(&sensor, &later), (&still, &reference)] {
+            let held = build_error_signals(sensor, reference, &opts)
+                .unwrap_err()
+                .to_string();
+            let streamed = calibrate_streamed(sensor, reference, &out, &opts)
+                .unwrap_err()
+                .to_string();
+            assert_eq!(streamed, held);
+            assert!(!out.exists());
+        }
     }
 }

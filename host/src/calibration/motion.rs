@@ -10,6 +10,7 @@
 use nalgebra::Vector3;
 
 use super::epochs::EpochData;
+use super::passes::View;
 use super::signals::std_dev;
 use super::ErrorsError;
 
@@ -84,40 +85,80 @@ pub(crate) struct MotionMismatch {
     pub variations: [f64; 2],
 }
 
-/// Checks that the sensor and the reference (over the epochs `t_s`, s, at no time offset)
-/// show the same motion in turn rate and in specific force, where either moved.
-pub(super) fn check_same_motion(t_s: &[f64], data: &EpochData) -> Result<(), ErrorsError> {
-    let pairs = [
-        (
-            Quantity::TurnRate,
-            &data.gyro_rad_s,
-            &data.reference.omega_ib_b_rad_s,
-        ),
-        (
-            Quantity::SpecificForce,
-            &data.accel_m_s2,
-            &data.reference.f_b_m_s2,
-        ),
+/// Checks that the sensor and the reference (over the epochs of `view`, at no time offset
+/// and no rotation) show the same motion in turn rate and in specific force, where either
+/// moved: one pass for the windowed means, a few for the median specific forces.
+pub(super) fn check_same_motion(view: &View) -> Result<(), ErrorsError> {
+    // Sensor and reference windows of the turn rate, then of the specific force.
+    let mut windows: [WindowMeans; 4] = Default::default();
+    let mut present = [false; 2];
+    view.pass(&mut |block| {
+        let data = block.data;
+        let pairs = [
+            (&data.gyro_rad_s, &data.reference.omega_ib_b_rad_s),
+            (&data.accel_m_s2, &data.reference.f_b_m_s2),
+        ];
+        for (q, (sensor, reference)) in pairs.into_iter().enumerate() {
+            let Some(sensor) = sensor else { continue };
+            present[q] = true;
+            for k in block.own.clone() {
+                windows[2 * q].push(block.t_s[k], sensor[k].norm());
+                windows[2 * q + 1].push(block.t_s[k], reference[k].norm());
+            }
+        }
+        Ok(())
+    })?;
+    let [wa, ra, wf, rf] = windows;
+    let quantities = [
+        (Quantity::TurnRate, [wa, ra]),
+        (Quantity::SpecificForce, [wf, rf]),
     ];
-    for (quantity, sensor, reference) in pairs {
-        if let Some(sensor) = sensor {
-            same_motion(
-                t_s,
-                sensor,
-                reference,
-                quantity,
-                ["the sensor", "the reference"],
-            )
-            .map_err(|m| ErrorsError::DifferentMotion {
+    for (q, (quantity, [sensor, reference])) in quantities.into_iter().enumerate() {
+        if !present[q] {
+            continue;
+        }
+        let medians = match quantity {
+            Quantity::SpecificForce => Some([
+                median_norm_by_passes(view, |d| d.accel_m_s2.as_deref())?,
+                median_norm_by_passes(view, |d| Some(&d.reference.f_b_m_s2[..]))?,
+            ]),
+            Quantity::TurnRate => None,
+        };
+        let series = [sensor.changes(), reference.changes()];
+        same_motion_of(&series, medians, quantity, ["the sensor", "the reference"]).map_err(
+            |m| ErrorsError::DifferentMotion {
                 quantity: quantity.name(),
                 unit: quantity.unit(),
                 sensor_variation: m.variations[0],
                 reference_variation: m.variations[1],
                 reason: m.reason,
-            })?;
-        }
+            },
+        )?;
     }
     Ok(())
+}
+
+/// The median of |v| over the epochs of `view`, v chosen from each block's data by `of`.
+fn median_norm_by_passes(
+    view: &View,
+    of: impl Fn(&EpochData) -> Option<&[Vector3<f64>]>,
+) -> Result<f64, ErrorsError> {
+    let mut count = 0u64;
+    view.pass(&mut |block| {
+        if of(block.data).is_some() {
+            count += block.own.len() as u64;
+        }
+        Ok(())
+    })?;
+    let median = crate::numeric::select_by_passes(count / 2, |visit| {
+        view.pass(&mut |block| {
+            if let Some(v) = of(block.data) {
+                v[block.own.clone()].iter().for_each(|x| visit(x.norm()));
+            }
+            Ok(())
+        })
+    })?;
+    Ok(median.unwrap_or(0.0))
 }
 
 /// Whether `a` and `b` (vectors at the times `t_s`, s) moved alike: where either changes its
@@ -131,11 +172,31 @@ pub(crate) fn same_motion(
     quantity: Quantity,
     names: [&str; 2],
 ) -> Result<(), MotionMismatch> {
-    let (ma, mb) = (window_changes(t_s, a), window_changes(t_s, b));
+    let changes = |v: &[Vector3<f64>]| {
+        let mut windows = WindowMeans::default();
+        t_s.iter()
+            .zip(v)
+            .for_each(|(t, x)| windows.push(*t, x.norm()));
+        windows.changes()
+    };
+    let medians = (quantity == Quantity::SpecificForce).then(|| [median_norm(a), median_norm(b)]);
+    same_motion_of(&[changes(a), changes(b)], medians, quantity, names)
+}
+
+/// [`same_motion`] of the two units' window-to-window changes of their windowed magnitudes,
+/// with their median magnitudes where the quantity's unit slip is read from them (the
+/// specific force: gravity is always there).
+fn same_motion_of(
+    changes: &[Vec<f64>; 2],
+    medians: Option<[f64; 2]>,
+    quantity: Quantity,
+    names: [&str; 2],
+) -> Result<(), MotionMismatch> {
+    let [ma, mb] = changes;
     if ma.len() < MIN_WINDOWS {
         return Ok(());
     }
-    let variations = [std_dev(&ma), std_dev(&mb)];
+    let variations = [std_dev(ma), std_dev(mb)];
     let [sa, sb] = variations;
     let moved = sa.max(sb) > quantity.moving();
     let mismatch = |reason: String| MotionMismatch {
@@ -143,7 +204,6 @@ pub(crate) fn same_motion(
         reason,
         variations,
     };
-    let medians = [median_norm(a), median_norm(b)];
     if let Some(reason) = unit_slip(quantity, names, medians, variations, moved) {
         return Err(mismatch(reason));
     }
@@ -158,7 +218,7 @@ pub(crate) fn same_motion(
         };
         return Err(mismatch(format!("{still} was at rest while {moved} moved")));
     }
-    let r = correlation(&ma, &mb);
+    let r = correlation(ma, mb);
     if sa.min(sb) > quantity.moving() && r < MIN_CORRELATION {
         return Err(mismatch(format!(
             "both moved, but differently (correlation {r:.2} of the changes of their {WINDOW_S} s \
@@ -174,15 +234,16 @@ pub(crate) fn same_motion(
 fn unit_slip(
     quantity: Quantity,
     names: [&str; 2],
-    medians: [f64; 2],
+    medians: Option<[f64; 2]>,
     variations: [f64; 2],
     moved: bool,
 ) -> Option<String> {
     let (factor, slip, slipped_reads_larger) = quantity.unit_slip();
-    let ratio = match quantity {
-        Quantity::SpecificForce => medians[0] / medians[1],
-        Quantity::TurnRate if moved => variations[0] / variations[1],
-        Quantity::TurnRate => return None,
+    let ratio = match (quantity, medians) {
+        (Quantity::SpecificForce, Some(medians)) => medians[0] / medians[1],
+        (Quantity::SpecificForce, None) => return None,
+        (Quantity::TurnRate, _) if moved => variations[0] / variations[1],
+        (Quantity::TurnRate, _) => return None,
     };
     let near = |r: f64| (r / factor - 1.0).abs() < 0.2;
     let (large, small) = if near(ratio) {
@@ -203,34 +264,36 @@ fn median_norm(v: &[Vector3<f64>]) -> f64 {
     crate::numeric::median(v.iter().map(|x| x.norm()).collect()).unwrap_or(0.0)
 }
 
-/// Changes of the means of |v| from each window of [`WINDOW_S`] to the next.
-fn window_changes(t_s: &[f64], v: &[Vector3<f64>]) -> Vec<f64> {
-    window_means(t_s, v)
-        .windows(2)
-        .map(|w| w[1] - w[0])
-        .collect()
+/// Means of |v| over consecutive windows of [`WINDOW_S`] from the first time (the last,
+/// partial one dropped), a sample at a time.
+#[derive(Debug, Default)]
+struct WindowMeans {
+    t0_s: Option<f64>,
+    window: u64,
+    sum: f64,
+    count: usize,
+    means: Vec<f64>,
 }
 
-/// Means of |v| over consecutive windows of [`WINDOW_S`] from the first time (the last,
-/// partial one dropped).
-fn window_means(t_s: &[f64], v: &[Vector3<f64>]) -> Vec<f64> {
-    let Some(&t0) = t_s.first() else {
-        return Vec::new();
-    };
-    let mut means = Vec::new();
-    let (mut window, mut sum, mut count) = (0u64, 0.0, 0usize);
-    for (t, x) in t_s.iter().zip(v) {
-        let this = ((t - t0) / WINDOW_S) as u64;
-        if this != window {
-            if count > 0 {
-                means.push(sum / count as f64);
+impl WindowMeans {
+    /// Adds |v| = `norm` at time `t_s`.
+    fn push(&mut self, t_s: f64, norm: f64) {
+        let t0 = *self.t0_s.get_or_insert(t_s);
+        let this = ((t_s - t0) / WINDOW_S) as u64;
+        if this != self.window {
+            if self.count > 0 {
+                self.means.push(self.sum / self.count as f64);
             }
-            (window, sum, count) = (this, 0.0, 0);
+            (self.window, self.sum, self.count) = (this, 0.0, 0);
         }
-        sum += x.norm();
-        count += 1;
+        self.sum += norm;
+        self.count += 1;
     }
-    means
+
+    /// Changes of the means from each window to the next.
+    fn changes(self) -> Vec<f64> {
+        self.means.windows(2).map(|w| w[1] - w[0]).collect()
+    }
 }
 
 fn mean(x: &[f64]) -> f64 {

@@ -2,9 +2,11 @@
 //! body frame, lever-arm term removed), the dynamics of paper Section III beside them, and
 //! the summary of the estimates.
 
+use std::ops::Range;
+
 use nalgebra::{Rotation3, Vector3};
 
-use super::epochs::{EpochData, EpochSource};
+use super::epochs::{EpochData, EpochGrid};
 use super::least_squares::{skew, triplet_estimate, Fit};
 use super::{CalibrationSummary, Estimate1, Estimate3};
 use crate::model::Channel;
@@ -97,11 +99,74 @@ pub(super) fn std_dev(x: &[f64]) -> f64 {
     (x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
 }
 
-/// The summary of `fit` over the epochs of `source`, with the spread of the `errors`.
+/// The spread of each error channel (gx .. az), summed a block at a time: each block's mean
+/// and squared deviations, pooled by Chan, Golub and LeVeque's update, so that one block
+/// gives [`std_dev`] to the bit and many agree with it to rounding.
+#[derive(Debug, Default)]
+pub(super) struct ErrorSpread {
+    count: [f64; 6],
+    mean: [f64; 6],
+    squares: [f64; 6],
+}
+
+impl ErrorSpread {
+    /// Adds epochs `own` of a block's `errors`.
+    pub(super) fn add(&mut self, errors: &[Option<Vec<f64>>; 6], own: Range<usize>) {
+        for (c, e) in errors.iter().enumerate() {
+            let Some(e) = e else { continue };
+            let x = &e[own.clone()];
+            let n = x.len() as f64;
+            if n == 0.0 {
+                continue;
+            }
+            let m = x.iter().sum::<f64>() / n;
+            let q: f64 = x.iter().map(|v| (v - m).powi(2)).sum();
+            if self.count[c] == 0.0 {
+                (self.count[c], self.mean[c], self.squares[c]) = (n, m, q);
+                continue;
+            }
+            let total = self.count[c] + n;
+            let delta = m - self.mean[c];
+            self.squares[c] += q + delta * delta * self.count[c] * n / total;
+            self.mean[c] += delta * n / total;
+            self.count[c] = total;
+        }
+    }
+
+    /// Sample standard deviation of each channel seen.
+    pub(super) fn std_dev(&self) -> [Option<f64>; 6] {
+        std::array::from_fn(|c| {
+            (self.count[c] > 0.0).then(|| (self.squares[c] / (self.count[c] - 1.0)).sqrt())
+        })
+    }
+}
+
+/// The error-signal file's row of epoch `k` of a block, in [`ErrorSignalWriter`] order:
+/// time, the errors present, the dynamics, the reference's specific force.
+///
+/// [`ErrorSignalWriter`]: crate::error_signal::ErrorSignalWriter
+pub(super) fn file_row(
+    t_s: &[f64],
+    errors: &[Option<Vec<f64>>; 6],
+    dynamics: &[Vec<f64>; 15],
+    data: &EpochData,
+    k: usize,
+    row: &mut Vec<f64>,
+) {
+    row.clear();
+    row.push(t_s[k]);
+    row.extend(errors.iter().flatten().map(|e| e[k]));
+    row.extend(dynamics.iter().map(|d| d[k]));
+    row.extend(data.reference.f_b_m_s2[k].iter());
+}
+
+/// The summary of `fit` over the epochs of `grid`, with each error channel's standard
+/// deviation and the epochs' median length, s.
 pub(super) fn summary(
     fit: Fit,
-    source: &EpochSource<'_>,
-    errors: &[Option<Vec<f64>>; 6],
+    grid: &EpochGrid,
+    error_std: [Option<f64>; 6],
+    epoch_dt_s: f64,
 ) -> CalibrationSummary {
     let Fit {
         layout,
@@ -139,15 +204,15 @@ pub(super) fn summary(
         accel_bias_m_s2: layout
             .ba()
             .map(|b| to_sensor_frame(triplet_estimate(&sol, b), &r_sb)),
-        reference_kind: if source.reference_is_imu() {
+        reference_kind: if grid.reference_is_imu() {
             "imu"
         } else {
             "navigation_solution"
         }
         .into(),
-        epochs: source.t_s.len(),
-        epoch_dt_s: crate::interchange::median_step_s(&source.t_s).unwrap_or(0.0),
-        error_std: std::array::from_fn(|i| errors[i].as_ref().map(|e| std_dev(e))),
+        epochs: grid.epochs,
+        epoch_dt_s,
+        error_std,
         hac_lag: sol.lag,
         method: "batch weighted least squares of the linearised eqs. 10-11 with biases and a \
                  time-offset term, iterated on the time offset; 1-sigma from a Newey-West \

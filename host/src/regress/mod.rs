@@ -598,33 +598,69 @@ pub fn andrews_bartlett_lag_from_scores(scores: &[f64], p: usize) -> usize {
     if p == 0 {
         return 0;
     }
-    let n = scores.len() / p;
-    let (mut num, mut den) = (0.0, 0.0);
-    for j in 0..p {
-        let u = |t: usize| scores[t * p + j];
-        let (mut sxy, mut sxx, mut s2) = (0.0, 0.0, 0.0);
-        for t in 1..n {
-            sxy += u(t) * u(t - 1);
-            sxx += u(t - 1) * u(t - 1);
+    let mut sums = AndrewsSums::new(p);
+    scores.chunks_exact(p).for_each(|u| sums.push(u));
+    sums.lag()
+}
+
+/// The sums [`andrews_bartlett_lag_from_scores`] takes of its scores (per column: lag-one
+/// products, squares), added one score vector at a time, so that the lag of scores never
+/// held together is the same to the bit.
+pub(crate) struct AndrewsSums {
+    /// Per column: sum u_t u_{t-1}, sum u_{t-1}^2 (t >= 1), sum u_t^2.
+    sxy: Vec<f64>,
+    sxx: Vec<f64>,
+    s2: Vec<f64>,
+    previous: Vec<f64>,
+    n: usize,
+}
+
+impl AndrewsSums {
+    pub(crate) fn new(p: usize) -> Self {
+        Self {
+            sxy: vec![0.0; p],
+            sxx: vec![0.0; p],
+            s2: vec![0.0; p],
+            previous: vec![0.0; p],
+            n: 0,
         }
-        for t in 0..n {
-            s2 += u(t) * u(t);
-        }
-        if sxx <= 0.0 {
-            continue;
-        }
-        let rho = (sxy / sxx).clamp(-0.99, 0.99);
-        let s2 = s2 / n as f64 * (1.0 - rho * rho);
-        let w = s2 * s2;
-        num += w * 4.0 * rho * rho / ((1.0 - rho).powi(6) * (1.0 + rho).powi(2));
-        den += w / (1.0 - rho).powi(4);
     }
-    if den <= 0.0 {
-        return 0;
+
+    /// Adds the next score vector.
+    pub(crate) fn push(&mut self, u: &[f64]) {
+        for (j, &x) in u.iter().enumerate() {
+            if self.n > 0 {
+                self.sxy[j] += x * self.previous[j];
+                self.sxx[j] += self.previous[j] * self.previous[j];
+            }
+            self.s2[j] += x * x;
+        }
+        self.previous.copy_from_slice(u);
+        self.n += 1;
     }
-    let alpha = num / den;
-    let lag = 1.1447 * (alpha * n as f64).powf(1.0 / 3.0);
-    (lag.ceil() as usize).min(n / 4)
+
+    /// Andrews' (1991) AR(1) plug-in Bartlett lag of the scores added.
+    pub(crate) fn lag(&self) -> usize {
+        let n = self.n;
+        let (mut num, mut den) = (0.0, 0.0);
+        for j in 0..self.s2.len() {
+            let sxx = self.sxx[j];
+            if sxx <= 0.0 {
+                continue;
+            }
+            let rho = (self.sxy[j] / sxx).clamp(-0.99, 0.99);
+            let s2 = self.s2[j] / n as f64 * (1.0 - rho * rho);
+            let w = s2 * s2;
+            num += w * 4.0 * rho * rho / ((1.0 - rho).powi(6) * (1.0 + rho).powi(2));
+            den += w / (1.0 - rho).powi(4);
+        }
+        if den <= 0.0 {
+            return 0;
+        }
+        let alpha = num / den;
+        let lag = 1.1447 * (alpha * n as f64).powf(1.0 / 3.0);
+        (lag.ceil() as usize).min(n / 4)
+    }
 }
 
 /// Newey-West long-run covariance sum_l w_l (Gamma_l + Gamma_l') of score vectors stored

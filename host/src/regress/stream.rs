@@ -509,7 +509,7 @@ struct Var1Sums {
 }
 
 /// Turns scores u_t into prewhitened ones e_t = u_t - A u_{t-1} (t >= 1), or u_t without A.
-struct Whitener {
+pub(crate) struct Whitener {
     a: Option<DMatrix<f64>>,
     previous: Vec<f64>,
     started: bool,
@@ -517,6 +517,16 @@ struct Whitener {
 }
 
 impl Whitener {
+    /// No prewhitening: each score as it is, for `p` parameters.
+    pub(crate) fn none(p: usize) -> Self {
+        Self {
+            a: None,
+            previous: vec![0.0; p],
+            started: false,
+            e: vec![0.0; p],
+        }
+    }
+
     /// The prewhitened score of `u`, if there is one (none for the first with A).
     fn next(&mut self, u: &[f64]) -> Option<&[f64]> {
         let Some(a) = &self.a else {
@@ -541,8 +551,9 @@ struct BandwidthSums {
     count: usize,
 }
 
-/// The Bartlett moving sums v_t of `lag + 1` consecutive prewhitened scores and sum v v'.
-struct BartlettSums {
+/// The Bartlett moving sums v_t of `lag + 1` consecutive prewhitened scores and sum v v':
+/// [`super::newey_west_meat_from_scores`] of scores that arrive one at a time.
+pub(crate) struct BartlettSums {
     whitener: Whitener,
     lag: usize,
     /// Prewhitened scores in the run.
@@ -558,7 +569,8 @@ struct BartlettSums {
 }
 
 impl BartlettSums {
-    fn new(whitener: Whitener, p: usize, lag: usize, n: usize) -> Self {
+    /// Sums for `n` scores (after prewhitening) of `p` parameters and a Bartlett lag `lag`.
+    pub(crate) fn new(whitener: Whitener, p: usize, lag: usize, n: usize) -> Self {
         Self {
             whitener,
             lag,
@@ -609,7 +621,7 @@ impl BartlettSums {
     }
 
     /// Takes the next score u (before prewhitening).
-    fn push(&mut self, u: &[f64]) {
+    pub(crate) fn push(&mut self, u: &[f64]) {
         let Some(e) = self.whitener.next(u) else {
             return;
         };
@@ -625,7 +637,7 @@ impl BartlettSums {
     }
 
     /// The windows after the last score, then the meat.
-    fn finish(mut self) -> DMatrix<f64> {
+    pub(crate) fn finish(mut self) -> DMatrix<f64> {
         let p = self.v.len();
         for t in self.n..self.n + self.lag {
             if t > self.lag {
