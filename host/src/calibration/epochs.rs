@@ -7,6 +7,12 @@
 //! against a navigation solution they are the solution's sample intervals, with the sensor
 //! integrated over each. A time offset is applied by reading the reference (or the sensor's
 //! integrals) at shifted times.
+//!
+//! The grid ([`EpochGrid`]) is found over the whole overlap; the epochs are formed a block
+//! at a time ([`EpochGrid::block`], [`EpochSource`]), each block reading its samples plus
+//! those its interpolation and derivative stencils reach and the largest time offset
+//! searched, and [`APRON_EPOCHS`] epochs either side for the dynamics' differences, so a
+//! block's own epochs are those of the whole grid formed at once.
 
 use dynacal_core::nav::{earth_rate_ned_rad_s, gravity_ned_m_s2, transport_rate_ned_rad_s};
 use nalgebra::{Rotation3, UnitQuaternion, Vector3};

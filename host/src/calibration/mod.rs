@@ -3,11 +3,16 @@
 //! lever arm, biases and residual time offset, bring the sensor into the reference body frame
 //! (eq. 9) and subtract.
 //!
-//! Layout: `epochs` puts sensor and reference on the epoch grid (running integrals,
-//! interpolation, a navigation solution turned into rates and specific force);
-//! `least_squares` is the linearised weighted least squares and its iteration;
-//! `design` keeps the fitted linear model for the diagnosis ([`CalibrationDesign`]);
-//! `signals` turns the fit into the error signals, their dynamics and the summary.
+//! Layout: `recordings` is where the two recordings are read (held in memory, or spilled
+//! to a binary file and read a block at a time); `epochs` puts sensor and reference on the
+//! epoch grid, a block of epochs at a time (running integrals, interpolation, a navigation
+//! solution turned into rates and specific force); `passes` passes over the blocks in
+//! order (one held block, or streamed blocks formed again on each pass); `least_squares` is
+//! the linearised weighted least squares and its iteration; `motion` checks that the two
+//! saw one motion; `design` keeps the fitted linear model for the diagnosis
+//! ([`CalibrationDesign`]); `signals` turns the fit into the error signals, their dynamics
+//! and the summary. Held ([`build_error_signals`]) and streamed
+//! ([`write_error_signals_streamed`]) run the same code over different passes.
 //!
 //! Time base (`epochs`). Against a reference IMU the epochs are the sensor's own samples,
 //! with the reference interpolated to them (8-point Lagrange); against a navigation solution they are
