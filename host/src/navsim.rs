@@ -139,6 +139,10 @@ pub struct NavSimReport {
     /// units, 12 states) against the mounts the drive built, every [`NEES_EVERY_S`]: a
     /// consistent filter's is near 12, a filter too sure of its calibrations far above.
     pub calibration_nees_mean: f64,
+    /// The largest true speed while the fusion took the platform to be at rest (its
+    /// zero-velocity updates then claim zero to within their sigma), m/s, every set: a
+    /// drive-off the standstill test is slow to see shows here.
+    pub still_speed_max_m_s: f64,
     /// How far apart the covariance's numbers lay over the run (every [`NEES_EVERY_S`]).
     pub covariance: CovarianceSpread,
     /// Numbers the filter found out of its scalar's range or invalid (non-finite or
@@ -369,6 +373,7 @@ fn run_with<T: FilterScalar>(
     let mut nees_series = Vec::new();
     let mounts = extra_unit_mounts(&drive.board_model());
     let mut calibration_nees = Vec::new();
+    let mut still_speed_max_m_s = 0.0f64;
     // The closed-loop error transition, from the alignment on, and the restarts then.
     let mut closed_loop: Option<(ClosedLoop, u32)> = None;
     let mut aligned_after_s = None;
@@ -387,6 +392,9 @@ fn run_with<T: FilterScalar>(
         }
         fusion.push_set(t_us, &readings, &mut |_| {});
         follow(&fusion, &mut closed_loop);
+        if fusion.still() {
+            still_speed_max_m_s = still_speed_max_m_s.max(truth.v_ned_m_s.norm());
+        }
         let Some(filter) = fusion.filter() else {
             continue;
         };
@@ -440,6 +448,7 @@ fn run_with<T: FilterScalar>(
         nees_judged_by: judged.1,
         calibration_nees_mean: calibration_nees.iter().sum::<f64>()
             / calibration_nees.len().max(1) as f64,
+        still_speed_max_m_s,
         covariance: spread.spread(),
         overflow_events: overflow_events(&fusion)
             + (dynacal_core::fixed::overflows() - fixed_overflows_before),

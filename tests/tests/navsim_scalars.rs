@@ -49,6 +49,7 @@ fn worst_gap(wide: &NavSimReport, other: &NavSimReport) -> f64 {
 /// the extra units' calibrations than their errors allow: their NEES (12 states) stays below
 /// chi-square's 97.5% point for 12 degrees of freedom (23.3) even taken as one sample, where
 /// a filter counting the calibration the running offsets hide as seen gave 36 on seed 1.
+/// And no drive-off is taken for a standstill beyond the zero-velocity update's sigma.
 #[test]
 fn single_precision_and_fixed_point_navigate_as_double_precision_does() {
     let calibration_high = ChiSquared::new(12.0).unwrap().inverse_cdf(0.975);
@@ -64,6 +65,15 @@ fn single_precision_and_fixed_point_navigate_as_double_precision_does() {
             wide.calibration_nees_mean
         );
 
+        // The standstill ends before a drive-off's speed reaches the zero-velocity update's
+        // sigma (with the force's departure alone it held until 0.05-0.09 m/s).
+        let zupt_sigma =
+            f64::from(dynacal_core::fusion::FusionConfig::at_rate(200.0).zupt_sigma_m_s);
+        assert!(
+            wide.still_speed_max_m_s < zupt_sigma,
+            "seed {seed}: {:.3} m/s taken for a standstill",
+            wide.still_speed_max_m_s
+        );
         assert_eq!(wide.overflow_events, 0, "seed {seed}");
         assert_eq!(wide.outages_s, [[135.0, 165.0]]);
         for scalar in [Scalar::F32, Scalar::Fixed] {

@@ -7,8 +7,9 @@
 //!
 //! The spill holds the time and the interchange triplets the file has, 8 bytes a value in
 //! rows (`t_s`, then gyro, accelerometer, attitude, position, velocity, those present), with
-//! every [`INDEX_STRIDE`]-th time kept in memory to find a time by bisection. The file is
-//! read with the checks [`ImuRecording::read`] makes: finite numbers, strictly increasing
+//! every [`INDEX_STRIDE`]-th time kept in memory to find a time by bisection. A CSV is read
+//! by the fast block reader where it can (else, and at any row it refuses, again from its
+//! start row by row), with the checks [`ImuRecording::read`] makes: finite numbers, strictly increasing
 //! time, whole triplets, latitude and longitude in range, a stated rate that agrees with the
 //! median step; errors name the file and the line or row.
 
@@ -20,6 +21,7 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 use super::ErrorsError;
+use crate::interchange::fast::{Fallback, FastBlocks};
 use crate::interchange::{
     check_lat_lon, check_stated_rate_against, for_each_row, parquet, read_stated_rate,
     triplet_presence, ImuRecording, TableError, TableRows, Triplet, TripletPresence, TRIPLETS,
@@ -96,6 +98,93 @@ fn spill_error(source: std::io::Error) -> ErrorsError {
     }
 }
 
+/// Rows written to a spill file, with every [`INDEX_STRIDE`]-th time kept.
+struct SpillWriter {
+    out: BufWriter<File>,
+    len: usize,
+    index_t_s: Vec<f64>,
+    bytes: Vec<u8>,
+}
+
+impl SpillWriter {
+    fn new() -> Result<Self, ErrorsError> {
+        let file = tempfile::tempfile().map_err(spill_error)?;
+        Ok(Self {
+            out: BufWriter::with_capacity(1 << 20, file),
+            len: 0,
+            index_t_s: Vec::new(),
+            bytes: Vec::new(),
+        })
+    }
+
+    /// Appends a row (time first).
+    fn push(&mut self, values: &[f64]) -> Result<(), ErrorsError> {
+        if self.len.is_multiple_of(INDEX_STRIDE) {
+            self.index_t_s.push(values[0]);
+        }
+        self.bytes.clear();
+        values
+            .iter()
+            .for_each(|v| self.bytes.extend(v.to_le_bytes()));
+        self.out.write_all(&self.bytes).map_err(spill_error)?;
+        self.len += 1;
+        Ok(())
+    }
+
+    /// The spill file, its rows and its index.
+    fn finish(self) -> Result<(File, usize, Vec<f64>), ErrorsError> {
+        let spill = self
+            .out
+            .into_inner()
+            .map_err(|e| spill_error(e.into_error()))?;
+        Ok((spill, self.len, self.index_t_s))
+    }
+}
+
+/// The CSV at `path` spilled by the fast block reader ([`FastBlocks`]); `None` where it gives
+/// up, or at a row the checks refuse (time not increasing, latitude or longitude out of
+/// range): the row reader then reads the file again and names the line.
+fn spill_fast(
+    path: &Path,
+    wanted: &[&str],
+    lat_at: Option<usize>,
+) -> Result<Option<SpillWriter>, ErrorsError> {
+    let Some(mut blocks) = FastBlocks::open(path, Some(wanted)) else {
+        return Ok(None);
+    };
+    let order: Option<Vec<usize>> = wanted
+        .iter()
+        .map(|name| blocks.headers().iter().position(|h| h == name))
+        .collect();
+    let Some(order) = order else {
+        return Ok(None);
+    };
+    let mut spill = SpillWriter::new()?;
+    let mut row = vec![0.0; wanted.len()];
+    let mut previous_t_s = f64::NEG_INFINITY;
+    loop {
+        let block = match blocks.next_block() {
+            Ok(Some(block)) => block,
+            Ok(None) => break,
+            Err(Fallback) => return Ok(None),
+        };
+        for piece in block.pieces() {
+            let columns: Vec<&[f64]> = order.iter().map(|&c| piece[c].as_slice()).collect();
+            for k in 0..columns.first().map_or(0, |c| c.len()) {
+                row.iter_mut().zip(&columns).for_each(|(v, c)| *v = c[k]);
+                let lat_lon_bad = lat_at
+                    .is_some_and(|at| check_lat_lon(path, row[0], row[at], row[at + 1]).is_err());
+                if !(row[0] > previous_t_s) || lat_lon_bad {
+                    return Ok(None);
+                }
+                previous_t_s = row[0];
+                spill.push(&row)?;
+            }
+        }
+    }
+    Ok((spill.len > 0).then_some(spill))
+}
+
 impl SpilledRecording {
     /// Reads the interchange file at `path` (CSV, CSV.gz or Parquet) into a spill file.
     pub fn read(path: &Path) -> Result<Self, ErrorsError> {
@@ -126,26 +215,29 @@ impl SpilledRecording {
         let lat_at = position
             .filter(|&k| present[k])
             .map(|k| 1 + 3 * (0..k).filter(|&j| present[j]).count());
-        let mut out = BufWriter::with_capacity(1 << 20, tempfile::tempfile().map_err(spill_error)?);
-        let (mut len, mut index_t_s, mut bytes) = (0usize, Vec::new(), Vec::new());
-        for_each_row(
-            path,
-            &wanted,
-            |_, values: &[f64]| -> Result<(), ErrorsError> {
-                if let Some(at) = lat_at {
-                    check_lat_lon(path, values[0], values[at], values[at + 1])?;
-                }
-                if len.is_multiple_of(INDEX_STRIDE) {
-                    index_t_s.push(values[0]);
-                }
-                bytes.clear();
-                values.iter().for_each(|v| bytes.extend(v.to_le_bytes()));
-                out.write_all(&bytes).map_err(spill_error)?;
-                len += 1;
-                Ok(())
-            },
-        )?;
-        let spill = out.into_inner().map_err(|e| spill_error(e.into_error()))?;
+        let fast = if parquet::is_parquet(path) {
+            None
+        } else {
+            spill_fast(path, &wanted, lat_at)?
+        };
+        let written = match fast {
+            Some(written) => written,
+            None => {
+                let mut spill = SpillWriter::new()?;
+                for_each_row(
+                    path,
+                    &wanted,
+                    |_, values: &[f64]| -> Result<(), ErrorsError> {
+                        if let Some(at) = lat_at {
+                            check_lat_lon(path, values[0], values[at], values[at + 1])?;
+                        }
+                        spill.push(values)
+                    },
+                )?;
+                spill
+            }
+        };
+        let (spill, len, index_t_s) = written.finish()?;
         let recording = Self {
             source: path.to_path_buf(),
             spill,

@@ -64,7 +64,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     dynacal::output::write_json_atomic(&args.json, &report)
         .with_context(|| format!("writing {}", args.json.display()))?;
     println!(
-        "{}: position RMS {:.3} m with GNSS, {:.3} m in outages; attitude RMS {:.3} deg; NEES {:.2} in [{:.2}, {:.2}] (its {} samples worth {:.1} independent ones by {}; [{:.2}, {:.2}] if they were independent); calibrations' NEES {:.2} (of 12 states); {} overflow events",
+        "{}: position RMS {:.3} m with GNSS, {:.3} m in outages; attitude RMS {:.3} deg; NEES {:.2} in [{:.2}, {:.2}] (its {} samples worth {:.1} independent ones by {}; [{:.2}, {:.2}] if they were independent); calibrations' NEES {:.2} (of 12 states); at most {:.3} m/s taken for a standstill; {} overflow events",
         args.scalar.name(),
         report.position_rms_m,
         report.position_rms_outage_m,
@@ -78,6 +78,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         report.nees_bounds_independent[0],
         report.nees_bounds_independent[1],
         report.calibration_nees_mean,
+        report.still_speed_max_m_s,
         report.overflow_events
     );
     super::wrote(&[&args.json]);
