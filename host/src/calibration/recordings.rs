@@ -21,7 +21,7 @@ use std::os::unix::fs::FileExt;
 use std::path::{Path, PathBuf};
 
 use super::ErrorsError;
-use crate::interchange::fast::{Fallback, FastBlocks};
+use crate::interchange::fast::for_each_fast_row;
 use crate::interchange::{
     check_lat_lon, check_stated_rate_against, for_each_row, parquet, read_stated_rate,
     triplet_presence, ImuRecording, TableError, TableRows, Triplet, TripletPresence, TRIPLETS,
@@ -141,48 +141,23 @@ impl SpillWriter {
     }
 }
 
-/// The CSV at `path` spilled by the fast block reader ([`FastBlocks`]); `None` where it gives
-/// up, or at a row the checks refuse (time not increasing, latitude or longitude out of
-/// range): the row reader then reads the file again and names the line.
+/// The CSV at `path` spilled by the fast block reader; `None` where it gives up, or at a row
+/// the checks refuse (time not increasing, latitude or longitude out of range): the row
+/// reader then reads the file again and names the line.
 fn spill_fast(
     path: &Path,
     wanted: &[&str],
     lat_at: Option<usize>,
 ) -> Result<Option<SpillWriter>, ErrorsError> {
-    let Some(mut blocks) = FastBlocks::open(path, Some(wanted)) else {
-        return Ok(None);
-    };
-    let order: Option<Vec<usize>> = wanted
-        .iter()
-        .map(|name| blocks.headers().iter().position(|h| h == name))
-        .collect();
-    let Some(order) = order else {
-        return Ok(None);
-    };
     let mut spill = SpillWriter::new()?;
-    let mut row = vec![0.0; wanted.len()];
-    let mut previous_t_s = f64::NEG_INFINITY;
-    loop {
-        let block = match blocks.next_block() {
-            Ok(Some(block)) => block,
-            Ok(None) => break,
-            Err(Fallback) => return Ok(None),
-        };
-        for piece in block.pieces() {
-            let columns: Vec<&[f64]> = order.iter().map(|&c| piece[c].as_slice()).collect();
-            for k in 0..columns.first().map_or(0, |c| c.len()) {
-                row.iter_mut().zip(&columns).for_each(|(v, c)| *v = c[k]);
-                let lat_lon_bad = lat_at
-                    .is_some_and(|at| check_lat_lon(path, row[0], row[at], row[at + 1]).is_err());
-                if !(row[0] > previous_t_s) || lat_lon_bad {
-                    return Ok(None);
-                }
-                previous_t_s = row[0];
-                spill.push(&row)?;
-            }
+    let read = for_each_fast_row(path, wanted, |row| -> Result<bool, ErrorsError> {
+        if lat_at.is_some_and(|at| check_lat_lon(path, row[0], row[at], row[at + 1]).is_err()) {
+            return Ok(false);
         }
-    }
-    Ok((spill.len > 0).then_some(spill))
+        spill.push(row)?;
+        Ok(true)
+    })?;
+    Ok(read.then_some(spill))
 }
 
 impl SpilledRecording {

@@ -200,6 +200,49 @@ impl FastBlocks {
     }
 }
 
+/// Calls `row` with each data row of the CSV at `path`, its values in `wanted` order (the
+/// first wanted column a time that must strictly increase), read by the fast block reader:
+/// what a streamed reader spills. `Ok(false)` when the reader gives up, a wanted column is
+/// missing, the time does not increase, the file has no row, or `row` refuses one (returns
+/// `Ok(false)`): the caller then reads the file again row by row, whose errors name the line.
+pub(crate) fn for_each_fast_row<E>(
+    path: &Path,
+    wanted: &[&str],
+    mut row: impl FnMut(&[f64]) -> Result<bool, E>,
+) -> Result<bool, E> {
+    let Some(mut blocks) = FastBlocks::open(path, Some(wanted)) else {
+        return Ok(false);
+    };
+    let order: Option<Vec<usize>> = wanted
+        .iter()
+        .map(|name| blocks.headers().iter().position(|h| h == name))
+        .collect();
+    let Some(order) = order else {
+        return Ok(false);
+    };
+    let mut values = vec![0.0; wanted.len()];
+    let (mut previous_t_s, mut rows) = (f64::NEG_INFINITY, 0u64);
+    loop {
+        let block = match blocks.next_block() {
+            Ok(Some(block)) => block,
+            Ok(None) => break,
+            Err(Fallback) => return Ok(false),
+        };
+        for piece in block.pieces() {
+            let columns: Vec<&[f64]> = order.iter().map(|&c| piece[c].as_slice()).collect();
+            for k in 0..columns.first().map_or(0, |c| c.len()) {
+                values.iter_mut().zip(&columns).for_each(|(v, c)| *v = c[k]);
+                if !(values[0] > previous_t_s) || !row(&values)? {
+                    return Ok(false);
+                }
+                previous_t_s = values[0];
+                rows += 1;
+            }
+        }
+    }
+    Ok(rows > 0)
+}
+
 /// The file's decompressed bytes in blocks, read on a thread of their own (a read error is
 /// `Err(())`: the `csv` path says what it is), and where to hand the buffers back.
 #[allow(clippy::type_complexity)]

@@ -31,7 +31,7 @@ use super::{
     DYNAMICS_REGRESSORS, MEAT_CHUNK,
 };
 use crate::error_signal::{no_error_column, DYNAMICS_COLUMNS, ERROR_COLUMNS};
-use crate::interchange::fast::{Fallback, FastBlocks};
+use crate::interchange::fast::for_each_fast_row;
 use crate::interchange::{for_each_row, parquet, TableError, TableRows};
 
 /// Rows handed to the channels at a time.
@@ -204,44 +204,19 @@ impl RowStore {
         spill.finish()
     }
 
-    /// [`Self::read`] by [`FastBlocks`]; `None` where it gives up (a row out of time order
-    /// too: the row reader names it).
+    /// [`Self::read`] by the fast block reader; `None` where it gives up (a row out of time
+    /// order too: the row reader names it).
     fn read_fast(
         path: &Path,
         wanted: &[&str],
         errors: usize,
     ) -> Result<Option<(Self, Gram)>, StreamError> {
-        let Some(mut blocks) = FastBlocks::open(path, Some(wanted)) else {
-            return Ok(None);
-        };
-        let order: Option<Vec<usize>> = wanted
-            .iter()
-            .map(|name| blocks.headers().iter().position(|h| h == name))
-            .collect();
-        let Some(order) = order else {
-            return Ok(None);
-        };
         let mut spill = Spill::new(errors)?;
-        let mut row = vec![0.0; wanted.len()];
-        let mut previous_t_s = f64::NEG_INFINITY;
-        loop {
-            let block = match blocks.next_block() {
-                Ok(Some(block)) => block,
-                Ok(None) => break,
-                Err(Fallback) => return Ok(None),
-            };
-            for piece in block.pieces() {
-                for k in 0..piece.first().map_or(0, Vec::len) {
-                    gather_row(piece, &order, k, &mut row);
-                    if !(row[0] > previous_t_s) {
-                        return Ok(None);
-                    }
-                    previous_t_s = row[0];
-                    spill.push(&row[1..])?;
-                }
-            }
-        }
-        if spill.gram.rows == 0 {
+        let read = for_each_fast_row(path, wanted, |row| {
+            spill.push(&row[1..])?;
+            Ok::<_, StreamError>(true)
+        })?;
+        if !read {
             return Ok(None);
         }
         spill.finish().map(Some)
@@ -265,13 +240,6 @@ impl RowStore {
             left -= rows;
         }
         Ok(())
-    }
-}
-
-/// Row `k` of a block's columns, the columns taken in `order`.
-fn gather_row(columns: &[Vec<f64>], order: &[usize], k: usize, row: &mut [f64]) {
-    for (value, &i) in row.iter_mut().zip(order) {
-        *value = columns[i][k];
     }
 }
 
