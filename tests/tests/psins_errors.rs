@@ -6,6 +6,7 @@
 use dynacal::calibration::{build_error_signals, write_error_signals_streamed, ErrorOptions};
 use dynacal::error_signal::ErrorSignals;
 use dynacal::import::psins_fog_mems::{read_fog, read_mems};
+use dynacal::interchange::ImuRecording;
 use dynacal::regress::{backward_elimination, RegressionOptions};
 
 fn variance(x: &[f64]) -> f64 {
@@ -13,15 +14,24 @@ fn variance(x: &[f64]) -> f64 {
     x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (x.len() - 1) as f64
 }
 
-#[test]
-fn psins_mems_against_fog_calibration_and_error_signals() {
+/// The real MEMS unit and the FOG INS solution; `None` (with a message) when the dataset is
+/// absent.
+fn psins_pair() -> Option<(ImuRecording, ImuRecording)> {
     let dir = dynacal_tests::data_dir().join("psins-fog-mems");
     if !dir.exists() {
         eprintln!("SKIP: {} not found (set DYNACAL_DATA)", dir.display());
-        return;
+        return None;
     }
     let mems = read_mems(&dir.join("mems_increments.csv.gz")).unwrap();
     let fog = read_fog(&dir.join("fog_ins_reference.csv.gz")).unwrap();
+    Some((mems, fog))
+}
+
+#[test]
+fn psins_mems_against_fog_calibration_and_error_signals() {
+    let Some((mems, fog)) = psins_pair() else {
+        return;
+    };
 
     let (signals, cal) = build_error_signals(&mems, &fog, &ErrorOptions::default()).unwrap();
     assert_eq!(cal.reference_kind, "navigation_solution");
@@ -92,13 +102,9 @@ fn psins_mems_against_fog_calibration_and_error_signals() {
 /// block), so the estimates agree far inside their uncertainty and the signals to rounding.
 #[test]
 fn psins_streamed_in_blocks_equals_held_whole() {
-    let dir = dynacal_tests::data_dir().join("psins-fog-mems");
-    if !dir.exists() {
-        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", dir.display());
+    let Some((mems, fog)) = psins_pair() else {
         return;
-    }
-    let mems = read_mems(&dir.join("mems_increments.csv.gz")).unwrap();
-    let fog = read_fog(&dir.join("fog_ins_reference.csv.gz")).unwrap();
+    };
     let (held, held_cal) = build_error_signals(&mems, &fog, &ErrorOptions::default()).unwrap();
     let work = tempfile::tempdir().unwrap();
     let (sensor, reference, out) = (

@@ -228,7 +228,9 @@ pub fn build_error_signals_with_design(
 
 /// The motion check and the fit, over epochs held or streamed.
 fn calibrate(epochs: &Epochs<'_>, opts: &ErrorOptions) -> Result<least_squares::Fit, ErrorsError> {
-    motion::check_same_motion(&epochs.at(0.0, Rotation3::identity())?)?;
+    let view = epochs.at(0.0, Rotation3::identity())?;
+    motion::check_same_motion(&view, epochs.grid().epochs)?;
+    drop(view);
     crate::progress::stage(|| {
         "estimating boresight, lever arm and time offset (searched over shifts)".into()
     });

@@ -85,10 +85,10 @@ pub(crate) struct MotionMismatch {
     pub variations: [f64; 2],
 }
 
-/// Checks that the sensor and the reference (over the epochs of `view`, at no time offset
-/// and no rotation) show the same motion in turn rate and in specific force, where either
-/// moved: one pass for the windowed means, a few for the median specific forces.
-pub(super) fn check_same_motion(view: &View) -> Result<(), ErrorsError> {
+/// Checks that the sensor and the reference (over the `epochs` epochs of `view`, at no time
+/// offset and no rotation) show the same motion in turn rate and in specific force, where
+/// either moved: one pass for the windowed means, a few for the median specific forces.
+pub(super) fn check_same_motion(view: &View, epochs: usize) -> Result<(), ErrorsError> {
     // Sensor and reference windows of the turn rate, then of the specific force.
     let mut windows: [WindowMeans; 4] = Default::default();
     let mut present = [false; 2];
@@ -119,8 +119,8 @@ pub(super) fn check_same_motion(view: &View) -> Result<(), ErrorsError> {
         }
         let medians = match quantity {
             Quantity::SpecificForce => Some([
-                median_norm_by_passes(view, |d| d.accel_m_s2.as_deref())?,
-                median_norm_by_passes(view, |d| Some(&d.reference.f_b_m_s2[..]))?,
+                median_norm_by_passes(view, epochs, |d| d.accel_m_s2.as_deref())?,
+                median_norm_by_passes(view, epochs, |d| Some(&d.reference.f_b_m_s2[..]))?,
             ]),
             Quantity::TurnRate => None,
         };
@@ -138,19 +138,14 @@ pub(super) fn check_same_motion(view: &View) -> Result<(), ErrorsError> {
     Ok(())
 }
 
-/// The median of |v| over the epochs of `view`, v chosen from each block's data by `of`.
+/// The median of |v| over the `epochs` epochs of `view`, v chosen from each block's data by
+/// `of` (present in every block).
 fn median_norm_by_passes(
     view: &View,
+    epochs: usize,
     of: impl Fn(&EpochData) -> Option<&[Vector3<f64>]>,
 ) -> Result<f64, ErrorsError> {
-    let mut count = 0u64;
-    view.pass(&mut |block| {
-        if of(block.data).is_some() {
-            count += block.own.len() as u64;
-        }
-        Ok(())
-    })?;
-    let median = crate::numeric::select_by_passes(count / 2, |visit| {
+    let median = crate::numeric::select_by_passes(epochs as u64 / 2, |visit| {
         view.pass(&mut |block| {
             if let Some(v) = of(block.data) {
                 v[block.own.clone()].iter().for_each(|x| visit(x.norm()));
