@@ -37,6 +37,9 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             w.dataset.describe()
         );
     }
+    for (source, note) in &report.notes {
+        println!("{}: {note}", source.display());
+    }
     for s in &report.skipped {
         println!("skipped {} (not a dataset)", s.display());
     }

@@ -1,5 +1,5 @@
 //! Test support for the binary importers' property tests (`ardupilot_dataflash::tests`,
-//! `px4_ulog::tests`): a byte mutation proptest can draw, and the judgement of an import
+//! `px4_ulog::tests`, `ros_bag::tests`): a byte mutation proptest can draw, and the judgement of an import
 //! through the library's entry points (`detect`, `import_file`): recordings that validate
 //! and hold only finite numbers, or an error that names the file and, for damage, a byte
 //! offset inside it. The text importers are fuzzed from `host/tests/fuzz_import.rs`.
@@ -135,6 +135,7 @@ fn all_finite(rec: &crate::interchange::ImuRecording) -> bool {
 pub(crate) fn file_name(dataset: Dataset) -> &'static str {
     match dataset {
         Dataset::ArduPilotDataFlash => "fuzzed-log.bin",
+        Dataset::RosBag => "fuzzed-log.bag",
         _ => "fuzzed-log.ulg",
     }
 }

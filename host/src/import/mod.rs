@@ -18,6 +18,7 @@ pub mod mtig;
 pub mod psins_fog_mems;
 pub mod psins_lasergyro;
 pub mod px4_ulog;
+pub mod ros_bag;
 pub mod rows;
 pub mod xsens_dot;
 
@@ -52,6 +53,10 @@ pub enum ImportError {
         offset: u64,
         message: String,
     },
+    /// A file is damaged at a place named by other means than a byte offset (a message's
+    /// index and time, a table's row).
+    #[error("{path}: {message}")]
+    Damaged { path: PathBuf, message: String },
     /// An imported IMU's values cannot be in the units the dataset's format states.
     #[error("{path}: {sensor}: {message}")]
     Implausible {
@@ -115,6 +120,9 @@ pub enum Dataset {
     XsensDot,
     /// A PX4 ULog flight log (`px4-ulog/sample_log_small.ulg`).
     Px4ULog,
+    /// A ROS bag: ROS1 `.bag`, or a ROS2 bag's MCAP or SQLite storage file
+    /// (`ros-bags/`): its Imu, NavSatFix and Odometry topics.
+    RosBag,
     /// An interchange recording (CSV, CSV.gz or Parquet), written again in another form.
     Interchange,
 }
@@ -132,6 +140,7 @@ impl Dataset {
             Dataset::ArduPilotDataFlash => "ArduPilot DataFlash log (IMU instances, GPS + ATT)",
             Dataset::XsensDot => "Xsens DOT CSV export (sensor axes)",
             Dataset::Px4ULog => "PX4 ULog (IMU topics and instances, GPS + attitude)",
+            Dataset::RosBag => "ROS bag (Imu topics, NavSatFix and Odometry references)",
             Dataset::Interchange => "interchange recording (written again in the format asked)",
         }
     }
@@ -149,9 +158,10 @@ fn header_fields(line: &str) -> Vec<&str> {
 /// header may follow a preamble). `Ok(None)` means "not a known dataset"; errors are I/O
 /// failures.
 pub fn detect(path: &Path) -> Result<Option<Dataset>, ImportError> {
-    let mut head = Vec::with_capacity(px4_ulog::MAGIC.len());
+    // The longest magic: SQLite's 16 bytes (a ROS2 bag's `.db3`).
+    let mut head = Vec::with_capacity(16);
     open_maybe_gz(path)?
-        .take(px4_ulog::MAGIC.len() as u64)
+        .take(16)
         .read_to_end(&mut head)
         .map_err(|e| ImportError::io(path, e))?;
     if ardupilot_dataflash::is_dataflash(&head) {
@@ -159,6 +169,9 @@ pub fn detect(path: &Path) -> Result<Option<Dataset>, ImportError> {
     }
     if px4_ulog::is_ulog(&head) {
         return Ok(Some(Dataset::Px4ULog));
+    }
+    if ros_bag::is_bag(path, &head) {
+        return Ok(Some(Dataset::RosBag));
     }
     if crate::interchange::parquet::is_parquet(path) {
         return Ok(interchange::is_interchange(path).then_some(Dataset::Interchange));
@@ -226,18 +239,22 @@ pub struct ImportedSensor {
 pub fn import_file(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>, ImportError> {
     let mut collect = Collect::new(path);
     let mut checked = CheckUnits::new(path, &mut collect);
-    stream_dataset(path, dataset, &mut checked)?;
+    let notes = stream_dataset(path, dataset, &mut checked)?;
     checked.finish()?;
+    for note in notes {
+        eprintln!("{}: {note}", path.display());
+    }
     collect.into_sensors()
 }
 
 /// Streams the sensors of `path`, as its dataset's importer reads them, into `sink`, each
-/// named as its output file is (`adis16405-session1`, `mpu9250-imu0`...).
+/// named as its output file is (`adis16405-session1`, `mpu9250-imu0`...). Returns what the
+/// importer found worth telling the user (a ROS bag's report per topic), one line each.
 fn stream_dataset(
     path: &Path,
     dataset: Dataset,
     sink: &mut dyn SensorRows,
-) -> Result<(), ImportError> {
+) -> Result<Vec<String>, ImportError> {
     let stem = file_stem(path);
     let prefix = match dataset {
         Dataset::Adis16405 => format!("adis16405-{stem}"),
@@ -249,13 +266,21 @@ fn stream_dataset(
         Dataset::ArduPilotDataFlash => format!("ardupilot-{stem}"),
         Dataset::XsensDot => format!("xsens-{stem}-imu"),
         Dataset::Px4ULog => format!("px4-{stem}"),
+        // Named after their topics alone: a ROS1 bag and its ROS2 conversion give the
+        // same files.
+        Dataset::RosBag => String::new(),
         Dataset::Interchange => stem,
     };
     let sink = &mut Named {
         inner: sink,
         prefix,
     };
-    match dataset {
+    let streamed = match dataset {
+        Dataset::RosBag => {
+            let (recordings, report) = ros_bag::read(path)?;
+            rows::replay(&recordings, sink)?;
+            return Ok(report.notes);
+        }
         Dataset::Adis16405 => adis16405::stream(path, sink),
         Dataset::MtigGyroX => mtig::stream(path, sink),
         Dataset::PsinsMems => psins_fog_mems::stream_mems(path, sink),
@@ -269,7 +294,8 @@ fn stream_dataset(
         }
         Dataset::Px4ULog => rows::replay(&px4_ulog::read(path)?, sink),
         Dataset::Interchange => interchange::stream(path, sink),
-    }
+    };
+    streamed.map(|()| Vec::new())
 }
 
 /// The file name without directory and without `.gz` / `.csv` / `.imu` / `.bin` / `.ulg`
@@ -279,7 +305,9 @@ fn file_stem(path: &Path) -> String {
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())
         .unwrap_or_default();
-    for suffix in [".gz", ".csv", ".imu", ".bin", ".BIN", ".ulg", ".parquet"] {
+    for suffix in [
+        ".gz", ".csv", ".imu", ".bin", ".BIN", ".ulg", ".parquet", ".bag", ".mcap", ".db3",
+    ] {
         if let Some(s) = name.strip_suffix(suffix) {
             name = s.to_string();
         }
@@ -371,6 +399,9 @@ pub struct ImportReport {
     pub written: Vec<WrittenFile>,
     /// Files in the input folder that are not datasets, left alone.
     pub skipped: Vec<PathBuf>,
+    /// What the importers found worth telling (a ROS bag's per-topic report): the source
+    /// file and one line.
+    pub notes: Vec<(PathBuf, String)>,
 }
 
 /// The contents of a recording, as listed in [`WrittenFile::contents`].
@@ -416,6 +447,7 @@ pub fn import_to_dir(
     let mut set = FileSet::create(out_dir, None).map_err(|e| ImportError::io(out_dir, e))?;
     let mut sources: BTreeMap<String, PathBuf> = BTreeMap::new();
     let mut written = Vec::new();
+    let mut notes = Vec::new();
     for (source, dataset) in datasets {
         let mut files = WriteFiles {
             set: &mut set,
@@ -425,8 +457,9 @@ pub fn import_to_dir(
             writers: Vec::new(),
         };
         let mut checked = CheckUnits::new(&source, &mut files);
-        stream_dataset(&source, dataset, &mut checked)?;
+        let found = stream_dataset(&source, dataset, &mut checked)?;
         checked.finish()?;
+        notes.extend(found.into_iter().map(|note| (source.clone(), note)));
         for (file_name, columns, writer) in files.writers {
             let rows = writer.finish()?;
             written.push(WrittenFile {
@@ -444,7 +477,11 @@ pub fn import_to_dir(
         }
     }
     set.commit().map_err(|e| ImportError::io(out_dir, e))?;
-    Ok(ImportReport { written, skipped })
+    Ok(ImportReport {
+        written,
+        skipped,
+        notes,
+    })
 }
 
 /// Writes each sensor of one dataset file into its staged interchange file as rows come.

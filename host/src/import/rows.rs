@@ -59,9 +59,10 @@ impl SensorRows for Named<'_> {
         let sensors = sensors
             .into_iter()
             .map(|s| SensorLayout {
-                name: match s.name.as_str() {
-                    "" => self.prefix.clone(),
-                    part => format!("{}-{part}", self.prefix),
+                name: match (self.prefix.as_str(), s.name.as_str()) {
+                    (prefix, "") => prefix.to_string(),
+                    ("", part) => part.to_string(),
+                    (prefix, part) => format!("{prefix}-{part}"),
                 },
                 ..s
             })
