@@ -84,6 +84,8 @@ pub struct SensorNoise {
 #[derive(Debug, Clone, PartialEq)]
 pub struct ImuNoise {
     pub imu: String,
+    /// The ROS topic Kalibr's `rostopic` names; `/imu0` when None.
+    pub rostopic: Option<String>,
     pub rate_hz: f64,
     pub gyro: SensorNoise,
     pub accel: SensorNoise,
@@ -117,6 +119,7 @@ pub fn imu_noise(
     };
     Ok(ImuNoise {
         imu: imu.name.clone(),
+        rostopic: None,
         rate_hz: imu.rate_hz,
         gyro: sensor_noise(imu, [Channel::Gx, Channel::Gy, Channel::Gz], &p)?,
         accel: sensor_noise(imu, [Channel::Ax, Channel::Ay, Channel::Az], &p)?,
@@ -314,7 +317,8 @@ pub fn render(
             for e in &dynamic_entries {
                 let _ = writeln!(out, "{}: {:.6e}  # [{}]", e.name, e.value, e.unit);
             }
-            let _ = writeln!(out, "rostopic: /imu0");
+            let topic = dynamic.rostopic.as_deref().unwrap_or("/imu0");
+            let _ = writeln!(out, "rostopic: {topic}");
             let _ = writeln!(out, "update_rate: {:.1}  # [Hz]", dynamic.rate_hz);
         }
         Format::Px4 => {

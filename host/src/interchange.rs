@@ -500,6 +500,85 @@ pub fn median_step_s(t_s: &[f64]) -> Option<f64> {
     Some(*steps.select_nth_unstable_by(mid, f64::total_cmp).1)
 }
 
+/// How regular a time column is: the median step, the spread of the steps and the gaps.
+/// Commands that need a uniform grid take the samples in order at the median step and say
+/// so with this summary; the importers report it per sensor.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Sampling {
+    pub samples: usize,
+    /// Last minus first time, s.
+    pub span_s: f64,
+    pub median_step_s: f64,
+    pub min_step_s: f64,
+    pub max_step_s: f64,
+    /// The 1st and 99th percentiles of the steps, s.
+    pub p01_step_s: f64,
+    pub p99_step_s: f64,
+    /// Steps longer than [`Sampling::GAP_STEPS`] median steps: (start time, length), s.
+    pub gaps: Vec<(f64, f64)>,
+}
+
+impl Sampling {
+    /// A step longer than this many median steps is a gap.
+    pub const GAP_STEPS: f64 = 2.0;
+
+    /// The summary of `t_s` (increasing); `None` for fewer than two samples.
+    pub fn of(t_s: &[f64]) -> Option<Self> {
+        let median = median_step_s(t_s)?;
+        let mut steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+        let gaps = t_s
+            .windows(2)
+            .filter(|w| w[1] - w[0] > Self::GAP_STEPS * median)
+            .map(|w| (w[0], w[1] - w[0]))
+            .collect();
+        steps.sort_by(f64::total_cmp);
+        let at = |q: f64| steps[((steps.len() - 1) as f64 * q).round() as usize];
+        Some(Self {
+            samples: t_s.len(),
+            span_s: t_s[t_s.len() - 1] - t_s[0],
+            median_step_s: median,
+            min_step_s: steps[0],
+            max_step_s: steps[steps.len() - 1],
+            p01_step_s: at(0.01),
+            p99_step_s: at(0.99),
+            gaps,
+        })
+    }
+
+    /// True when every step is within 1% of the median: a uniform grid.
+    pub fn is_uniform(&self) -> bool {
+        self.max_step_s <= 1.01 * self.median_step_s && self.min_step_s >= 0.99 * self.median_step_s
+    }
+}
+
+impl std::fmt::Display for Sampling {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} samples over {:.3} s, median step {:.3} ms ({:.2} Hz), steps from {:.3} to {:.3} ms (1st to 99th percentile {:.3} to {:.3} ms)",
+            self.samples,
+            self.span_s,
+            self.median_step_s * 1e3,
+            1.0 / self.median_step_s,
+            self.min_step_s * 1e3,
+            self.max_step_s * 1e3,
+            self.p01_step_s * 1e3,
+            self.p99_step_s * 1e3,
+        )?;
+        match self.gaps.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
+            Some((start, length)) => write!(
+                f,
+                "; {} gaps longer than {} median steps, the longest {:.3} ms from {:.3} s",
+                self.gaps.len(),
+                Self::GAP_STEPS,
+                length * 1e3,
+                start
+            ),
+            None => write!(f, "; no gap longer than {} median steps", Self::GAP_STEPS),
+        }
+    }
+}
+
 /// How an interchange file states its sample rate: a first line `# sample_rate_hz: 100`.
 const RATE_LINE_PREFIX: &str = "# sample_rate_hz: ";
 

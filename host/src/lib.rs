@@ -19,6 +19,7 @@ pub mod mission;
 pub mod model;
 pub mod nav_smoother;
 pub mod navsim;
+pub mod noise;
 pub mod numeric;
 pub mod output;
 pub mod progress;

@@ -181,6 +181,47 @@ impl WaveletVariance {
 }
 
 impl WaveletVariance {
+    /// The wavelet variance of several separate stretches of one series (a recording's
+    /// static stretches): at each level, the coefficients of every stretch long enough for
+    /// it pooled, nu_j = sum_k M_jk nu_jk / sum_k M_jk, with eta3 degrees of freedom of the
+    /// pooled count, max(sum_k M_jk / 2^j, 1), as one stretch of that many coefficients
+    /// would have. No coefficient straddles two stretches, so a jump between them (a bias
+    /// that wandered while the sensor moved) adds nothing. Levels run up to the highest any
+    /// stretch reaches. `None` when no part is given, or the parts' intervals or robustness
+    /// differ.
+    pub fn pooled(parts: &[WaveletVariance]) -> Option<Self> {
+        let first = parts.first()?;
+        if parts
+            .iter()
+            .any(|p| p.dt_s != first.dt_s || p.robust != first.robust || p.robust)
+        {
+            return None;
+        }
+        let top = parts.iter().flat_map(|p| p.levels.iter().copied()).max()?;
+        let (mut levels, mut variance, mut m, mut eta) = (vec![], vec![], vec![], vec![]);
+        for j in 1..=top {
+            let (mut sum, mut count) = (0.0, 0usize);
+            for p in parts {
+                if let Some(i) = p.levels.iter().position(|&l| l == j) {
+                    sum += p.variance[i] * p.n_coefficients[i] as f64;
+                    count += p.n_coefficients[i];
+                }
+            }
+            if count > 0 {
+                levels.push(j);
+                variance.push(sum / count as f64);
+                m.push(count);
+                eta.push(eta3(count, j));
+            }
+        }
+        let n = parts.iter().map(|p| p.n).sum();
+        Some(Self::from_levels(
+            levels, variance, m, eta, n, first.dt_s, false,
+        ))
+    }
+}
+
+impl WaveletVariance {
     /// The wavelet variance accumulated on the board ([`dynacal_core::wavelet::HaarStream`]),
     /// in physical units: `lsb` units per count, `dt_s` seconds per sample. Levels without a
     /// coefficient yet are left out; a saturated level is an error.
@@ -833,6 +874,40 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let dist = Normal::new(0.0, sigma).unwrap();
         (0..n).map(|_| dist.sample(&mut rng)).collect()
+    }
+
+    #[test]
+    fn pooled_stretches_ignore_the_jump_between_them() {
+        let opts = WvOptions::default();
+        let a = gaussian(11, 4096, 0.5);
+        let b = gaussian(12, 2048, 0.5);
+        let shifted: Vec<f64> = b.iter().map(|x| x + 100.0).collect();
+        let wa = haar_wv(&a, 0.01, &opts).unwrap();
+        let pooled =
+            WaveletVariance::pooled(&[wa.clone(), haar_wv(&b, 0.01, &opts).unwrap()]).unwrap();
+        let pooled_shifted =
+            WaveletVariance::pooled(&[wa.clone(), haar_wv(&shifted, 0.01, &opts).unwrap()])
+                .unwrap();
+        assert_eq!(
+            pooled.levels, wa.levels,
+            "levels up to the longest stretch's"
+        );
+        assert_eq!(pooled.n, 4096 + 2048);
+        for j in 0..pooled.len() {
+            let rel = (pooled.variance[j] - pooled_shifted.variance[j]).abs() / pooled.variance[j];
+            assert!(rel < 1e-9, "level {}: {rel}", pooled.levels[j]);
+        }
+        // Level 1: M = 4095 + 2047 coefficients, white noise's 0.25 / 2 within its interval.
+        assert_eq!(pooled.n_coefficients[0], 4095 + 2047);
+        assert!(pooled.ci_low[0] < 0.125 && 0.125 < pooled.ci_high[0]);
+        // Concatenated, the jump dominates every coarse level instead.
+        let joined: Vec<f64> = a.iter().chain(&shifted).copied().collect();
+        let whole = haar_wv(&joined, 0.01, &opts).unwrap();
+        assert!(whole.variance[8] > 100.0 * pooled.variance[8]);
+        // One part pools to itself.
+        let alone = WaveletVariance::pooled(std::slice::from_ref(&wa)).unwrap();
+        assert_eq!(alone.variance, wa.variance);
+        assert_eq!(alone.ci_low, wa.ci_low);
     }
 
     #[test]

@@ -40,6 +40,8 @@ pub enum Command {
     Refit(refit::Args),
     /// A fitted model as Kalibr imu.yaml, PX4 EKF2 or ArduPilot EKF3 parameters.
     Export(export::Args),
+    /// One IMU's noise (bag, log or file): still stretches, GMWM by WIC, Kalibr imu.yaml, motion.
+    Noise(noise::Args),
     /// Haar wavelet variance and Allan variance of each channel, with 95% intervals.
     Wv(wv::Args),
     /// Paper Fig. 1 on simulated data: boresight and lever-arm estimates of two IMUs (SVG, JSON).
@@ -64,6 +66,7 @@ pub fn run(cli: Cli) -> anyhow::Result<()> {
         Command::Fit(args) => fit::run(args),
         Command::Compare(args) => compare::run(args),
         Command::Export(args) => export::run(args),
+        Command::Noise(args) => noise::run(args),
         Command::Wv(args) => wv::run(args),
         Command::Fig1(args) => fig1::run(args),
         Command::Navsim(args) => navsim::run(args),
@@ -218,6 +221,7 @@ mod fit;
 mod import;
 mod info;
 mod navsim;
+mod noise;
 mod redundancy;
 mod refit;
 mod regress;

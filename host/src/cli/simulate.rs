@@ -47,6 +47,11 @@ pub struct Args {
     /// stamps; PPS every second; GNSS fixes in the log).
     #[arg(long)]
     pub replay: bool,
+    /// Also write the run as a ROS2 bag folder (MCAP, `metadata.yaml`): each IMU as a
+    /// `sensor_msgs/Imu` topic `/<imu>/imu`, the reference's navigation as
+    /// `/reference/odometry`, the GNSS fixes as `/gnss/fix` (`docs/formats.md`, "ROS bags").
+    #[arg(long, value_name = "DIR")]
+    pub ros2: Option<PathBuf>,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -90,6 +95,14 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.ideal,
         board.as_ref(),
     )?;
+    if let Some(bag) = &args.ros2 {
+        let written = sim::ros2::write_ros2_bag(&out, bag)?;
+        eprintln!(
+            "wrote the ROS2 bag {} ({} files)",
+            bag.display(),
+            written.len()
+        );
+    }
     eprintln!(
         "simulated {} s ({} IMU samples) in {:.2} s, wrote {} files to {} in {:.2} s",
         args.seconds,

@@ -480,6 +480,8 @@ pub enum ModelChoice {
     /// Choose among all combinations of WN, QN, RW, DR (each present or not) and 0..=3 GM
     /// by the WIC.
     Auto,
+    /// Choose among these structures by the WIC (those the levels can support).
+    Among(Vec<Structure>),
 }
 
 /// Bootstrap settings.
@@ -530,8 +532,15 @@ pub fn analyze(
 ) -> Result<ChannelFit, FitError> {
     let (fit, candidates) = match choice {
         ModelChoice::Fixed(s) => (fit_structure(s, input, opts)?, None),
-        ModelChoice::Auto => {
-            let structures = auto_candidates(input.levels.len());
+        ModelChoice::Auto | ModelChoice::Among(_) => {
+            let structures: Vec<Structure> = match choice {
+                ModelChoice::Among(list) => list
+                    .iter()
+                    .filter(|s| s.n_params() + 1 < input.levels.len())
+                    .cloned()
+                    .collect(),
+                _ => auto_candidates(input.levels.len()),
+            };
             if structures.is_empty() {
                 return Err(FitError::TooFewLevelsToChoose {
                     levels: input.levels.len(),

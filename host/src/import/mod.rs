@@ -235,16 +235,27 @@ pub struct ImportedSensor {
     pub recording: ImuRecording,
 }
 
-/// Imports one dataset file into its sensors' recordings.
+/// Imports one dataset file into its sensors' recordings. What the importer found worth
+/// telling (a ROS bag's per-topic report) goes to stderr; [`import_file_noted`] returns it.
 pub fn import_file(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>, ImportError> {
+    let (sensors, notes) = import_file_noted(path, dataset)?;
+    for note in notes {
+        eprintln!("{}: {note}", path.display());
+    }
+    Ok(sensors)
+}
+
+/// Imports one dataset file into its sensors' recordings, with the importer's notes (one
+/// line each).
+pub fn import_file_noted(
+    path: &Path,
+    dataset: Dataset,
+) -> Result<(Vec<ImportedSensor>, Vec<String>), ImportError> {
     let mut collect = Collect::new(path);
     let mut checked = CheckUnits::new(path, &mut collect);
     let notes = stream_dataset(path, dataset, &mut checked)?;
     checked.finish()?;
-    for note in notes {
-        eprintln!("{}: {note}", path.display());
-    }
-    collect.into_sensors()
+    Ok((collect.into_sensors()?, notes))
 }
 
 /// Streams the sensors of `path`, as its dataset's importer reads them, into `sink`, each

@@ -28,10 +28,12 @@
 //! acceleration the same, the zeros of an Imu derived from odometry) is skipped with a note
 //! naming it.
 
+pub mod frames;
 pub mod mcap_file;
 pub mod messages;
 pub mod ros1;
 pub mod sqlite;
+pub mod writer;
 
 use std::path::Path;
 
@@ -227,6 +229,7 @@ pub fn read(path: &Path) -> Result<(Vec<(String, ImuRecording)>, BagReport), Imp
 }
 
 mod collect;
+pub use collect::file_name_of_topic;
 
 #[cfg(test)]
 mod tests {

@@ -14,6 +14,7 @@ pub mod gnss;
 pub mod hidden;
 pub mod jet;
 pub mod output;
+pub mod ros2;
 pub mod sensors;
 pub mod trajectory;
 

@@ -5,8 +5,7 @@
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
 
-use nalgebra::{Matrix3, Quaternion, UnitQuaternion, Vector3};
-
+use super::frames::{enu_to_ned, flu_to_frd, ned_rpy_of_ros, rotate_by_ros};
 use super::messages::{self, Encoding};
 use super::{seconds, BagReport, BagVisitor, Location, TopicInfo, ZSTD_MAGIC};
 use crate::import::ImportError;
@@ -15,9 +14,6 @@ use crate::interchange::ImuRecording;
 const IMU: &str = "sensor_msgs/Imu";
 const NAV_SAT_FIX: &str = "sensor_msgs/NavSatFix";
 const ODOMETRY: &str = "nav_msgs/Odometry";
-
-/// A gap: a step longer than this many median steps.
-const GAP_STEPS: f64 = 2.0;
 
 /// The time of a message: its header stamp, or its receive time where the stamp is zero.
 #[derive(Debug, Clone, Copy)]
@@ -377,46 +373,7 @@ fn stamp_seconds(ns: i128) -> f64 {
 
 /// Median rate, jitter and gaps of a kept time line.
 fn sampling_note(topic: &str, t_s: &[f64]) -> Option<String> {
-    let mut steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
-    if steps.is_empty() {
-        return None;
-    }
-    let gaps: Vec<(f64, f64)> = {
-        let median = crate::interchange::median_step_s(t_s)?;
-        t_s.windows(2)
-            .filter(|w| w[1] - w[0] > GAP_STEPS * median)
-            .map(|w| (w[0], w[1] - w[0]))
-            .collect()
-    };
-    steps.sort_by(f64::total_cmp);
-    let at = |q: f64| steps[((steps.len() - 1) as f64 * q).round() as usize];
-    let median = at(0.5);
-    let mut note = format!(
-        "{topic}: {} samples over {:.3} s, median step {:.3} ms ({:.2} Hz), steps from {:.3} to {:.3} ms (1st to 99th percentile {:.3} to {:.3} ms)",
-        t_s.len(),
-        t_s[t_s.len() - 1] - t_s[0],
-        median * 1e3,
-        1.0 / median,
-        steps[0] * 1e3,
-        steps[steps.len() - 1] * 1e3,
-        at(0.01) * 1e3,
-        at(0.99) * 1e3,
-    );
-    match gaps.iter().max_by(|a, b| a.1.total_cmp(&b.1)) {
-        Some((start, length)) => note.push_str(&format!(
-            "; {} gaps longer than {GAP_STEPS} median steps, the longest {:.3} ms from {:.3} s",
-            gaps.len(),
-            length * 1e3,
-            start
-        )),
-        None => note.push_str("; no gap longer than 2 median steps"),
-    }
-    Some(note)
-}
-
-/// ROS forward-left-up -> forward-right-down.
-fn flu_to_frd(v: [f64; 3]) -> [f64; 3] {
-    [v[0], -v[1], -v[2]]
+    crate::interchange::Sampling::of(t_s).map(|s| format!("{topic}: {s}"))
 }
 
 impl Collector {
@@ -540,12 +497,6 @@ fn fix_recording(topic: &str, t: &FixTopic, notes: &mut Vec<String>) -> Option<I
     })
 }
 
-/// East-north-up -> north-east-down (and the same matrix turns forward-right-down into
-/// forward-left-up: both swap nothing but signs or the first two axes).
-fn enu_to_ned() -> Matrix3<f64> {
-    Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0)
-}
-
 fn odometry_recording(
     topic: &str,
     t: &OdometryTopic,
@@ -564,17 +515,11 @@ fn odometry_recording(
     let line = timeline(topic, &t.stamps);
     notes.extend(line.notes);
     notes.extend(sampling_note(topic, &line.t_s));
-    let frd_to_flu = Matrix3::from_diagonal(&Vector3::new(1.0, -1.0, -1.0));
     let (mut attitude, mut velocity) = (Vec::new(), Vec::new());
     for &i in &line.keep {
-        let [x, y, z, w] = t.orientation[i];
-        let enu_from_flu = UnitQuaternion::from_quaternion(Quaternion::new(w, x, y, z));
-        let ned_from_frd = enu_to_ned() * enu_from_flu.to_rotation_matrix().matrix() * frd_to_flu;
-        let (roll, pitch, yaw) =
-            nalgebra::Rotation3::from_matrix_unchecked(ned_from_frd).euler_angles();
-        attitude.push([roll, pitch, yaw]);
-        let v_enu = enu_from_flu * Vector3::from(t.body_velocity[i]);
-        let v_ned = enu_to_ned() * v_enu;
+        attitude.push(ned_rpy_of_ros(t.orientation[i]));
+        let v_enu = rotate_by_ros(t.orientation[i], t.body_velocity[i]);
+        let v_ned = enu_to_ned() * nalgebra::Vector3::from(v_enu);
         velocity.push([v_ned.x, v_ned.y, v_ned.z]);
     }
     let frames: Vec<String> = t

@@ -309,6 +309,137 @@ pub fn odometry(bytes: &[u8], encoding: Encoding) -> Result<Odometry, DecodeErro
     })
 }
 
+/// Writes CDR little-endian (what ROS2 publishes on the common platforms): the
+/// encapsulation header, then each primitive aligned to its size from the header's end.
+struct CdrWriter {
+    bytes: Vec<u8>,
+}
+
+impl CdrWriter {
+    fn new() -> Self {
+        Self {
+            bytes: vec![0, 1, 0, 0],
+        }
+    }
+    fn align(&mut self, size: usize) {
+        while !(self.bytes.len() - 4).is_multiple_of(size) {
+            self.bytes.push(0);
+        }
+    }
+    fn u8(&mut self, v: u8) {
+        self.bytes.push(v);
+    }
+    fn u16(&mut self, v: u16) {
+        self.align(2);
+        self.bytes.extend(v.to_le_bytes());
+    }
+    fn u32(&mut self, v: u32) {
+        self.align(4);
+        self.bytes.extend(v.to_le_bytes());
+    }
+    fn f64s(&mut self, values: &[f64]) {
+        for v in values {
+            self.align(8);
+            self.bytes.extend(v.to_le_bytes());
+        }
+    }
+    fn string(&mut self, text: &str) {
+        self.u32(text.len() as u32 + 1);
+        self.bytes.extend(text.as_bytes());
+        self.bytes.push(0);
+    }
+    /// A ROS2 header; the stamp must fit `builtin_interfaces/Time` (i32 seconds).
+    fn header(&mut self, header: &Header) {
+        let sec = header.stamp_ns.div_euclid(1_000_000_000);
+        let nanosec = header.stamp_ns.rem_euclid(1_000_000_000);
+        self.u32(i32::try_from(sec).expect("a stamp within i32 seconds") as u32);
+        self.u32(nanosec as u32);
+        self.string(&header.frame_id);
+    }
+}
+
+/// A `sensor_msgs/Imu` in CDR.
+pub fn encode_imu_cdr(msg: &Imu) -> Vec<u8> {
+    let mut w = CdrWriter::new();
+    w.header(&msg.header);
+    w.f64s(&msg.orientation);
+    w.f64s(&msg.orientation_covariance);
+    w.f64s(&msg.angular_velocity);
+    w.f64s(&msg.angular_velocity_covariance);
+    w.f64s(&msg.linear_acceleration);
+    w.f64s(&msg.linear_acceleration_covariance);
+    w.bytes
+}
+
+/// A `sensor_msgs/NavSatFix` in CDR (service: GPS).
+pub fn encode_nav_sat_fix_cdr(msg: &NavSatFix) -> Vec<u8> {
+    let mut w = CdrWriter::new();
+    w.header(&msg.header);
+    w.u8(msg.status as u8);
+    w.u16(1);
+    w.f64s(&[msg.latitude_deg, msg.longitude_deg, msg.altitude_m]);
+    w.f64s(&msg.position_covariance);
+    w.u8(msg.position_covariance_type);
+    w.bytes
+}
+
+/// A `nav_msgs/Odometry` in CDR, its covariances zero (unknown).
+pub fn encode_odometry_cdr(msg: &Odometry) -> Vec<u8> {
+    let mut w = CdrWriter::new();
+    w.header(&msg.header);
+    w.string(&msg.child_frame_id);
+    w.f64s(&msg.position);
+    w.f64s(&msg.orientation);
+    w.f64s(&[0.0; 36]);
+    w.f64s(&msg.linear_velocity);
+    w.f64s(&msg.angular_velocity);
+    w.f64s(&[0.0; 36]);
+    w.bytes
+}
+
+/// The ROS2 interface definitions (`ros2msg`, dependencies after `MSG:` lines) of the types
+/// dynacal writes, for a bag's schemas: (type, definition).
+pub fn ros2_definitions() -> [(&'static str, String); 3] {
+    let rule = "================================================================================\n";
+    let header = "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n";
+    let time = "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n";
+    let quaternion =
+        "MSG: geometry_msgs/Quaternion\nfloat64 x 0\nfloat64 y 0\nfloat64 z 0\nfloat64 w 1\n";
+    let vector3 = "MSG: geometry_msgs/Vector3\nfloat64 x\nfloat64 y\nfloat64 z\n";
+    let point = "MSG: geometry_msgs/Point\nfloat64 x\nfloat64 y\nfloat64 z\n";
+    let join = |parts: &[&str]| parts.join(rule);
+    [
+        (
+            "sensor_msgs/msg/Imu",
+            join(&[
+                "std_msgs/Header header\ngeometry_msgs/Quaternion orientation\nfloat64[9] orientation_covariance\ngeometry_msgs/Vector3 angular_velocity\nfloat64[9] angular_velocity_covariance\ngeometry_msgs/Vector3 linear_acceleration\nfloat64[9] linear_acceleration_covariance\n",
+                header, time, quaternion, vector3,
+            ]),
+        ),
+        (
+            "sensor_msgs/msg/NavSatFix",
+            join(&[
+                "uint8 COVARIANCE_TYPE_UNKNOWN=0\nuint8 COVARIANCE_TYPE_APPROXIMATED=1\nuint8 COVARIANCE_TYPE_DIAGONAL_KNOWN=2\nuint8 COVARIANCE_TYPE_KNOWN=3\nstd_msgs/Header header\nsensor_msgs/NavSatStatus status\nfloat64 latitude\nfloat64 longitude\nfloat64 altitude\nfloat64[9] position_covariance\nuint8 position_covariance_type\n",
+                header, time,
+                "MSG: sensor_msgs/NavSatStatus\nint8 STATUS_NO_FIX=-1\nint8 STATUS_FIX=0\nint8 STATUS_SBAS_FIX=1\nint8 STATUS_GBAS_FIX=2\nuint16 SERVICE_GPS=1\nuint16 SERVICE_GLONASS=2\nuint16 SERVICE_COMPASS=4\nuint16 SERVICE_GALILEO=8\nint8 status\nuint16 service\n",
+            ]),
+        ),
+        (
+            "nav_msgs/msg/Odometry",
+            join(&[
+                "std_msgs/Header header\nstring child_frame_id\ngeometry_msgs/PoseWithCovariance pose\ngeometry_msgs/TwistWithCovariance twist\n",
+                header, time,
+                "MSG: geometry_msgs/PoseWithCovariance\ngeometry_msgs/Pose pose\nfloat64[36] covariance\n",
+                "MSG: geometry_msgs/Pose\ngeometry_msgs/Point position\ngeometry_msgs/Quaternion orientation\n",
+                point, quaternion,
+                "MSG: geometry_msgs/TwistWithCovariance\ngeometry_msgs/Twist twist\nfloat64[36] covariance\n",
+                "MSG: geometry_msgs/Twist\ngeometry_msgs/Vector3 linear\ngeometry_msgs/Vector3 angular\n",
+                vector3,
+            ]),
+        ),
+    ]
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -379,6 +510,52 @@ mod tests {
         let bytes = cdr_imu(1, 0, "imu", [0.0; 3]);
         let err = nav_sat_fix(&bytes, Encoding::Cdr).unwrap_err();
         assert!(err.message.contains("not a sensor_msgs/NavSatFix"), "{err}");
+    }
+
+    #[test]
+    fn encoded_messages_decode_to_themselves() {
+        let header = |frame: &str| Header {
+            stamp_ns: 1_700_000_000_123_456_789,
+            frame_id: frame.into(),
+        };
+        let imu_msg = Imu {
+            header: header("imu"),
+            orientation: [0.0, 0.0, 0.0, 1.0],
+            orientation_covariance: [-1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            angular_velocity: [0.1, -0.2, 0.3],
+            angular_velocity_covariance: [1e-6; 9],
+            linear_acceleration: [0.5, 0.25, 9.81],
+            linear_acceleration_covariance: [1e-3; 9],
+        };
+        assert_eq!(
+            imu(&encode_imu_cdr(&imu_msg), Encoding::Cdr).unwrap(),
+            imu_msg
+        );
+        let fix = NavSatFix {
+            header: header("gnss"),
+            status: -1,
+            latitude_deg: 46.5,
+            longitude_deg: 6.6,
+            altitude_m: 410.0,
+            position_covariance: [2.0; 9],
+            position_covariance_type: 2,
+        };
+        assert_eq!(
+            nav_sat_fix(&encode_nav_sat_fix_cdr(&fix), Encoding::Cdr).unwrap(),
+            fix
+        );
+        let odom = Odometry {
+            header: header("map"),
+            child_frame_id: "base_link".into(),
+            position: [1.0, 2.0, 3.0],
+            orientation: [0.0, 0.0, 0.6, 0.8],
+            linear_velocity: [4.0, 0.5, -0.25],
+            angular_velocity: [0.0, 0.0, 0.125],
+        };
+        assert_eq!(
+            odometry(&encode_odometry_cdr(&odom), Encoding::Cdr).unwrap(),
+            odom
+        );
     }
 
     #[test]

@@ -1,0 +1,722 @@
+//! `dynacal noise`: the workflow of `allan_variance_ros` and `imu_utils` in one step, on one
+//! IMU of any importable recording (a ROS bag's Imu topic, a flight log's IMU, an
+//! interchange file): find where the sensor is still, fit each axis' GMWM model on the still
+//! stretches (their wavelet variances pooled, [`WaveletVariance::pooled`]) and choose it by
+//! the WIC, and give what people copy into Kalibr's `imu.yaml`: white-noise density, bias
+//! random walk and bias instability per axis with intervals, and the Allan deviation at 1 s.
+//! Where the recording moves, the noise in motion is measured the same way as at rest (the
+//! finest scale's wavelet variance, which vibration and motion at the sample scale raise) and
+//! their ratio per axis is the inflation factor people otherwise guess.
+//!
+//! Stillness is judged from the IMU alone, window by window ([`NoiseOptions::window_s`]): a
+//! window is still when every axis' standard deviation is at most
+//! [`NoiseOptions::floor_factor`] times that axis' floor, the 2nd percentile of the windows'
+//! (white noise of N samples has a window standard deviation within a few percent of its
+//! own, so a static recording is still throughout, and a vehicle's vibration or motion lifts
+//! a window well above the floor of its stops). A sampling that is not uniform (a ROS bag's
+//! stamps) is taken in order at its median step, and said.
+
+use std::ops::Range;
+
+use crate::gmwm::fit::{FitInput, FitOptions};
+use crate::gmwm::inference::{analyze, ChannelFit, ModelChoice};
+use crate::gmwm::model::Structure;
+use crate::interchange::{ImuRecording, Sampling, CHANNELS, CHANNEL_COLUMNS};
+use crate::wv::{haar_wv, WaveletVariance, WvOptions};
+
+/// Errors of [`analyse`].
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum NoiseError {
+    #[error("{imu}: {message}")]
+    Recording { imu: String, message: String },
+    #[error("{imu}: {channel}: {message}")]
+    Channel {
+        imu: String,
+        channel: &'static str,
+        message: String,
+    },
+}
+
+/// Settings of [`analyse`].
+#[derive(Debug, Clone)]
+pub struct NoiseOptions {
+    /// Window of the stillness test, s.
+    pub window_s: f64,
+    /// A still window's standard deviation is at most this many times the floor, per axis.
+    pub floor_factor: f64,
+    /// Shortest still stretch used, s.
+    pub min_still_s: f64,
+    /// The still stretch given (from, to), s of the recording's time, instead of finding it.
+    pub still_span_s: Option<(f64, f64)>,
+    /// The candidate structures the WIC chooses among.
+    pub candidates: Vec<Structure>,
+    /// Least still time, s, for any candidate beyond white noise: a bias random walk or
+    /// instability shows in the Allan deviation's rise and floor over tens to thousands of
+    /// seconds, so a shorter stay at rest measures the white noise only.
+    pub min_still_for_bias_s: f64,
+}
+
+/// The structures `noise` chooses among: white noise always, a bias random walk or not, and
+/// none, one or two Gauss-Markov biases (the bias instability). Drift and quantization noise
+/// are left out: Kalibr's `imu.yaml` holds neither, and on a still hour they are told from a
+/// random walk and white noise only by the top few levels (measured: BENCHMARKS.md, "Model
+/// choice of `dynacal noise`").
+pub fn noise_candidates() -> Vec<Structure> {
+    [
+        "WN",
+        "WN+RW",
+        "WN+GM",
+        "WN+RW+GM",
+        "WN+GM+GM",
+        "WN+RW+GM+GM",
+    ]
+    .iter()
+    .map(|s| Structure::parse(s).expect("a valid structure"))
+    .collect()
+}
+
+impl Default for NoiseOptions {
+    fn default() -> Self {
+        Self {
+            window_s: 1.0,
+            floor_factor: 2.0,
+            min_still_s: 2.0,
+            still_span_s: None,
+            candidates: noise_candidates(),
+            min_still_for_bias_s: 60.0,
+        }
+    }
+}
+
+/// A stretch of the recording: sample indices and their times, s.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stretch {
+    pub samples: Range<usize>,
+    pub from_s: f64,
+    pub to_s: f64,
+}
+
+/// Where the sensor is still and where it moves.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Stillness {
+    pub still: Vec<Stretch>,
+    pub moving: Vec<Stretch>,
+    /// How the still stretches were chosen, for the report.
+    pub rule: String,
+}
+
+/// One axis' noise.
+#[derive(Debug, Clone)]
+pub struct AxisNoise {
+    /// `gx` ... `az`.
+    pub channel: &'static str,
+    /// rad/s or m/s^2.
+    pub unit: &'static str,
+    /// The GMWM fit on the still stretches (its chosen model, parameters, candidates).
+    pub fit: ChannelFit,
+    /// The still stretches' pooled wavelet variance.
+    pub wv: WaveletVariance,
+    /// White-noise density, unit/sqrt(Hz), and its 95% interval.
+    pub noise_density: (f64, Option<[f64; 2]>),
+    /// Bias random walk, unit/s/sqrt(Hz), and its 95% interval; None when the chosen model
+    /// has no random walk.
+    pub random_walk: Option<(f64, Option<[f64; 2]>)>,
+    /// The Allan deviation's minimum over 0.664 (the flicker floor's convention), unit, and
+    /// the averaging time where it falls, s.
+    pub bias_instability: Option<(f64, f64)>,
+    /// The Allan deviation at 1 s (log-log between the two nearest averaging times), unit.
+    pub allan_deviation_1s: Option<f64>,
+    /// The finest scale's white-noise density in motion over at rest; None without motion.
+    pub motion_inflation: Option<f64>,
+}
+
+/// What `dynacal noise` found on one IMU.
+#[derive(Debug, Clone)]
+pub struct NoiseReport {
+    pub imu: String,
+    pub sampling: Sampling,
+    pub stillness: Stillness,
+    pub axes: Vec<AxisNoise>,
+    pub notes: Vec<String>,
+}
+
+/// The IMU's axes present: (index into [`CHANNELS`], values).
+fn axes_of(rec: &ImuRecording) -> Vec<(usize, &[f64])> {
+    let mut out = Vec::new();
+    for (offset, triplet) in [(0, &rec.gyro_rad_s), (3, &rec.accel_m_s2)] {
+        if let Some(t) = triplet {
+            out.extend((0..3).map(|k| (offset + k, t[k].as_slice())));
+        }
+    }
+    out.extend(
+        rec.single_axis
+            .iter()
+            .map(|s| (s.channel, s.values.as_slice())),
+    );
+    out
+}
+
+fn std_dev(x: &[f64]) -> f64 {
+    let n = x.len() as f64;
+    let mean = x.iter().sum::<f64>() / n;
+    (x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
+}
+
+/// Runs of equal flags as (flag, range of windows).
+fn runs(flags: &[bool]) -> Vec<(bool, Range<usize>)> {
+    let mut out: Vec<(bool, Range<usize>)> = Vec::new();
+    for (w, &f) in flags.iter().enumerate() {
+        match out.last_mut() {
+            Some((g, r)) if *g == f => r.end = w + 1,
+            _ => out.push((f, w..w + 1)),
+        }
+    }
+    out
+}
+
+/// Finds the still and the moving stretches of `rec` (see the module's rule).
+pub fn stillness(rec: &ImuRecording, dt_s: f64, opts: &NoiseOptions) -> Stillness {
+    let n = rec.len();
+    let stretch = |samples: Range<usize>| Stretch {
+        from_s: rec.t_s[samples.start],
+        to_s: rec.t_s[samples.end - 1],
+        samples,
+    };
+    if let Some((from, to)) = opts.still_span_s {
+        let samples: Vec<usize> = (0..n)
+            .filter(|&i| rec.t_s[i] >= from && rec.t_s[i] <= to)
+            .collect();
+        let still = match (samples.first(), samples.last()) {
+            (Some(&a), Some(&b)) => vec![stretch(a..b + 1)],
+            _ => Vec::new(),
+        };
+        return Stillness {
+            still,
+            moving: Vec::new(),
+            rule: format!("the span given, {from} s to {to} s"),
+        };
+    }
+    let per_window = ((opts.window_s / dt_s).round() as usize).max(16);
+    let windows = n / per_window;
+    if windows == 0 {
+        return Stillness {
+            still: Vec::new(),
+            moving: Vec::new(),
+            rule: format!("{n} samples, shorter than one window of {per_window}"),
+        };
+    }
+    let axes = axes_of(rec);
+    let stds: Vec<Vec<f64>> = axes
+        .iter()
+        .map(|(_, x)| {
+            (0..windows)
+                .map(|w| std_dev(&x[w * per_window..(w + 1) * per_window]))
+                .collect()
+        })
+        .collect();
+    let floors: Vec<f64> = stds
+        .iter()
+        .map(|s| {
+            let mut sorted = s.clone();
+            sorted.sort_by(f64::total_cmp);
+            sorted[((sorted.len() - 1) as f64 * 0.02) as usize]
+        })
+        .collect();
+    let still: Vec<bool> = (0..windows)
+        .map(|w| {
+            stds.iter()
+                .zip(&floors)
+                .all(|(s, floor)| s[w] <= opts.floor_factor * floor)
+        })
+        .collect();
+    let min_windows = (opts.min_still_s / opts.window_s).ceil() as usize;
+    let (mut still_out, mut moving_out) = (Vec::new(), Vec::new());
+    for (flag, r) in runs(&still) {
+        let samples = r.start * per_window..(r.end * per_window).min(n);
+        if flag && r.len() >= min_windows.max(1) {
+            still_out.push(stretch(samples));
+        } else if !flag {
+            moving_out.push(stretch(samples));
+        }
+    }
+    Stillness {
+        still: still_out,
+        moving: moving_out,
+        rule: format!(
+            "windows of {per_window} samples ({:.3} s) whose every axis' standard deviation is at most {} times its floor (the 2nd percentile of the windows'), in stretches of {} s or more",
+            per_window as f64 * dt_s,
+            opts.floor_factor,
+            opts.min_still_s
+        ),
+    }
+}
+
+/// The pooled wavelet variance of `x` over `stretches` (up to `max_level`, or each
+/// stretch's default), leaving out stretches too short for a level.
+fn pooled_wv(
+    x: &[f64],
+    stretches: &[Stretch],
+    dt_s: f64,
+    max_level: Option<u32>,
+) -> Option<WaveletVariance> {
+    let parts: Vec<WaveletVariance> = stretches
+        .iter()
+        .filter(|s| s.samples.len() >= 4)
+        .filter_map(|s| {
+            let part = &x[s.samples.clone()];
+            let top = crate::wv::default_max_level(part.len());
+            let opts = WvOptions {
+                max_level: Some(max_level.map_or(top, |m| m.min(top))),
+                ..WvOptions::default()
+            };
+            haar_wv(part, dt_s, &opts).ok()
+        })
+        .collect();
+    WaveletVariance::pooled(&parts)
+}
+
+/// The Allan deviation at 1 s, log-log between its two nearest averaging times.
+fn allan_deviation_at_1s(wv: &WaveletVariance) -> Option<f64> {
+    let tau = wv.allan_tau_s();
+    let adev = wv.allan_deviation();
+    let k = tau.windows(2).position(|w| w[0] <= 1.0 && 1.0 <= w[1])?;
+    let (t0, t1, a0, a1) = (tau[k], tau[k + 1], adev[k], adev[k + 1]);
+    let f = (1.0f64.ln() - t0.ln()) / (t1.ln() - t0.ln());
+    Some((a0.ln() + f * (a1.ln() - a0.ln())).exp())
+}
+
+/// The fitted parameter `process`.`name` with its interval.
+fn parameter(fit: &ChannelFit, process: &str, name: &str) -> Option<(f64, Option<[f64; 2]>)> {
+    fit.parameters
+        .iter()
+        .find(|p| p.process == process && p.name == name)
+        .map(|p| (p.value, p.ci95))
+}
+
+/// Analyses one IMU recording named `imu`.
+pub fn analyse(
+    imu: &str,
+    rec: &ImuRecording,
+    opts: &NoiseOptions,
+) -> Result<NoiseReport, NoiseError> {
+    let fail = |message: String| NoiseError::Recording {
+        imu: imu.to_string(),
+        message,
+    };
+    let sampling = Sampling::of(&rec.t_s).ok_or_else(|| fail("fewer than two samples".into()))?;
+    if axes_of(rec).is_empty() {
+        return Err(fail("no gyro or accelerometer channel".into()));
+    }
+    let dt_s = sampling.median_step_s;
+    let mut notes = Vec::new();
+    if !sampling.is_uniform() {
+        notes.push(format!(
+            "the sampling is not uniform ({sampling}): the samples are taken in order at the median step, {:.6} s",
+            dt_s
+        ));
+    }
+    let stillness = stillness(rec, dt_s, opts);
+    if stillness.still.is_empty() {
+        return Err(fail(format!(
+            "no still stretch found ({}): give one with --still FROM_S TO_S",
+            stillness.rule
+        )));
+    }
+    let still_s: f64 = stillness
+        .still
+        .iter()
+        .map(|s| s.samples.len() as f64 * dt_s)
+        .sum();
+    notes.push(format!(
+        "still: {} stretch(es), {:.1} s in all ({}); moving: {:.1} s",
+        stillness.still.len(),
+        still_s,
+        stillness.rule,
+        stillness
+            .moving
+            .iter()
+            .map(|s| s.samples.len() as f64 * dt_s)
+            .sum::<f64>()
+    ));
+    let white_only;
+    let opts = if still_s < opts.min_still_for_bias_s {
+        notes.push(format!(
+            "{still_s:.1} s at rest is under {} s: only the white noise is fitted (a bias random walk or instability needs minutes at rest to show), so no K is given and no imu.yaml can be written; record longer at rest or name a still span with --still",
+            opts.min_still_for_bias_s
+        ));
+        white_only = NoiseOptions {
+            candidates: vec![Structure::parse("WN").expect("a valid structure")],
+            ..opts.clone()
+        };
+        &white_only
+    } else {
+        opts
+    };
+    let axes = axes_of(rec)
+        .into_iter()
+        .map(|(index, x)| analyse_axis(imu, index, x, dt_s, &stillness, opts))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(NoiseReport {
+        imu: imu.to_string(),
+        sampling,
+        stillness,
+        axes,
+        notes,
+    })
+}
+
+fn analyse_axis(
+    imu: &str,
+    index: usize,
+    x: &[f64],
+    dt_s: f64,
+    stillness: &Stillness,
+    opts: &NoiseOptions,
+) -> Result<AxisNoise, NoiseError> {
+    let channel = CHANNELS[index];
+    let unit = if index < 3 { "rad/s" } else { "m/s^2" };
+    let fail = |message: String| NoiseError::Channel {
+        imu: imu.to_string(),
+        channel,
+        message,
+    };
+    let wv = pooled_wv(x, &stillness.still, dt_s, None)
+        .ok_or_else(|| fail("the still stretches are too short for a wavelet variance".into()))?;
+    let input = FitInput::from_wv(&wv).map_err(|e| fail(e.to_string()))?;
+    let fit = analyze(
+        CHANNEL_COLUMNS[index],
+        unit,
+        &input,
+        &ModelChoice::Among(opts.candidates.clone()),
+        None,
+        &FitOptions::default(),
+    )
+    .map_err(|e| fail(format!("the still stretches' {} levels: {e}", wv.len())))?;
+    let noise_density = parameter(&fit, "WN", "noise_density")
+        .ok_or_else(|| fail(format!("the chosen model {} has no white noise", fit.model)))?;
+    let random_walk = parameter(&fit, "RW", "bias_random_walk");
+    let adev = wv.allan_deviation();
+    let tau = wv.allan_tau_s();
+    // A floor inside the measured averaging times; a minimum at either end is no floor.
+    let bias_instability = adev
+        .iter()
+        .zip(&tau)
+        .enumerate()
+        .min_by(|a, b| a.1 .0.total_cmp(b.1 .0))
+        .filter(|(k, _)| *k > 0 && *k + 1 < adev.len())
+        .map(|(_, (a, t))| (a / 0.664, *t));
+    let motion_inflation = pooled_wv(x, &stillness.moving, dt_s, Some(1))
+        .and_then(|moving| Some((moving.variance.first()? / wv.variance.first()?).sqrt()));
+    Ok(AxisNoise {
+        channel,
+        unit,
+        allan_deviation_1s: allan_deviation_at_1s(&wv),
+        fit,
+        wv,
+        noise_density,
+        random_walk,
+        bias_instability,
+        motion_inflation,
+    })
+}
+
+/// An IMU chosen from an importable input (a file or a folder: a bag, a flight log, an
+/// interchange file): its name, recording, and the importer's notes.
+pub struct ChosenImu {
+    pub name: String,
+    /// The ROS topic it came from, where `--topic` named one.
+    pub topic: Option<String>,
+    pub recording: ImuRecording,
+    pub notes: Vec<String>,
+}
+
+/// Errors of [`choose_imu`].
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ChooseError {
+    #[error(transparent)]
+    Import(#[from] crate::import::ImportError),
+    #[error("{path}: {message}")]
+    Choice { path: String, message: String },
+}
+
+/// The IMU of `input` named by `topic` (a ROS topic, `/xsens/imu_data`, or an imported
+/// sensor's name, `xsens-imu_data`), or its only IMU.
+pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<ChosenImu, ChooseError> {
+    use crate::import::{find_datasets, import_file_noted, ros_bag::file_name_of_topic};
+    let (found, _) = find_datasets(input)?;
+    let (mut sensors, mut notes) = (Vec::new(), Vec::new());
+    for (file, dataset) in found {
+        let (s, n) = import_file_noted(&file, dataset)?;
+        sensors.extend(s);
+        notes.extend(n);
+    }
+    let fail = |message: String| ChooseError::Choice {
+        path: input.display().to_string(),
+        message,
+    };
+    let is_imu = |r: &ImuRecording| !axes_of(r).is_empty();
+    let imus: Vec<&str> = sensors
+        .iter()
+        .filter(|s| is_imu(&s.recording))
+        .map(|s| s.name.as_str())
+        .collect();
+    let index = match topic {
+        Some(topic) => {
+            let wanted = file_name_of_topic(topic);
+            let suffix = format!("-{wanted}");
+            let k = sensors
+                .iter()
+                .position(|s| s.name == topic || s.name == wanted || s.name.ends_with(&suffix));
+            let Some(k) = k else {
+                let about: Vec<&String> = notes
+                    .iter()
+                    .filter(|n| n.starts_with(&format!("{topic}: ")))
+                    .collect();
+                return Err(fail(match about.first() {
+                    Some(note) => format!("topic {topic} gives no IMU: {note}"),
+                    None => format!("no topic or sensor {topic}; its IMUs: {}", imus.join(", ")),
+                }));
+            };
+            if !is_imu(&sensors[k].recording) {
+                return Err(fail(format!(
+                    "topic {topic} holds {}, not IMU data (a reference topic: Odometry or NavSatFix, not sensor_msgs/Imu); its IMUs: {}",
+                    crate::import::contents(&sensors[k].recording).join(", "),
+                    imus.join(", ")
+                )));
+            }
+            k
+        }
+        None => match imus.as_slice() {
+            [one] => sensors.iter().position(|s| s.name == *one).expect("listed"),
+            [] => return Err(fail("no IMU in it".into())),
+            many => {
+                return Err(fail(format!(
+                    "{} IMUs, name one with --topic: {}",
+                    many.len(),
+                    many.join(", ")
+                )))
+            }
+        },
+    };
+    let sensor = sensors.swap_remove(index);
+    // A bag's topic, where the importer's notes name the one the sensor was made of.
+    let topic = topic.map(str::to_string).or_else(|| {
+        notes.iter().find_map(|n| {
+            let (t, _) = n.split_once(": frame_id ")?;
+            (file_name_of_topic(t) == sensor.name).then(|| t.to_string())
+        })
+    });
+    Ok(ChosenImu {
+        name: sensor.name,
+        topic,
+        recording: sensor.recording,
+        notes,
+    })
+}
+
+/// The model file of a report: each axis' chosen model on its channel, with the fits beside.
+pub fn model_of(report: &NoiseReport) -> Result<crate::model::SimModel, serde_json::Error> {
+    let fits: Vec<ChannelFit> = report.axes.iter().map(|a| a.fit.clone()).collect();
+    let (mut model, _) =
+        crate::model::fitted_model(std::path::Path::new(&report.imu), "noise candidates", &fits)?;
+    model.comment = Some(format!(
+        "fitted by dynacal noise on the still stretches of {} ({:.1} s)",
+        report.imu,
+        report
+            .stillness
+            .still
+            .iter()
+            .map(|s| s.samples.len() as f64 * report.sampling.median_step_s)
+            .sum::<f64>()
+    ));
+    Ok(model)
+}
+
+/// One line per axis: the table people expect.
+pub fn table(report: &NoiseReport) -> Vec<String> {
+    let interval = |ci: Option<[f64; 2]>| {
+        ci.map_or("[n/a]".to_string(), |[lo, hi]| {
+            format!("[{lo:.3e}, {hi:.3e}]")
+        })
+    };
+    let mut out = vec![format!(
+        "{:<4} {:<12} {:>10} {:<24} {:>10} {:<24} {:>10} {:>8} {:>10} {:>9}",
+        "axis", "model", "N", "N 95%", "K", "K 95%", "B", "tau_B s", "adev(1s)", "motion x"
+    )];
+    for a in &report.axes {
+        let (k, k_ci) = match &a.random_walk {
+            Some((k, ci)) => (format!("{k:.3e}"), interval(*ci)),
+            None => ("none".into(), "".into()),
+        };
+        let (b, tau_b) = a
+            .bias_instability
+            .map_or(("n/a".into(), "".into()), |(b, t)| {
+                (format!("{b:.3e}"), format!("{t:.3}"))
+            });
+        out.push(format!(
+            "{:<4} {:<12} {:>10.3e} {:<24} {:>10} {:<24} {:>10} {:>8} {:>10} {:>9}",
+            a.channel,
+            a.fit.model,
+            a.noise_density.0,
+            interval(a.noise_density.1),
+            k,
+            k_ci,
+            b,
+            tau_b,
+            a.allan_deviation_1s
+                .map_or("n/a".into(), |v| format!("{v:.3e}")),
+            a.motion_inflation.map_or("-".into(), |v| format!("{v:.2}")),
+        ));
+    }
+    out
+}
+
+/// Kalibr's `imu.yaml` of a report (the export of `dynacal export --to kalibr`), with each
+/// axis' measured inflation in motion in comments.
+pub fn kalibr_yaml(
+    report: &NoiseReport,
+    rostopic: Option<&str>,
+    source: &str,
+) -> Result<String, Box<dyn std::error::Error + Send + Sync>> {
+    use crate::export::{imu_noise, render, Format};
+    if let Some(a) = report.axes.iter().find(|a| a.fit.model == "WN") {
+        return Err(format!(
+            "{}: the model chosen at rest is white noise alone, so there is no random walk for imu.yaml (see the notes)",
+            a.channel
+        )
+        .into());
+    }
+    let model = model_of(report)?;
+    let mut noise = imu_noise(&model, None, std::path::Path::new(source))?;
+    noise.rostopic = rostopic.map(str::to_string);
+    let mut text = render(&noise, None, Format::Kalibr, source);
+    let inflation: Vec<String> = report
+        .axes
+        .iter()
+        .filter_map(|a| a.motion_inflation.map(|f| format!("{} x{f:.2}", a.channel)))
+        .collect();
+    if !inflation.is_empty() {
+        text.push_str(&format!(
+            "# the values are the still stretches'; in motion the finest scale's noise density is {} (vibration and motion at the sample scale): a filter on the moving platform sees that much more\n",
+            inflation.join(", ")
+        ));
+    }
+    Ok(text)
+}
+
+/// `dynacal noise --report DIR`: each axis' Allan deviation with its interval, the fitted
+/// model's, the slope lines of the Kalibr values (white noise N / sqrt(tau), random walk
+/// K sqrt(tau / 3)) and, where the recording moves, the white noise measured in motion.
+pub fn report_page(
+    report: &NoiseReport,
+) -> Result<crate::report::HtmlReport, crate::figures::plot::DrawError> {
+    use crate::report::charts::{panels_svg, Axes, Panel, Series, Shape, GREY, PALETTE};
+    use crate::report::{Cell, HtmlReport, Section, Table};
+    let mut panels = Vec::new();
+    let mut rows = Vec::new();
+    for a in &report.axes {
+        let tau = a.wv.allan_tau_s();
+        let measured: Vec<(f64, f64, f64, f64)> = (0..a.wv.len())
+            .map(|k| {
+                let ad = |v: f64| (2.0 * v).sqrt();
+                (
+                    tau[k],
+                    ad(a.wv.variance[k]),
+                    ad(a.wv.ci_low[k]),
+                    ad(a.wv.ci_high[k]),
+                )
+            })
+            .collect();
+        let model: Vec<(f64, f64)> = a
+            .fit
+            .scales_s
+            .iter()
+            .zip(&a.fit.model_wv)
+            .map(|(s, v)| (s / 2.0, (2.0 * v).sqrt()))
+            .collect();
+        let line = |f: &dyn Fn(f64) -> f64| -> Vec<(f64, f64)> {
+            tau.iter().map(|&t| (t, f(t))).collect()
+        };
+        let n = a.noise_density.0;
+        let mut series = vec![
+            Series::new(
+                "still: Allan deviation, 95%",
+                PALETTE[0],
+                Shape::PointsWithBars(measured),
+            ),
+            Series::new(
+                format!("fitted {}", a.fit.model),
+                PALETTE[1],
+                Shape::Line(model),
+            ),
+            Series::new(
+                "N / sqrt(tau)",
+                GREY,
+                Shape::Dashed(line(&|t| n / t.sqrt())),
+            ),
+        ];
+        if let Some((k, _)) = a.random_walk {
+            series.push(Series::new(
+                "K sqrt(tau / 3)",
+                PALETTE[2],
+                Shape::Dashed(line(&|t| k * (t / 3.0).sqrt())),
+            ));
+        }
+        if let Some(f) = a.motion_inflation {
+            series.push(Series::new(
+                format!("in motion: {f:.2} N / sqrt(tau)"),
+                PALETTE[3],
+                Shape::Dashed(line(&|t| f * n / t.sqrt())),
+            ));
+        }
+        panels.push(Panel {
+            title: format!(
+                "{}: Allan deviation at rest, the fitted {} and the Kalibr values",
+                a.channel, a.fit.model
+            ),
+            x_label: "averaging time tau (s)".into(),
+            y_label: format!("Allan deviation ({})", a.unit),
+            axes: Axes::LogLog,
+            series,
+        });
+        let ci = |c: Option<[f64; 2]>| {
+            c.map_or(Cell::from("-".to_string()), |[lo, hi]| {
+                Cell::Interval(lo, hi)
+            })
+        };
+        rows.push(vec![
+            Cell::from(a.channel.to_string()),
+            Cell::from(a.fit.model.clone()),
+            Cell::Number(a.noise_density.0),
+            ci(a.noise_density.1),
+            a.random_walk
+                .map_or(Cell::from("none".to_string()), |r| Cell::Number(r.0)),
+            ci(a.random_walk.and_then(|r| r.1)),
+            a.bias_instability
+                .map_or(Cell::from("-".to_string()), |b| Cell::Number(b.0)),
+            a.allan_deviation_1s
+                .map_or(Cell::from("-".to_string()), Cell::Number),
+            a.motion_inflation
+                .map_or(Cell::from("-".to_string()), Cell::Number),
+        ]);
+    }
+    let svg = panels_svg("Allan deviation of each axis", &panels)?;
+    let section = Section::new("Noise at rest, and in motion")
+        .paragraph(format!("{}: {}.", report.imu, report.sampling))
+        .paragraph(report.notes.join(" "))
+        .table(Table {
+            caption: "Per axis: the model the WIC chose on the still stretches, white-noise density N (unit/sqrt(Hz)), bias random walk K (unit/s/sqrt(Hz)) with 95% intervals, bias instability B (the Allan deviation's minimum / 0.664), the Allan deviation at 1 s, and the noise density in motion over at rest".into(),
+            header: ["axis", "model", "N", "N 95%", "K", "K 95%", "B", "adev 1 s", "motion x"]
+                .map(String::from)
+                .to_vec(),
+            rows,
+        })
+        .figure("Allan deviation at rest (points, 95% interval), the fitted model (line), the Kalibr values' slopes and the white noise in motion (dashed)", svg);
+    Ok(HtmlReport {
+        title: format!("dynacal noise: {}", report.imu),
+        summary: table(report),
+        sections: vec![section],
+    })
+}
