@@ -51,10 +51,57 @@ pub struct NoiseOptions {
     pub still_span_s: Option<(f64, f64)>,
     /// The candidate structures the WIC chooses among.
     pub candidates: Vec<Structure>,
+    /// The WIC a structure's every extra parameter must gain over a smaller candidate's for
+    /// the larger to be chosen (see [`parsimonious`]).
+    pub wic_margin_per_parameter: f64,
     /// Least still time, s, for any candidate beyond white noise: a bias random walk or
     /// instability shows in the Allan deviation's rise and floor over tens to thousands of
     /// seconds, so a shorter stay at rest measures the white noise only.
     pub min_still_for_bias_s: f64,
+}
+
+/// The default [`NoiseOptions::wic_margin_per_parameter`]: the 95% point of chi-square with
+/// one degree of freedom. The WIC, like the AIC, takes the larger of two nested structures
+/// whenever its objective gains more than its optimism (about 2 per parameter), which under
+/// the smaller truth happens about one time in six (measured: a random walk's recordings
+/// read as a slow Gauss-Markov bias on 20-25% of axes at 1 to 10 h); asking each extra
+/// parameter to gain this much more makes that about one in twenty.
+pub const WIC_MARGIN_PER_PARAMETER: f64 = 3.84;
+
+/// The structure chosen from `fit`'s ranked candidates: the WIC's best, unless a candidate
+/// with fewer parameters is within [`NoiseOptions::wic_margin_per_parameter`] per
+/// parameter of it (the fewest such, then the lowest WIC). Also returns the candidates the
+/// data hardly tell from the choice (within the margin, either way), for the report.
+pub fn parsimonious(fit: &ChannelFit, margin: f64) -> (String, Vec<(String, f64)>) {
+    let usable: Vec<(&str, usize, f64)> = fit
+        .candidates
+        .iter()
+        .flatten()
+        .filter(|c| c.converged && c.warnings.is_empty())
+        .filter_map(|c| {
+            let params = Structure::parse(&c.model).ok()?.n_params();
+            Some((c.model.as_str(), params, c.wic?))
+        })
+        .collect();
+    let Some(&(best, best_params, best_wic)) = usable.iter().min_by(|a, b| a.2.total_cmp(&b.2))
+    else {
+        return (fit.model.clone(), Vec::new());
+    };
+    let within = |params: usize, wic: f64, than_params: usize, than_wic: f64| {
+        params < than_params && wic - than_wic <= margin * (than_params - params) as f64
+    };
+    let chosen = usable
+        .iter()
+        .filter(|c| within(c.1, c.2, best_params, best_wic))
+        .min_by(|a, b| a.1.cmp(&b.1).then(a.2.total_cmp(&b.2)))
+        .map_or((best, best_params, best_wic), |c| *c);
+    let close = usable
+        .iter()
+        .filter(|c| c.0 != chosen.0)
+        .filter(|c| within(chosen.1, chosen.2, c.1, c.2) || within(c.1, c.2, chosen.1, chosen.2))
+        .map(|c| (c.0.to_string(), c.2 - chosen.2))
+        .collect();
+    (chosen.0.to_string(), close)
 }
 
 /// The structures `noise` chooses among: white noise always, a bias random walk or not, and
@@ -85,6 +132,7 @@ impl Default for NoiseOptions {
             still_span_s: None,
             candidates: noise_candidates(),
             min_still_for_bias_s: 60.0,
+            wic_margin_per_parameter: WIC_MARGIN_PER_PARAMETER,
         }
     }
 }
@@ -119,8 +167,9 @@ pub struct AxisNoise {
     pub wv: WaveletVariance,
     /// White-noise density, unit/sqrt(Hz), and its 95% interval.
     pub noise_density: (f64, Option<[f64; 2]>),
-    /// Bias random walk, unit/s/sqrt(Hz), and its 95% interval; None when the chosen model
-    /// has no random walk.
+    /// The bias random walk Kalibr is given ([`exported_random_walk`]), unit/s/sqrt(Hz),
+    /// and its 95% interval; None when the chosen model has neither a random walk nor a
+    /// Gauss-Markov bias of a second or longer.
     pub random_walk: Option<(f64, Option<[f64; 2]>)>,
     /// The Allan deviation's minimum over 0.664 (the flicker floor's convention), unit, and
     /// the averaging time where it falls, s.
@@ -129,6 +178,9 @@ pub struct AxisNoise {
     pub allan_deviation_1s: Option<f64>,
     /// The finest scale's white-noise density in motion over at rest; None without motion.
     pub motion_inflation: Option<f64>,
+    /// Candidates the data hardly tell from the chosen model: (structure, its WIC minus the
+    /// chosen one's), within the parsimony margin.
+    pub close_alternatives: Vec<(String, f64)>,
 }
 
 /// What `dynacal noise` found on one IMU.
@@ -276,6 +328,56 @@ fn pooled_wv(
     WaveletVariance::pooled(&parts)
 }
 
+/// The bias random walk a fit exports (`export`'s and the board's reduction,
+/// `refit::channel_noise`): the random walk's PSD `sigma2 / dt` plus each Gauss-Markov bias
+/// of a second or longer as the PSD of its driving noise, `2 sigma2 beta`;
+/// K = sqrt(PSD), unit/s/sqrt(Hz). Its 95% interval is the delta method's on log K from the
+/// fit's transformed parameters (log sigma2, log beta) and their covariance. None when
+/// nothing contributes.
+pub fn exported_random_walk(fit: &ChannelFit) -> Option<(f64, Option<[f64; 2]>)> {
+    use crate::gmwm::model::ProcessKind;
+    let structure = Structure::parse(&fit.model).ok()?;
+    let dt_s = 1.0 / fit.sample_rate_hz;
+    let mut psd = 0.0;
+    let mut gradient = vec![0.0; fit.theta.len()];
+    let mut k = 0;
+    for kind in &structure.kinds {
+        match kind {
+            ProcessKind::RandomWalk => {
+                let term = fit.theta[k].exp() / dt_s;
+                psd += term;
+                gradient[k] += term;
+            }
+            ProcessKind::GaussMarkov
+                if fit.theta[k].exp() <= crate::refit::SLOWEST_WHITE_BETA_PER_S =>
+            {
+                let term = 2.0 * fit.theta[k + 1].exp() * fit.theta[k].exp();
+                psd += term;
+                gradient[k] += term;
+                gradient[k + 1] += term;
+            }
+            _ => {}
+        }
+        k += kind.n_params();
+    }
+    if psd <= 0.0 {
+        return None;
+    }
+    let walk = psd.sqrt();
+    let interval = fit.theta_covariance.as_ref().and_then(|cov| {
+        let n = gradient.len();
+        let var: f64 = (0..n)
+            .flat_map(|i| (0..n).map(move |j| (i, j)))
+            .map(|(i, j)| gradient[i] * cov[i * n + j] * gradient[j])
+            .sum();
+        // d log K = d PSD / (2 PSD).
+        let sd = 0.5 * var.max(0.0).sqrt() / psd;
+        sd.is_finite()
+            .then(|| [walk * (-1.959964 * sd).exp(), walk * (1.959964 * sd).exp()])
+    });
+    Some((walk, interval))
+}
+
 /// The Allan deviation at 1 s, log-log between its two nearest averaging times.
 fn allan_deviation_at_1s(wv: &WaveletVariance) -> Option<f64> {
     let tau = wv.allan_tau_s();
@@ -357,6 +459,21 @@ pub fn analyse(
         .into_iter()
         .map(|(index, x)| analyse_axis(imu, index, x, dt_s, &stillness, opts))
         .collect::<Result<Vec<_>, _>>()?;
+    for a in &axes {
+        if !a.close_alternatives.is_empty() {
+            let list: Vec<String> = a
+                .close_alternatives
+                .iter()
+                .map(|(m, d)| format!("{m} (WIC {d:+.2})"))
+                .collect();
+            notes.push(format!(
+                "{}: {} chosen, but the data hardly tell it from {}: they differ at the longest averaging times, where the still stretches hold few independent stretches",
+                a.channel,
+                a.fit.model,
+                list.join(", ")
+            ));
+        }
+    }
     Ok(NoiseReport {
         imu: imu.to_string(),
         sampling,
@@ -384,18 +501,28 @@ fn analyse_axis(
     let wv = pooled_wv(x, &stillness.still, dt_s, None)
         .ok_or_else(|| fail("the still stretches are too short for a wavelet variance".into()))?;
     let input = FitInput::from_wv(&wv).map_err(|e| fail(e.to_string()))?;
-    let fit = analyze(
-        CHANNEL_COLUMNS[index],
-        unit,
-        &input,
-        &ModelChoice::Among(opts.candidates.clone()),
-        None,
-        &FitOptions::default(),
-    )
-    .map_err(|e| fail(format!("the still stretches' {} levels: {e}", wv.len())))?;
+    let fit_as = |choice: &ModelChoice| {
+        analyze(
+            CHANNEL_COLUMNS[index],
+            unit,
+            &input,
+            choice,
+            None,
+            &FitOptions::default(),
+        )
+        .map_err(|e| fail(format!("the still stretches' {} levels: {e}", wv.len())))
+    };
+    let mut fit = fit_as(&ModelChoice::Among(opts.candidates.clone()))?;
+    let (chosen, close_alternatives) = parsimonious(&fit, opts.wic_margin_per_parameter);
+    if chosen != fit.model {
+        let candidates = fit.candidates.take();
+        let structure = Structure::parse(&chosen).map_err(|e| fail(e.to_string()))?;
+        fit = fit_as(&ModelChoice::Fixed(structure))?;
+        fit.candidates = candidates;
+    }
     let noise_density = parameter(&fit, "WN", "noise_density")
         .ok_or_else(|| fail(format!("the chosen model {} has no white noise", fit.model)))?;
-    let random_walk = parameter(&fit, "RW", "bias_random_walk");
+    let random_walk = exported_random_walk(&fit);
     let adev = wv.allan_deviation();
     let tau = wv.allan_tau_s();
     // A floor inside the measured averaging times; a minimum at either end is no floor.
@@ -418,6 +545,7 @@ fn analyse_axis(
         random_walk,
         bias_instability,
         motion_inflation,
+        close_alternatives,
     })
 }
 

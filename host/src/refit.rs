@@ -407,7 +407,7 @@ fn refit_own(
 
 /// Inverse correlation time (1/s) at and below which a Gauss-Markov term is a bias to the
 /// board's filter; faster ones are white noise to it.
-const SLOWEST_WHITE_BETA_PER_S: f64 = 1.0;
+pub const SLOWEST_WHITE_BETA_PER_S: f64 = 1.0;
 
 /// What the board's filter runs of a fitted channel model: white noise as a PSD, the
 /// largest Gauss-Markov term of a second or longer as its bias, a random walk as a PSD. Other Gauss-Markov terms
