@@ -500,6 +500,11 @@ fn analyse_axis(
     };
     let wv = pooled_wv(x, &stillness.still, dt_s, None)
         .ok_or_else(|| fail("the still stretches are too short for a wavelet variance".into()))?;
+    if wv.variance.first().is_some_and(|v| *v == 0.0) {
+        return Err(fail(
+            "every value is the same over the still stretches: no noise to fit (an axis the sensor does not measure, or one quantised coarser than its noise)".into(),
+        ));
+    }
     let input = FitInput::from_wv(&wv).map_err(|e| fail(e.to_string()))?;
     let fit_as = |choice: &ModelChoice| {
         analyze(
@@ -572,13 +577,27 @@ pub enum ChooseError {
 /// The IMU of `input` named by `topic` (a ROS topic, `/xsens/imu_data`, or an imported
 /// sensor's name, `xsens-imu_data`), or its only IMU.
 pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<ChosenImu, ChooseError> {
-    use crate::import::{find_datasets, import_file_noted, ros_bag::file_name_of_topic};
+    use crate::import::{
+        find_datasets, import_bag_topic, import_file_noted, ros_bag::file_name_of_topic, Dataset,
+    };
     let (found, _) = find_datasets(input)?;
-    let (mut sensors, mut notes) = (Vec::new(), Vec::new());
-    for (file, dataset) in found {
-        let (s, n) = import_file_noted(&file, dataset)?;
-        sensors.extend(s);
-        notes.extend(n);
+    let read_all = |only: Option<&str>| -> Result<_, ChooseError> {
+        let (mut sensors, mut notes) = (Vec::new(), Vec::new());
+        for (file, dataset) in &found {
+            let (s, n) = match (dataset, only) {
+                (Dataset::RosBag, Some(topic)) => import_bag_topic(file, topic)?,
+                _ => import_file_noted(file, *dataset)?,
+            };
+            sensors.extend(s);
+            notes.extend(n);
+        }
+        Ok((sensors, notes))
+    };
+    // A bag's other topics are not decoded when one is asked; read whole only to say what
+    // there is when the asked one gives nothing.
+    let (mut sensors, mut notes) = read_all(topic)?;
+    if topic.is_some() && sensors.is_empty() {
+        (sensors, notes) = read_all(None)?;
     }
     let fail = |message: String| ChooseError::Choice {
         path: input.display().to_string(),

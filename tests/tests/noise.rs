@@ -312,3 +312,175 @@ fn gyro_only_walks(report: &dynacal::noise::NoiseReport) -> Vec<f64> {
         .map(|a| a.1)
         .collect()
 }
+
+/// `dynacal noise` against the tools people use, on the same simulated static recordings in
+/// one run (BENCHMARKS.md, "Against the peers"): the Rust crate `imu-calib` (0.3.1, its
+/// streaming Allan estimator and Kalibr slope fits), and through `bench/noise_peers.py` the
+/// Python package `allan-variance-analyzer` (1.0.4) and `allantools` with the slope lines of
+/// `allan_variance_ros`'s analysis. Six axes of white noise + random walk at 100 Hz, 10
+/// seeds of 1 h and of 10 h; the error of each exported noise density and random walk
+/// against the truth, per tool.
+#[test]
+#[ignore = "a measurement of a few minutes in release, with Python peers: pip install -r bench/requirements.txt allan-variance-analyzer==1.0.4; cargo test --release -p dynacal-tests --test noise -- --ignored --nocapture noise_against_peers"]
+fn noise_against_peers() {
+    use imu_calib::allan::{AllanConfig, AllanEstimator, Sensor};
+    use std::collections::BTreeMap;
+    use std::io::Write as _;
+    let dir = tempfile::tempdir().unwrap();
+    let spec = |unit: &str, (wn, rw): (f64, f64)| -> ModelSpec {
+        serde_json::from_value(serde_json::json!({"model": "WN+RW", "unit": unit, "sample_rate_hz": RATE_HZ,
+            "processes": [{"kind": "white_noise", "sigma2": wn}, {"kind": "random_walk", "sigma2": rw}]}))
+        .unwrap()
+    };
+    let (accel, gyro) = (spec("m/s^2", ACCEL), spec("rad/s", GYRO));
+    let truth = |axis: usize| {
+        if axis < 3 {
+            (density(ACCEL.0), walk(ACCEL.1))
+        } else {
+            (density(GYRO.0), walk(GYRO.1))
+        }
+    };
+    // Per (hours, tool): per recording, per axis [ax ay az gx gy gz] (N, K); None where the
+    // tool gave no value.
+    type Values = Vec<[(Option<f64>, Option<f64>); 6]>;
+    let mut results: BTreeMap<(u32, String), Values> = BTreeMap::new();
+    let mut files: Vec<(u32, std::path::PathBuf)> = Vec::new();
+    for hours in [1u32, 10] {
+        let n = (f64::from(hours) * 3600.0 * RATE_HZ) as usize;
+        for seed in 1..=10u64 {
+            let mut rng = ChaCha8Rng::seed_from_u64(seed * 7919 + u64::from(hours));
+            let series: [Vec<f64>; 6] = std::array::from_fn(|axis| {
+                if axis < 3 {
+                    accel.simulate(n, &mut rng)
+                } else {
+                    gyro.simulate(n, &mut rng)
+                }
+            });
+            let rec = ImuRecording {
+                t_s: (0..n).map(|k| k as f64 / RATE_HZ).collect(),
+                accel_m_s2: Some([series[0].clone(), series[1].clone(), series[2].clone()]),
+                gyro_rad_s: Some([series[3].clone(), series[4].clone(), series[5].clone()]),
+                ..Default::default()
+            };
+            let report = analyse("sim", &rec, &NoiseOptions::default()).unwrap();
+            let exported = imu_noise(&model_of(&report).unwrap(), None, Path::new("sim")).unwrap();
+            let ours: [(Option<f64>, Option<f64>); 6] = std::array::from_fn(|axis| {
+                let (n, k) = if axis < 3 {
+                    exported.accel.axes[axis]
+                } else {
+                    exported.gyro.axes[axis - 3]
+                };
+                (Some(n), (k > 0.0).then_some(k))
+            });
+            results
+                .entry((hours, "dynacal noise".into()))
+                .or_default()
+                .push(ours);
+            let mut est = AllanEstimator::with_rate(AllanConfig::default(), RATE_HZ).unwrap();
+            for (k, t) in rec.t_s.iter().enumerate() {
+                let at = |axis: usize| series[axis][k];
+                est.push(*t, [at(0), at(1), at(2)], [at(3), at(4), at(5)]);
+            }
+            let calib = est.finish().ok();
+            let per_axis = |sensor: Sensor, walk: bool| -> [Option<f64>; 3] {
+                let values = calib.as_ref().and_then(|c| {
+                    if walk {
+                        c.random_walk_per_axis(sensor).ok()
+                    } else {
+                        c.noise_density_per_axis(sensor).ok()
+                    }
+                });
+                std::array::from_fn(|a| values.map(|v| v[a]))
+            };
+            let (an, ak, gn, gk) = (
+                per_axis(Sensor::Accel, false),
+                per_axis(Sensor::Accel, true),
+                per_axis(Sensor::Gyro, false),
+                per_axis(Sensor::Gyro, true),
+            );
+            results
+                .entry((hours, "imu-calib 0.3.1".into()))
+                .or_default()
+                .push(std::array::from_fn(|axis| {
+                    if axis < 3 {
+                        (an[axis], ak[axis])
+                    } else {
+                        (gn[axis - 3], gk[axis - 3])
+                    }
+                }));
+            let path = dir.path().join(format!("h{hours}-s{seed}.f64"));
+            let mut out = std::io::BufWriter::new(std::fs::File::create(&path).unwrap());
+            for k in 0..n {
+                for s in &series {
+                    out.write_all(&s[k].to_le_bytes()).unwrap();
+                }
+            }
+            out.flush().unwrap();
+            files.push((hours, path));
+        }
+    }
+    let json_path = dir.path().join("peers.json");
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/noise_peers.py");
+    let status = std::process::Command::new("python3")
+        .arg(&script)
+        .arg(RATE_HZ.to_string())
+        .arg(&json_path)
+        .args(files.iter().map(|f| &f.1))
+        .status();
+    match status {
+        Ok(s) if s.success() => {
+            let peers: serde_json::Value = serde_json::from_slice(&std::fs::read(&json_path).unwrap()).unwrap();
+            for (hours, path) in &files {
+                for (tool, values) in peers[path.to_str().unwrap()].as_object().unwrap() {
+                    let get = |key: &str, axis: usize| values[key][axis].as_f64().filter(|v| v.is_finite() && *v > 0.0);
+                    results.entry((*hours, tool.clone())).or_default().push(std::array::from_fn(|axis| (get("N", axis), get("K", axis))));
+                }
+            }
+        }
+        other => eprintln!("SKIP the Python peers ({other:?}): pip install -r bench/requirements.txt allan-variance-analyzer==1.0.4"),
+    }
+    println!("| hours | tool | gyro N: median / max error | accel N: median / max error | gyro K: median / max error | accel K: median / max error | K not given |");
+    println!("|---|---|---|---|---|---|---|");
+    for ((hours, tool), values) in &results {
+        let column = |gyro: bool, walk: bool| -> String {
+            let mut errors: Vec<f64> = values
+                .iter()
+                .flat_map(|v| {
+                    (0..6)
+                        .filter(move |a| (*a >= 3) == gyro)
+                        .map(move |a| (a, v[a]))
+                })
+                .filter_map(|(a, (n, k))| {
+                    let (tn, tk) = truth(a);
+                    if walk {
+                        k.map(|k| (k / tk - 1.0).abs())
+                    } else {
+                        n.map(|n| (n / tn - 1.0).abs())
+                    }
+                })
+                .collect();
+            if errors.is_empty() {
+                return "-".into();
+            }
+            errors.sort_by(f64::total_cmp);
+            format!(
+                "{:.1}% / {:.1}%",
+                100.0 * errors[errors.len() / 2],
+                100.0 * errors[errors.len() - 1]
+            )
+        };
+        let missing = values
+            .iter()
+            .flat_map(|v| v.iter())
+            .filter(|(_, k)| k.is_none())
+            .count();
+        println!(
+            "| {hours} | {tool} | {} | {} | {} | {} | {missing} of {} |",
+            column(true, false),
+            column(false, false),
+            column(true, true),
+            column(false, true),
+            values.len() * 6
+        );
+    }
+}

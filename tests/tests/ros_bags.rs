@@ -337,3 +337,21 @@ fn imu_matches(name: &str, topic: &str, fig: &serde_json::Value, rec: &ImuRecord
     let (az, _) = mean_std(&rec.accel_m_s2.as_ref().unwrap()[2]);
     assert!((az + 9.81).abs() < 0.05, "{name} {topic}: mean az {az}");
 }
+
+/// Asking one topic decodes it alone: the others are counted and named, not kept.
+#[test]
+fn one_topic_asked_is_the_only_one_decoded() {
+    let path = storage_file(&fixture("ros2-mcap"));
+    let (all, _) = ros_bag::read(&path).unwrap();
+    for asked in ["/imu/data", "imu-data"] {
+        let (recordings, report) = ros_bag::read_only(&path, Some(asked)).unwrap();
+        assert_eq!(recordings.len(), 1, "{asked}");
+        assert_eq!(
+            recordings[0],
+            all.iter().find(|r| r.0 == "imu-data").unwrap().clone()
+        );
+        assert!(report.notes.iter().any(|n| {
+            n == "/gps/fix: 5 messages of sensor_msgs/NavSatFix, not read (only imu-data was asked)"
+        }));
+    }
+}

@@ -55,7 +55,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     let bar = super::working(&format!("fitting the noise of {}", chosen.name));
     let report = analyse(&chosen.name, &chosen.recording, &options);
     bar.finish_and_clear();
-    let report = report?;
+    let report = report.map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
     println!("IMU {}: {}", report.imu, report.sampling);
     for note in &report.notes {
         println!("note: {note}");

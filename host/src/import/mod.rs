@@ -245,6 +245,20 @@ pub fn import_file(path: &Path, dataset: Dataset) -> Result<Vec<ImportedSensor>,
     Ok(sensors)
 }
 
+/// Imports only the topic `topic` of the ROS bag `path` (the others are counted, not
+/// decoded), checked as [`import_file_noted`] checks every sensor.
+pub fn import_bag_topic(
+    path: &Path,
+    topic: &str,
+) -> Result<(Vec<ImportedSensor>, Vec<String>), ImportError> {
+    let mut collect = Collect::new(path);
+    let mut checked = CheckUnits::new(path, &mut collect);
+    let (recordings, report) = ros_bag::read_only(path, Some(topic))?;
+    rows::replay(&recordings, &mut checked)?;
+    checked.finish()?;
+    Ok((collect.into_sensors()?, report.notes))
+}
+
 /// Imports one dataset file into its sensors' recordings, with the importer's notes (one
 /// line each).
 pub fn import_file_noted(

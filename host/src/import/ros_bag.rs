@@ -223,7 +223,18 @@ pub struct BagReport {
 
 /// Reads the bag at `path` into recordings named after their topics, and the report.
 pub fn read(path: &Path) -> Result<(Vec<(String, ImuRecording)>, BagReport), ImportError> {
+    read_only(path, None)
+}
+
+/// As [`read`], decoding only the topic `only` (its name, `/imu/data`, or its file name,
+/// `imu-data`) where given: the other topics' messages are counted, not kept, so a long
+/// bag's other sensors cost no memory.
+pub fn read_only(
+    path: &Path,
+    only: Option<&str>,
+) -> Result<(Vec<(String, ImuRecording)>, BagReport), ImportError> {
     let mut collector = collect::Collector::new(path);
+    collector.only = only.map(file_name_of_topic);
     visit(path, &mut collector).map_err(|e| collector.with_last_message(e))?;
     collector.finish()
 }

@@ -133,6 +133,8 @@ pub struct Collector {
     topics: BTreeMap<String, TopicData>,
     /// The topic and receive time of the last message read whole.
     last: Option<(String, i128)>,
+    /// Only this topic (by its file name) is decoded; the others are counted.
+    pub only: Option<String>,
 }
 
 impl Collector {
@@ -141,6 +143,7 @@ impl Collector {
             path: path.to_path_buf(),
             topics: BTreeMap::new(),
             last: None,
+            only: None,
         }
     }
 
@@ -213,7 +216,11 @@ impl BagVisitor for Collector {
         data: &[u8],
         at: Location,
     ) -> Result<(), ImportError> {
-        let known = [IMU, NAV_SAT_FIX, ODOMETRY].contains(&topic.msg_type.as_str());
+        let asked = self
+            .only
+            .as_ref()
+            .is_none_or(|only| *only == file_name_of_topic(&topic.name));
+        let known = asked && [IMU, NAV_SAT_FIX, ODOMETRY].contains(&topic.msg_type.as_str());
         let Some(encoding) = topic.encoding.filter(|_| known) else {
             let entry = self
                 .topics
@@ -388,9 +395,14 @@ impl Collector {
                 TopicData::Fix(t) => fix_recording(topic, t, &mut report.notes),
                 TopicData::Odometry(t) => odometry_recording(topic, t, &mut report.notes),
                 TopicData::Other { msg_type, count } => {
-                    report.notes.push(format!(
-                        "{topic}: {count} messages of {msg_type}, not read (dynacal reads {IMU}, {NAV_SAT_FIX}, {ODOMETRY})"
-                    ));
+                    report.notes.push(match &self.only {
+                        Some(only) if *only != file_name_of_topic(topic) => format!(
+                            "{topic}: {count} messages of {msg_type}, not read (only {only} was asked)"
+                        ),
+                        _ => format!(
+                            "{topic}: {count} messages of {msg_type}, not read (dynacal reads {IMU}, {NAV_SAT_FIX}, {ODOMETRY})"
+                        ),
+                    });
                     None
                 }
             };

@@ -1,0 +1,201 @@
+//! `dynacal noise` as a user chains it: a static run simulated and written as a ROS2 bag
+//! (`simulate --ros2`), its noise read off the bag (`noise --kalibr --json --report`), the
+//! model file exported again (`export --to kalibr`); and, ignored by default, its speed and
+//! memory from bag to `imu.yaml` against the Python pipeline people run (`rosbags` +
+//! `allantools`, `bench/noise_bag_peer.py`) in the same run.
+
+use std::path::Path;
+use std::process::Command;
+
+fn dynacal(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_dynacal"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn ok(out: &std::process::Output) -> String {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+fn kalibr_value(text: &str, key: &str) -> f64 {
+    text.lines()
+        .find_map(|l| l.strip_prefix(&format!("{key}:")))
+        .and_then(|v| v.split('#').next())
+        .map(|v| v.trim().parse().unwrap())
+        .unwrap_or_else(|| panic!("no {key} in\n{text}"))
+}
+
+/// A static MEMS unit at 100 Hz: gyro white noise 1e-5 (rad/s)^2 and random walk 4e-11 per
+/// sample, accelerometer 1e-3 and 4e-9 (m/s^2)^2.
+const MODEL: &str = r#"{"imus": [{"name": "mems", "rate_hz": 100,
+  "gyro": {"stochastic": {"model": "WN+RW", "unit": "rad/s", "sample_rate_hz": 100,
+    "processes": [{"kind": "white_noise", "sigma2": 1e-5}, {"kind": "random_walk", "sigma2": 4e-11}]}},
+  "accel": {"stochastic": {"model": "WN+RW", "unit": "m/s^2", "sample_rate_hz": 100,
+    "processes": [{"kind": "white_noise", "sigma2": 1e-3}, {"kind": "random_walk", "sigma2": 4e-9}]}}}]}"#;
+
+fn simulate_bag(dir: &Path, seconds: &str) -> String {
+    let d = |name: &str| dir.join(name).display().to_string();
+    std::fs::write(dir.join("model.json"), MODEL).unwrap();
+    ok(&dynacal(&[
+        "simulate",
+        "--scenario",
+        "static",
+        "--seconds",
+        seconds,
+        "--seed",
+        "5",
+        "--model",
+        &d("model.json"),
+        "--out",
+        &d("sim"),
+        "--ros2",
+        &d("bag"),
+    ]));
+    d("bag")
+}
+
+#[test]
+fn a_simulated_bag_gives_kalibr_its_noise_and_the_model_exports_the_same() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = |name: &str| dir.path().join(name).display().to_string();
+    let bag = simulate_bag(dir.path(), "1200");
+    let stdout = ok(&dynacal(&[
+        "noise",
+        &bag,
+        "--topic",
+        "/mems/imu",
+        "--kalibr",
+        &d("imu.yaml"),
+        "--json",
+        &d("noise.json"),
+        "--report",
+        &d("report"),
+    ]));
+    assert!(stdout.contains("still: "), "{stdout}");
+    let yaml = std::fs::read_to_string(d("imu.yaml")).unwrap();
+    // The truth: N = sqrt(sigma2 / 100 Hz), K = sqrt(sigma2 x 100 Hz).
+    let n_gyro = kalibr_value(&yaml, "gyroscope_noise_density");
+    let n_accel = kalibr_value(&yaml, "accelerometer_noise_density");
+    assert!(
+        (n_gyro / 1e-5f64.sqrt() * 10.0 - 1.0).abs() < 0.05,
+        "{yaml}"
+    );
+    assert!(
+        (n_accel / 1e-3f64.sqrt() * 10.0 - 1.0).abs() < 0.05,
+        "{yaml}"
+    );
+    let k_gyro = kalibr_value(&yaml, "gyroscope_random_walk");
+    assert!(
+        (k_gyro / (4e-11f64 * 100.0).sqrt() - 1.0).abs() < 0.30,
+        "{yaml}"
+    );
+    assert!(yaml.contains("rostopic: /mems/imu"));
+    let page = std::fs::read_to_string(dir.path().join("report/report.html")).unwrap();
+    assert!(page.contains("<svg") && page.contains("Allan deviation"));
+    // The model file chains into `export`, which gives Kalibr the same numbers.
+    ok(&dynacal(&[
+        "export",
+        &d("noise.json"),
+        "--to",
+        "kalibr",
+        "--out",
+        &d("again.yaml"),
+    ]));
+    let again = std::fs::read_to_string(d("again.yaml")).unwrap();
+    for key in [
+        "gyroscope_noise_density",
+        "gyroscope_random_walk",
+        "accelerometer_noise_density",
+        "accelerometer_random_walk",
+    ] {
+        assert_eq!(kalibr_value(&again, key), kalibr_value(&yaml, key), "{key}");
+    }
+}
+
+/// Wall time and peak memory of one command, from GNU time.
+fn timed(program: &str, args: &[&str]) -> Option<(f64, f64)> {
+    let out = Command::new("/usr/bin/time")
+        .arg("-v")
+        .arg(program)
+        .args(args)
+        .output()
+        .ok()?;
+    if !out.status.success() {
+        eprintln!("{program}: {}", String::from_utf8_lossy(&out.stderr));
+        return None;
+    }
+    let text = String::from_utf8_lossy(&out.stderr);
+    let field = |name: &str| {
+        text.lines().find_map(|l| {
+            l.trim()
+                .strip_prefix(name)
+                .map(str::trim)
+                .map(str::to_string)
+        })
+    };
+    let rss_kib: f64 = field("Maximum resident set size (kbytes):")?.parse().ok()?;
+    let wall = field("Elapsed (wall clock) time (h:mm:ss or m:ss):")?;
+    let seconds = wall.split(':').fold(0.0, |acc, part| {
+        acc * 60.0 + part.parse::<f64>().unwrap_or(0.0)
+    });
+    Some((seconds, rss_kib / 1024.0))
+}
+
+#[test]
+#[ignore = "a measurement of minutes: cargo test --release -p dynacal --test cli_noise -- --ignored --nocapture (with pip install -r bench/requirements.txt rosbags==0.11.9)"]
+fn noise_from_a_bag_against_rosbags_and_allantools() {
+    let dir = tempfile::tempdir().unwrap();
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/noise_bag_peer.py");
+    println!("| IMU samples | bag MB | dynacal noise s / MiB | rosbags + allantools s / MiB | speed-up | memory ratio |");
+    println!("|---|---|---|---|---|---|");
+    for seconds in ["3600", "36000"] {
+        let bag = simulate_bag(dir.path(), seconds);
+        let storage = Path::new(&bag).join("bag_0.mcap");
+        let mb = std::fs::metadata(&storage).unwrap().len() as f64 / 1e6;
+        let ours = timed(
+            env!("CARGO_BIN_EXE_dynacal"),
+            &[
+                "noise",
+                &bag,
+                "--topic",
+                "/mems/imu",
+                "--kalibr",
+                &dir.path().join("ours.yaml").display().to_string(),
+            ],
+        )
+        .unwrap();
+        let peer = timed(
+            "python3",
+            &[
+                &script.display().to_string(),
+                &bag,
+                "/mems/imu",
+                &dir.path().join("peer.yaml").display().to_string(),
+            ],
+        );
+        let samples = seconds.parse::<f64>().unwrap() * 100.0;
+        match peer {
+            Some(peer) => println!(
+                "| {samples:.0} | {mb:.0} | {:.2} / {:.0} | {:.2} / {:.0} | {:.1}x | {:.2} |",
+                ours.0,
+                ours.1,
+                peer.0,
+                peer.1,
+                peer.0 / ours.0,
+                ours.1 / peer.1
+            ),
+            None => println!(
+                "| {samples:.0} | {mb:.0} | {:.2} / {:.0} | (not run) | | |",
+                ours.0, ours.1
+            ),
+        }
+        std::fs::remove_dir_all(&bag).unwrap();
+        std::fs::remove_dir_all(dir.path().join("sim")).unwrap();
+    }
+}
