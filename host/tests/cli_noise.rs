@@ -152,8 +152,12 @@ fn timed(program: &str, args: &[&str]) -> Option<(f64, f64)> {
 fn noise_from_a_bag_against_rosbags_and_allantools() {
     let dir = tempfile::tempdir().unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/noise_bag_peer.py");
-    println!("| IMU samples | bag MB | dynacal noise s / MiB | rosbags + allantools s / MiB | speed-up | memory ratio |");
-    println!("|---|---|---|---|---|---|");
+    // The imu-calib pipeline, built beside the binary (`cargo test` builds the examples).
+    let imu_calib = Path::new(env!("CARGO_BIN_EXE_dynacal"))
+        .with_file_name("examples")
+        .join("imu_calib_bag");
+    println!("| IMU samples | bag MB | dynacal noise s / MiB | imu-calib (mcap crate) s / MiB | rosbags + allantools s / MiB | speed-up vs imu-calib / vs Python | memory ratio vs imu-calib / vs Python |");
+    println!("|---|---|---|---|---|---|---|");
     for seconds in ["3600", "36000"] {
         let bag = simulate_bag(dir.path(), seconds);
         let storage = Path::new(&bag).join("bag_0.mcap");
@@ -179,22 +183,29 @@ fn noise_from_a_bag_against_rosbags_and_allantools() {
                 &dir.path().join("peer.yaml").display().to_string(),
             ],
         );
+        let rust_peer = timed(
+            &imu_calib.display().to_string(),
+            &[&storage.display().to_string(), "/mems/imu"],
+        )
+        .unwrap();
         let samples = seconds.parse::<f64>().unwrap() * 100.0;
-        match peer {
-            Some(peer) => println!(
-                "| {samples:.0} | {mb:.0} | {:.2} / {:.0} | {:.2} / {:.0} | {:.1}x | {:.2} |",
-                ours.0,
-                ours.1,
-                peer.0,
-                peer.1,
-                peer.0 / ours.0,
-                ours.1 / peer.1
+        let (python, speed, memory) = match peer {
+            Some(p) => (
+                format!("{:.2} / {:.0}", p.0, p.1),
+                format!("{:.1}x", p.0 / ours.0),
+                format!("{:.2}", ours.1 / p.1),
             ),
-            None => println!(
-                "| {samples:.0} | {mb:.0} | {:.2} / {:.0} | (not run) | | |",
-                ours.0, ours.1
-            ),
-        }
+            None => ("(not run)".into(), "-".into(), "-".into()),
+        };
+        println!(
+            "| {samples:.0} | {mb:.0} | {:.2} / {:.0} | {:.2} / {:.0} | {python} | {:.1}x / {speed} | {:.2} / {memory} |",
+            ours.0,
+            ours.1,
+            rust_peer.0,
+            rust_peer.1,
+            rust_peer.0 / ours.0,
+            ours.1 / rust_peer.1
+        );
         std::fs::remove_dir_all(&bag).unwrap();
         std::fs::remove_dir_all(dir.path().join("sim")).unwrap();
     }
