@@ -22,7 +22,10 @@ use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ChannelFit, ModelChoice};
 use crate::gmwm::model::Structure;
 use crate::interchange::{ImuRecording, Sampling, CHANNELS, CHANNEL_COLUMNS};
-use crate::wv::{haar_wv, WaveletVariance, WvOptions};
+use crate::wv::WaveletVariance;
+
+pub mod passes;
+pub use passes::{BagTopicSamples, ImuSamples, RecordingSamples};
 
 /// Errors of [`analyse`].
 #[derive(Debug, thiserror::Error)]
@@ -36,6 +39,8 @@ pub enum NoiseError {
         channel: &'static str,
         message: String,
     },
+    #[error(transparent)]
+    Read(#[from] crate::import::ImportError),
 }
 
 /// Settings of [`analyse`].
@@ -209,125 +214,6 @@ fn axes_of(rec: &ImuRecording) -> Vec<(usize, &[f64])> {
     out
 }
 
-fn std_dev(x: &[f64]) -> f64 {
-    let n = x.len() as f64;
-    let mean = x.iter().sum::<f64>() / n;
-    (x.iter().map(|v| (v - mean).powi(2)).sum::<f64>() / (n - 1.0)).sqrt()
-}
-
-/// Runs of equal flags as (flag, range of windows).
-fn runs(flags: &[bool]) -> Vec<(bool, Range<usize>)> {
-    let mut out: Vec<(bool, Range<usize>)> = Vec::new();
-    for (w, &f) in flags.iter().enumerate() {
-        match out.last_mut() {
-            Some((g, r)) if *g == f => r.end = w + 1,
-            _ => out.push((f, w..w + 1)),
-        }
-    }
-    out
-}
-
-/// Finds the still and the moving stretches of `rec` (see the module's rule).
-pub fn stillness(rec: &ImuRecording, dt_s: f64, opts: &NoiseOptions) -> Stillness {
-    let n = rec.len();
-    let stretch = |samples: Range<usize>| Stretch {
-        from_s: rec.t_s[samples.start],
-        to_s: rec.t_s[samples.end - 1],
-        samples,
-    };
-    if let Some((from, to)) = opts.still_span_s {
-        let samples: Vec<usize> = (0..n)
-            .filter(|&i| rec.t_s[i] >= from && rec.t_s[i] <= to)
-            .collect();
-        let still = match (samples.first(), samples.last()) {
-            (Some(&a), Some(&b)) => vec![stretch(a..b + 1)],
-            _ => Vec::new(),
-        };
-        return Stillness {
-            still,
-            moving: Vec::new(),
-            rule: format!("the span given, {from} s to {to} s"),
-        };
-    }
-    let per_window = ((opts.window_s / dt_s).round() as usize).max(16);
-    let windows = n / per_window;
-    if windows == 0 {
-        return Stillness {
-            still: Vec::new(),
-            moving: Vec::new(),
-            rule: format!("{n} samples, shorter than one window of {per_window}"),
-        };
-    }
-    let axes = axes_of(rec);
-    let stds: Vec<Vec<f64>> = axes
-        .iter()
-        .map(|(_, x)| {
-            (0..windows)
-                .map(|w| std_dev(&x[w * per_window..(w + 1) * per_window]))
-                .collect()
-        })
-        .collect();
-    let floors: Vec<f64> = stds
-        .iter()
-        .map(|s| {
-            let mut sorted = s.clone();
-            sorted.sort_by(f64::total_cmp);
-            sorted[((sorted.len() - 1) as f64 * 0.02) as usize]
-        })
-        .collect();
-    let still: Vec<bool> = (0..windows)
-        .map(|w| {
-            stds.iter()
-                .zip(&floors)
-                .all(|(s, floor)| s[w] <= opts.floor_factor * floor)
-        })
-        .collect();
-    let min_windows = (opts.min_still_s / opts.window_s).ceil() as usize;
-    let (mut still_out, mut moving_out) = (Vec::new(), Vec::new());
-    for (flag, r) in runs(&still) {
-        let samples = r.start * per_window..(r.end * per_window).min(n);
-        if flag && r.len() >= min_windows.max(1) {
-            still_out.push(stretch(samples));
-        } else if !flag {
-            moving_out.push(stretch(samples));
-        }
-    }
-    Stillness {
-        still: still_out,
-        moving: moving_out,
-        rule: format!(
-            "windows of {per_window} samples ({:.3} s) whose every axis' standard deviation is at most {} times its floor (the 2nd percentile of the windows'), in stretches of {} s or more",
-            per_window as f64 * dt_s,
-            opts.floor_factor,
-            opts.min_still_s
-        ),
-    }
-}
-
-/// The pooled wavelet variance of `x` over `stretches` (up to `max_level`, or each
-/// stretch's default), leaving out stretches too short for a level.
-fn pooled_wv(
-    x: &[f64],
-    stretches: &[Stretch],
-    dt_s: f64,
-    max_level: Option<u32>,
-) -> Option<WaveletVariance> {
-    let parts: Vec<WaveletVariance> = stretches
-        .iter()
-        .filter(|s| s.samples.len() >= 4)
-        .filter_map(|s| {
-            let part = &x[s.samples.clone()];
-            let top = crate::wv::default_max_level(part.len());
-            let opts = WvOptions {
-                max_level: Some(max_level.map_or(top, |m| m.min(top))),
-                ..WvOptions::default()
-            };
-            haar_wv(part, dt_s, &opts).ok()
-        })
-        .collect();
-    WaveletVariance::pooled(&parts)
-}
-
 /// The bias random walk a fit exports (`export`'s and the board's reduction,
 /// `refit::channel_noise`): the random walk's PSD `sigma2 / dt` plus each Gauss-Markov bias
 /// of a second or longer as the PSD of its driving noise, `2 sigma2 beta`;
@@ -396,21 +282,34 @@ fn parameter(fit: &ChannelFit, process: &str, name: &str) -> Option<(f64, Option
         .map(|p| (p.value, p.ci95))
 }
 
-/// Analyses one IMU recording named `imu`.
+/// Analyses one IMU recording named `imu`, in memory.
 pub fn analyse(
     imu: &str,
     rec: &ImuRecording,
+    opts: &NoiseOptions,
+) -> Result<NoiseReport, NoiseError> {
+    analyse_samples(imu, &mut RecordingSamples::new(rec), opts)
+}
+
+/// Analyses the IMU `imu` whose samples `source` reads in passes ([`passes`]).
+pub fn analyse_samples(
+    imu: &str,
+    source: &mut dyn ImuSamples,
     opts: &NoiseOptions,
 ) -> Result<NoiseReport, NoiseError> {
     let fail = |message: String| NoiseError::Recording {
         imu: imu.to_string(),
         message,
     };
-    let sampling = Sampling::of(&rec.t_s).ok_or_else(|| fail("fewer than two samples".into()))?;
-    if axes_of(rec).is_empty() {
+    let mut sampling = source
+        .sampling()
+        .ok_or_else(|| fail("fewer than two samples".into()))?;
+    if source.channels().is_empty() {
         return Err(fail("no gyro or accelerometer channel".into()));
     }
     let dt_s = sampling.median_step_s;
+    let (stillness, gaps) = passes::stillness_and_gaps(source, dt_s, opts)?;
+    sampling.gaps = gaps;
     let mut notes = Vec::new();
     if !sampling.is_uniform() {
         notes.push(format!(
@@ -418,7 +317,6 @@ pub fn analyse(
             dt_s
         ));
     }
-    let stillness = stillness(rec, dt_s, opts);
     if stillness.still.is_empty() {
         return Err(fail(format!(
             "no still stretch found ({}): give one with --still FROM_S TO_S",
@@ -442,7 +340,8 @@ pub fn analyse(
             .sum::<f64>()
     ));
     let white_only;
-    let opts = if still_s < opts.min_still_for_bias_s {
+    let too_short_for_bias = still_s < opts.min_still_for_bias_s;
+    let opts = if too_short_for_bias {
         notes.push(format!(
             "{still_s:.1} s at rest is under {} s: only the white noise is fitted (a bias random walk or instability needs minutes at rest to show), so no K is given and no imu.yaml can be written; record longer at rest or name a still span with --still",
             opts.min_still_for_bias_s
@@ -455,10 +354,25 @@ pub fn analyse(
     } else {
         opts
     };
-    let axes = axes_of(rec)
-        .into_iter()
-        .map(|(index, x)| analyse_axis(imu, index, x, dt_s, &stillness, opts))
+    let (still_parts, moving_parts) = passes::stretch_wavelet_variances(source, &stillness, dt_s)?;
+    let axes = source
+        .channels()
+        .iter()
+        .zip(still_parts.iter().zip(&moving_parts))
+        .map(|(&index, (still, moving))| {
+            let moving = WaveletVariance::pooled(moving);
+            analyse_axis(imu, index, WaveletVariance::pooled(still), moving, opts)
+        })
         .collect::<Result<Vec<_>, _>>()?;
+    // An Allan deviation minimum within seconds at rest is the white noise's last point,
+    // not a bias floor.
+    let axes: Vec<AxisNoise> = axes
+        .into_iter()
+        .map(|a| AxisNoise {
+            bias_instability: a.bias_instability.filter(|_| !too_short_for_bias),
+            ..a
+        })
+        .collect();
     for a in &axes {
         if !a.close_alternatives.is_empty() {
             let list: Vec<String> = a
@@ -483,12 +397,13 @@ pub fn analyse(
     })
 }
 
+/// One axis from its still stretches' pooled wavelet variance and its moving stretches'
+/// finest level.
 fn analyse_axis(
     imu: &str,
     index: usize,
-    x: &[f64],
-    dt_s: f64,
-    stillness: &Stillness,
+    still: Option<WaveletVariance>,
+    moving: Option<WaveletVariance>,
     opts: &NoiseOptions,
 ) -> Result<AxisNoise, NoiseError> {
     let channel = CHANNELS[index];
@@ -498,7 +413,7 @@ fn analyse_axis(
         channel,
         message,
     };
-    let wv = pooled_wv(x, &stillness.still, dt_s, None)
+    let wv = still
         .ok_or_else(|| fail("the still stretches are too short for a wavelet variance".into()))?;
     if wv.variance.first().is_some_and(|v| *v == 0.0) {
         return Err(fail(
@@ -538,8 +453,8 @@ fn analyse_axis(
         .min_by(|a, b| a.1 .0.total_cmp(b.1 .0))
         .filter(|(k, _)| *k > 0 && *k + 1 < adev.len())
         .map(|(_, (a, t))| (a / 0.664, *t));
-    let motion_inflation = pooled_wv(x, &stillness.moving, dt_s, Some(1))
-        .and_then(|moving| Some((moving.variance.first()? / wv.variance.first()?).sqrt()));
+    let motion_inflation =
+        moving.and_then(|moving| Some((moving.variance.first()? / wv.variance.first()?).sqrt()));
     Ok(AxisNoise {
         channel,
         unit,
@@ -560,8 +475,26 @@ pub struct ChosenImu {
     pub name: String,
     /// The ROS topic it came from, where `--topic` named one.
     pub topic: Option<String>,
-    pub recording: ImuRecording,
+    pub source: ImuSource,
     pub notes: Vec<String>,
+}
+
+/// Where a chosen IMU's samples are.
+pub enum ImuSource {
+    /// Imported whole.
+    Recording(Box<ImuRecording>),
+    /// A bag's topic, read anew each pass (memory independent of the bag's length).
+    Bag(BagTopicSamples),
+}
+
+impl ChosenImu {
+    /// [`analyse_samples`] of this IMU.
+    pub fn analyse(&mut self, opts: &NoiseOptions) -> Result<NoiseReport, NoiseError> {
+        match &mut self.source {
+            ImuSource::Recording(rec) => analyse(&self.name, rec, opts),
+            ImuSource::Bag(bag) => analyse_samples(&self.name, bag, opts),
+        }
+    }
 }
 
 /// Errors of [`choose_imu`].
@@ -581,6 +514,22 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
         find_datasets, import_bag_topic, import_file_noted, ros_bag::file_name_of_topic, Dataset,
     };
     let (found, _) = find_datasets(input)?;
+    // A bag's Imu topic is streamed, not imported: its length then costs no memory.
+    let bags: Vec<std::path::PathBuf> = found
+        .iter()
+        .filter(|(_, d)| *d == Dataset::RosBag)
+        .map(|(f, _)| f.clone())
+        .collect();
+    if let Some(topic) = topic.filter(|_| !bags.is_empty() && bags.len() == found.len()) {
+        if let Some((source, notes)) = BagTopicSamples::open(bags, topic)? {
+            return Ok(ChosenImu {
+                name: file_name_of_topic(topic),
+                topic: Some(topic.to_string()),
+                source: ImuSource::Bag(source),
+                notes,
+            });
+        }
+    }
     let read_all = |only: Option<&str>| -> Result<_, ChooseError> {
         let (mut sensors, mut notes) = (Vec::new(), Vec::new());
         for (file, dataset) in &found {
@@ -658,7 +607,7 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
     Ok(ChosenImu {
         name: sensor.name,
         topic,
-        recording: sensor.recording,
+        source: ImuSource::Recording(Box::new(sensor.recording)),
         notes,
     })
 }

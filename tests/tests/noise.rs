@@ -10,7 +10,7 @@ use dynacal::export::imu_noise;
 use dynacal::gmwm::model::ModelSpec;
 use dynacal::import::ros_bag;
 use dynacal::interchange::ImuRecording;
-use dynacal::noise::{analyse, choose_imu, kalibr_yaml, model_of, NoiseOptions};
+use dynacal::noise::{analyse, choose_imu, kalibr_yaml, model_of, ImuSource, NoiseOptions};
 use dynacal::sim::{self, Scenario, SimModel, SimOptions};
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
@@ -57,9 +57,26 @@ fn simulate_static_bag(dir: &Path, seconds: f64, seed: u64) -> std::path::PathBu
 fn noise_of_a_simulated_static_bag_recovers_its_white_noise_and_random_walk() {
     let dir = tempfile::tempdir().unwrap();
     let bag = simulate_static_bag(dir.path(), 1800.0, 7);
-    let chosen = choose_imu(&bag, Some("/mems/imu")).unwrap();
+    let mut chosen = choose_imu(&bag, Some("/mems/imu")).unwrap();
     assert_eq!(chosen.name, "mems-imu");
-    let report = analyse(&chosen.name, &chosen.recording, &NoiseOptions::default()).unwrap();
+    assert!(
+        matches!(chosen.source, ImuSource::Bag(_)),
+        "a bag's topic is streamed"
+    );
+    let report = chosen.analyse(&NoiseOptions::default()).unwrap();
+    // The topic streamed from the bag gives what the topic imported whole gives.
+    let (recordings, _) = ros_bag::read(&bag.join("static-bag_0.mcap")).unwrap();
+    let whole = &recordings.iter().find(|r| r.0 == "mems-imu").unwrap().1;
+    let in_memory = analyse("mems-imu", whole, &NoiseOptions::default()).unwrap();
+    assert_eq!(report.sampling, in_memory.sampling);
+    assert_eq!(report.stillness, in_memory.stillness);
+    for (s, m) in report.axes.iter().zip(&in_memory.axes) {
+        assert_eq!(s.fit.model, m.fit.model);
+        for (a, b) in s.wv.variance.iter().zip(&m.wv.variance) {
+            assert!((a / b - 1.0).abs() < 1e-12, "{}: {a} vs {b}", s.channel);
+        }
+        assert!((s.noise_density.0 / m.noise_density.0 - 1.0).abs() < 1e-9);
+    }
     assert_eq!(
         report.stillness.still.len(),
         1,
@@ -169,12 +186,12 @@ fn noise_refuses_what_is_not_an_imu_naming_the_topic() {
         "{missing}"
     );
     // Five seconds at rest: white noise only, and no imu.yaml without a random walk.
-    let chosen = choose_imu(&bag, Some("/mems/imu")).unwrap();
-    let report = analyse(&chosen.name, &chosen.recording, &NoiseOptions::default()).unwrap();
+    let mut chosen = choose_imu(&bag, Some("/mems/imu")).unwrap();
+    let report = chosen.analyse(&NoiseOptions::default()).unwrap();
     assert!(report
         .axes
         .iter()
-        .all(|a| a.fit.model == "WN" && a.random_walk.is_none()));
+        .all(|a| a.fit.model == "WN" && a.random_walk.is_none() && a.bias_instability.is_none()));
     assert!(kalibr_yaml(&report, None, "bag").is_err());
 }
 

@@ -6,9 +6,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use dynacal::noise::{
-    analyse, choose_imu, kalibr_yaml, model_of, report_page, table, NoiseOptions,
-};
+use dynacal::noise::{choose_imu, kalibr_yaml, model_of, report_page, table, NoiseOptions};
 use dynacal::output::write_atomic;
 
 #[derive(Debug, clap::Args)]
@@ -38,7 +36,7 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let chosen = choose_imu(&args.input, args.topic.as_deref())?;
+    let mut chosen = choose_imu(&args.input, args.topic.as_deref())?;
     for note in &chosen.notes {
         println!("{}: {note}", args.input.display());
     }
@@ -53,7 +51,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ..NoiseOptions::default()
     };
     let bar = super::working(&format!("fitting the noise of {}", chosen.name));
-    let report = analyse(&chosen.name, &chosen.recording, &options);
+    let report = chosen.analyse(&options);
     bar.finish_and_clear();
     let report = report.map_err(|e| anyhow::anyhow!("{}: {e}", args.input.display()))?;
     println!("IMU {}: {}", report.imu, report.sampling);

@@ -239,8 +239,28 @@ pub fn read_only(
     collector.finish()
 }
 
+/// Streams the Imu topic `topic` of the bag at `path`: its kept samples (time s, angular
+/// velocity rad/s, specific force m/s^2, forward-right-down; the same as an import keeps) go
+/// to `sink` as they are read, nothing is stored, so memory does not grow with the bag.
+/// Returns what the topic held (`None` when it is not an Imu topic of this bag) and the
+/// report (the topic's notes but its sampling, which its reader measures; the other
+/// topics counted).
+pub fn stream_imu_topic(
+    path: &Path,
+    topic: &str,
+    sink: collect::ImuSink<'_>,
+) -> Result<(Option<StreamedImu>, BagReport), ImportError> {
+    let mut collector = collect::Collector::new(path);
+    collector.only = Some(file_name_of_topic(topic));
+    collector.sink = Some(sink);
+    visit(path, &mut collector).map_err(|e| collector.with_last_message(e))?;
+    let streamed = collector.streamed_imu();
+    let (_, report) = collector.finish()?;
+    Ok((streamed, report))
+}
+
 mod collect;
-pub use collect::file_name_of_topic;
+pub use collect::{file_name_of_topic, StreamedImu};
 
 #[cfg(test)]
 mod tests {

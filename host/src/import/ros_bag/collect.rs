@@ -86,16 +86,72 @@ impl CovarianceSeen {
     }
 }
 
+/// What an Imu topic's messages say, counted as they come (for the report and the
+/// "not a sensor" test), with its kept samples: stored for an import, handed to the
+/// collector's sink when streamed.
 #[derive(Debug, Default)]
 struct ImuTopic {
     frames: BTreeSet<String>,
-    stamps: Vec<Stamp>,
-    /// ROS axes (forward-left-up), rad/s and m/s^2, as stored.
-    gyro: Vec<[f64; 3]>,
-    accel: Vec<[f64; 3]>,
+    line: StampLine,
+    /// The first message's (angular velocity, linear acceleration), ROS axes, and whether a
+    /// later one differs: a topic whose every value is the same is no sensor.
+    first: Option<([f64; 3], [f64; 3])>,
+    varies: bool,
     gyro_covariance: CovarianceSeen,
     accel_covariance: CovarianceSeen,
+    /// Sum of the kept specific forces, m/s^2 forward-right-down (their mean is reported).
+    kept_accel_sum: [f64; 3],
+    /// Kept samples (time increasing), s; forward-right-down rad/s and m/s^2. Empty when
+    /// streamed.
+    t_s: Vec<f64>,
+    gyro: Vec<[f64; 3]>,
+    accel: Vec<[f64; 3]>,
 }
+
+impl ImuTopic {
+    /// Counts `m`; its kept sample as (time s, gyro and accelerometer forward-right-down).
+    fn add(&mut self, m: &messages::Imu, receive_ns: i128) -> Option<(f64, [f64; 3], [f64; 3])> {
+        let values = (m.angular_velocity, m.linear_acceleration);
+        match self.first {
+            None => self.first = Some(values),
+            Some(first) => self.varies |= first != values,
+        }
+        self.frames.insert(m.header.frame_id.clone());
+        self.gyro_covariance.add(&m.angular_velocity_covariance);
+        self.accel_covariance.add(&m.linear_acceleration_covariance);
+        let stamp = Stamp::of(&m.header, receive_ns);
+        if !self.line.push(stamp) {
+            return None;
+        }
+        let (gyro, accel) = (flu_to_frd(values.0), flu_to_frd(values.1));
+        for (sum, a) in self.kept_accel_sum.iter_mut().zip(accel) {
+            *sum += a;
+        }
+        Some((stamp_seconds(stamp.ns), gyro, accel))
+    }
+
+    fn has_gyro(&self) -> bool {
+        self.gyro_covariance.absent < self.line.messages
+    }
+
+    fn has_accel(&self) -> bool {
+        self.accel_covariance.absent < self.line.messages
+    }
+}
+
+/// A streamed Imu topic: which of its vectors hold data, and how many samples were kept.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct StreamedImu {
+    /// False when every message holds the same values: no sensor.
+    pub varies: bool,
+    pub gyro: bool,
+    pub accel: bool,
+    pub kept: usize,
+}
+
+/// Where a streamed topic's kept samples go: (time s, angular velocity rad/s, specific force
+/// m/s^2), both forward-right-down.
+pub type ImuSink<'a> = &'a mut dyn FnMut(f64, [f64; 3], [f64; 3]);
 
 #[derive(Debug, Default)]
 struct FixTopic {
@@ -116,7 +172,7 @@ struct OdometryTopic {
 
 #[derive(Debug)]
 enum TopicData {
-    Imu(ImuTopic),
+    Imu(Box<ImuTopic>),
     Fix(FixTopic),
     Odometry(OdometryTopic),
     /// A type dynacal does not read: its message count.
@@ -127,7 +183,7 @@ enum TopicData {
 }
 
 /// Collects the messages of one bag.
-pub struct Collector {
+pub struct Collector<'a> {
     path: PathBuf,
     /// Per topic name, in name order.
     topics: BTreeMap<String, TopicData>,
@@ -135,16 +191,37 @@ pub struct Collector {
     last: Option<(String, i128)>,
     /// Only this topic (by its file name) is decoded; the others are counted.
     pub only: Option<String>,
+    /// Whether a topic is the one asked, by name (a topic's file name made once, not per
+    /// message).
+    asked: BTreeMap<String, bool>,
+    /// Where the asked Imu topic's samples go instead of being stored (memory then
+    /// independent of the bag's length).
+    pub sink: Option<ImuSink<'a>>,
 }
 
-impl Collector {
+impl<'a> Collector<'a> {
     pub fn new(path: &Path) -> Self {
         Self {
             path: path.to_path_buf(),
             topics: BTreeMap::new(),
             last: None,
             only: None,
+            asked: BTreeMap::new(),
+            sink: None,
         }
+    }
+
+    /// The streamed Imu topic (the asked one, when a sink is set and it is an Imu topic).
+    pub fn streamed_imu(&self) -> Option<StreamedImu> {
+        self.topics.values().find_map(|data| match data {
+            TopicData::Imu(t) if self.sink.is_some() => Some(StreamedImu {
+                varies: t.varies,
+                gyro: t.has_gyro(),
+                accel: t.has_accel(),
+                kept: t.line.kept,
+            }),
+            _ => None,
+        })
     }
 
     /// A storage error, with the last message read whole: where in the recording the
@@ -208,7 +285,7 @@ impl Collector {
     }
 }
 
-impl BagVisitor for Collector {
+impl BagVisitor for Collector<'_> {
     fn message(
         &mut self,
         topic: &TopicInfo,
@@ -216,20 +293,27 @@ impl BagVisitor for Collector {
         data: &[u8],
         at: Location,
     ) -> Result<(), ImportError> {
-        let asked = self
-            .only
-            .as_ref()
-            .is_none_or(|only| *only == file_name_of_topic(&topic.name));
+        let asked = match (&self.only, self.asked.get(&topic.name)) {
+            (None, _) => true,
+            (Some(_), Some(&asked)) => asked,
+            (Some(only), None) => {
+                let asked = *only == file_name_of_topic(&topic.name);
+                self.asked.insert(topic.name.clone(), asked);
+                asked
+            }
+        };
         let known = asked && [IMU, NAV_SAT_FIX, ODOMETRY].contains(&topic.msg_type.as_str());
         let Some(encoding) = topic.encoding.filter(|_| known) else {
-            let entry = self
-                .topics
-                .entry(topic.name.clone())
-                .or_insert_with(|| TopicData::Other {
-                    msg_type: topic.msg_type.clone(),
-                    count: 0,
-                });
-            if let TopicData::Other { count, .. } = entry {
+            if !self.topics.contains_key(&topic.name) {
+                self.topics.insert(
+                    topic.name.clone(),
+                    TopicData::Other {
+                        msg_type: topic.msg_type.clone(),
+                        count: 0,
+                    },
+                );
+            }
+            if let Some(TopicData::Other { count, .. }) = self.topics.get_mut(&topic.name) {
                 *count += 1;
             }
             return Ok(());
@@ -243,22 +327,29 @@ impl BagVisitor for Collector {
         } else {
             data
         };
-        let entry = self.topics.entry(topic.name.clone()).or_insert_with(|| {
-            match topic.msg_type.as_str() {
-                IMU => TopicData::Imu(ImuTopic::default()),
+        if !self.topics.contains_key(&topic.name) {
+            let data = match topic.msg_type.as_str() {
+                IMU => TopicData::Imu(Box::default()),
                 NAV_SAT_FIX => TopicData::Fix(FixTopic::default()),
                 _ => TopicData::Odometry(OdometryTopic::default()),
-            }
-        });
+            };
+            self.topics.insert(topic.name.clone(), data);
+        }
+        let entry = self.topics.get_mut(&topic.name).expect("inserted");
+        let sink = &mut self.sink;
         let error = |e: messages::DecodeError| (topic, at, receive_ns, e);
         let result = match entry {
             TopicData::Imu(t) => messages::imu(data, encoding).map(|m| {
-                t.stamps.push(Stamp::of(&m.header, receive_ns));
-                t.frames.insert(m.header.frame_id);
-                t.gyro.push(m.angular_velocity);
-                t.accel.push(m.linear_acceleration);
-                t.gyro_covariance.add(&m.angular_velocity_covariance);
-                t.accel_covariance.add(&m.linear_acceleration_covariance);
+                if let Some((t_s, gyro, accel)) = t.add(&m, receive_ns) {
+                    match sink {
+                        Some(sink) => sink(t_s, gyro, accel),
+                        None => {
+                            t.t_s.push(t_s);
+                            t.gyro.push(gyro);
+                            t.accel.push(accel);
+                        }
+                    }
+                }
             }),
             TopicData::Fix(t) => messages::nav_sat_fix(data, encoding).map(|m| {
                 if m.status < 0 {
@@ -305,8 +396,89 @@ pub fn file_name_of_topic(topic: &str) -> String {
     }
 }
 
-/// The kept samples of a topic: indices whose time advances past every earlier one, with
-/// the report of those left out and of the zero stamps.
+/// A topic's stamps counted as they come: a stamp is kept when it is after every earlier
+/// one (an interchange file's time increases strictly); stamps that repeat or go back
+/// against the previous message, and zero stamps replaced by the receive time, are counted
+/// for the report, never fixed silently.
+#[derive(Debug, Default)]
+struct StampLine {
+    messages: usize,
+    kept: usize,
+    previous: Option<i128>,
+    latest: Option<i128>,
+    repeated: usize,
+    first_repeated: Option<i128>,
+    back: usize,
+    /// The first stamp that went back, and the previous message's.
+    first_back: Option<(i128, i128)>,
+    from_receive: usize,
+    first_from_receive: Option<i128>,
+}
+
+impl StampLine {
+    /// Counts `stamp`; true when it is kept.
+    fn push(&mut self, stamp: Stamp) -> bool {
+        self.messages += 1;
+        if stamp.from_receive_time {
+            self.from_receive += 1;
+            self.first_from_receive.get_or_insert(stamp.ns);
+        }
+        match self.previous {
+            Some(p) if stamp.ns == p => {
+                self.repeated += 1;
+                self.first_repeated.get_or_insert(stamp.ns);
+            }
+            Some(p) if stamp.ns < p => {
+                self.back += 1;
+                self.first_back.get_or_insert((stamp.ns, p));
+            }
+            _ => {}
+        }
+        self.previous = Some(stamp.ns);
+        let keep = self.latest.is_none_or(|l| stamp.ns > l);
+        if keep {
+            self.latest = Some(stamp.ns);
+            self.kept += 1;
+        }
+        keep
+    }
+
+    fn notes(&self, topic: &str) -> Vec<String> {
+        let mut notes = Vec::new();
+        if let Some(first) = self.first_from_receive {
+            notes.push(format!(
+                "{topic}: {} header stamps are zero: the bag's receive time is used for them (the first at {} s)",
+                self.from_receive,
+                seconds(first)
+            ));
+        }
+        if let Some(first) = self.first_repeated {
+            notes.push(format!(
+                "{topic}: {} stamps repeat the previous message's (the first at {} s)",
+                self.repeated,
+                seconds(first)
+            ));
+        }
+        if let Some((first, after)) = self.first_back {
+            notes.push(format!(
+                "{topic}: {} stamps go back from the previous message's (the first to {} s after {} s)",
+                self.back,
+                seconds(first),
+                seconds(after)
+            ));
+        }
+        let left_out = self.messages - self.kept;
+        if left_out > 0 {
+            notes.push(format!(
+                "{topic}: {left_out} messages whose stamp is not after every earlier one are left out (an interchange file's time increases strictly)"
+            ));
+        }
+        notes
+    }
+}
+
+/// The kept samples of a stored topic ([`StampLine`]): their indices and times, with the
+/// report.
 struct Timeline {
     keep: Vec<usize>,
     t_s: Vec<f64>,
@@ -314,61 +486,16 @@ struct Timeline {
 }
 
 fn timeline(topic: &str, stamps: &[Stamp]) -> Timeline {
-    let mut keep = Vec::with_capacity(stamps.len());
-    let mut latest: Option<i128> = None;
-    for (i, s) in stamps.iter().enumerate() {
-        if latest.is_none_or(|l| s.ns > l) {
-            keep.push(i);
-            latest = Some(s.ns);
-        }
-    }
-    // Counted against the previous message, as a reader of the bag sees them.
-    let repeated: Vec<i128> = stamps
-        .windows(2)
-        .filter(|w| w[1].ns == w[0].ns)
-        .map(|w| w[1].ns)
+    let mut line = StampLine::default();
+    let keep: Vec<usize> = (0..stamps.len())
+        .filter(|&i| line.push(stamps[i]))
         .collect();
-    let back: Vec<(i128, i128)> = stamps
-        .windows(2)
-        .filter(|w| w[1].ns < w[0].ns)
-        .map(|w| (w[1].ns, w[0].ns))
-        .collect();
-    let mut notes = Vec::new();
-    let from_receive: Vec<i128> = stamps
-        .iter()
-        .filter(|s| s.from_receive_time)
-        .map(|s| s.ns)
-        .collect();
-    if let Some(first) = from_receive.first() {
-        notes.push(format!(
-            "{topic}: {} header stamps are zero: the bag's receive time is used for them (the first at {} s)",
-            from_receive.len(),
-            seconds(*first)
-        ));
-    }
-    if let Some(first) = repeated.first() {
-        notes.push(format!(
-            "{topic}: {} stamps repeat the previous message's (the first at {} s)",
-            repeated.len(),
-            seconds(*first)
-        ));
-    }
-    if let Some((first, after)) = back.first() {
-        notes.push(format!(
-            "{topic}: {} stamps go back from the previous message's (the first to {} s after {} s)",
-            back.len(),
-            seconds(*first),
-            seconds(*after)
-        ));
-    }
-    let left_out = stamps.len() - keep.len();
-    if left_out > 0 {
-        notes.push(format!(
-            "{topic}: {left_out} messages whose stamp is not after every earlier one are left out (an interchange file's time increases strictly)"
-        ));
-    }
     let t_s = keep.iter().map(|&i| stamp_seconds(stamps[i].ns)).collect();
-    Timeline { keep, t_s, notes }
+    Timeline {
+        keep,
+        t_s,
+        notes: line.notes(topic),
+    }
 }
 
 /// ns since the Unix epoch -> s, rounded once (the integer seconds are exact in an f64).
@@ -383,20 +510,21 @@ fn sampling_note(topic: &str, t_s: &[f64]) -> Option<String> {
     crate::interchange::Sampling::of(t_s).map(|s| format!("{topic}: {s}"))
 }
 
-impl Collector {
+impl Collector<'_> {
     /// The recordings and the report.
     pub fn finish(self) -> Result<(Vec<(String, ImuRecording)>, BagReport), ImportError> {
         let mut recordings = Vec::new();
         let mut report = BagReport::default();
         let mut names: BTreeMap<String, String> = BTreeMap::new();
-        for (topic, data) in &self.topics {
+        let streamed = self.sink.is_some();
+        for (topic, data) in self.topics {
             let converted = match data {
-                TopicData::Imu(t) => imu_recording(topic, t, &mut report.notes),
-                TopicData::Fix(t) => fix_recording(topic, t, &mut report.notes),
-                TopicData::Odometry(t) => odometry_recording(topic, t, &mut report.notes),
+                TopicData::Imu(t) => imu_recording(&topic, *t, streamed, &mut report.notes),
+                TopicData::Fix(t) => fix_recording(&topic, &t, &mut report.notes),
+                TopicData::Odometry(t) => odometry_recording(&topic, &t, &mut report.notes),
                 TopicData::Other { msg_type, count } => {
                     report.notes.push(match &self.only {
-                        Some(only) if *only != file_name_of_topic(topic) => format!(
+                        Some(only) if *only != file_name_of_topic(&topic) => format!(
                             "{topic}: {count} messages of {msg_type}, not read (only {only} was asked)"
                         ),
                         _ => format!(
@@ -407,7 +535,7 @@ impl Collector {
                 }
             };
             if let Some(recording) = converted {
-                let name = file_name_of_topic(topic);
+                let name = file_name_of_topic(&topic);
                 if let Some(other) = names.insert(name.clone(), topic.clone()) {
                     return Err(ImportError::Implausible {
                         path: self.path.clone(),
@@ -422,42 +550,36 @@ impl Collector {
     }
 }
 
-fn imu_recording(topic: &str, t: &ImuTopic, notes: &mut Vec<String>) -> Option<ImuRecording> {
-    let count = t.stamps.len();
-    let first = (t.gyro.first()?, t.accel.first()?);
-    let line = timeline(topic, &t.stamps);
-    notes.extend(line.notes);
-    if t.gyro.iter().all(|g| g == first.0) && t.accel.iter().all(|a| a == first.1) {
+fn imu_recording(
+    topic: &str,
+    t: ImuTopic,
+    streamed: bool,
+    notes: &mut Vec<String>,
+) -> Option<ImuRecording> {
+    let count = t.line.messages;
+    let first = t.first?;
+    notes.extend(t.line.notes(topic));
+    if !t.varies {
         notes.push(format!(
             "{topic}: skipped, not a sensor: its {count} angular velocities are all {:?} and its linear accelerations all {:?}",
             first.0, first.1
         ));
         return None;
     }
-    let has_gyro = t.gyro_covariance.absent < count;
-    let has_accel = t.accel_covariance.absent < count;
     let partly = |absent: usize| absent > 0 && absent < count;
     if partly(t.gyro_covariance.absent) || partly(t.accel_covariance.absent) {
         notes.push(format!(
             "{topic}: some messages state no angular velocity or no acceleration (covariance -1) and others do: kept as data"
         ));
     }
-    notes.extend(sampling_note(topic, &line.t_s));
-    let column = |values: &[[f64; 3]]| -> [Vec<f64>; 3] {
-        let frd: Vec<[f64; 3]> = line.keep.iter().map(|&i| flu_to_frd(values[i])).collect();
-        std::array::from_fn(|axis| frd.iter().map(|v| v[axis]).collect())
-    };
-    let recording = ImuRecording {
-        t_s: line.t_s,
-        gyro_rad_s: has_gyro.then(|| column(&t.gyro)),
-        accel_m_s2: has_accel.then(|| column(&t.accel)),
-        ..Default::default()
-    };
+    // A streamed topic's time line is summarised by its reader (`dynacal noise`).
+    if !streamed {
+        notes.extend(sampling_note(topic, &t.t_s));
+    }
     let frames: Vec<&str> = t.frames.iter().map(String::as_str).collect();
-    let mean_f: [f64; 3] = std::array::from_fn(|axis| {
-        recording.accel_m_s2.as_ref().map_or(f64::NAN, |a| {
-            a[axis].iter().sum::<f64>() / a[axis].len() as f64
-        })
+    let mean_f = t.kept_accel_sum.map(|sum| match t.has_accel() {
+        true => sum / t.line.kept as f64,
+        false => f64::NAN,
     });
     notes.push(format!(
         "{topic}: frame_id {}: axes kept as the sensor's, turned from ROS's forward-left-up to forward-right-down (y and z negated); mean specific force ({:.3}, {:.3}, {:.3}) m/s^2",
@@ -476,7 +598,18 @@ fn imu_recording(topic: &str, t: &ImuTopic, notes: &mut Vec<String>) -> Option<I
         "m^2/s^4",
         count,
     ));
-    Some(recording)
+    if streamed {
+        return None;
+    }
+    let column = |values: &[[f64; 3]]| -> [Vec<f64>; 3] {
+        std::array::from_fn(|axis| values.iter().map(|v| v[axis]).collect())
+    };
+    Some(ImuRecording {
+        gyro_rad_s: t.has_gyro().then(|| column(&t.gyro)),
+        accel_m_s2: t.has_accel().then(|| column(&t.accel)),
+        t_s: t.t_s,
+        ..Default::default()
+    })
 }
 
 fn fix_recording(topic: &str, t: &FixTopic, notes: &mut Vec<String>) -> Option<ImuRecording> {

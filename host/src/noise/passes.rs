@@ -1,0 +1,472 @@
+//! The passes `dynacal noise` makes over one IMU's samples, in memory that does not grow
+//! with the recording's length: a recording already in memory is walked, a ROS bag's topic
+//! is decoded anew each pass (as `imu-calib` and `allan_variance_ros` stream a bag), so an
+//! hours-long bag costs what a minute costs.
+//!
+//! The first pass (the source's own) gives the time line's summary; the window pass finds
+//! the still and moving stretches (the module rule of [`super`]) and the gaps; the
+//! wavelet pass feeds each stretch's samples into one streaming Haar accumulator per axis
+//! ([`HaarWvStream`]), whose levels up to [`FULL_LEVELS`] are the batch estimator's own
+//! (the same sums, to rounding) and higher ones decimated with their wider intervals.
+//! Memory: the accumulators' rings (16 bytes x 2^(levels + 1) per axis: 12 MiB for six axes
+//! at 16 levels), the window standard deviations (56 bytes per window of about a second:
+//! 2 MiB for ten hours), and the distinct time steps.
+
+use std::ops::Range;
+
+use super::{axes_of, NoiseError, NoiseOptions, Stillness, Stretch};
+use crate::import::ros_bag::{stream_imu_topic, StreamedImu};
+use crate::import::ImportError;
+use crate::interchange::{ImuRecording, Sampling, StepCounts};
+use crate::wv::stream::HaarWvStream;
+use crate::wv::{default_max_level, WaveletVariance};
+
+/// Full (overlapping, batch-equal) levels of a still stretch's accumulators: every level of
+/// a stretch under 2^18 samples (43 minutes at 100 Hz); longer stretches' top levels are
+/// decimated (4/9 of the degrees of freedom). 2 MiB per axis.
+pub const FULL_LEVELS: u32 = 16;
+
+/// Samples buffered per axis before they enter an accumulator (its block path is several
+/// times faster than one sample at a time, bit for bit the same).
+const BLOCK: usize = 4096;
+
+/// One IMU's samples, read in passes.
+pub trait ImuSamples {
+    /// The channels each sample holds (indices into [`crate::interchange::CHANNELS`]).
+    fn channels(&self) -> &[usize];
+    /// The time line's summary; its gaps may be left empty (the window pass finds them).
+    fn sampling(&self) -> Option<Sampling>;
+    /// Calls `each(t_s, values)` for every sample in time order, values in
+    /// [`Self::channels`]' order (rad/s, m/s^2, forward-right-down).
+    fn pass(&mut self, each: &mut dyn FnMut(f64, &[f64])) -> Result<(), NoiseError>;
+}
+
+/// A recording in memory.
+pub struct RecordingSamples<'a> {
+    rec: &'a ImuRecording,
+    channels: Vec<usize>,
+    columns: Vec<&'a [f64]>,
+}
+
+impl<'a> RecordingSamples<'a> {
+    pub fn new(rec: &'a ImuRecording) -> Self {
+        let (channels, columns) = axes_of(rec).into_iter().unzip();
+        Self {
+            rec,
+            channels,
+            columns,
+        }
+    }
+}
+
+impl ImuSamples for RecordingSamples<'_> {
+    fn channels(&self) -> &[usize] {
+        &self.channels
+    }
+
+    fn sampling(&self) -> Option<Sampling> {
+        Sampling::of(&self.rec.t_s)
+    }
+
+    fn pass(&mut self, each: &mut dyn FnMut(f64, &[f64])) -> Result<(), NoiseError> {
+        let mut values = vec![0.0; self.columns.len()];
+        for (i, &t) in self.rec.t_s.iter().enumerate() {
+            for (v, column) in values.iter_mut().zip(&self.columns) {
+                *v = column[i];
+            }
+            each(t, &values);
+        }
+        Ok(())
+    }
+}
+
+/// A ROS bag's Imu topic (in one bag, or split over several files read in order), decoded
+/// anew each pass ([`stream_imu_topic`]).
+pub struct BagTopicSamples {
+    files: Vec<std::path::PathBuf>,
+    topic: String,
+    streamed: StreamedImu,
+    channels: Vec<usize>,
+    steps: StepCounts,
+}
+
+impl BagTopicSamples {
+    /// The first pass over `files`: what the topic holds, its time steps, and the bags'
+    /// notes. `None` when the topic is not a sensor's Imu topic in them (no message, another
+    /// type, or all values the same: the whole import says what it is).
+    pub fn open(
+        files: Vec<std::path::PathBuf>,
+        topic: &str,
+    ) -> Result<Option<(Self, Vec<String>)>, ImportError> {
+        let (mut steps, mut notes, mut found) = (StepCounts::default(), Vec::new(), None);
+        for file in &files {
+            let mut count = |t_s: f64, _: [f64; 3], _: [f64; 3]| steps.push(t_s);
+            let (streamed, report) = stream_imu_topic(file, topic, &mut count)?;
+            notes.extend(report.notes);
+            found = match (found, streamed) {
+                (None, s) | (s, None) => s,
+                (Some(a), Some(b)) => Some(StreamedImu {
+                    varies: a.varies || b.varies,
+                    gyro: a.gyro || b.gyro,
+                    accel: a.accel || b.accel,
+                    kept: a.kept + b.kept,
+                }),
+            };
+        }
+        let Some(streamed) = found.filter(|s| s.varies && s.kept > 0 && (s.gyro || s.accel)) else {
+            return Ok(None);
+        };
+        let channels = [(streamed.gyro, 0..3), (streamed.accel, 3..6)]
+            .into_iter()
+            .filter(|(present, _)| *present)
+            .flat_map(|(_, range)| range)
+            .collect();
+        let source = Self {
+            files,
+            topic: topic.to_string(),
+            streamed,
+            channels,
+            steps,
+        };
+        Ok(Some((source, notes)))
+    }
+}
+
+impl ImuSamples for BagTopicSamples {
+    fn channels(&self) -> &[usize] {
+        &self.channels
+    }
+
+    fn sampling(&self) -> Option<Sampling> {
+        self.steps.sampling_without_gaps()
+    }
+
+    fn pass(&mut self, each: &mut dyn FnMut(f64, &[f64])) -> Result<(), NoiseError> {
+        let (gyro, accel) = (self.streamed.gyro, self.streamed.accel);
+        let mut values = Vec::with_capacity(6);
+        for file in &self.files {
+            let mut sink = |t_s: f64, g: [f64; 3], a: [f64; 3]| {
+                values.clear();
+                if gyro {
+                    values.extend(g);
+                }
+                if accel {
+                    values.extend(a);
+                }
+                each(t_s, &values);
+            };
+            stream_imu_topic(file, &self.topic, &mut sink)?;
+        }
+        Ok(())
+    }
+}
+
+/// Welford's running mean and variance.
+#[derive(Debug, Clone, Copy, Default)]
+struct Running {
+    n: f64,
+    mean: f64,
+    m2: f64,
+}
+
+impl Running {
+    fn add(&mut self, x: f64) {
+        self.n += 1.0;
+        let delta = x - self.mean;
+        self.mean += delta / self.n;
+        self.m2 += delta * (x - self.mean);
+    }
+
+    fn std_dev(&self) -> f64 {
+        (self.m2 / (self.n - 1.0)).sqrt()
+    }
+}
+
+/// Runs of equal flags as (flag, range of windows).
+fn runs(flags: &[bool]) -> Vec<(bool, Range<usize>)> {
+    let mut out: Vec<(bool, Range<usize>)> = Vec::new();
+    for (w, &f) in flags.iter().enumerate() {
+        match out.last_mut() {
+            Some((g, r)) if *g == f => r.end = w + 1,
+            _ => out.push((f, w..w + 1)),
+        }
+    }
+    out
+}
+
+/// The window pass: where the sensor is still and where it moves (or the span given), and
+/// the gaps of the time line (steps over [`Sampling::GAP_STEPS`] median steps).
+pub fn stillness_and_gaps(
+    source: &mut dyn ImuSamples,
+    dt_s: f64,
+    opts: &NoiseOptions,
+) -> Result<(Stillness, Vec<(f64, f64)>), NoiseError> {
+    let axes = source.channels().len();
+    let per_window = ((opts.window_s / dt_s).round() as usize).max(16);
+    let (mut stds, mut bounds_s) = (vec![Vec::new(); axes], Vec::new());
+    let mut window = vec![Running::default(); axes];
+    let (mut gaps, mut previous, mut n) = (Vec::new(), None::<f64>, 0usize);
+    let mut window_start_s = 0.0;
+    let mut span: Option<(usize, usize, f64, f64)> = None;
+    source.pass(&mut |t, values| {
+        if let Some(p) = previous.filter(|p| t - p > Sampling::GAP_STEPS * dt_s) {
+            gaps.push((p, t - p));
+        }
+        previous = Some(t);
+        if opts
+            .still_span_s
+            .is_some_and(|(from, to)| t >= from && t <= to)
+        {
+            let s = span.get_or_insert((n, n, t, t));
+            (s.1, s.3) = (n, t);
+        }
+        if n % per_window == 0 {
+            window_start_s = t;
+        }
+        for (w, &v) in window.iter_mut().zip(values) {
+            w.add(v);
+        }
+        if n % per_window == per_window - 1 {
+            for (s, w) in stds.iter_mut().zip(&mut window) {
+                s.push(w.std_dev());
+                *w = Running::default();
+            }
+            bounds_s.push((window_start_s, t));
+        }
+        n += 1;
+    })?;
+    let stillness = match opts.still_span_s {
+        Some((from, to)) => Stillness {
+            still: span
+                .map(|(a, b, from_s, to_s)| Stretch {
+                    samples: a..b + 1,
+                    from_s,
+                    to_s,
+                })
+                .into_iter()
+                .collect(),
+            moving: Vec::new(),
+            rule: format!("the span given, {from} s to {to} s"),
+        },
+        None => classify(&stds, &bounds_s, per_window, n, dt_s, opts),
+    };
+    Ok((stillness, gaps))
+}
+
+/// Still and moving stretches from the windows' standard deviations (per axis) and times.
+fn classify(
+    stds: &[Vec<f64>],
+    bounds_s: &[(f64, f64)],
+    per_window: usize,
+    n: usize,
+    dt_s: f64,
+    opts: &NoiseOptions,
+) -> Stillness {
+    if bounds_s.is_empty() {
+        return Stillness {
+            still: Vec::new(),
+            moving: Vec::new(),
+            rule: format!("{n} samples, shorter than one window of {per_window}"),
+        };
+    }
+    let floors: Vec<f64> = stds
+        .iter()
+        .map(|s| {
+            let mut sorted = s.clone();
+            sorted.sort_by(f64::total_cmp);
+            sorted[((sorted.len() - 1) as f64 * 0.02) as usize]
+        })
+        .collect();
+    let still: Vec<bool> = (0..bounds_s.len())
+        .map(|w| {
+            stds.iter()
+                .zip(&floors)
+                .all(|(s, floor)| s[w] <= opts.floor_factor * floor)
+        })
+        .collect();
+    let min_windows = (opts.min_still_s / opts.window_s).ceil() as usize;
+    let (mut still_out, mut moving_out) = (Vec::new(), Vec::new());
+    for (flag, r) in runs(&still) {
+        let stretch = Stretch {
+            samples: r.start * per_window..r.end * per_window,
+            from_s: bounds_s[r.start].0,
+            to_s: bounds_s[r.end - 1].1,
+        };
+        if flag && r.len() >= min_windows.max(1) {
+            still_out.push(stretch);
+        } else if !flag {
+            moving_out.push(stretch);
+        }
+    }
+    Stillness {
+        still: still_out,
+        moving: moving_out,
+        rule: format!(
+            "windows of {per_window} samples ({:.3} s) whose every axis' standard deviation is at most {} times its floor (the 2nd percentile of the windows'), in stretches of {} s or more",
+            per_window as f64 * dt_s,
+            opts.floor_factor,
+            opts.min_still_s
+        ),
+    }
+}
+
+/// Per axis, the stretches' wavelet variances.
+type PerAxis = Vec<Vec<WaveletVariance>>;
+
+/// One stretch's accumulators, one per axis, with their pending blocks.
+struct StretchStreams {
+    end: usize,
+    still: bool,
+    streams: Vec<HaarWvStream>,
+    pending: Vec<Vec<f64>>,
+}
+
+impl StretchStreams {
+    fn flush(&mut self) {
+        for (stream, block) in self.streams.iter_mut().zip(&mut self.pending) {
+            stream.push_block(block);
+            block.clear();
+        }
+    }
+}
+
+/// The wavelet pass: per axis, the still stretches' wavelet variances (each to its own
+/// default top level) and the moving stretches' finest level, each list to be pooled.
+/// Stretches under 4 samples give none.
+pub fn stretch_wavelet_variances(
+    source: &mut dyn ImuSamples,
+    stillness: &Stillness,
+    dt_s: f64,
+) -> Result<(PerAxis, PerAxis), NoiseError> {
+    let axes = source.channels().len();
+    let mut stretches: Vec<(&Stretch, bool)> = stillness
+        .still
+        .iter()
+        .map(|s| (s, true))
+        .chain(stillness.moving.iter().map(|s| (s, false)))
+        .filter(|(s, _)| s.samples.len() >= 4)
+        .collect();
+    stretches.sort_by_key(|(s, _)| s.samples.start);
+    let (mut still, mut moving) = (vec![Vec::new(); axes], vec![Vec::new(); axes]);
+    let (mut next, mut active, mut n) = (0usize, None::<StretchStreams>, 0usize);
+    source.pass(&mut |_, values| {
+        if active.is_none() && next < stretches.len() && stretches[next].0.samples.start == n {
+            let (stretch, is_still) = stretches[next];
+            let levels = match is_still {
+                true => default_max_level(stretch.samples.len()).min(FULL_LEVELS),
+                false => 1,
+            };
+            active = Some(StretchStreams {
+                end: stretch.samples.end,
+                still: is_still,
+                streams: vec![HaarWvStream::new(levels); axes],
+                pending: vec![Vec::with_capacity(BLOCK); axes],
+            });
+            next += 1;
+        }
+        n += 1;
+        let Some(a) = active.as_mut() else {
+            return;
+        };
+        for (block, &v) in a.pending.iter_mut().zip(values) {
+            block.push(v);
+        }
+        if a.pending[0].len() == BLOCK {
+            a.flush();
+        }
+        if n == a.end {
+            a.flush();
+            let (into, top) = match a.still {
+                true => (&mut still, None),
+                false => (&mut moving, Some(1)),
+            };
+            for (list, stream) in into.iter_mut().zip(&a.streams) {
+                list.extend(stream.wavelet_variance(top, 1.0, dt_s).ok());
+            }
+            active = None;
+        }
+    })?;
+    Ok((still, moving))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::wv::{haar_wv, WvOptions};
+    use rand::SeedableRng;
+    use rand_distr::{Distribution, Normal};
+
+    /// Three axes at 100 Hz: still (0.01 rad/s white noise) for 300 s, shaken (0.5 rad/s)
+    /// for 100 s, still again for 300 s.
+    fn still_shaken_still() -> ImuRecording {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(0x5711);
+        let n = 70_000;
+        let t_s: Vec<f64> = (0..n).map(|i| i as f64 * 0.01).collect();
+        let column = |rng: &mut rand_chacha::ChaCha8Rng| -> Vec<f64> {
+            (0..n)
+                .map(|i| {
+                    let sd = if (30_000..40_000).contains(&i) {
+                        0.5
+                    } else {
+                        0.01
+                    };
+                    Normal::new(0.0, sd).unwrap().sample(rng)
+                })
+                .collect()
+        };
+        ImuRecording {
+            gyro_rad_s: Some([column(&mut rng), column(&mut rng), column(&mut rng)]),
+            t_s,
+            ..Default::default()
+        }
+    }
+
+    /// The passes find the shaking, and each still stretch's accumulated wavelet variance
+    /// is the batch estimator's on that stretch.
+    #[test]
+    fn passes_find_the_motion_and_give_the_batch_wavelet_variance() {
+        let rec = still_shaken_still();
+        let mut source = RecordingSamples::new(&rec);
+        let opts = NoiseOptions::default();
+        let (stillness, gaps) = stillness_and_gaps(&mut source, 0.01, &opts).unwrap();
+        assert!(gaps.is_empty());
+        let spans: Vec<Range<usize>> = stillness.still.iter().map(|s| s.samples.clone()).collect();
+        assert_eq!(spans, vec![0..30_000, 40_000..70_000]);
+        assert_eq!(stillness.moving.len(), 1);
+        assert_eq!(stillness.moving[0].samples, 30_000..40_000);
+        let last = &stillness.still[1];
+        assert!((last.from_s - 400.0).abs() < 1e-9 && (last.to_s - 699.99).abs() < 1e-9);
+        let (still, moving) = stretch_wavelet_variances(&mut source, &stillness, 0.01).unwrap();
+        for axis in 0..3 {
+            let x = &rec.gyro_rad_s.as_ref().unwrap()[axis];
+            for (part, span) in still[axis].iter().zip(&spans) {
+                let batch = haar_wv(&x[span.clone()], 0.01, &WvOptions::default()).unwrap();
+                assert_eq!(part.levels, batch.levels);
+                for (a, b) in part.variance.iter().zip(&batch.variance) {
+                    assert!((a / b - 1.0).abs() < 1e-12, "axis {axis}: {a} vs {b}");
+                }
+            }
+            let ratio = (moving[axis][0].variance[0] / still[axis][0].variance[0]).sqrt();
+            assert!((ratio / 50.0 - 1.0).abs() < 0.05, "axis {axis}: {ratio}");
+        }
+    }
+
+    /// A span given by time is taken whole, and a gap in the time line is found.
+    #[test]
+    fn a_given_span_and_a_gap() {
+        let mut rec = still_shaken_still();
+        for t in &mut rec.t_s[50_000..] {
+            *t += 2.0;
+        }
+        let opts = NoiseOptions {
+            still_span_s: Some((100.0, 200.0)),
+            ..NoiseOptions::default()
+        };
+        let mut source = RecordingSamples::new(&rec);
+        let (stillness, gaps) = stillness_and_gaps(&mut source, 0.01, &opts).unwrap();
+        assert_eq!(stillness.still.len(), 1);
+        assert_eq!(stillness.still[0].samples, 10_000..20_001);
+        assert_eq!(gaps.len(), 1);
+        assert!((gaps[0].0 - 499.99).abs() < 1e-9 && (gaps[0].1 - 2.01).abs() < 1e-9);
+    }
+}
