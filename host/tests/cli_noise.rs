@@ -118,19 +118,19 @@ fn a_simulated_bag_gives_kalibr_its_noise_and_the_model_exports_the_same() {
     }
 }
 
-/// Wall time and peak memory of one command, from GNU time.
-fn timed(program: &str, args: &[&str]) -> Option<(f64, f64)> {
+/// Wall time and peak memory of one command, from GNU time, and whether it succeeded (a
+/// peer that finds no random walk fails, after its work).
+fn timed(program: &str, args: &[&str]) -> Option<(f64, f64, bool)> {
     let out = Command::new("/usr/bin/time")
         .arg("-v")
         .arg(program)
         .args(args)
         .output()
         .ok()?;
-    if !out.status.success() {
-        eprintln!("{program}: {}", String::from_utf8_lossy(&out.stderr));
-        return None;
-    }
     let text = String::from_utf8_lossy(&out.stderr);
+    if !out.status.success() {
+        eprintln!("{program}: {}", text.lines().next().unwrap_or_default());
+    }
     let field = |name: &str| {
         text.lines().find_map(|l| {
             l.trim()
@@ -144,21 +144,22 @@ fn timed(program: &str, args: &[&str]) -> Option<(f64, f64)> {
     let seconds = wall.split(':').fold(0.0, |acc, part| {
         acc * 60.0 + part.parse::<f64>().unwrap_or(0.0)
     });
-    Some((seconds, rss_kib / 1024.0))
+    Some((seconds, rss_kib / 1024.0, out.status.success()))
 }
 
 #[test]
-#[ignore = "a measurement of minutes: cargo test --release -p dynacal --test cli_noise -- --ignored --nocapture (with pip install -r bench/requirements.txt rosbags==0.11.9)"]
+#[ignore = "a measurement of minutes: cargo build --release -p dynacal --example imu_calib_bag && cargo test --release -p dynacal --test cli_noise -- --ignored --nocapture (with pip install -r bench/requirements.txt rosbags==0.11.9)"]
 fn noise_from_a_bag_against_rosbags_and_allantools() {
     let dir = tempfile::tempdir().unwrap();
     let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../bench/noise_bag_peer.py");
-    // The imu-calib pipeline, built beside the binary (`cargo test` builds the examples).
+    // The imu-calib pipeline, built beside the binary (`cargo build --release -p dynacal
+    // --example imu_calib_bag` first: a test filtered to this file builds no example).
     let imu_calib = Path::new(env!("CARGO_BIN_EXE_dynacal"))
         .with_file_name("examples")
         .join("imu_calib_bag");
     println!("| IMU samples | bag MB | dynacal noise s / MiB | imu-calib (mcap crate) s / MiB | rosbags + allantools s / MiB | speed-up vs imu-calib / vs Python | memory ratio vs imu-calib / vs Python |");
     println!("|---|---|---|---|---|---|---|");
-    for seconds in ["3600", "36000"] {
+    for seconds in ["3600", "36000", "100000"] {
         let bag = simulate_bag(dir.path(), seconds);
         let storage = Path::new(&bag).join("bag_0.mcap");
         let mb = std::fs::metadata(&storage).unwrap().len() as f64 / 1e6;
@@ -174,6 +175,7 @@ fn noise_from_a_bag_against_rosbags_and_allantools() {
             ],
         )
         .unwrap();
+        assert!(ours.2, "dynacal noise failed on {bag}");
         let peer = timed(
             "python3",
             &[
@@ -189,20 +191,22 @@ fn noise_from_a_bag_against_rosbags_and_allantools() {
         )
         .unwrap();
         let samples = seconds.parse::<f64>().unwrap() * 100.0;
+        let failed = |ok: bool| if ok { "" } else { " (failed: no K)" };
         let (python, speed, memory) = match peer {
             Some(p) => (
-                format!("{:.2} / {:.0}", p.0, p.1),
+                format!("{:.2} / {:.0}{}", p.0, p.1, failed(p.2)),
                 format!("{:.1}x", p.0 / ours.0),
                 format!("{:.2}", ours.1 / p.1),
             ),
             None => ("(not run)".into(), "-".into(), "-".into()),
         };
         println!(
-            "| {samples:.0} | {mb:.0} | {:.2} / {:.0} | {:.2} / {:.0} | {python} | {:.1}x / {speed} | {:.2} / {memory} |",
+            "| {samples:.0} | {mb:.0} | {:.2} / {:.0} | {:.2} / {:.0}{} | {python} | {:.1}x / {speed} | {:.2} / {memory} |",
             ours.0,
             ours.1,
             rust_peer.0,
             rust_peer.1,
+            failed(rust_peer.2),
             rust_peer.0 / ours.0,
             ours.1 / rust_peer.1
         );

@@ -108,6 +108,38 @@ pub(crate) fn seconds(ns: i128) -> String {
     format!("{sign}{}.{:09}", ns / 1_000_000_000, ns % 1_000_000_000)
 }
 
+/// Drops a mapped bag's pages from this process's resident memory every
+/// [`PageRelease::EVERY_BYTES`] read, so a bag read front to back holds about that much of
+/// itself, not all of it (the pages stay in the OS's cache and fault back in if touched).
+pub(crate) struct PageRelease<'a> {
+    map: Option<&'a memmap2::Mmap>,
+    since: usize,
+}
+
+impl<'a> PageRelease<'a> {
+    const EVERY_BYTES: usize = 64 << 20;
+
+    pub(crate) fn new(map: Option<&'a memmap2::Mmap>) -> Self {
+        Self { map, since: 0 }
+    }
+
+    /// `bytes` more of the map read.
+    pub(crate) fn advance(&mut self, bytes: usize) {
+        self.since += bytes;
+        if self.since < Self::EVERY_BYTES {
+            return;
+        }
+        self.since = 0;
+        if let Some(map) = self.map {
+            // SAFETY: a read-only private map of a file nothing writes (`map_file`'s
+            // contract): MADV_DONTNEED discards clean copies of file pages only, and the next
+            // access reads the same bytes from the file again. Failing is harmless (the
+            // pages just stay resident).
+            let _ = unsafe { map.unchecked_advise(memmap2::UncheckedAdvice::DontNeed) };
+        }
+    }
+}
+
 /// Maps a file into memory. The bag must not change while it is read (the usual contract of
 /// a mapped file); a bag still being recorded is read through its size at opening.
 pub(crate) fn map_file(path: &Path) -> Result<memmap2::Mmap, ImportError> {
@@ -205,7 +237,7 @@ fn visit_zstd_file(path: &Path, visitor: &mut dyn BagVisitor) -> Result<(), Impo
     match storage_of(&head[..n]) {
         Some(Storage::Mcap) => {
             let bytes = std::fs::read(&plain_path).map_err(|e| ImportError::io(path, e))?;
-            mcap_file::read_bytes(path, &bytes, visitor).map_err(rename)
+            mcap_file::read_bytes(path, &bytes, None, visitor).map_err(rename)
         }
         Some(Storage::Sqlite) => sqlite::read(&plain_path, visitor).map_err(rename),
         _ => Err(ImportError::Damaged {

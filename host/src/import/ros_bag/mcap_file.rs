@@ -20,16 +20,19 @@ pub fn is_mcap(head: &[u8]) -> bool {
 
 /// Reads the MCAP file at `path`, giving every message to `visitor`.
 pub fn read(path: &Path, visitor: &mut dyn BagVisitor) -> Result<(), ImportError> {
-    let bytes = super::map_file(path)?;
-    read_bytes(path, &bytes, visitor)
+    let map = super::map_file(path)?;
+    read_bytes(path, &map, Some(&map), visitor)
 }
 
-/// Reads MCAP bytes (a file's, or a whole-file-compressed bag's after decompression).
+/// Reads MCAP bytes (a file's, or a whole-file-compressed bag's after decompression);
+/// `map`, where the bytes are a mapped file, has its pages released as they are read.
 pub fn read_bytes(
     path: &Path,
     bytes: &[u8],
+    map: Option<&memmap2::Mmap>,
     visitor: &mut dyn BagVisitor,
 ) -> Result<(), ImportError> {
+    let mut release = super::PageRelease::new(map);
     let stream = mcap::MessageStream::new(bytes).map_err(|e| ImportError::Damaged {
         path: path.to_path_buf(),
         message: format!("not a readable MCAP file: {e}"),
@@ -63,6 +66,9 @@ pub fn read_bytes(
         let time = i128::from(message.log_time);
         last_time_ns = Some(time);
         visitor.message(topic, time, &message.data, Location::Message(index as u64))?;
+        // About the bytes the message took in the file (chunks compress; this only paces
+        // the release).
+        release.advance(message.data.len() + 32);
     }
     Ok(())
 }

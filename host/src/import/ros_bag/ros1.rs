@@ -148,7 +148,9 @@ fn text_field<'a>(fields: &[(&'a str, &'a [u8])], name: &str) -> Result<&'a str,
 
 /// Reads the bag at `path`, giving every message to `visitor` in file order.
 pub fn read(path: &Path, visitor: &mut dyn BagVisitor) -> Result<(), ImportError> {
-    let bytes = std::fs::read(path).map_err(|e| ImportError::io(path, e))?;
+    let map = super::map_file(path)?;
+    let bytes: &[u8] = &map;
+    let mut release = super::PageRelease::new(Some(&map));
     let corrupt = |offset: u64, message: String| ImportError::Corrupt {
         path: path.to_path_buf(),
         offset,
@@ -181,6 +183,7 @@ pub fn read(path: &Path, visitor: &mut dyn BagVisitor) -> Result<(), ImportError
         let record = record.map_err(|(at, m)| corrupt(base + at, m))?;
         let record = &record;
         let at = base + record.offset;
+        release.advance(record.data.len());
         match record.op() {
             Some(OP_CHUNK) => read_chunk(path, record, at, &mut connections, visitor)?,
             Some(OP_CONNECTION) => connections
