@@ -553,11 +553,24 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
         message,
     };
     let is_imu = |r: &ImuRecording| !axes_of(r).is_empty();
+    // A bag's topic, where the importer's notes name the one a sensor was made of.
+    let topic_of = |name: &str| {
+        notes.iter().find_map(|n| {
+            let (t, _) = n.split_once(": frame_id ")?;
+            (file_name_of_topic(t) == name).then(|| t.to_string())
+        })
+    };
     let imus: Vec<&str> = sensors
         .iter()
         .filter(|s| is_imu(&s.recording))
         .map(|s| s.name.as_str())
         .collect();
+    // What a user can pass to --topic: the IMUs' topics where they came from a bag.
+    let listed = imus
+        .iter()
+        .map(|name| topic_of(name).unwrap_or_else(|| name.to_string()))
+        .collect::<Vec<_>>()
+        .join(", ");
     let index = match topic {
         Some(topic) => {
             let wanted = file_name_of_topic(topic);
@@ -572,14 +585,13 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
                     .collect();
                 return Err(fail(match about.first() {
                     Some(note) => format!("topic {topic} gives no IMU: {note}"),
-                    None => format!("no topic or sensor {topic}; its IMUs: {}", imus.join(", ")),
+                    None => format!("no topic or sensor {topic}; its IMUs: {listed}"),
                 }));
             };
             if !is_imu(&sensors[k].recording) {
                 return Err(fail(format!(
-                    "topic {topic} holds {}, not IMU data (a reference topic: Odometry or NavSatFix, not sensor_msgs/Imu); its IMUs: {}",
+                    "topic {topic} holds {}, not IMU data (a reference topic: Odometry or NavSatFix, not sensor_msgs/Imu); its IMUs: {listed}",
                     crate::import::contents(&sensors[k].recording).join(", "),
-                    imus.join(", ")
                 )));
             }
             k
@@ -589,21 +601,16 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
             [] => return Err(fail("no IMU in it".into())),
             many => {
                 return Err(fail(format!(
-                    "{} IMUs, name one with --topic: {}",
-                    many.len(),
-                    many.join(", ")
+                    "{} IMUs, name one with --topic: {listed}",
+                    many.len()
                 )))
             }
         },
     };
+    let topic = topic
+        .map(str::to_string)
+        .or_else(|| topic_of(&sensors[index].name));
     let sensor = sensors.swap_remove(index);
-    // A bag's topic, where the importer's notes name the one the sensor was made of.
-    let topic = topic.map(str::to_string).or_else(|| {
-        notes.iter().find_map(|n| {
-            let (t, _) = n.split_once(": frame_id ")?;
-            (file_name_of_topic(t) == sensor.name).then(|| t.to_string())
-        })
-    });
     Ok(ChosenImu {
         name: sensor.name,
         topic,

@@ -166,7 +166,7 @@ fn noise_refuses_what_is_not_an_imu_naming_the_topic() {
     let bag = simulate_static_bag(dir.path(), 5.0, 1);
     let several = choose_imu(&bag, None).err().unwrap().to_string();
     assert!(
-        several.contains("2 IMUs, name one with --topic: mems-imu, reference-imu"),
+        several.contains("2 IMUs, name one with --topic: /mems/imu, /reference/imu"),
         "{several}"
     );
     let odometry = choose_imu(&bag, Some("/reference/odometry"))
@@ -182,7 +182,7 @@ fn noise_refuses_what_is_not_an_imu_naming_the_topic() {
         .unwrap()
         .to_string();
     assert!(
-        missing.contains("no topic or sensor /nothing; its IMUs: mems-imu, reference-imu"),
+        missing.contains("no topic or sensor /nothing; its IMUs: /mems/imu, /reference/imu"),
         "{missing}"
     );
     // Five seconds at rest: white noise only, and no imu.yaml without a random walk.
