@@ -619,6 +619,43 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
     })
 }
 
+/// The report page's summary: per axis, what goes into `imu.yaml` and what motion adds.
+fn summary_lines(report: &NoiseReport) -> Vec<String> {
+    let still_s: f64 = report
+        .stillness
+        .still
+        .iter()
+        .map(|s| s.to_s - s.from_s)
+        .sum();
+    let mut lines = vec![format!(
+        "{:.1} s at rest in {} stretch(es) of {:.1} s recorded",
+        still_s,
+        report.stillness.still.len(),
+        report.sampling.span_s
+    )];
+    for a in &report.axes {
+        let interval = |c: Option<[f64; 2]>| {
+            c.map_or(String::new(), |[lo, hi]| format!(" [{lo:.3e}, {hi:.3e}]"))
+        };
+        let walk = match a.random_walk {
+            Some((k, ci)) => format!("K {k:.3e}{} {}/s/sqrt(Hz)", interval(ci), a.unit),
+            None => "no random walk (none fitted)".to_string(),
+        };
+        let motion = a.motion_inflation.map_or(String::new(), |f| {
+            format!("; in motion {f:.2} times the noise at rest")
+        });
+        lines.push(format!(
+            "{} ({}): N {:.3e}{} {}/sqrt(Hz), {walk}{motion}",
+            a.channel,
+            a.fit.model,
+            a.noise_density.0,
+            interval(a.noise_density.1),
+            a.unit
+        ));
+    }
+    lines
+}
+
 /// The model file of a report: each axis' chosen model on its channel, with the fits beside.
 pub fn model_of(report: &NoiseReport) -> Result<crate::model::SimModel, serde_json::Error> {
     let fits: Vec<ChannelFit> = report.axes.iter().map(|a| a.fit.clone()).collect();
@@ -806,9 +843,12 @@ pub fn report_page(
         ]);
     }
     let svg = panels_svg("Allan deviation of each axis", &panels)?;
-    let section = Section::new("Noise at rest, and in motion")
-        .paragraph(format!("{}: {}.", report.imu, report.sampling))
-        .paragraph(report.notes.join(" "))
+    let mut section = Section::new("Noise at rest, and in motion")
+        .paragraph(format!("{}: {}.", report.imu, report.sampling));
+    for note in &report.notes {
+        section = section.paragraph(note.clone());
+    }
+    let section = section
         .table(Table {
             caption: "Per axis: the model the WIC chose on the still stretches, white-noise density N (unit/sqrt(Hz)), bias random walk K (unit/s/sqrt(Hz)) with 95% intervals, bias instability B (the Allan deviation's minimum / 0.664), the Allan deviation at 1 s, and the noise density in motion over at rest".into(),
             header: ["axis", "model", "N", "N 95%", "K", "K 95%", "B", "adev 1 s", "motion x"]
@@ -819,7 +859,7 @@ pub fn report_page(
         .figure("Allan deviation at rest (points, 95% interval), the fitted model (line), the Kalibr values' slopes and the white noise in motion (dashed)", svg);
     Ok(HtmlReport {
         title: format!("dynacal noise: {}", report.imu),
-        summary: table(report),
+        summary: summary_lines(report),
         sections: vec![section],
     })
 }

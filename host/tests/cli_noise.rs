@@ -98,6 +98,11 @@ fn a_simulated_bag_gives_kalibr_its_noise_and_the_model_exports_the_same() {
     assert!(yaml.contains("rostopic: /mems/imu"));
     let page = std::fs::read_to_string(dir.path().join("report/report.html")).unwrap();
     assert!(page.contains("<svg") && page.contains("Allan deviation"));
+    // The summary says per axis what goes into imu.yaml.
+    assert!(
+        page.contains("s at rest in 1 stretch(es)") && page.contains("gz ("),
+        "{page}"
+    );
     // The model file chains into `export`, which gives Kalibr the same numbers.
     ok(&dynacal(&[
         "export",
