@@ -107,9 +107,25 @@ impl Series {
 
     /// The Haar wavelet variance; integer raw values (counts) are processed exactly.
     pub fn wavelet_variance(&self, opts: &WvOptions) -> Result<WaveletVariance, WvError> {
-        match as_counts(&self.raw) {
-            Some(counts) => haar_wv_counts(&counts, self.scale, self.dt_s, opts),
-            None => haar_wv(&self.values(), self.dt_s, opts),
+        wavelet_variance_of(&self.raw, self.scale, self.dt_s, opts)
+    }
+}
+
+/// The Haar wavelet variance of `raw * scale` sampled every `dt_s` s: integer raw values
+/// (counts) are processed exactly ([`haar_wv_counts`]), other values as they are.
+pub fn wavelet_variance_of(
+    raw: &[f64],
+    scale: f64,
+    dt_s: f64,
+    opts: &WvOptions,
+) -> Result<WaveletVariance, WvError> {
+    match as_counts(raw) {
+        Some(counts) => haar_wv_counts(&counts, scale, dt_s, opts),
+        // x * 1.0 is x: no copy needed.
+        None if scale == 1.0 => haar_wv(raw, dt_s, opts),
+        None => {
+            let values: Vec<f64> = raw.iter().map(|v| v * scale).collect();
+            haar_wv(&values, dt_s, opts)
         }
     }
 }

@@ -33,6 +33,26 @@ pub mod wv;
 
 use std::path::PathBuf;
 
+/// An error and its causes joined by `: `, each cause said once: many errors already carry
+/// their cause's text in their own message (`{path}: {source}`), and printing the chain as
+/// it is would repeat it. What the command line prints after `dynacal: error:`, and the
+/// message of the Python package's `DynacalError`.
+pub fn error_message(error: &(dyn std::error::Error + 'static)) -> String {
+    let mut message = String::new();
+    let mut cause = Some(error);
+    while let Some(e) = cause {
+        let text = e.to_string();
+        if !message.contains(&text) {
+            if !message.is_empty() {
+                message.push_str(": ");
+            }
+            message.push_str(&text);
+        }
+        cause = e.source();
+    }
+    message
+}
+
 /// The measured-data folder: `$DYNACAL_DATA` if set, else `../shared/data` relative to the
 /// workspace root (the repository is checked out with `shared/` beside it).
 pub fn data_dir() -> PathBuf {

@@ -14,26 +14,8 @@ fn main() -> std::process::ExitCode {
     match cli::run(args) {
         Ok(()) => std::process::ExitCode::SUCCESS,
         Err(e) => {
-            eprintln!("dynacal: error: {}", error_message(&e));
+            eprintln!("dynacal: error: {}", dynacal::error_message(e.as_ref()));
             std::process::ExitCode::FAILURE
         }
     }
-}
-
-/// The error and its causes joined by `: `, each cause said once: many errors already carry
-/// their cause's text in their own message (`{path}: {source}`), and printing the chain as
-/// it is would repeat it.
-fn error_message(error: &anyhow::Error) -> String {
-    let mut message = String::new();
-    for cause in error.chain() {
-        let text = cause.to_string();
-        if message.contains(&text) {
-            continue;
-        }
-        if !message.is_empty() {
-            message.push_str(": ");
-        }
-        message.push_str(&text);
-    }
-    message
 }

@@ -101,11 +101,27 @@ pub fn fitted_model(
     requested_model: &str,
     fits: &[ChannelFit],
 ) -> Result<(SimModel, Vec<String>), serde_json::Error> {
+    fitted_model_of(
+        &recording_stem(file),
+        &file.display().to_string(),
+        requested_model,
+        fits,
+    )
+}
+
+/// As [`fitted_model`], for fits of series that came from `source` (a file's name, or a
+/// description where there is no file), their IMU named `imu`.
+pub fn fitted_model_of(
+    imu: &str,
+    source: &str,
+    requested_model: &str,
+    fits: &[ChannelFit],
+) -> Result<(SimModel, Vec<String>), serde_json::Error> {
     let specs: Vec<(String, ModelSpec)> = fits
         .iter()
         .map(|f| (f.channel.clone(), f.model_object.clone()))
         .collect();
-    let (mut model, unmapped) = SimModel::from_channel_models(&recording_stem(file), &specs);
+    let (mut model, unmapped) = SimModel::from_channel_models(imu, &specs);
     let mut notes = Vec::new();
     if !unmapped.is_empty() {
         notes.push(format!(
@@ -114,15 +130,14 @@ pub fn fitted_model(
         ));
     }
     model.comment = Some(format!(
-        "fitted by dynacal fit on {} (model {requested_model})",
-        file.display()
+        "fitted by dynacal fit on {source} (model {requested_model})"
     ));
     model.fit = Some(serde_json::to_value(FitRecord {
-        file: file.display().to_string(),
+        file: source.to_string(),
         requested_model,
         channels: fits,
     })?);
-    if let Err(e) = model.validate(file) {
+    if let Err(e) = model.validate(Path::new(source)) {
         notes.push(format!(
             "the fitted model will not load in `dynacal simulate`: {e}"
         ));

@@ -26,7 +26,9 @@ pub use cause::Cause;
 pub use dynacal_core::{Channel, SensorKind};
 pub use file::{ModelFileError, SimModel, MODEL_FILE_VERSION};
 pub use fitted::{imu_channel_of_name, imu_name_from};
-pub use fitting::{fit_file, fit_file_as, fitted_model, fitted_record_samples, FitFileError};
+pub use fitting::{
+    fit_file, fit_file_as, fitted_model, fitted_model_of, fitted_record_samples, FitFileError,
+};
 pub use gnss::{GnssBias, GnssModel, PpsModel};
 pub use imu::{
     BiasStep, ChannelModel, ClockModel, DynamicDriver, DynamicNoise, Effect, ImuModel, Outliers,
