@@ -10,6 +10,8 @@ checks that the tools agree numerically and prints ratios.
 Setup and run (from the repository root):
     python3 -m venv bench/.venv && bench/.venv/bin/pip install -r bench/requirements.txt
     bench/.venv/bin/python bench/wv_bench.py            # sizes 1e6 and 1e7
+The dynacal-python worker runs in the repository's .venv (scripts/setup installs the package
+there; DYNACAL_PYTHON overrides it).
 """
 import argparse
 import json
@@ -26,6 +28,7 @@ ROOT = os.path.dirname(HERE)
 DATA = os.path.join(HERE, ".data")
 SERIES = os.path.join(DATA, "series.f64")
 RATE_HZ = 100.0
+DYNACAL_PYTHON = os.environ.get("DYNACAL_PYTHON", os.path.join(ROOT, ".venv", "bin", "python"))
 
 
 def rss_mib(field):
@@ -61,10 +64,17 @@ def allantools_wv(x):
     return {int(mm): float(a) ** 2 / 2.0 for mm, a in zip(m, adev)}
 
 
+def dynacal_python_wv(x):
+    """The Python package (host/python): numpy array in, the library's WV out."""
+    import dynacal
+
+    return dynacal.wv(x, 1.0 / RATE_HZ).variance.tolist()
+
+
 def worker(tool, n, repeats):
     x = np.fromfile(SERIES, dtype="<f8", count=n)
     baseline = rss_mib("VmRSS:")
-    fn = {"numpy": numpy_haar_wv, "allantools": allantools_wv}[tool]
+    fn = {"numpy": numpy_haar_wv, "allantools": allantools_wv, "dynacal-python": dynacal_python_wv}[tool]
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
@@ -125,6 +135,9 @@ def main():
                         "--repeats", str(args.repeats)])
         alt = run_json([sys.executable, __file__, "--worker", "allantools", str(n),
                         "--repeats", str(args.repeats)])
+        # The package lives in the repository's .venv (scripts/setup), not bench/.venv.
+        pkg = run_json([DYNACAL_PYTHON, __file__, "--worker", "dynacal-python", str(n),
+                        "--repeats", str(args.repeats)])
         r = rust[os.cpu_count()]
         exact = r["exact_variance"]
         levels = r["levels"]
@@ -135,15 +148,20 @@ def main():
             "naive_f64_cumsum_vs_exact": r["naive_prefix_vs_exact_max_rel"],
             "numpy_cumsum_vs_exact": max_rel(npy["result"], exact),
             "allantools_vs_exact": max_rel(alt_wv, exact),
+            "dynacal_python_vs_exact": max_rel(pkg["result"], exact),
         }
         row = {"n": n, "levels": levels, "rust": rust, "numpy": {k: v for k, v in npy.items() if k != "result"},
-               "allantools": {k: v for k, v in alt.items() if k != "result"}, "max_rel_diff": agree}
+               "allantools": {k: v for k, v in alt.items() if k != "result"},
+               "dynacal_python": {k: v for k, v in pkg.items() if k != "result"}, "max_rel_diff": agree}
         results.append(row)
         t_rs, t_rs1 = r["f64_time_min_s"], rust[1]["f64_time_min_s"]
         print(f"\nN = {n:.0e} ({levels} levels), min of {args.repeats} runs")
         print(f"  dynacal haar_wv        {t_rs:8.4f} s  ({r['threads']} threads)  peak RSS {r['peak_rss_f64_mib']:.0f} MiB (data alone {r['baseline_rss_mib']:.0f})")
         print(f"  dynacal haar_wv        {t_rs1:8.4f} s  (1 thread)")
         print(f"  dynacal haar_wv_counts {r['counts_time_min_s']:8.4f} s  ({r['threads']} threads)")
+        overhead = pkg["time_min_s"] / r["input_path_time_min_s"] - 1.0
+        print(f"  dynacal from Python    {pkg['time_min_s']:8.4f} s  peak RSS {pkg['peak_rss_mib']:.0f} MiB (data alone {pkg['baseline_rss_mib']:.0f}); "
+              f"the same call in Rust {r['input_path_time_min_s']:.4f} s: the bindings add {100 * overhead:.1f}%")
         print(f"  numpy prefix-sum WV    {npy['time_min_s']:8.4f} s  peak RSS {npy['peak_rss_mib']:.0f} MiB (data alone {npy['baseline_rss_mib']:.0f})")
         print(f"  allantools.oadev       {alt['time_min_s']:8.4f} s  peak RSS {alt['peak_rss_mib']:.0f} MiB (data alone {alt['baseline_rss_mib']:.0f})")
         print(f"  speed-up vs numpy: {npy['time_min_s'] / t_rs:.1f}x ({npy['time_min_s'] / t_rs1:.1f}x on 1 thread); "
@@ -151,6 +169,7 @@ def main():
         print("  max relative difference from the exact (integer) WV: "
               + ", ".join(f"{k} {v:.1e}" for k, v in agree.items()))
         assert agree["dynacal_f64_vs_exact"] < 1e-9, "dynacal disagrees with exact"
+        assert agree["dynacal_python_vs_exact"] == 0.0, "the package's counts path is not exact"
         assert agree["numpy_cumsum_vs_exact"] < 1e-2 and agree["allantools_vs_exact"] < 1e-2, \
             "tools disagree: not computing the same quantity"
     with open(os.path.join(DATA, "results.json"), "w") as f:

@@ -3,11 +3,15 @@
 //! and prints one JSON object on stdout (times, peak memory, the variances, and the numerical
 //! error of each prefix-sum strategy against the exact integer computation).
 //!
+//! It also times `input::wavelet_variance_of`, the call the Python package's `dynacal.wv`
+//! makes, so that the script can state what the bindings add.
+//!
 //! `cargo run --release --example bench_wv -- FILE N REPEATS`
 //! The series holds integer counts stored as f64, so `haar_wv_counts` gives the exact answer.
 
 use std::time::Instant;
 
+use dynacal::input::wavelet_variance_of;
 use dynacal::wv::{haar_wv, haar_wv_counts, WvOptions};
 
 /// VmHWM / VmRSS of this process, MiB (Linux).
@@ -96,11 +100,17 @@ fn main() {
     let (counts_min, counts_median, exact) = time_min(repeats, || {
         haar_wv_counts(&counts, 1.0, dt_s, &opts).unwrap()
     });
+    // The call `dynacal.wv` makes from Python (the counts rule on a borrowed slice): the
+    // Rust time the bindings are measured against.
+    let (input_min, _, _) = time_min(repeats, || {
+        wavelet_variance_of(&x, 1.0, dt_s, &opts).unwrap()
+    });
     let naive = naive_prefix_wv(&x, wv.len() as u32);
     println!(
         "{{\"n\": {n}, \"threads\": {}, \"levels\": {}, \
          \"f64_time_min_s\": {f64_min}, \"f64_time_median_s\": {f64_median}, \
          \"counts_time_min_s\": {counts_min}, \"counts_time_median_s\": {counts_median}, \
+         \"input_path_time_min_s\": {input_min}, \
          \"baseline_rss_mib\": {baseline_mib}, \"peak_rss_f64_mib\": {peak_after_f64}, \
          \"f64_vs_exact_max_rel\": {}, \"naive_prefix_vs_exact_max_rel\": {}, \
          \"variance\": {:?}, \"exact_variance\": {:?}}}",

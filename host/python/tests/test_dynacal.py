@@ -1,9 +1,7 @@
 """The Python package against the command line on the same files, and on its own.
 
-The command line is the binary of this checkout (``DYNACAL_BIN``, by default
-``target/debug/dynacal``, which ``scripts/test`` builds before running these tests); the
-measured recordings come from ``DYNACAL_DATA`` (default ``../shared/data``). Every random
-series is seeded.
+The command line is the binary of this checkout and the measured recordings the shared data
+(``helpers``). Every random series is seeded.
 """
 
 import json
@@ -18,16 +16,7 @@ import pytest
 
 import dynacal
 
-ROOT = pathlib.Path(__file__).resolve().parents[3]
-BIN = pathlib.Path(os.environ.get("DYNACAL_BIN", ROOT / "target" / "debug" / "dynacal"))
-DATA = pathlib.Path(os.environ.get("DYNACAL_DATA", ROOT.parent / "shared" / "data"))
-
-
-def cli(*args):
-    """Runs the command line; its stdout, or the test fails with its stderr."""
-    done = subprocess.run([str(BIN), *map(str, args)], capture_output=True, text=True)
-    assert done.returncode == 0, f"dynacal {' '.join(map(str, args))}: {done.stderr}"
-    return done.stdout
+from helpers import BIN, DATA, ROOT, cli, relative_difference
 
 
 def write_interchange(path, t_s, columns, rate_hz):
@@ -55,11 +44,6 @@ def gyro_file(tmp_path_factory):
     path = tmp_path_factory.mktemp("gyro") / "unit.csv"
     write_interchange(path, np.arange(n) * dt_s, {"gx_rad_s": gx}, 100)
     return path
-
-
-def relative_difference(a, b):
-    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
-    return float(np.max(np.abs(a - b) / np.maximum(np.abs(b), 1e-300)))
 
 
 def test_wavelet_variance_equals_the_command_lines(gyro_file, tmp_path):

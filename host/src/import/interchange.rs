@@ -21,11 +21,15 @@ use crate::interchange::{
 const RATE_CHECK_ROWS: usize = 1 << 16;
 
 /// Whether `path` is an interchange recording: `t_s` and at least one other column of the
-/// format (a channel, attitude, position, velocity). A file that cannot be read as a table
-/// is not one.
+/// format (a channel, attitude, position, velocity). A text file that cannot be read as a
+/// table is not one; a Parquet file whose columns cannot be read (its footer is missing: a
+/// file cut short in a copy) is taken as one, so that reading it names that fault rather
+/// than calling the file unknown.
 pub(crate) fn is_interchange(path: &Path) -> bool {
-    headers(path)
-        .is_ok_and(|h| h.iter().any(|c| c == "t_s") && h.iter().any(|c| is_interchange_column(c)))
+    match headers(path) {
+        Ok(h) => h.iter().any(|c| c == "t_s") && h.iter().any(|c| is_interchange_column(c)),
+        Err(_) => parquet::is_parquet(path),
+    }
 }
 
 /// The columns of the recording at `path` that a conversion does not carry (not the
