@@ -5,6 +5,7 @@ workers, its numbers checked against the command line's fit of the same file.
 
 import json
 import math
+import pathlib
 import subprocess
 import sys
 
@@ -153,3 +154,50 @@ def test_the_fleet_refuses_what_it_cannot_do(tmp_path):
     done = run_fleet(tmp_path / "empty", tmp_path / "out", "--false-flag-rate", "2")
     assert done.returncode == 2 and "--false-flag-rate 2.0" in done.stderr
     assert not (tmp_path / "out" / "fleet.parquet").exists()
+
+
+def free_port():
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_the_same_command_runs_on_a_running_cluster_by_its_address(tmp_path):
+    """A scheduler and a worker started as their own processes (as on a remote cluster):
+    the fleet reaches them by address and gets the same verdicts as a local run."""
+    import pandas as pd
+
+    lot = tmp_path / "lot"
+    write_lot(simulate_lot(12, 1800.0, {3: ("wn_sigma2", 9.0)}, seed=5), lot)
+    address = f"tcp://127.0.0.1:{free_port()}"
+    bin_dir = pathlib.Path(sys.executable).parent
+    scheduler = subprocess.Popen(
+        [str(bin_dir / "dask"), "scheduler", "--host", "127.0.0.1", "--port", address.rsplit(":", 1)[1],
+         "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    worker = subprocess.Popen(
+        [str(bin_dir / "dask"), "worker", address, "--nworkers", "1", "--nthreads", "1",
+         "--no-dashboard"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        from dask.distributed import Client
+
+        with Client(address, timeout=60) as client:
+            client.wait_for_workers(1, timeout=60)
+        remote = run_fleet(lot, tmp_path / "remote", "--scheduler", address)
+        assert remote.returncode == 0, remote.stderr
+        assert f"Dask cluster at {address}" in remote.stdout
+    finally:
+        worker.terminate()
+        scheduler.terminate()
+        worker.wait(30)
+        scheduler.wait(30)
+    local = run_fleet(lot, tmp_path / "local", "--engine", "local", "--workers", "1")
+    assert local.returncode == 0, local.stderr
+    a = pd.read_parquet(tmp_path / "remote" / "fleet.parquet")
+    b = pd.read_parquet(tmp_path / "local" / "fleet.parquet")
+    pd.testing.assert_frame_equal(a, b)
+    # Twelve units know their spread too poorly to flag even a 3x white noise at a 1% lot
+    # rate (Student t of 4 degrees of freedom), but it stands out as the largest z.
+    gx = a[a["channel"] == "gx"].set_index("file")
+    assert gx["wn_sigma2_z"].idxmax() == "unit003.parquet" and gx["wn_sigma2_z"].max() > 5

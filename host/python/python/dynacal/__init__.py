@@ -21,6 +21,13 @@ import numpy as np
 from . import _dynacal
 from ._dynacal import DynacalError
 
+try:
+    from importlib.metadata import version as _version
+
+    __version__ = _version("dynacal")
+except Exception:  # noqa: BLE001 - not installed as a distribution (a bare build tree)
+    __version__ = "unknown"
+
 __all__ = [
     "AllanVariance",
     "DynacalError",
