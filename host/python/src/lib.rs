@@ -165,20 +165,27 @@ fn py_recording<'py>(
 
 /// Every sensor of a file dynacal reads: a dataset `dynacal import` knows (interchange CSV,
 /// CSV.gz or Parquet; ROS bags; PX4 ULog; ArduPilot DataFlash; Xsens DOT; the shared
-/// datasets), else a board log (`dynacal decode`). A list of `(name, columns, rate)`.
+/// datasets), else a board log (`dynacal decode`). The list of `(name, columns, rate)`, and
+/// what the importer found worth telling (a ROS bag's topics left out and why), which the
+/// command line prints and the Python layer raises as warnings.
 #[pyfunction]
-fn read(py: Python<'_>, path: PathBuf) -> PyResult<Vec<PyRecording<'_>>> {
-    let sensors = py.detach(|| read_sensors(&path))?;
-    sensors
+fn read(py: Python<'_>, path: PathBuf) -> PyResult<(Vec<PyRecording<'_>>, Vec<String>)> {
+    let (sensors, notes) = py.detach(|| read_sensors(&path))?;
+    let recordings = sensors
         .into_iter()
         .map(|(name, rec)| py_recording(py, name, &rec))
-        .collect()
+        .collect::<PyResult<_>>()?;
+    Ok((recordings, notes))
 }
 
-fn read_sensors(path: &Path) -> PyResult<Vec<(String, ImuRecording)>> {
+/// The sensors a file holds, and the importer's notes on it.
+type Sensors = (Vec<(String, ImuRecording)>, Vec<String>);
+
+fn read_sensors(path: &Path) -> PyResult<Sensors> {
     if let Some(dataset) = detect(path).map_err(|e| raise(&e))? {
-        let (sensors, _notes) = import_file_noted(path, dataset).map_err(|e| raise(&e))?;
-        return Ok(sensors.into_iter().map(|s| (s.name, s.recording)).collect());
+        let (sensors, notes) = import_file_noted(path, dataset).map_err(|e| raise(&e))?;
+        let sensors = sensors.into_iter().map(|s| (s.name, s.recording)).collect();
+        return Ok((sensors, notes));
     }
     // Not a dataset's file: a board log, or nothing dynacal reads.
     let log = decode_file(path).map_err(|e| raise(&e))?;
@@ -190,12 +197,13 @@ fn read_sensors(path: &Path) -> PyResult<Vec<(String, ImuRecording)>> {
             dynacal::error_message(&e)
         ))
     })?;
-    Ok(log
+    let sensors = log
         .imus
         .iter()
         .filter(|imu| !imu.is_empty())
         .map(|imu| (format!("imu{}", imu.config.imu_id), imu.to_recording()))
-        .collect())
+        .collect();
+    Ok((sensors, Vec::new()))
 }
 
 /// A recording from named interchange columns (`t_s`, `gx_rad_s`, ...), checked as a file

@@ -260,3 +260,14 @@ def test_the_documented_example_runs_in_a_fresh_environment(tmp_path):
     assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10000
     model = json.loads((tmp_path / "gyro-model.json").read_text())
     assert model["imus"][0]["channels"]["gx"]["stochastic"]["model"] == "WN+RW"
+
+
+def test_read_of_a_bag_warns_what_the_command_line_prints():
+    bag = ROOT / "tests" / "ros" / "ros1-plain.bag"
+    with pytest.warns(dynacal.DynacalWarning) as caught:
+        recordings = dynacal.read(bag)
+    notes = [str(w.message) for w in caught]
+    assert all(n.startswith(str(bag)) and not n.startswith(f"{bag}: {bag}") for n in notes)
+    assert any("/odom_imu/imu: skipped, not a sensor" in n for n in notes)
+    assert any("/imu/messy: 2 messages whose stamp is not after every earlier one" in n for n in notes)
+    assert {"imu-data", "imu-messy"} <= {r.name for r in recordings}

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
@@ -31,6 +32,7 @@ except Exception:  # noqa: BLE001 - not installed as a distribution (a bare buil
 __all__ = [
     "AllanVariance",
     "DynacalError",
+    "DynacalWarning",
     "Fit",
     "Parameter",
     "Recording",
@@ -345,11 +347,20 @@ def _wv_json(w: WaveletVariance) -> str:
     )
 
 
+class DynacalWarning(UserWarning):
+    """What dynacal found worth telling about an input it read (a ROS bag's topics left out
+    and why), as the command line prints it."""
+
+
 def read(path: Union[str, os.PathLike]) -> List[Recording]:
     """Every sensor of a file dynacal reads: an interchange recording (CSV, CSV.gz,
     Parquet), a ROS bag's Imu topics, a PX4 ULog, an ArduPilot DataFlash log, an Xsens DOT
-    export, a shared dataset, or a dynacal board log; one :class:`Recording` each."""
-    return [_recording(r) for r in _dynacal.read(os.fspath(path))]
+    export, a shared dataset, or a dynacal board log; one :class:`Recording` each. The
+    importer's notes on the file are raised as :class:`DynacalWarning`."""
+    raws, notes = _dynacal.read(os.fspath(path))
+    for note in notes:
+        warnings.warn(f"{os.fspath(path)}: {note}", DynacalWarning, stacklevel=2)
+    return [_recording(r) for r in raws]
 
 
 @dataclass(frozen=True)

@@ -35,8 +35,9 @@ def fit_wavelet_variance(
 ) -> str:
     """GMWM fit of one wavelet variance: JSON ``{"fit": ..., "model": ..., "notes": [...]}``."""
 
-def read(path: str) -> List[RawRecording]:
-    """Every sensor of a file dynacal reads (datasets, interchange, flight logs, board logs)."""
+def read(path: str) -> Tuple[List[RawRecording], List[str]]:
+    """Every sensor of a file dynacal reads (datasets, interchange, flight logs, board logs),
+    and the importer's notes on the file."""
 
 def redundancy(
     units: List[Tuple[str, List[Tuple[str, npt.NDArray[np.float64]]], Optional[float]]],
