@@ -328,7 +328,12 @@ pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputEr
                 (prefix, s.recording, RowLines::Unknown)
             })
             .collect();
-        from_recordings(path, args, recordings)?
+        let read = from_recordings(path, args, recordings);
+        if dataset == crate::import::Dataset::RosBag {
+            read.map_err(|e| bag_hint(path, e))?
+        } else {
+            read?
+        }
     } else {
         from_columns(path, args, &header)?
     };
@@ -351,6 +356,25 @@ pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputEr
         }
     }
     Ok(series)
+}
+
+/// A bag's message stamps jitter and pause, which the wavelet variance of a series cannot
+/// take; `dynacal noise` judges them (stillness, gaps, the sampling) and reads the noise of
+/// the still stretches, so an error on a bag's sampling points there.
+fn bag_hint(path: &Path, error: InputError) -> InputError {
+    match error {
+        InputError::Format { path: p, message } if message.contains("column `t_s`") => {
+            InputError::Format {
+                path: p,
+                message: format!(
+                    "{message}; a bag's stamps are read by `dynacal noise {} --topic TOPIC`, \
+                     which finds its still stretches and gaps",
+                    path.display()
+                ),
+            }
+        }
+        other => other,
+    }
 }
 
 /// The column names of a CSV's header row or of a Parquet file.

@@ -2,8 +2,12 @@
 //! `dynacal fit`, the fitted model exported to Kalibr, PX4 and ArduPilot; and a model of
 //! several IMUs refused without `--imu`, writing nothing.
 
+mod kalibr_yaml;
+
 use std::path::Path;
 use std::process::Command;
+
+use kalibr_yaml::kalibr_value;
 
 fn dynacal(args: &[&str]) -> std::process::Output {
     let out = Command::new(env!("CARGO_BIN_EXE_dynacal"))
@@ -19,15 +23,6 @@ fn ok(out: &std::process::Output) {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-}
-
-/// The value of `key: value` in a Kalibr file.
-fn kalibr_value(text: &str, key: &str) -> f64 {
-    text.lines()
-        .find_map(|l| l.strip_prefix(&format!("{key}:")))
-        .and_then(|v| v.split('#').next())
-        .map(|v| v.trim().parse().unwrap())
-        .unwrap_or_else(|| panic!("no {key} in\n{text}"))
 }
 
 #[test]

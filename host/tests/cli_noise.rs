@@ -4,8 +4,12 @@
 //! memory from bag to `imu.yaml` against the Python pipeline people run (`rosbags` +
 //! `allantools`, `bench/noise_bag_peer.py`) in the same run.
 
+mod kalibr_yaml;
+
 use std::path::Path;
 use std::process::Command;
+
+use kalibr_yaml::kalibr_value;
 
 fn dynacal(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_dynacal"))
@@ -23,12 +27,35 @@ fn ok(out: &std::process::Output) -> String {
     String::from_utf8_lossy(&out.stdout).into_owned()
 }
 
-fn kalibr_value(text: &str, key: &str) -> f64 {
-    text.lines()
-        .find_map(|l| l.strip_prefix(&format!("{key}:")))
-        .and_then(|v| v.split('#').next())
-        .map(|v| v.trim().parse().unwrap())
-        .unwrap_or_else(|| panic!("no {key} in\n{text}"))
+/// `wv` on the shared real bag (an Xsens unit whose stamps jitter and pause): refused with
+/// the place in the file, pointing to `noise --topic`, which reads a bag's stamps; nothing
+/// written.
+#[test]
+fn wv_on_a_bags_uneven_stamps_points_to_noise() {
+    let bag = dynacal::data_dir().join("ros-bags/xsens-test1.bag");
+    if !bag.exists() {
+        eprintln!("SKIPPED: {} not found (set DYNACAL_DATA)", bag.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let json = dir.path().join("wv.json");
+    let out = dynacal(&[
+        "wv",
+        bag.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    for expected in [
+        "xsens-test1.bag",
+        "column `t_s`",
+        "dynacal noise",
+        "--topic",
+    ] {
+        assert!(stderr.contains(expected), "{expected} missing: {stderr}");
+    }
+    assert!(!json.exists());
 }
 
 /// A static MEMS unit at 100 Hz: gyro white noise 1e-5 (rad/s)^2 and random walk 4e-11 per
