@@ -126,13 +126,15 @@ impl DesignRows<'_> {
     pub fn moments(&self, channel: usize, y: &[f64]) -> DVector<f64> {
         let p = self.parameters();
         let w = self.weight(channel);
-        let mut xtwy = DVector::<f64>::zeros(p);
+        // Summed in a fixed array: the diagnosis takes these moments of every simulated
+        // series, and a vector's checked indexing kept the loop from being vectorised.
+        let mut xtwy = [0.0; MAX_PARAMETERS];
         for (x, v) in self.rows(channel).zip(y) {
-            for a in 0..p {
-                xtwy[a] += w * x[a] * v;
+            for (sum, x) in xtwy.iter_mut().zip(&x) {
+                *sum += w * x * v;
             }
         }
-        xtwy
+        DVector::from_column_slice(&xtwy[..p])
     }
     /// Moments X' W y of series on all channels at once.
     pub fn moments_all(&self, y: &[Option<&[f64]>; 6]) -> DVector<f64> {

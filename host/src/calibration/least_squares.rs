@@ -64,6 +64,7 @@ pub(super) struct Solution {
 }
 
 /// Row `i` of [`skew`]`(v)`.
+#[inline]
 fn skew_row(v: &Vector3<f64>, i: usize) -> [f64; 3] {
     match i {
         0 => [0.0, -v.z, v.y],
@@ -77,6 +78,8 @@ fn skew_row(v: &Vector3<f64>, i: usize) -> [f64; 3] {
 /// asks for one channel's rows at a time, and the calibration's normal equations for every
 /// epoch's, many times over, so it is written out in scalars (the lever arm's skew(omega_dot) +
 /// skew(omega)^2 row is skew(omega_dot)'s row plus omega_i omega_j - |omega|^2 delta_ij).
+/// Inlined into its loops, where most of the row is known zeros.
+#[inline]
 pub(super) fn design_row(
     layout: &Layout,
     omega_rad_s: &Vector3<f64>,

@@ -242,23 +242,38 @@ pub struct Outliers {
 
 /// The median of `x` over a centred window of `window` samples (odd) at every index, the
 /// window shortened at the ends (the upper median where it holds an even count). A sorted
-/// copy of the window is kept and moved one sample at a time: a removal and an insertion
-/// found by bisection, instead of a selection over a fresh copy at every index (which took
-/// a seventh of a diagnosis). Written here: it is a dozen lines, and it must order as
+/// copy of the window is kept and moved one sample at a time, instead of a selection over
+/// a fresh copy at every index (which took a seventh of a diagnosis). Written here: it is a dozen lines, and it must order as
 /// `f64::total_cmp` does, so that its medians are exactly the selection's.
 fn running_median(x: &[f64], window: usize) -> Vec<f64> {
     let h = window / 2;
     let mut sorted: Vec<f64> = x[..h.min(x.len())].to_vec();
     sorted.sort_unstable_by(f64::total_cmp);
+    let position = |sorted: &[f64], v: f64| sorted.partition_point(|s| s.total_cmp(&v).is_lt());
     (0..x.len())
         .map(|i| {
-            if let Some(&entering) = x.get(i + h) {
-                let at = sorted.partition_point(|v| v.total_cmp(&entering).is_lt());
-                sorted.insert(at, entering);
-            }
-            if let Some(leaving) = i.checked_sub(h + 1).map(|j| x[j]) {
-                let at = sorted.partition_point(|v| v.total_cmp(&leaving).is_lt());
-                sorted.remove(at);
+            let entering = x.get(i + h).copied();
+            let leaving = i.checked_sub(h + 1).map(|j| x[j]);
+            match (entering, leaving) {
+                // Inside the series: the entering sample takes the leaving one's place and
+                // moves to its own (an insertion sort's step, a few swaps on a short window).
+                (Some(entering), Some(leaving)) => {
+                    let mut at = position(&sorted, leaving);
+                    sorted[at] = entering;
+                    while at > 0 && sorted[at - 1].total_cmp(&entering).is_gt() {
+                        sorted.swap(at - 1, at);
+                        at -= 1;
+                    }
+                    while at + 1 < sorted.len() && sorted[at + 1].total_cmp(&entering).is_lt() {
+                        sorted.swap(at, at + 1);
+                        at += 1;
+                    }
+                }
+                (Some(entering), None) => sorted.insert(position(&sorted, entering), entering),
+                (None, Some(leaving)) => {
+                    sorted.remove(position(&sorted, leaving));
+                }
+                (None, None) => {}
             }
             sorted[sorted.len() / 2]
         })
