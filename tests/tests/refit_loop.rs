@@ -205,16 +205,26 @@ fn a_refitted_model_makes_the_boards_filter_consistent_where_the_built_in_one_is
     );
     assert!(bad[1] > 9.0, "built-in {bad:?}");
 
-    // AND a damaged blob is refused with its reason, and the board runs as with none
+    // AND a damaged blob is refused with its reason, and the board runs as with none: on a
+    // drive of its own, long enough for the filter to start, short enough for the two runs
+    // to cost a fifth of one run of the long drive
     let mut damaged = blob.clone();
     damaged[blob.len() / 2] ^= 0x40;
     std::fs::write(&blob_path, &damaged).unwrap();
-    let again_log = dir.path().join("damaged.log");
-    let run = run_replay_in_qemu(&elf, &input, &again_log, Some(&blob_path)).unwrap();
+    let short_dir = dir.path().join("short");
+    std::fs::create_dir(&short_dir).unwrap();
+    let (_, short_input) = dynacal_tests::simulated_drive(&model, 90.0, seed, &short_dir);
+    let (none_log, again_log) = (short_dir.join("none.log"), short_dir.join("damaged.log"));
+    run_replay_in_qemu(&elf, &short_input, &none_log, None).unwrap();
+    let run = run_replay_in_qemu(&elf, &short_input, &again_log, Some(&blob_path)).unwrap();
     assert!(run.stderr.contains("refused: damaged"), "{}", run.stderr);
-    let again = decode_file(&again_log).unwrap();
+    let (none, again) = (
+        decode_file(&none_log).unwrap(),
+        decode_file(&again_log).unwrap(),
+    );
+    assert!(!none.filter.is_empty(), "the filter never started in 90 s");
     assert!(
-        again.filter == built_in.filter && again.noise == built_in.noise,
+        again.filter == none.filter && again.noise == none.noise,
         "the board ran differently with a refused blob than with none"
     );
 }
