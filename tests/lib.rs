@@ -50,51 +50,39 @@ impl CostCore {
     }
 }
 
-/// Builds the firmware cost bench `firmware/src/bin/{bin}.rs` for the Cortex-M4F (release,
-/// `board-replay`, into `target/firmware-e2e`), runs it in QEMU with `-icount shift=0`
-/// (deterministic instruction counts) and returns what it printed on semihosting stderr;
-/// panics when the build or the run fails. None, after saying so, when qemu-system-arm is
-/// absent, except in CI (`CI` or `DYNACAL_REQUIRE_QEMU` set), where that panics.
+/// Builds the firmware cost bench `firmware/src/bin/{bin}.rs` for the Cortex-M4F as its
+/// board runs (`board-replay`, the `firmware` profile, into [`FIRMWARE_TARGET_DIR`]: the
+/// replay board's build, which builds every bench beside its image), runs it in QEMU with
+/// `-icount shift=0` (deterministic instruction counts) and returns what it printed on
+/// semihosting stderr; panics when the build or the run fails. None, after saying so, when
+/// qemu-system-arm is absent, except in CI (`CI` or `DYNACAL_REQUIRE_QEMU` set), where that
+/// panics.
+///
+/// [`FIRMWARE_TARGET_DIR`]: dynacal::replay::FIRMWARE_TARGET_DIR
 pub fn run_cost_bench(bin: &str) -> Option<String> {
     run_cost_bench_on(bin, CostCore::M4F).map(|(stderr, _)| stderr)
 }
 
-/// As [`run_cost_bench`], on `core`; also returns the ELF's path.
+/// As [`run_cost_bench`], on `core` (the Cortex-M3 bench built as the fixed-point board's
+/// firmware is, `board-replay,fixed-point`); also returns the ELF's path.
 pub fn run_cost_bench_on(bin: &str, core: CostCore) -> Option<(String, PathBuf)> {
-    use dynacal::replay::workspace_root;
+    use dynacal::replay::{build_firmware_for, workspace_root, FIRMWARE_TARGET_DIR};
     use std::process::Command;
 
     if !qemu_or_skip() {
         return None;
     }
-    let root = workspace_root();
-    let target_dir = root.join("target/firmware-e2e");
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let build = Command::new(cargo)
-        .current_dir(&root)
-        .args([
-            "build",
-            "-p",
-            "dynacal-firmware",
-            "--release",
-            "--target",
-            core.target(),
-            "--features",
-            "board-replay",
-            "--bin",
-            bin,
-            "--target-dir",
-        ])
-        .arg(&target_dir)
-        .output()
-        .expect("run cargo");
-    assert!(
-        build.status.success(),
-        "building {bin} for {} failed (target installed? run scripts/setup):\n{}",
+    let features = match core {
+        CostCore::M4F => "board-replay",
+        CostCore::M3 => "board-replay,fixed-point",
+    };
+    let image = build_firmware_for(
+        &workspace_root().join(FIRMWARE_TARGET_DIR),
+        features,
         core.target(),
-        String::from_utf8_lossy(&build.stderr)
-    );
-    let elf = target_dir.join(core.target()).join("release").join(bin);
+    )
+    .unwrap_or_else(|e| panic!("building {bin} for {}: {e}", core.target()));
+    let elf = image.with_file_name(bin);
     let run = Command::new("timeout")
         .arg("300")
         .arg("qemu-system-arm")

@@ -6,8 +6,9 @@
 //! and for the Cortex-M3 (`thumbv7m-none-eabi`, no FPU: every float operation a library
 //! call), so the same run compares fixed point with software floats.
 //!
-//! Run: `cargo run -p dynacal-firmware --release --target thumbv7em-none-eabihf
-//! --features board-replay --bin ekf_cost` (or `--target thumbv7m-none-eabi`). Prints one
+//! Run: `cargo run -p dynacal-firmware --profile firmware --target thumbv7em-none-eabihf
+//! --features board-replay --bin ekf_cost` (or `--target thumbv7m-none-eabi --features
+//! board-replay,fixed-point`, as the fixed-point board is built). Prints one
 //! `key=value` line per measurement on semihosting stderr and exits 0 (a panic or fault
 //! exits non-zero, so QEMU never hangs).
 #![cfg_attr(target_os = "none", no_std)]
@@ -310,8 +311,8 @@ mod bare_metal {
 #[cfg(not(target_os = "none"))]
 fn main() {
     eprintln!(
-        "ekf_cost runs on a Cortex-M4F or M3: cargo run -p dynacal-firmware --release \
-         --target thumbv7em-none-eabihf (or thumbv7m-none-eabi) --features board-replay \
+        "ekf_cost runs on a Cortex-M4F or M3: cargo run -p dynacal-firmware --profile \
+         firmware --target thumbv7em-none-eabihf (or thumbv7m-none-eabi) --features board-replay \
          --bin ekf_cost"
     );
     std::process::exit(2);

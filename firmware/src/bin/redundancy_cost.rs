@@ -12,7 +12,7 @@
 //! fault-free, then with a bias step on one unit's gyros and accelerometers: while the
 //! monitors gather the step's evidence (the confirmation window) and after, with the unit out.
 //!
-//! Run: `cargo run -p dynacal-firmware --release --target thumbv7em-none-eabihf
+//! Run: `cargo run -p dynacal-firmware --profile firmware --target thumbv7em-none-eabihf
 //! --features board-replay --bin redundancy_cost`. Prints `redundancy-cost key=value ...`
 //! lines on semihosting stderr and exits 0 (a panic or fault exits non-zero, so QEMU never
 //! hangs):
@@ -425,8 +425,8 @@ mod bare_metal {
 #[cfg(not(target_os = "none"))]
 fn main() {
     eprintln!(
-        "redundancy_cost runs on a Cortex-M4F: cargo run -p dynacal-firmware --release \
-         --target thumbv7em-none-eabihf --features board-replay --bin redundancy_cost"
+        "redundancy_cost runs on a Cortex-M4F: cargo run -p dynacal-firmware --profile \
+         firmware --target thumbv7em-none-eabihf --features board-replay --bin redundancy_cost"
     );
     std::process::exit(2);
 }
