@@ -29,6 +29,13 @@ mod bare_metal {
     static RUN_STATE: ConstStaticCell<RunState> = ConstStaticCell::new(RunState::new());
 
     #[entry]
+    #[cfg_attr(
+        feature = "board-replay",
+        allow(
+            clippy::needless_borrow,
+            reason = "the replay board's sink is a reference already, the real board's a value"
+        )
+    )]
     fn main() -> ! {
         // Before anything else runs deep: the run report states the deepest the stack went.
         crate::stack::paint();
