@@ -44,6 +44,15 @@ impl CostCore {
         }
     }
 
+    /// The firmware's features for the board: the replay board's, and on the core without an
+    /// FPU the fixed-point filter's, as that board is built.
+    pub fn features(self) -> &'static str {
+        match self {
+            CostCore::M4F => "board-replay",
+            CostCore::M3 => "board-replay,fixed-point",
+        }
+    }
+
     /// QEMU's arguments for the board, `-icount shift=0` included.
     fn qemu_args(self) -> [&'static str; 11] {
         dynacal::replay::qemu_board_args(self.target())
@@ -72,13 +81,9 @@ pub fn run_cost_bench_on(bin: &str, core: CostCore) -> Option<(String, PathBuf)>
     if !qemu_or_skip() {
         return None;
     }
-    let features = match core {
-        CostCore::M4F => "board-replay",
-        CostCore::M3 => "board-replay,fixed-point",
-    };
     let image = build_firmware_for(
         &workspace_root().join(FIRMWARE_TARGET_DIR),
-        features,
+        core.features(),
         core.target(),
     )
     .unwrap_or_else(|e| panic!("building {bin} for {}: {e}", core.target()));

@@ -126,8 +126,8 @@ impl DesignRows<'_> {
     pub fn moments(&self, channel: usize, y: &[f64]) -> DVector<f64> {
         let p = self.parameters();
         let w = self.weight(channel);
-        // Summed in a fixed array: the diagnosis takes these moments of every simulated
-        // series, and a vector's checked indexing kept the loop from being vectorised.
+        // Summed in a fixed array, without a vector's checked indexing: the diagnosis takes
+        // these moments of every simulated series.
         let mut xtwy = [0.0; MAX_PARAMETERS];
         for (x, v) in self.rows(channel).zip(y) {
             for (sum, x) in xtwy.iter_mut().zip(&x) {

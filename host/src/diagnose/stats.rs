@@ -243,8 +243,9 @@ pub struct Outliers {
 /// The median of `x` over a centred window of `window` samples (odd) at every index, the
 /// window shortened at the ends (the upper median where it holds an even count). A sorted
 /// copy of the window is kept and moved one sample at a time, instead of a selection over
-/// a fresh copy at every index (which took a seventh of a diagnosis). Written here: it is a dozen lines, and it must order as
-/// `f64::total_cmp` does, so that its medians are exactly the selection's.
+/// a fresh copy at every index (which took a seventh of a diagnosis). Written here: it is a
+/// dozen lines, and it must order as `f64::total_cmp` does, so that its medians are exactly
+/// the selection's.
 fn running_median(x: &[f64], window: usize) -> Vec<f64> {
     let h = window / 2;
     let mut sorted: Vec<f64> = x[..h.min(x.len())].to_vec();
@@ -326,9 +327,6 @@ pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
 /// correlation time much longer than the window barely moves it, so at short windows steps
 /// stand out from slow noise that a whole-run CUSUM cannot tell them from.
 pub fn local_steps(x: &[f64], window: usize) -> Vec<f64> {
-    if window == 0 || x.len() < 2 * window {
-        return Vec::new();
-    }
     PrefixSums::of(x).local_steps(window).collect()
 }
 
@@ -348,12 +346,19 @@ impl PrefixSums {
         Self(prefix)
     }
 
-    /// [`local_steps`] at `window` (at least 1, at most half the series).
+    /// [`local_steps`] at `window`: none when the window is empty or longer than half the
+    /// series.
     fn local_steps(&self, window: usize) -> impl Iterator<Item = f64> + '_ {
         let prefix = &self.0;
         let n = prefix.len() - 1;
         let l = window as f64;
-        (window..=n - window)
+        // An empty window, or one longer than half the series, leaves no index.
+        let last = if window == 0 {
+            0
+        } else {
+            (n + 1).saturating_sub(window)
+        };
+        (window..last)
             .map(move |k| ((prefix[k + window] - prefix[k]) - (prefix[k] - prefix[k - window])) / l)
     }
 }
@@ -405,7 +410,7 @@ pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<
     let prefix = PrefixSums::of(x);
     let mut best: Option<LocalStep> = None;
     for (&w, &sd) in windows.iter().zip(null_sd) {
-        if !(sd > 0.0) || w == 0 || n < 2 * w {
+        if !(sd > 0.0) {
             continue;
         }
         for (i, d) in prefix.local_steps(w).enumerate() {
@@ -487,9 +492,6 @@ pub fn local_step_null_sd<S: SeriesSet + ?Sized>(series: &S, windows: &[usize]) 
         windows
             .iter()
             .map(|&w| {
-                if w == 0 || s.len() < 2 * w {
-                    return (0.0, 0);
-                }
                 prefix
                     .local_steps(w)
                     .fold((0.0, 0usize), |(ss, count), d| (ss + d * d, count + 1))
