@@ -120,6 +120,10 @@ pub struct NavSimReport {
     pub attitude_rms_deg: f64,
     /// Mean NEES of position, velocity and attitude (9 states), every [`NEES_EVERY_S`].
     pub nees_mean: f64,
+    /// The same of each block alone, position, velocity and attitude (3 states each, so 3
+    /// for a consistent filter), at the same samples: which part of the state a NEES off
+    /// its dimension comes from.
+    pub nees_mean_by_block: [f64; 3],
     /// Two-sided 95% bounds of that mean for a consistent filter: a chi-square matched to
     /// the mean's variance that the filter's own closed-loop error correlation between the
     /// samples predicts ([`consistency::ClosedLoop`]); the independent samples' bounds
@@ -371,6 +375,7 @@ fn run_with<T: FilterScalar>(
     let (mut with_gnss, mut in_outage, mut attitude) =
         (Rms::default(), Rms::default(), Rms::default());
     let mut nees_series = Vec::new();
+    let mut block_sums: Vec<[f64; 3]> = Vec::new();
     let mounts = extra_unit_mounts(&drive.board_model());
     let mut calibration_nees = Vec::new();
     let mut still_speed_max_m_s = 0.0f64;
@@ -421,6 +426,9 @@ fn run_with<T: FilterScalar>(
             calibration_nees.extend(calibration_nees_of(filter, &mounts));
             if let Some(nees) = error.nees(filter) {
                 nees_series.push(nees);
+                if let Some(blocks) = error.nees_by_block(filter) {
+                    block_sums.push(blocks);
+                }
                 if let Some((tracker, _)) = &mut closed_loop {
                     tracker.sample();
                 }
@@ -441,6 +449,9 @@ fn run_with<T: FilterScalar>(
         position_rms_outage_m: in_outage.value(),
         attitude_rms_deg: attitude.value(),
         nees_mean: nees_series.iter().sum::<f64>() / nees_series.len().max(1) as f64,
+        nees_mean_by_block: core::array::from_fn(|b| {
+            block_sums.iter().map(|s| s[b]).sum::<f64>() / block_sums.len().max(1) as f64
+        }),
         nees_bounds: nees_bounds(judged.0),
         nees_samples: nees_series.len() as u64,
         nees_effective_samples: judged.0,
@@ -631,6 +642,23 @@ impl NavError {
         );
         let cholesky = block.cholesky()?;
         Some(e.dot(&cholesky.solve(&e)))
+    }
+
+    /// The NEES of position, velocity and attitude each against its own 3 x 3 covariance
+    /// block; None if a block is not positive definite.
+    fn nees_by_block<T: FilterScalar>(&self, filter: &FusionFilter<T>) -> Option<[f64; 3]> {
+        let p = filter.ekf.covariance_f64();
+        let errors = [
+            self.position_ned_m,
+            self.velocity_ned_m_s,
+            self.attitude_rad,
+        ];
+        let mut out = [0.0; 3];
+        for (b, first) in [POS, VEL, ATT].into_iter().enumerate() {
+            let block = nalgebra::Matrix3::<f64>::from_fn(|i, j| p[(first + i, first + j)]);
+            out[b] = errors[b].dot(&block.cholesky()?.solve(&errors[b]));
+        }
+        Some(out)
     }
 }
 
