@@ -375,7 +375,7 @@ fn run_with<T: FilterScalar>(
     let (mut with_gnss, mut in_outage, mut attitude) =
         (Rms::default(), Rms::default(), Rms::default());
     let mut nees_series = Vec::new();
-    let mut block_sums: Vec<[f64; 3]> = Vec::new();
+    let (mut block_sum, mut block_samples) = ([0.0; 3], 0usize);
     let mounts = extra_unit_mounts(&drive.board_model());
     let mut calibration_nees = Vec::new();
     let mut still_speed_max_m_s = 0.0f64;
@@ -427,7 +427,8 @@ fn run_with<T: FilterScalar>(
             if let Some(nees) = error.nees(filter) {
                 nees_series.push(nees);
                 if let Some(blocks) = error.nees_by_block(filter) {
-                    block_sums.push(blocks);
+                    block_sum = core::array::from_fn(|b| block_sum[b] + blocks[b]);
+                    block_samples += 1;
                 }
                 if let Some((tracker, _)) = &mut closed_loop {
                     tracker.sample();
@@ -449,9 +450,7 @@ fn run_with<T: FilterScalar>(
         position_rms_outage_m: in_outage.value(),
         attitude_rms_deg: attitude.value(),
         nees_mean: nees_series.iter().sum::<f64>() / nees_series.len().max(1) as f64,
-        nees_mean_by_block: core::array::from_fn(|b| {
-            block_sums.iter().map(|s| s[b]).sum::<f64>() / block_sums.len().max(1) as f64
-        }),
+        nees_mean_by_block: block_sum.map(|sum| sum / block_samples.max(1) as f64),
         nees_bounds: nees_bounds(judged.0),
         nees_samples: nees_series.len() as u64,
         nees_effective_samples: judged.0,
@@ -625,20 +624,26 @@ impl NavError {
         }
     }
 
+    /// The judged blocks: each one's first state in the filter and its error (position,
+    /// velocity, attitude).
+    fn blocks(&self) -> [(usize, Vector3<f64>); 3] {
+        [
+            (POS, self.position_ned_m),
+            (VEL, self.velocity_ned_m_s),
+            (ATT, self.attitude_rad),
+        ]
+    }
+
     /// e' P^-1 e over position, velocity and attitude; None if their covariance block is
     /// not positive definite.
     fn nees<T: FilterScalar>(&self, filter: &FusionFilter<T>) -> Option<f64> {
         let p = filter.ekf.covariance_f64();
-        let first = [POS, VEL, ATT];
+        let blocks = self.blocks();
         let block = SMatrix::<f64, NEES_STATES, NEES_STATES>::from_fn(|i, j| {
-            p[(first[i / 3] + i % 3, first[j / 3] + j % 3)]
+            p[(blocks[i / 3].0 + i % 3, blocks[j / 3].0 + j % 3)]
         });
         let e = nalgebra::SVector::<f64, NEES_STATES>::from_iterator(
-            self.position_ned_m
-                .iter()
-                .chain(self.velocity_ned_m_s.iter())
-                .chain(self.attitude_rad.iter())
-                .copied(),
+            blocks.iter().flat_map(|(_, error)| error.iter().copied()),
         );
         let cholesky = block.cholesky()?;
         Some(e.dot(&cholesky.solve(&e)))
@@ -648,15 +653,10 @@ impl NavError {
     /// block; None if a block is not positive definite.
     fn nees_by_block<T: FilterScalar>(&self, filter: &FusionFilter<T>) -> Option<[f64; 3]> {
         let p = filter.ekf.covariance_f64();
-        let errors = [
-            self.position_ned_m,
-            self.velocity_ned_m_s,
-            self.attitude_rad,
-        ];
         let mut out = [0.0; 3];
-        for (b, first) in [POS, VEL, ATT].into_iter().enumerate() {
+        for (nees, (first, error)) in out.iter_mut().zip(self.blocks()) {
             let block = nalgebra::Matrix3::<f64>::from_fn(|i, j| p[(first + i, first + j)]);
-            out[b] = errors[b].dot(&block.cholesky()?.solve(&errors[b]));
+            *nees = error.dot(&block.cholesky()?.solve(&error));
         }
         Some(out)
     }

@@ -9,10 +9,10 @@
 use dynacal::decode::decode_file;
 use dynacal::model::SimModel;
 use dynacal::replay::{
-    build_firmware_for, run_replay_in_qemu, workspace_root, BOARD_TARGET, FIRMWARE_TARGET_DIR,
-    FPU_LESS_TARGET,
+    build_firmware_for, run_replay_in_qemu, workspace_root, FIRMWARE_TARGET_DIR,
 };
 use dynacal_core::log::FilterState;
+use dynacal_tests::CostCore;
 
 /// The angle between two attitude quaternions (scalar first), rad.
 fn attitude_gap_rad(a: &FilterState, b: &FilterState) -> f64 {
@@ -48,8 +48,8 @@ fn the_fixed_point_board_without_an_fpu_navigates_as_the_f32_board_does() {
 
     // WHEN the Cortex-M4F board (f32 filter) and the Cortex-M3 board (fixed-point filter,
     // no FPU) replay it
-    let m4f = build_firmware_for(&target_dir, "board-replay", BOARD_TARGET).unwrap();
-    let m3 = build_firmware_for(&target_dir, "board-replay,fixed-point", FPU_LESS_TARGET).unwrap();
+    let build = |core: CostCore| build_firmware_for(&target_dir, core.features(), core.target());
+    let (m4f, m3) = (build(CostCore::M4F).unwrap(), build(CostCore::M3).unwrap());
     let (log_m4f, log_m3) = (dir.path().join("m4f.log"), dir.path().join("m3.log"));
     let run_m4f = run_replay_in_qemu(&m4f, &input, &log_m4f, None).unwrap();
     let run_m3 = run_replay_in_qemu(&m3, &input, &log_m3, None).unwrap();

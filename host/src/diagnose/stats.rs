@@ -352,7 +352,6 @@ impl PrefixSums {
         let prefix = &self.0;
         let n = prefix.len() - 1;
         let l = window as f64;
-        // An empty window, or one longer than half the series, leaves no index.
         let last = if window == 0 {
             0
         } else {
