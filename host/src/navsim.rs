@@ -681,6 +681,49 @@ mod tests {
     }
 
     #[test]
+    fn each_blocks_nees_is_its_own_error_against_its_own_covariance() {
+        use dynacal_core::nav::ekf::{EkfConfig, ErrorStateEkf, InitialSigmas};
+        use dynacal_core::nav::strapdown::{NavState, Strapdown};
+        // GIVEN a filter whose covariance is its initial sigmas, one per block (position
+        // 2 m, velocity 0.5 m/s, attitude 0.01 rad an axis): no block correlated with another
+        let initial = InitialSigmas {
+            position_m: Vector3::repeat(2.0),
+            velocity_m_s: Vector3::repeat(0.5),
+            attitude_rad: Vector3::repeat(0.01),
+            accel_bias_m_s2: Vector3::repeat(0.1),
+            gyro_bias_rad_s: Vector3::repeat(2e-3),
+            boresight_rad: Vector3::repeat(0.01),
+            lever_arm_m: Vector3::repeat(0.02),
+        };
+        let state = NavState {
+            q_nb: UnitQuaternion::identity(),
+            v_ned_m_s: Vector3::zeros(),
+            lat_rad: 0.8,
+            lon_rad: 0.1,
+            h_m: 100.0,
+        };
+        let filter = FusionFilter::<f64>::new(
+            Strapdown::new(state),
+            ErrorStateEkf::new(EkfConfig::automotive_mems(), initial),
+        );
+        // AND errors of one sigma north, two sigmas east in velocity and three in heading
+        let error = NavError {
+            position_ned_m: Vector3::new(2.0, 0.0, 0.0),
+            velocity_ned_m_s: Vector3::new(0.0, 1.0, 0.0),
+            attitude_rad: Vector3::new(0.0, 0.0, 0.03),
+        };
+        // WHEN judged by block and whole
+        let by_block = error.nees_by_block(&filter).unwrap();
+        let whole = error.nees(&filter).unwrap();
+        // THEN each block holds its own error squared in its own sigmas (1, 4, 9), the
+        // whole their sum
+        for (got, want) in by_block.iter().zip([1.0, 4.0, 9.0]) {
+            assert!((got - want).abs() < 1e-9, "{by_block:?}");
+        }
+        assert!((whole - 14.0).abs() < 1e-9, "{whole}");
+    }
+
+    #[test]
     fn nees_bounds_narrow_around_the_dimension() {
         let [low, high] = nees_bounds(1.0);
         // chi-square with 9 degrees of freedom: 2.70 and 19.02.
