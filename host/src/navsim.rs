@@ -85,6 +85,12 @@ pub const NEES_EVERY_S: f64 = 10.0;
 pub const SETTLE_AFTER_OUTAGE_S: f64 = 30.0;
 /// Dimension of the NEES: position, velocity and attitude errors.
 const NEES_STATES: usize = 9;
+
+/// The fusion filter's states: its 15 navigation states, then each extra unit's calibration.
+const FILTER_STATES: usize = NAV_STATES + CALIBRATION_STATES_PER_IMU * (UNITS - 1);
+
+/// The fusion filter's covariance in f64, taken once at each judged sample.
+type Covariance = SMatrix<f64, FILTER_STATES, FILTER_STATES>;
 /// States of the board's filter: the navigation states and each extra unit's calibration.
 pub const STATES: usize = NAV_STATES + (UNITS - 1) * CALIBRATION_STATES_PER_IMU;
 
@@ -240,8 +246,7 @@ impl SpreadGatherer {
         self.start_sigmas = Some(core::array::from_fn(|i| p[(i, i)].sqrt()));
     }
 
-    fn add<T: FilterScalar>(&mut self, filter: &FusionFilter<T>) {
-        let p = filter.ekf.covariance_f64();
+    fn add<T: FilterScalar>(&mut self, filter: &FusionFilter<T>, p: &Covariance) {
         let held = filter.ekf.held_covariance().map(to_f64);
         let Some(sigmas) = self.start_sigmas else {
             return;
@@ -422,11 +427,12 @@ fn run_with<T: FilterScalar>(
             }
         }
         if k % nees_every == 0 {
-            spread.add(filter);
-            calibration_nees.extend(calibration_nees_of(filter, &mounts));
-            if let Some(nees) = error.nees(filter) {
+            let p = filter.ekf.covariance_f64();
+            spread.add(filter, &p);
+            calibration_nees.extend(calibration_nees_of(filter, &p, &mounts));
+            if let Some(nees) = error.nees(&p) {
                 nees_series.push(nees);
-                if let Some(blocks) = error.nees_by_block(filter) {
+                if let Some(blocks) = error.nees_by_block(&p) {
                     block_sum = core::array::from_fn(|b| block_sum[b] + blocks[b]);
                     block_samples += 1;
                 }
@@ -482,10 +488,10 @@ fn extra_unit_mounts(model: &BoardModel) -> [(UnitQuaternion<f64>, Vector3<f64>)
 /// against the true `mounts`; None if their covariance block is not positive definite.
 fn calibration_nees_of<T: FilterScalar>(
     filter: &FusionFilter<T>,
+    p: &Covariance,
     mounts: &[(UnitQuaternion<f64>, Vector3<f64>); UNITS - 1],
 ) -> Option<f64> {
     const STATES: usize = CALIBRATION_STATES_PER_IMU * (UNITS - 1);
-    let p = filter.ekf.covariance_f64();
     let mut error = nalgebra::SVector::<f64, STATES>::zeros();
     for (k, (q_b_to_s, lever_arm_m)) in mounts.iter().enumerate() {
         let estimate = filter.ekf.calibration(k)?;
@@ -634,10 +640,9 @@ impl NavError {
         ]
     }
 
-    /// e' P^-1 e over position, velocity and attitude; None if their covariance block is
-    /// not positive definite.
-    fn nees<T: FilterScalar>(&self, filter: &FusionFilter<T>) -> Option<f64> {
-        let p = filter.ekf.covariance_f64();
+    /// e' P^-1 e over position, velocity and attitude of the filter's covariance `p`; None
+    /// if their covariance block is not positive definite.
+    fn nees(&self, p: &Covariance) -> Option<f64> {
         let blocks = self.blocks();
         let block = SMatrix::<f64, NEES_STATES, NEES_STATES>::from_fn(|i, j| {
             p[(blocks[i / 3].0 + i % 3, blocks[j / 3].0 + j % 3)]
@@ -651,8 +656,7 @@ impl NavError {
 
     /// The NEES of position, velocity and attitude each against its own 3 x 3 covariance
     /// block; None if a block is not positive definite.
-    fn nees_by_block<T: FilterScalar>(&self, filter: &FusionFilter<T>) -> Option<[f64; 3]> {
-        let p = filter.ekf.covariance_f64();
+    fn nees_by_block(&self, p: &Covariance) -> Option<[f64; 3]> {
         let mut out = [0.0; 3];
         for (nees, (first, error)) in out.iter_mut().zip(self.blocks()) {
             let block = nalgebra::Matrix3::<f64>::from_fn(|i, j| p[(first + i, first + j)]);
@@ -713,8 +717,9 @@ mod tests {
             attitude_rad: Vector3::new(0.0, 0.0, 0.03),
         };
         // WHEN judged by block and whole
-        let by_block = error.nees_by_block(&filter).unwrap();
-        let whole = error.nees(&filter).unwrap();
+        let p = filter.ekf.covariance_f64();
+        let by_block = error.nees_by_block(&p).unwrap();
+        let whole = error.nees(&p).unwrap();
         // THEN each block holds its own error squared in its own sigmas (1, 4, 9), the
         // whole their sum
         for (got, want) in by_block.iter().zip([1.0, 4.0, 9.0]) {
