@@ -161,6 +161,82 @@ fn three_simulated_units_find_their_own_noise_on_a_drive() {
     assert_eq!(r["noise_level"].as_array().unwrap().len(), 3);
 }
 
+/// Three units on their own crystals (0, +150 and -120 ppm) as a board logs them (each
+/// sample stamped in GPS time at its unit's data-ready edge), chained `simulate --replay`,
+/// `decode`, `redundancy`: over the 600 s drive the units slide 16 intervals past each
+/// other. Each is placed on the shared times by its phase, its clock measured and said, and
+/// its own noise and lever arm found as on one clock; `refit` takes the same log.
+#[test]
+fn units_on_their_own_crystals_find_their_own_noise_from_the_board_log() {
+    let dir = tempfile::tempdir().unwrap();
+    let d = dir.path();
+    let model = THREE_UNITS
+        .replace(
+            r#"{"name": "u1", "rate_hz": 100,"#,
+            r#"{"name": "u1", "rate_hz": 100, "clock": {"frequency_offset_ppm": 150.0},"#,
+        )
+        .replace(
+            r#"{"name": "u2", "rate_hz": 100,"#,
+            r#"{"name": "u2", "rate_hz": 100, "clock": {"frequency_offset_ppm": -120.0},"#,
+        );
+    assert_ne!(model, THREE_UNITS);
+    std::fs::write(d.join("m.json"), model).unwrap();
+    let run = d.join("run");
+    let m = path(&d.join("m.json")).to_string();
+    ok(&[
+        "simulate",
+        "--model",
+        &m,
+        "--seconds",
+        "600",
+        "--seed",
+        "7",
+        "--replay",
+        "--out",
+        path(&run),
+    ]);
+    let log = run.join("board.log");
+    ok(&["decode", path(&log), "--out", path(&d.join("dec"))]);
+    let units: Vec<String> = (0..3)
+        .map(|k| {
+            d.join("dec")
+                .join(format!("imu{k}.csv"))
+                .display()
+                .to_string()
+        })
+        .collect();
+    let json = d.join("r.json");
+    redundancy(&units, &json);
+    let r = read_json(&json);
+    assert_within(&r, &["gx", "gy", "gz", "ax", "ay", "az"], 0.1);
+    for (k, arm) in LEVER_ARMS_M.iter().enumerate().skip(1) {
+        let alignment = &r["imus"][k]["alignment"];
+        for (a, want) in arm.iter().enumerate() {
+            let got = alignment["lever_arm_m"][a].as_f64().unwrap();
+            assert!((got - want).abs() < 3e-3, "{alignment}");
+        }
+    }
+    // The grid follows u1, the fastest clock: u0 is 150 ppm and u2 270 ppm slower.
+    let notes = r["notes"].to_string();
+    for (unit, ppm) in [("imu0", -150.0), ("imu2", -270.0)] {
+        let said = format!("{unit}.csv: sampled on its own clock, ");
+        let at = notes.find(&said).unwrap_or_else(|| panic!("{notes}")) + said.len();
+        let measured: f64 = notes[at..].split(' ').next().unwrap().parse().unwrap();
+        assert!((measured - ppm).abs() < 1.0, "{unit}: {measured} ppm");
+    }
+    assert!(
+        !notes.contains("dropouts"),
+        "a clock's slot taken for a dropout: {notes}"
+    );
+    assert!(
+        r["faults"].as_array().unwrap().is_empty(),
+        "{}",
+        r["faults"]
+    );
+    ok(&["refit", path(&log), "--out", path(&d.join("refit"))]);
+    assert!(d.join("refit").join("board-model.bin").exists());
+}
+
 /// At rest nothing needs aligning: every channel's white-noise variance within 10%, and the
 /// rotations are said to be undetermined.
 #[test]

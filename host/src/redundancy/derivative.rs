@@ -50,22 +50,47 @@ impl SpectralDerivative {
     /// Rate of change of `y` (as long as the signal the filter was fitted to), input unit
     /// per second, per sample, through this filter's gains.
     pub(super) fn apply(&self, y: &[f64]) -> Vec<f64> {
-        let n = y.len();
-        let Some((mut spectrum, slope)) = detrended_spectrum(y) else {
-            return vec![0.0; n];
+        let derivative = |omega_rad_s: f64, gain: f64| Complex::new(0.0, omega_rad_s * gain);
+        let Some((detrended, slope)) = self.through(y, derivative) else {
+            return vec![0.0; y.len()];
         };
+        detrended.iter().map(|v| v + slope / self.dt_s).collect()
+    }
+
+    /// The motion in `y` (as long as the signal the filter was fitted to), in its unit, per
+    /// sample: the bins where the motion's power is at least the noise's (gain 1/2 or more)
+    /// whole, the others not at all. Whole bins, not Wiener-weighted ones: what is done to
+    /// this part (delayed) then keeps the noise's power, where a partial gain would mix the
+    /// noise with a delayed copy of itself and lower it.
+    pub(super) fn motion(&self, y: &[f64]) -> Vec<f64> {
+        let mask = |_: f64, gain: f64| Complex::new(if gain >= 0.5 { 1.0 } else { 0.0 }, 0.0);
+        let Some((detrended, slope)) = self.through(y, mask) else {
+            return y.to_vec();
+        };
+        detrended
+            .iter()
+            .enumerate()
+            .map(|(i, v)| v + y[0] + slope * i as f64)
+            .collect()
+    }
+
+    /// `y` less its end-to-end line, each bin times `weight(omega, gain)` (omega in rad/s,
+    /// the bin's gain), and the line's slope per sample; None where the FFT cannot take it.
+    fn through(
+        &self,
+        y: &[f64],
+        weight: impl Fn(f64, f64) -> Complex<f64>,
+    ) -> Option<(Vec<f64>, f64)> {
+        let n = y.len();
+        let (mut spectrum, slope) = detrended_spectrum(y)?;
         for (k, c) in spectrum.iter_mut().enumerate() {
             let omega_rad_s = 2.0 * std::f64::consts::PI * k as f64 / (n as f64 * self.dt_s);
-            *c *= Complex::new(0.0, omega_rad_s * self.gains.get(k).copied().unwrap_or(0.0));
+            *c *= weight(omega_rad_s, self.gains.get(k).copied().unwrap_or(0.0));
         }
         let inverse = RealFftPlanner::<f64>::new().plan_fft_inverse(n);
         let mut out = inverse.make_output_vec();
-        if inverse.process(&mut spectrum, &mut out).is_err() {
-            return vec![0.0; n];
-        }
-        out.iter()
-            .map(|v| v / n as f64 + slope / self.dt_s)
-            .collect()
+        inverse.process(&mut spectrum, &mut out).ok()?;
+        Some((out.iter().map(|v| v / n as f64).collect(), slope))
     }
 }
 

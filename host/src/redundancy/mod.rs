@@ -415,6 +415,7 @@ pub fn redundancy(
             .to_string(),
     ];
     note_dropouts(units, &grid.present, &mut notes);
+    note_clocks(units, &grid, &mut notes);
     note_spacing(&grid.t_s, &mut notes);
     let first = &grid.filled[0].1;
     let dt_s = first.median_dt_s();
@@ -500,6 +501,29 @@ fn note_spacing(t_s: &[f64], notes: &mut Vec<String>) {
             t_s.len() - 1,
             gaps.len(),
             gaps.iter().copied().fold(0.0, f64::max)
+        ));
+    }
+}
+
+/// What the output must say of units on their own clocks: how far their rates and
+/// instants are from the grid's.
+fn note_clocks(units: &[(String, ImuRecording)], grid: &grid::Grid, notes: &mut Vec<String>) {
+    let dt_s = crate::interchange::median_step_s(&grid.t_s).unwrap_or(0.0);
+    let anchor = &units[grid.anchor].0;
+    for (k, (name, _)) in units.iter().enumerate() {
+        let furthest_s = grid.offset_s[k].iter().fold(0.0_f64, |m, o| m.max(o.abs()));
+        let rate = grid.rate_offset[k];
+        // Within a quarter interval, units stamped together with some jitter.
+        if furthest_s <= 0.25 * dt_s {
+            continue;
+        }
+        notes.push(format!(
+            "{name}: sampled on its own clock, {:+.1} ppm against {anchor}'s over the run, its \
+             samples up to {:.3} ms from the shared times: each is taken at the shared time \
+             nearest, its motion (what stands above the noise) carried to that time, and a \
+             shared time its slower clock passed over is filled from its neighbours",
+            rate * 1e6,
+            furthest_s * 1e3
         ));
     }
 }
