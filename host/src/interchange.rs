@@ -20,6 +20,7 @@ use crate::output::AtomicFile;
 
 pub mod fast;
 pub mod parquet;
+pub mod summary;
 
 /// Errors reading or writing tables. Each names the file and, where there is one, the line
 /// (1-based, the header being line 1) and column.

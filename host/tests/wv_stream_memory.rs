@@ -165,9 +165,12 @@ fn memory_is_flat_from_1e6_to_1e8_rows() {
                 }
             }
         }
+        let (rss, wall) = time_dynacal(&["info", input.to_str().unwrap()]);
+        println!("| {rows:.0e} | {mb:.0} | info | streamed | {rss:.1} | {wall:.1} |");
+        streamed_rss.push(("info".to_string(), rss));
         std::fs::remove_file(&input).unwrap();
     }
-    for command in ["wv", "fit --model WN+RW"] {
+    for command in ["wv", "fit --model WN+RW", "info"] {
         let rss: Vec<f64> = streamed_rss
             .iter()
             .filter(|(name, _)| name == command)

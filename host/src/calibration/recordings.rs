@@ -22,9 +22,10 @@ use std::path::{Path, PathBuf};
 
 use super::ErrorsError;
 use crate::interchange::fast::for_each_fast_row;
+use crate::interchange::summary::interchange_columns;
 use crate::interchange::{
     check_lat_lon, check_stated_rate_against, for_each_row, parquet, read_stated_rate,
-    triplet_presence, ImuRecording, TableError, TableRows, Triplet, TripletPresence, TRIPLETS,
+    ImuRecording, Triplet,
 };
 
 /// What the calibration asks of a recording.
@@ -163,33 +164,8 @@ fn spill_fast(
 impl SpilledRecording {
     /// Reads the interchange file at `path` (CSV, CSV.gz or Parquet) into a spill file.
     pub fn read(path: &Path) -> Result<Self, ErrorsError> {
-        let headers = if parquet::is_parquet(path) {
-            parquet::headers(path)?
-        } else {
-            TableRows::open(path, None)?.headers().to_vec()
-        };
-        let has = |name: &str| headers.iter().any(|h| h == name);
-        if !has("t_s") {
-            return Err(TableError::MissingColumn {
-                path: path.to_path_buf(),
-                column: "t_s".into(),
-            }
-            .into());
-        }
-        let mut present = [false; 5];
-        let mut wanted = vec!["t_s"];
-        for (k, names) in TRIPLETS.iter().enumerate() {
-            // A lone gyro or accelerometer axis is read whole as a single-axis channel,
-            // which the calibration does not use: it is left out here.
-            if triplet_presence(path, names, names.map(has))? == TripletPresence::Full {
-                present[k] = true;
-                wanted.extend_from_slice(&names[..]);
-            }
-        }
-        let position = TRIPLETS.iter().position(|t| t[0] == "lat_rad");
-        let lat_at = position
-            .filter(|&k| present[k])
-            .map(|k| 1 + 3 * (0..k).filter(|&j| present[j]).count());
+        let columns = interchange_columns(path)?;
+        let (present, wanted, lat_at) = (columns.whole, columns.wanted, columns.lat_at);
         let fast = if parquet::is_parquet(path) {
             None
         } else {
