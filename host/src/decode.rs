@@ -24,8 +24,8 @@ use std::io::{self, Read};
 use std::path::{Path, PathBuf};
 
 use dynacal_core::log::{
-    FaultFrame, FilterState, Frame, GnssFix, Header, Health, ImuConfig, LogAccumulator, LogError,
-    NoiseFrame, PpsEvent, StreamStats, WvFrame, PROTOCOL_VERSION,
+    FaultFrame, FilterState, Frame, GnssFix, Header, Health, ImuConfig, ImuSampleSet,
+    LogAccumulator, LogError, NoiseFrame, PpsEvent, StreamStats, WvFrame, PROTOCOL_VERSION,
 };
 use serde::{Deserialize, Serialize};
 
@@ -38,6 +38,30 @@ use dynacal_core::Channel;
 /// turns 50 000 us into 0.049999999999999996 s.
 pub fn seconds_of_us(t_us: u64) -> f64 {
     t_us as f64 / 1e6
+}
+
+/// One count in SI units: `counts as f64 * per_count`, one rounding, so the values are
+/// reproducible bit for bit from the raw counts.
+fn si(count: i32, per_count: f64) -> f64 {
+    count as f64 * per_count
+}
+
+/// One sample in SI units as an interchange row (`t_s` by [`seconds_of_us`], then the gyro
+/// in rad/s and the accelerometer in m/s^2 by the IMU's scale factors).
+pub fn sample_si(config: &ImuConfig, sample: &ImuSampleSet) -> [f64; 7] {
+    let g = config.gyro_scale_rad_s_per_count;
+    let a = config.accel_scale_m_s2_per_count;
+    let [gx, gy, gz] = sample.gyro_counts;
+    let [ax, ay, az] = sample.accel_counts;
+    [
+        seconds_of_us(sample.t_us),
+        si(gx, g),
+        si(gy, g),
+        si(gz, g),
+        si(ax, a),
+        si(ay, a),
+        si(az, a),
+    ]
 }
 
 /// Why a log cannot be read or used.
@@ -83,35 +107,85 @@ pub struct ImuStream {
     pub accel_counts: Vec<[i32; 3]>,
     /// Samples dropped because their time did not exceed the previous sample's.
     pub samples_out_of_order: u64,
+    /// The samples kept, counted as they arrive: the same whether they are held above or
+    /// written out as they come ([`decode_file_streamed`]).
+    kept: KeptSamples,
+}
+
+/// How many samples an IMU stream kept, their first and last times and their gaps.
+#[derive(Debug, Clone, PartialEq)]
+struct KeptSamples {
+    count: u64,
+    first_t_us: Option<u64>,
+    last_t_us: Option<u64>,
+    gaps: GapStats,
 }
 
 impl ImuStream {
     fn new(config: ImuConfig) -> Self {
+        let nominal_dt_us = 1e6 / f64::from(config.sample_rate_hz);
         Self {
             config,
             t_us: Vec::new(),
             gyro_counts: Vec::new(),
             accel_counts: Vec::new(),
             samples_out_of_order: 0,
+            kept: KeptSamples {
+                count: 0,
+                first_t_us: None,
+                last_t_us: None,
+                gaps: GapStats {
+                    nominal_dt_us: nominal_dt_us.is_finite().then_some(nominal_dt_us),
+                    ..Default::default()
+                },
+            },
         }
+    }
+
+    /// Counts `t_us` as this stream's next sample; false (and counted out of order) when it
+    /// does not come after the last one kept.
+    fn keep(&mut self, t_us: u64) -> bool {
+        let kept = &mut self.kept;
+        if let Some(last) = kept.last_t_us {
+            if t_us <= last {
+                self.samples_out_of_order += 1;
+                return false;
+            }
+            let dt_us = t_us - last;
+            let gaps = &mut kept.gaps;
+            gaps.max_dt_us = gaps.max_dt_us.max(dt_us);
+            if let Some(nominal) = gaps.nominal_dt_us.filter(|n| *n > 0.0) {
+                if dt_us as f64 > 1.5 * nominal {
+                    gaps.gaps += 1;
+                    gaps.samples_missing += ((dt_us as f64 / nominal).round() as u64).max(1) - 1;
+                }
+            }
+        }
+        kept.first_t_us.get_or_insert(t_us);
+        kept.last_t_us = Some(t_us);
+        kept.count += 1;
+        true
     }
 
     /// Number of samples kept.
     pub fn len(&self) -> usize {
-        self.t_us.len()
+        self.kept.count as usize
     }
 
     /// True when no sample was kept.
     pub fn is_empty(&self) -> bool {
-        self.t_us.is_empty()
+        self.kept.count == 0
     }
 
-    /// The samples in SI units: `t_s` by [`seconds_of_us`], `gyro_rad_s = counts as f64 *
-    /// gyro_scale_rad_s_per_count`, `accel_m_s2 = counts as f64 * accel_scale_m_s2_per_count`
-    /// (one rounding each, so the values are reproducible bit for bit from the raw counts).
+    /// Times of the first and last samples kept, microseconds.
+    pub fn span_us(&self) -> Option<(u64, u64)> {
+        self.kept.first_t_us.zip(self.kept.last_t_us)
+    }
+
+    /// The samples in SI units, each as [`sample_si`] converts it.
     pub fn to_recording(&self) -> ImuRecording {
         let scale = |counts: &[[i32; 3]], per_count: f64| -> [Vec<f64>; 3] {
-            [0, 1, 2].map(|axis| counts.iter().map(|c| c[axis] as f64 * per_count).collect())
+            [0, 1, 2].map(|axis| counts.iter().map(|c| si(c[axis], per_count)).collect())
         };
         ImuRecording {
             t_s: self.t_us.iter().map(|&t| seconds_of_us(t)).collect(),
@@ -130,22 +204,7 @@ impl ImuStream {
 
     /// Gaps in the sample times against the configured rate.
     pub fn gaps(&self) -> GapStats {
-        let nominal_dt_us = 1e6 / f64::from(self.config.sample_rate_hz);
-        let mut stats = GapStats {
-            nominal_dt_us: nominal_dt_us.is_finite().then_some(nominal_dt_us),
-            ..Default::default()
-        };
-        for pair in self.t_us.windows(2) {
-            let dt_us = pair[1] - pair[0];
-            stats.max_dt_us = stats.max_dt_us.max(dt_us);
-            if let Some(nominal) = stats.nominal_dt_us.filter(|n| *n > 0.0) {
-                if dt_us as f64 > 1.5 * nominal {
-                    stats.gaps += 1;
-                    stats.samples_missing += ((dt_us as f64 / nominal).round() as u64).max(1) - 1;
-                }
-            }
-        }
-        stats
+        self.kept.gaps
     }
 }
 
@@ -195,6 +254,10 @@ pub struct DecodedLog {
     /// WaveletVariance frames before the first header, for an IMU id the header does not
     /// list, or with a channel outside 0..=5 (dropped).
     pub wv_frames_unknown: u64,
+    /// When the samples are written out as they come ([`decode_file_streamed`]): those
+    /// kept since the writer last took them (IMU index in header order, sample), instead
+    /// of the streams holding them.
+    passing: Option<Vec<(usize, ImuSampleSet)>>,
 }
 
 /// The newest wavelet-variance snapshot of one IMU channel, in SI units.
@@ -281,7 +344,7 @@ impl DecodedLog {
     pub fn span_s(&self) -> f64 {
         self.imus
             .iter()
-            .filter_map(|imu| Some((*imu.t_us.first()?, *imu.t_us.last()?)))
+            .filter_map(ImuStream::span_us)
             .map(|(first, last)| (last - first) as f64 * 1e-6)
             .fold(0.0, f64::max)
     }
@@ -290,9 +353,9 @@ impl DecodedLog {
     pub fn first_sample_s(&self) -> Option<f64> {
         self.imus
             .iter()
-            .filter_map(|imu| imu.t_us.first())
+            .filter_map(|imu| imu.span_us().map(|(first, _)| first))
             .min()
-            .map(|&t| seconds_of_us(t))
+            .map(seconds_of_us)
     }
 
     fn count_error(&mut self, error: &LogError) {
@@ -321,21 +384,25 @@ impl DecodedLog {
                     self.imu_samples_before_header += 1;
                     return;
                 }
-                let Some(imu) = self
+                let Some(index) = self
                     .imus
-                    .iter_mut()
-                    .find(|s| s.config.imu_id == sample.imu_id)
+                    .iter()
+                    .position(|s| s.config.imu_id == sample.imu_id)
                 else {
                     self.imu_samples_unknown_imu += 1;
                     return;
                 };
-                if imu.t_us.last().is_some_and(|&last| sample.t_us <= last) {
-                    imu.samples_out_of_order += 1;
+                let imu = &mut self.imus[index];
+                if !imu.keep(sample.t_us) {
                     return;
                 }
-                imu.t_us.push(sample.t_us);
-                imu.gyro_counts.push(sample.gyro_counts);
-                imu.accel_counts.push(sample.accel_counts);
+                if let Some(passing) = &mut self.passing {
+                    passing.push((index, sample));
+                } else {
+                    imu.t_us.push(sample.t_us);
+                    imu.gyro_counts.push(sample.gyro_counts);
+                    imu.accel_counts.push(sample.accel_counts);
+                }
             }
             Frame::Pps(pps) => self.pps.push(pps),
             Frame::Gnss(fix) => self.gnss.push(fix),
@@ -477,8 +544,8 @@ impl DecodedLog {
                     model: imu.config.model.to_string(),
                     samples: imu.len() as u64,
                     samples_out_of_order: imu.samples_out_of_order,
-                    first_t_us: imu.t_us.first().copied(),
-                    last_t_us: imu.t_us.last().copied(),
+                    first_t_us: imu.span_us().map(|(first, _)| first),
+                    last_t_us: imu.span_us().map(|(_, last)| last),
                     gaps: imu.gaps(),
                     file: (!imu.is_empty()).then(|| imu_file_name(imu.config.imu_id, format)),
                 })
@@ -569,6 +636,48 @@ pub fn decode_reader(mut reader: impl Read) -> io::Result<DecodedLog> {
     Ok(decoder.finish())
 }
 
+/// Decodes the log file at `path` handing each IMU sample kept to `sample` as it comes
+/// (with its IMU's configuration, which the header gave), so that a log of any length is
+/// decoded in memory that does not grow with its samples: the returned log's streams count
+/// their samples but hold none. What else the log holds (fixes, filter states, reports) is
+/// kept as [`decode_file`] keeps it.
+pub fn decode_file_streamed<E: From<DecodeError>>(
+    path: &Path,
+    mut sample: impl FnMut(&ImuConfig, &ImuSampleSet) -> Result<(), E>,
+) -> Result<DecodedLog, E> {
+    let io = |source| DecodeError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let file = std::fs::File::open(path).map_err(io)?;
+    let size_bytes = file.metadata().map_err(io)?.len();
+    let mut reader = crate::progress::Counted::new(file, path, size_bytes);
+    let mut decoder = LogDecoder::new();
+    decoder.log.passing = Some(Vec::new());
+    let mut buf = vec![0u8; 1 << 16];
+    let mut pass_on = |decoder: &mut LogDecoder| -> Result<(), E> {
+        let passing = decoder.log.passing.as_mut().expect("set above");
+        for (index, s) in passing.drain(..) {
+            sample(&decoder.log.imus[index].config, &s)?;
+        }
+        Ok(())
+    };
+    loop {
+        match reader.read(&mut buf) {
+            Ok(0) => break,
+            Ok(n) => decoder.feed(&buf[..n]),
+            Err(e) if e.kind() == io::ErrorKind::Interrupted => continue,
+            Err(e) => return Err(io(e).into()),
+        }
+        pass_on(&mut decoder)?;
+    }
+    decoder.feed(&[]);
+    pass_on(&mut decoder)?;
+    let mut log = decoder.finish();
+    log.passing = None;
+    Ok(log)
+}
+
 /// Decodes the log file at `path`.
 pub fn decode_file(path: &Path) -> Result<DecodedLog, DecodeError> {
     let io = |source| DecodeError::Io {
@@ -620,6 +729,56 @@ mod tests {
             gyro_counts: [c, -c, 7],
             accel_counts: [-c, c, i32::MIN],
         })
+    }
+
+    /// Streamed, a log passes on the samples a held decode keeps, in order, each with its
+    /// IMU's configuration, and says of them what the held decode says; its streams hold none.
+    #[test]
+    fn a_streamed_decode_passes_on_what_a_held_one_keeps() {
+        let mut frames = vec![imu(0, 5, 1), Frame::Header(header(&[0, 2]))];
+        for k in 1..3_000u64 {
+            frames.push(imu(0, k * 10_000, k as i32));
+            if k % 7 != 0 {
+                frames.push(imu(2, k * 10_000 + 3, -(k as i32)));
+            }
+            if k % 500 == 0 {
+                frames.push(imu(0, k * 10_000, 0));
+                frames.push(imu(1, k * 10_000, 0));
+            }
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("x.log");
+        std::fs::write(&path, encode_log(&frames).unwrap()).unwrap();
+        let held = decode_file(&path).unwrap();
+        let mut passed: Vec<[f64; 7]> = Vec::new();
+        let mut ids = Vec::new();
+        let streamed = decode_file_streamed(&path, |config, sample| -> Result<(), DecodeError> {
+            ids.push(config.imu_id);
+            passed.push(sample_si(config, sample));
+            Ok(())
+        })
+        .unwrap();
+        let json = |log: &DecodedLog| serde_json::to_string(&log.summary(FileFormat::Csv)).unwrap();
+        assert_eq!(json(&streamed), json(&held));
+        assert!(streamed.imus.iter().all(|imu| imu.t_us.is_empty()));
+        for (k, imu) in held.imus.iter().enumerate() {
+            let id = imu.config.imu_id;
+            let mine: Vec<[f64; 7]> = ids
+                .iter()
+                .zip(&passed)
+                .filter(|(i, _)| **i == id)
+                .map(|(_, s)| *s)
+                .collect();
+            let recording = imu.to_recording();
+            assert_eq!(mine.len(), recording.len(), "imu {k}");
+            for (i, row) in mine.iter().enumerate() {
+                assert_eq!(row[0], recording.t_s[i]);
+                assert_eq!(row[1], recording.gyro_rad_s.as_ref().unwrap()[0][i]);
+                assert_eq!(row[6], recording.accel_m_s2.as_ref().unwrap()[2][i]);
+            }
+        }
+        assert_eq!(held.imus[0].samples_out_of_order, 5);
+        assert_eq!(held.imu_samples_unknown_imu, 5);
     }
 
     #[test]

@@ -9,8 +9,11 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use dynacal::board_log::{fault_entries, health_episodes, nav_csv, noise_csv};
-use dynacal::decode::{decode_file, imu_file_name};
-use dynacal::interchange::FileFormat;
+use std::collections::btree_map::Entry;
+use std::collections::BTreeMap;
+
+use dynacal::decode::{decode_file_streamed, imu_file_name, sample_si};
+use dynacal::interchange::{FileFormat, RowWriter, CHANNEL_COLUMNS};
 use dynacal::output::{write_atomic, write_json_atomic, FileSet};
 
 /// The summary, the completion marker of the folder's set (written last).
@@ -31,19 +34,35 @@ pub struct Args {
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let log = decode_file(&args.log)?;
-    log.validate(&args.log)?;
-    let summary = log.summary(args.format);
-
     // Every file is staged and moved into place only when all are complete, summary.json
-    // last as the set's completion marker (`dynacal::output::FileSet`).
+    // last as the set's completion marker (`dynacal::output::FileSet`). The IMUs' samples
+    // are written as they are decoded, so a log of hours takes no more memory than a minute.
     let mut set = FileSet::create(&args.out, Some(SUMMARY))
         .with_context(|| format!("{}: cannot create output folder", args.out.display()))?;
+    let mut writers: BTreeMap<u8, (String, RowWriter)> = BTreeMap::new();
+    let log = decode_file_streamed(&args.log, |config, sample| -> anyhow::Result<()> {
+        let (_, writer) = match writers.entry(config.imu_id) {
+            Entry::Occupied(entry) => entry.into_mut(),
+            Entry::Vacant(entry) => {
+                let name = imu_file_name(config.imu_id, args.format);
+                let rate_hz = f64::from(config.sample_rate_hz);
+                let writer = RowWriter::create(
+                    &set.path(&name),
+                    [&["t_s"][..], &CHANNEL_COLUMNS[..]].concat(),
+                    Some(rate_hz),
+                )?;
+                entry.insert((name, writer))
+            }
+        };
+        writer.push(&sample_si(config, sample))?;
+        Ok(())
+    })?;
+    log.validate(&args.log)?;
+    let summary = log.summary(args.format);
     let cannot = |name: &str| format!("{}: cannot write", args.out.join(name).display());
     let mut files = Vec::new();
-    for imu in log.imus.iter().filter(|imu| !imu.is_empty()) {
-        let name = imu_file_name(imu.config.imu_id, args.format);
-        imu.to_recording().write(&set.path(&name))?;
+    for (name, writer) in writers.into_values() {
+        writer.finish()?;
         files.push(name);
     }
     let wv = log.wavelet_variance_si();
