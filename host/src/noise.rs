@@ -25,7 +25,7 @@ use crate::interchange::{ImuRecording, Sampling, CHANNELS, CHANNEL_COLUMNS};
 use crate::wv::WaveletVariance;
 
 pub mod passes;
-pub use passes::{BagTopicSamples, ImuSamples, RecordingSamples};
+pub use passes::{BagTopicSamples, FileSamples, ImuSamples, RecordingSamples};
 
 /// Errors of [`analyse`].
 #[derive(Debug, thiserror::Error)]
@@ -485,6 +485,9 @@ pub enum ImuSource {
     Recording(Box<ImuRecording>),
     /// A bag's topic, read anew each pass (memory independent of the bag's length).
     Bag(BagTopicSamples),
+    /// An interchange file over [`crate::input::stream::STREAM_THRESHOLD_BYTES`], read anew
+    /// each pass.
+    File(FileSamples),
 }
 
 impl ChosenImu {
@@ -493,6 +496,7 @@ impl ChosenImu {
         match &mut self.source {
             ImuSource::Recording(rec) => analyse(&self.name, rec, opts),
             ImuSource::Bag(bag) => analyse_samples(&self.name, bag, opts),
+            ImuSource::File(file) => analyse_samples(&self.name, file, opts),
         }
     }
 }
@@ -514,6 +518,20 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
         find_datasets, import_bag_topic, import_file_noted, ros_bag::file_name_of_topic, Dataset,
     };
     let (found, _) = find_datasets(input)?;
+    // A long interchange file is read in passes, not imported: its length costs no memory.
+    if let [(file, Dataset::Interchange)] = found.as_slice() {
+        let name = crate::import::file_stem(file);
+        let long = std::fs::metadata(file)
+            .is_ok_and(|m| m.len() > crate::input::stream::STREAM_THRESHOLD_BYTES);
+        if long && topic.is_none_or(|t| t == name) {
+            return Ok(ChosenImu {
+                name,
+                topic: None,
+                source: ImuSource::File(FileSamples::open(file)?),
+                notes: Vec::new(),
+            });
+        }
+    }
     // A bag's Imu topic is streamed, not imported: its length then costs no memory.
     let bags: Vec<std::path::PathBuf> = found
         .iter()

@@ -325,7 +325,7 @@ fn stream_dataset(
 
 /// The file name without directory and without `.gz` / `.csv` / `.imu` / `.bin` / `.ulg`
 /// suffixes.
-fn file_stem(path: &Path) -> String {
+pub(crate) fn file_stem(path: &Path) -> String {
     let mut name = path
         .file_name()
         .map(|n| n.to_string_lossy().into_owned())

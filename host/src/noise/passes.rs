@@ -81,6 +81,104 @@ impl ImuSamples for RecordingSamples<'_> {
     }
 }
 
+/// An interchange file (CSV, CSV.gz or Parquet) read anew each pass: a recording longer than
+/// memory. Its first pass checks it as [`ImuRecording::read`] does (finite numbers, strictly
+/// increasing time, whole triplets, a stated rate that agrees with the median step; errors
+/// name the line) and counts its time steps.
+pub struct FileSamples {
+    path: std::path::PathBuf,
+    /// `t_s`, then the channels' columns.
+    columns: Vec<&'static str>,
+    channels: Vec<usize>,
+    steps: StepCounts,
+    /// Whether the fast block reader takes the file (else the `csv` crate, row by row).
+    fast: bool,
+}
+
+impl FileSamples {
+    /// The first pass over the interchange file at `path`.
+    pub fn open(path: &std::path::Path) -> Result<Self, ImportError> {
+        use crate::interchange::{summary::interchange_columns, CHANNEL_COLUMNS};
+        let found = interchange_columns(path)?;
+        let mut channels: Vec<usize> = [(found.whole[0], 0..3), (found.whole[1], 3..6)]
+            .into_iter()
+            .filter(|(whole, _)| *whole)
+            .flat_map(|(_, range)| range)
+            .collect();
+        channels.extend(&found.lone_axes);
+        let mut columns = vec!["t_s"];
+        columns.extend(channels.iter().map(|&c| CHANNEL_COLUMNS[c]));
+        let mut source = Self {
+            path: path.to_path_buf(),
+            columns,
+            channels,
+            steps: StepCounts::default(),
+            fast: true,
+        };
+        let mut steps = StepCounts::default();
+        if !source.read(&mut |t_s, _| steps.push(t_s))? {
+            source.fast = false;
+            steps = StepCounts::default();
+            source.read(&mut |t_s, _| steps.push(t_s))?;
+        }
+        if let Some((place, stated_hz)) = crate::interchange::read_stated_rate(path)? {
+            let median = steps.sampling_without_gaps().map(|s| s.median_step_s);
+            crate::interchange::check_stated_rate_against(path, place, stated_hz, median)?;
+        }
+        source.steps = steps;
+        Ok(source)
+    }
+
+    /// One pass over the file; false where the fast reader gave up (what it passed on is
+    /// then to be dropped, and the file read again row by row, whose errors name the line).
+    fn read(
+        &self,
+        each: &mut dyn FnMut(f64, &[f64]),
+    ) -> Result<bool, crate::interchange::TableError> {
+        use crate::interchange::{fast::for_each_fast_row, for_each_row, TableError};
+        if self.fast {
+            return for_each_fast_row(
+                &self.path,
+                &self.columns,
+                |row| -> Result<bool, TableError> {
+                    each(row[0], &row[1..]);
+                    Ok(true)
+                },
+            );
+        }
+        for_each_row(
+            &self.path,
+            &self.columns,
+            |_, row: &[f64]| -> Result<(), TableError> {
+                each(row[0], &row[1..]);
+                Ok(())
+            },
+        )?;
+        Ok(true)
+    }
+}
+
+impl ImuSamples for FileSamples {
+    fn channels(&self) -> &[usize] {
+        &self.channels
+    }
+
+    fn sampling(&self) -> Option<Sampling> {
+        self.steps.sampling_without_gaps()
+    }
+
+    fn pass(&mut self, each: &mut dyn FnMut(f64, &[f64])) -> Result<(), NoiseError> {
+        match self.read(each) {
+            Ok(true) => Ok(()),
+            Ok(false) => Err(NoiseError::Recording {
+                imu: self.path.display().to_string(),
+                message: "the file changed between two passes over it".into(),
+            }),
+            Err(e) => Err(NoiseError::Read(e.into())),
+        }
+    }
+}
+
 /// A topic of at most this many bytes of samples (8 per value and time: 1.2 million samples
 /// of six axes, 3.3 h at 100 Hz) is kept in memory by its first analysis pass, so the bag is
 /// decoded twice rather than three times; a longer one is decoded anew each pass.
@@ -475,6 +573,37 @@ mod tests {
             let ratio = (moving[axis][0].variance[0] / still[axis][0].variance[0]).sqrt();
             assert!((ratio / 50.0 - 1.0).abs() < 0.05, "axis {axis}: {ratio}");
         }
+    }
+
+    /// A file read in passes gives the report the recording held whole gives, in every
+    /// form; a file that breaks is refused naming its line.
+    #[test]
+    fn a_file_read_in_passes_is_analysed_as_the_recording_held_whole() {
+        let rec = ImuRecording {
+            sample_rate_hz: Some(100.0),
+            ..still_shaken_still()
+        };
+        let dir = tempfile::tempdir().unwrap();
+        let opts = NoiseOptions::default();
+        let held = format!("{:?}", super::super::analyse("g", &rec, &opts).unwrap());
+        for name in ["g.csv", "g.csv.gz", "g.parquet"] {
+            let path = dir.path().join(name);
+            rec.write(&path).unwrap();
+            let mut source = FileSamples::open(&path).unwrap();
+            let report = super::super::analyse_samples("g", &mut source, &opts).unwrap();
+            assert_eq!(format!("{report:?}"), held, "{name}");
+        }
+        let bad = dir.path().join("bad.csv");
+        std::fs::write(
+            &bad,
+            "t_s,gx_rad_s,gy_rad_s,gz_rad_s\n0,1,2,3\n0.01,1,x,3\n",
+        )
+        .unwrap();
+        let message = FileSamples::open(&bad).err().unwrap().to_string();
+        assert!(
+            message.contains("bad.csv") && message.contains("line 3"),
+            "{message}"
+        );
     }
 
     /// A span given by time is taken whole, and a gap in the time line is found.
