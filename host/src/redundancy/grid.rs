@@ -452,15 +452,13 @@ mod tests {
 
     const DT_S: f64 = 1e-3;
 
-    /// A unit of white noise at the stamps `t_s`.
-    fn unit(name: &str, t_s: Vec<f64>) -> (String, ImuRecording) {
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(t_s.len() as u64);
-        let noise = Normal::new(0.0, 1.0).unwrap();
-        let mut series = || {
-            (0..t_s.len())
-                .map(|_| noise.sample(&mut rng))
-                .collect::<Vec<f64>>()
-        };
+    /// A unit at the stamps `t_s`, each of its six channels `value(t)` at each stamp.
+    fn unit_of(
+        name: &str,
+        t_s: Vec<f64>,
+        mut value: impl FnMut(f64) -> f64,
+    ) -> (String, ImuRecording) {
+        let mut series = || t_s.iter().map(|t| value(*t)).collect::<Vec<f64>>();
         let recording = ImuRecording {
             gyro_rad_s: Some([series(), series(), series()]),
             accel_m_s2: Some([series(), series(), series()]),
@@ -468,6 +466,13 @@ mod tests {
             ..Default::default()
         };
         (name.to_string(), recording)
+    }
+
+    /// A unit of white noise at the stamps `t_s`.
+    fn unit(name: &str, t_s: Vec<f64>) -> (String, ImuRecording) {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(t_s.len() as u64);
+        let noise = Normal::new(0.0, 1.0).unwrap();
+        unit_of(name, t_s, |_| noise.sample(&mut rng))
     }
 
     /// Which of unit `k`'s samples stands at each grid time (None: none, a slot its clock
@@ -586,22 +591,9 @@ mod tests {
         let tau = std::f64::consts::TAU;
         let mut unit = |name: &str, late: f64| {
             let t_s: Vec<f64> = (0..n).map(|i| (i as f64 + late) * dt).collect();
-            let mut series = || {
-                t_s.iter()
-                    .map(|t| {
-                        (tau * 3.0 * t).sin()
-                            + 0.5 * (tau * 21.3 * t).sin()
-                            + noise.sample(&mut rng)
-                    })
-                    .collect::<Vec<f64>>()
-            };
-            let recording = ImuRecording {
-                gyro_rad_s: Some([series(), series(), series()]),
-                accel_m_s2: Some([series(), series(), series()]),
-                t_s,
-                ..Default::default()
-            };
-            (name.to_string(), recording)
+            unit_of(name, t_s, |t| {
+                (tau * 3.0 * t).sin() + 0.5 * (tau * 21.3 * t).sin() + noise.sample(&mut rng)
+            })
         };
         let units = [unit("a", 0.0), unit("b", 0.0), unit("c", 0.4)];
         let grid = common_grid(&units).unwrap();
