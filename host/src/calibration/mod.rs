@@ -47,6 +47,7 @@ mod recordings;
 mod signals;
 
 pub use design::{CalibrationDesign, DesignRows};
+pub(crate) use recordings::Samples;
 pub use recordings::SpilledRecording;
 
 use std::path::Path;
@@ -57,7 +58,6 @@ use crate::error_signal::{ErrorSignalWriter, ErrorSignals};
 use crate::interchange::ImuRecording;
 use epochs::{EpochGrid, EpochSource};
 use passes::{Epochs, View};
-use recordings::Samples;
 
 /// Errors building error signals.
 #[derive(Debug, thiserror::Error)]

@@ -29,7 +29,7 @@ use crate::interchange::{
 };
 
 /// What the calibration asks of a recording.
-pub(super) trait Samples {
+pub(crate) trait Samples {
     /// Number of samples.
     fn len(&self) -> usize;
     /// Time of sample `i`, s.

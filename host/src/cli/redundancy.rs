@@ -5,7 +5,8 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use dynacal::input::load_recording;
-use dynacal::redundancy::{redundancy, RedundancyOptions};
+use dynacal::input::stream::{StreamMode, STREAM_THRESHOLD_BYTES};
+use dynacal::redundancy::{redundancy, redundancy_of_files, RedundancyOptions, RedundancyReport};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -44,6 +45,14 @@ pub struct Args {
     /// Analyse only the samples before this time, s.
     #[arg(long)]
     pub to_s: Option<f64>,
+    /// Read the units stretch by stretch from spill files instead of loading them whole
+    /// (memory that does not grow with the run): `auto` when the files take more than 256
+    /// MiB on disk together.
+    #[arg(long, value_enum, default_value_t = StreamMode::Auto)]
+    pub stream: StreamMode,
+    /// Shared times a stretch holds when streamed (tests cut a short run into several).
+    #[arg(long, hide = true, default_value_t = dynacal::redundancy::STRETCH_EPOCHS)]
+    pub stretch_epochs: usize,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
@@ -60,19 +69,6 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         from < to && !from.is_nan() && !to.is_nan(),
         "--from-s {from} must come before --to-s {to}"
     );
-    let units = args
-        .units
-        .iter()
-        .map(|p| {
-            let recording = load_recording(p, false)?.between(from, to);
-            anyhow::ensure!(
-                !recording.is_empty(),
-                "{}: no samples between {from} s and {to} s",
-                p.display()
-            );
-            Ok((p.display().to_string(), recording))
-        })
-        .collect::<anyhow::Result<Vec<_>>>()?;
     for (name, range) in [
         ("--gyro-range-rad-s", args.gyro_range_rad_s),
         ("--accel-range-m-s2", args.accel_range_m_s2),
@@ -89,10 +85,24 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         ranges: [args.gyro_range_rad_s, args.accel_range_m_s2],
         ..Default::default()
     };
-    let bar = super::working(&format!("analysing {} units", units.len()));
-    let report = redundancy(&units, &opts).context("the redundancy analysis");
-    bar.finish_and_clear();
-    let report = report?;
+    let streamed = match args.stream {
+        StreamMode::Always => true,
+        StreamMode::Never => false,
+        StreamMode::Auto => {
+            let bytes: u64 = args
+                .units
+                .iter()
+                .filter_map(|p| std::fs::metadata(p).ok())
+                .map(|m| m.len())
+                .sum();
+            bytes > STREAM_THRESHOLD_BYTES
+        }
+    };
+    let (report, fused_written) = if streamed {
+        analyse_streamed(&args, (from, to), &opts)?
+    } else {
+        analyse_whole(&args, (from, to), &opts)?
+    };
     for (unit, level) in report.imus.iter().zip(&report.noise_level) {
         let s = |c: &str| unit.white_noise_sigma2[c].sqrt();
         eprintln!(
@@ -124,16 +134,17 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         eprintln!("note: {note}");
     }
     if let Some(path) = &args.fused {
-        let fused = report.fused.as_ref().with_context(|| {
-            format!(
-                "no fused output for {}: the motion does not determine the units' rotations, \
-                 so they have no common frame",
-                path.display()
-            )
-        })?;
-        fused
-            .write(path)
-            .with_context(|| format!("writing {}", path.display()))?;
+        anyhow::ensure!(
+            fused_written || report.fused.is_some(),
+            "no fused output for {}: the motion does not determine the units' rotations, so \
+             they have no common frame",
+            path.display()
+        );
+        if let Some(fused) = &report.fused {
+            fused
+                .write(path)
+                .with_context(|| format!("writing {}", path.display()))?;
+        }
     }
     if let Some(dir) = &args.report {
         dynacal::redundancy::report::write_report(dir, &report)
@@ -150,4 +161,52 @@ pub fn run(args: Args) -> anyhow::Result<()> {
     written.extend(html.as_deref());
     super::wrote(&written);
     Ok(())
+}
+
+/// The units loaded whole; the fused output, if any, is in the report.
+fn analyse_whole(
+    args: &Args,
+    (from, to): (f64, f64),
+    opts: &RedundancyOptions,
+) -> anyhow::Result<(RedundancyReport, bool)> {
+    let units = args
+        .units
+        .iter()
+        .map(|p| {
+            let recording = load_recording(p, false)?.between(from, to);
+            anyhow::ensure!(
+                !recording.is_empty(),
+                "{}: no samples between {from} s and {to} s",
+                p.display()
+            );
+            Ok((p.display().to_string(), recording))
+        })
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let bar = super::working(&format!("analysing {} units", units.len()));
+    let report = redundancy(&units, opts).context("the redundancy analysis");
+    bar.finish_and_clear();
+    Ok((report?, false))
+}
+
+/// The units read stretch by stretch; the fused output written as it is formed.
+fn analyse_streamed(
+    args: &Args,
+    window_s: (f64, f64),
+    opts: &RedundancyOptions,
+) -> anyhow::Result<(RedundancyReport, bool)> {
+    let bar = super::working(&format!(
+        "analysing {} units stretch by stretch",
+        args.units.len()
+    ));
+    let outcome = redundancy_of_files(
+        &args.units,
+        window_s,
+        opts,
+        args.fused.as_deref(),
+        args.stretch_epochs.max(1024),
+    )
+    .context("the redundancy analysis");
+    bar.finish_and_clear();
+    let outcome = outcome?;
+    Ok((outcome.report, outcome.fused_written))
 }

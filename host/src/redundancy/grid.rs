@@ -59,8 +59,12 @@ const PHASE_GAIN: f64 = 1.0 / 32.0;
 const PHASE_STEP: f64 = 0.75;
 
 /// The grid of `units` (3 or more, checked by the caller), or why they were not sampled
-/// together.
-pub(super) fn common_grid(units: &[(String, ImuRecording)]) -> Result<Grid, RedundancyError> {
+/// together; its times are those of unit `anchor`, or where None of the unit with the most
+/// samples (a long run's stretches all follow the run's anchor, so their grids join).
+pub(super) fn common_grid(
+    units: &[(String, ImuRecording)],
+    anchor: Option<usize>,
+) -> Result<Grid, RedundancyError> {
     let dt_s = units
         .iter()
         .map(|(_, r)| r.median_dt_s())
@@ -69,12 +73,14 @@ pub(super) fn common_grid(units: &[(String, ImuRecording)]) -> Result<Grid, Redu
     // A unit's first and last samples may stand up to its phase from the others'.
     let tolerance = PHASE_STEP * dt_s;
     let in_span = |t: f64| t >= start_s - tolerance && t <= end_s + tolerance;
-    let anchor = (0..units.len())
-        .max_by_key(|&k| {
-            let count = units[k].1.t_s.iter().filter(|t| in_span(**t)).count();
-            (count, std::cmp::Reverse(k))
-        })
-        .expect("three or more units");
+    let anchor = anchor.unwrap_or_else(|| {
+        (0..units.len())
+            .max_by_key(|&k| {
+                let count = units[k].1.t_s.iter().filter(|t| in_span(**t)).count();
+                (count, std::cmp::Reverse(k))
+            })
+            .expect("three or more units")
+    });
     let anchor_t: Vec<f64> = units[anchor]
         .1
         .t_s
@@ -517,7 +523,7 @@ mod tests {
             unit("b", stamps(n, 100e-6, 0.3e-3, 2e-6, 2)),
             unit("c", stamps(n, -60e-6, -0.2e-3, 2e-6, 3)),
         ];
-        let grid = common_grid(&units).unwrap();
+        let grid = common_grid(&units, None).unwrap();
         assert_eq!(
             grid.anchor, 1,
             "the fastest clock has the most samples in the span"
@@ -570,7 +576,7 @@ mod tests {
             unit("b", stamps(n, 0.0, 0.0, 1e-6, 5)),
             unit("c", stamps(n, 0.0, 0.5e-3, 0.05e-3, 6)),
         ];
-        let grid = common_grid(&units).unwrap();
+        let grid = common_grid(&units, None).unwrap();
         let held: Vec<Option<usize>> = held(&grid, 2, &units[2].1);
         let stepped = held
             .windows(2)
@@ -596,7 +602,7 @@ mod tests {
             })
         };
         let units = [unit("a", 0.0), unit("b", 0.0), unit("c", 0.4)];
-        let grid = common_grid(&units).unwrap();
+        let grid = common_grid(&units, None).unwrap();
         let rms = |x: &[f64], y: &[f64]| {
             let inner = 100..x.len() - 100;
             let sum: f64 = inner.clone().map(|i| (x[i] - y[i]).powi(2)).sum();
@@ -623,7 +629,7 @@ mod tests {
             unit("b", stamps(n, 0.0, 0.0, 2e-6, 8)),
             unit("c", c),
         ];
-        let grid = common_grid(&units).unwrap();
+        let grid = common_grid(&units, None).unwrap();
         let missing: Vec<usize> = (0..grid.t_s.len())
             .filter(|&i| !grid.present[2][i])
             .collect();
@@ -640,7 +646,7 @@ mod tests {
             unit("b", stamps(n, 0.0, 0.0, 2e-6, 11)),
             unit("c", stamps(n, -0.01, 0.0, 2e-6, 12)),
         ];
-        let Err(RedundancyError::Unit { name, message }) = common_grid(&units) else {
+        let Err(RedundancyError::Unit { name, message }) = common_grid(&units, None) else {
             panic!("accepted");
         };
         assert_eq!(name, "c");

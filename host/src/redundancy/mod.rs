@@ -21,18 +21,20 @@ mod derivative;
 mod faults;
 mod grid;
 pub mod report;
+mod stretches;
 
 use std::collections::BTreeMap;
+use std::path::{Path, PathBuf};
 
-use dynacal_core::redundancy::{
-    own_variances, pair_index, pairs, LiveNoise, MotionThresholds, MAX_UNITS,
-};
+use dynacal_core::redundancy::{own_variances, LiveNoise, MotionThresholds, MAX_UNITS};
 use serde::Serialize;
 
 pub use faults::{clipping_level, kind_name, FaultRecord, Ranges};
 
-use crate::interchange::ImuRecording;
-use crate::wv::{haar_wv, WvOptions};
+use crate::interchange::{ImuRecording, RowWriter};
+use stretches::{PieceWv, Stretch, Stretches};
+
+pub use stretches::{MARGIN_EPOCHS, STRETCH_EPOCHS};
 
 /// Channel names in interchange order: gyros then accelerometers.
 const CHANNELS: [&str; 6] = ["gx", "gy", "gz", "ax", "ay", "az"];
@@ -46,6 +48,11 @@ pub enum RedundancyError {
     Unit { name: String, message: String },
     #[error("{0}")]
     NoOverlap(String),
+    #[error("{path}: {message}")]
+    Output { path: PathBuf, message: String },
+    /// A unit's file could not be read (the message names it).
+    #[error("{0}")]
+    Input(String),
 }
 
 /// How a unit's rotation to the first unit was found.
@@ -224,9 +231,11 @@ fn members(units: usize) -> Vec<(usize, usize)> {
         .collect()
 }
 
-/// Each unit's own wavelet variance on channel `c`, from the wavelet variances of every
-/// pairwise difference, per scale. On the accelerometers, the lever-arm correction's error
-/// (`correction`), common to the units, is taken out of each pair first: it is not a unit's.
+/// Each unit's own wavelet variance on channel `c` of `signals` (held whole), from the
+/// wavelet variances of every pairwise difference, per scale. On the accelerometers, the
+/// lever-arm correction's error (`correction`), common to the units, is taken out of each
+/// pair first: it is not a unit's.
+#[cfg(test)]
 fn own_wv(
     signals: &[[Vec<f64>; 6]],
     c: usize,
@@ -234,11 +243,28 @@ fn own_wv(
     correction: Option<&align::CorrectionError>,
 ) -> Vec<OwnWv> {
     let series: Vec<&[f64]> = signals.iter().map(|s| s[c].as_slice()).collect();
-    let members = members(signals.len());
-    hat_wv(&series, dt_s, |level, p, q| match (correction, c >= 3) {
-        (Some(e), true) => e.pair_covariance(c - 3, level, members[p], members[q]),
-        _ => 0.0,
+    hat_of(&pair_wvs(&series, dt_s), series.len(), |level, p, q| {
+        channel_common(correction, c, level, p, q, series.len())
     })
+}
+
+/// The covariance the lever-arm correction's error puts into the pairs p and q (in
+/// [`members`] order) on channel c at a level: none on the gyros.
+fn channel_common(
+    correction: Option<&align::CorrectionError>,
+    c: usize,
+    level: usize,
+    p: usize,
+    q: usize,
+    units: usize,
+) -> f64 {
+    match (correction, c >= 3) {
+        (Some(e), true) => {
+            let members = members(units);
+            e.pair_covariance(c - 3, level, members[p], members[q])
+        }
+        _ => 0.0,
+    }
 }
 
 /// Each unit's own wavelet variance from `series`, one per unit, sampled together and
@@ -247,33 +273,43 @@ fn own_wv(
 /// [`redundancy`] computes of a channel, for a caller that simulates the units (the refit's
 /// bootstrap).
 pub fn own_wv_of(series: &[&[f64]], dt_s: f64) -> Vec<OwnWv> {
-    hat_wv(series, dt_s, |_, _, _| 0.0)
+    hat_of(&pair_wvs(series, dt_s), series.len(), |_, _, _| 0.0)
 }
 
-/// The N-cornered hat per scale; `common(level, p, q)` is the covariance the pairs p and q
-/// (in [`members`] order) share beyond their units, taken out of every pair.
-fn hat_wv(series: &[&[f64]], dt_s: f64, common: impl Fn(usize, usize, usize) -> f64) -> Vec<OwnWv> {
-    let units = series.len();
+/// The wavelet variance of every pairwise difference of `series` held whole, in
+/// [`members`] order.
+fn pair_wvs(series: &[&[f64]], dt_s: f64) -> Vec<PieceWv> {
+    members(series.len())
+        .iter()
+        .map(|&(k, l)| {
+            let d: Vec<f64> = series[k]
+                .iter()
+                .zip(series[l])
+                .map(|(a, b)| a - b)
+                .collect();
+            let mut wv = PieceWv::new(1, dt_s);
+            wv.add(&d);
+            wv
+        })
+        .collect()
+}
+
+/// The N-cornered hat per scale from the pairs' wavelet variances (in [`members`] order);
+/// `common(level, p, q)` is the covariance the pairs p and q share beyond their units,
+/// taken out of every pair.
+fn hat_of(
+    pairs_wv: &[PieceWv],
+    units: usize,
+    common: impl Fn(usize, usize, usize) -> f64,
+) -> Vec<OwnWv> {
     let members = members(units);
-    let mut scales_s = Vec::new();
-    let mut eta: Vec<f64> = Vec::new();
-    let mut pair_wv: Vec<Vec<f64>> = vec![Vec::new(); pairs(units)];
-    for &(k, l) in &members {
-        let d: Vec<f64> = series[k]
-            .iter()
-            .zip(series[l])
-            .map(|(a, b)| a - b)
-            .collect();
-        let wv = haar_wv(&d, dt_s, &WvOptions::default()).expect("at least 64 samples");
-        scales_s = wv.scales_s.clone();
-        eta = wv
-            .n_coefficients
-            .iter()
-            .zip(&wv.levels)
-            .map(|(m, j)| crate::wv::eta3(*m, *j))
-            .collect();
-        pair_wv[pair_index(units, k, l)] = wv.variance;
-    }
+    let results: Vec<_> = pairs_wv
+        .iter()
+        .map(|p| p.result().expect("at least 64 samples"))
+        .collect();
+    let (first, eta) = &results[0];
+    let scales_s = first.scales_s.clone();
+    let pair_wv: Vec<&Vec<f64>> = results.iter().map(|(wv, _)| &wv.variance).collect();
     let mut out: Vec<OwnWv> = (0..units)
         .map(|_| OwnWv {
             scales_s: scales_s.clone(),
@@ -332,7 +368,7 @@ fn shared((k, l): (usize, usize), (m, o): (usize, usize), own: &[f64]) -> f64 {
 }
 
 /// 95% interval of unit k's own wavelet variance at one scale, from the covariance of the
-/// pairs' wavelet coefficients (`covariance[p][q]`, p and q in [`pair_index`] order: on the
+/// pairs' wavelet coefficients (`covariance[p][q]`, p and q in [`members`] order: on the
 /// diagonal each pair's wavelet variance, of eta equivalent degrees of freedom; off it, the
 /// shared unit's own variance and any error common to the pairs) and the units' own
 /// variances `own`. The least squares gives x_k = sum_p a_p nu_p with a_p = ([k in p] -
@@ -361,73 +397,326 @@ pub fn own_interval(k: usize, covariance: &[Vec<f64>], own: &[f64], eta: f64) ->
 }
 
 /// Each unit's live gyro and accelerometer white-noise level (the core's [`LiveNoise`]) and
-/// the motion state, sampled every `opts.live_output_interval_s`.
-fn live_levels<const N: usize>(
-    signals: &[[Vec<f64>; 6]],
-    t_s: &[f64],
-    dt_s: f64,
-    opts: &RedundancyOptions,
-) -> (Vec<NoiseLevel>, Vec<bool>) {
-    let tau = opts.live_time_constant_s as f32;
-    let mut gyro = LiveNoise::<N>::new(dt_s as f32, tau, MotionThresholds::default());
-    let mut accel = LiveNoise::<N>::new(dt_s as f32, tau, MotionThresholds::default());
-    let mut levels: Vec<NoiseLevel> = (0..N)
-        .map(|_| NoiseLevel {
-            t_s: Vec::new(),
-            gyro_rad_s: Vec::new(),
-            accel_m_s2: Vec::new(),
-        })
-        .collect();
-    let mut moving = Vec::new();
-    let every = ((opts.live_output_interval_s / dt_s).round() as usize).max(1);
-    for i in 0..t_s.len() {
-        let triad = |first: usize| -> [[f32; 3]; N] {
-            std::array::from_fn(|k| std::array::from_fn(|a| signals[k][first + a][i] as f32))
-        };
-        let g = triad(0);
-        let rate: [f32; 3] =
-            std::array::from_fn(|a| g.iter().map(|u| u[a]).sum::<f32>() / N as f32);
-        gyro.push(&g, rate);
-        accel.push(&triad(3), rate);
-        if i % every == every - 1 {
-            for (k, level) in levels.iter_mut().enumerate() {
-                level.t_s.push(t_s[i]);
-                level.gyro_rad_s.push(gyro.sigma(k) as f64);
-                level.accel_m_s2.push(accel.sigma(k) as f64);
-            }
-            moving.push(gyro.moving());
-        }
-    }
-    (levels, moving)
+/// the motion state, sampled every `opts.live_output_interval_s`, fed stretch by stretch.
+trait LiveLevels {
+    fn push(&mut self, signals: &[[Vec<f64>; 6]], stretch: &Stretch);
+    fn finish(self: Box<Self>) -> (Vec<NoiseLevel>, Vec<bool>);
 }
 
-/// The analysis of `units` (name, recording), sampled together.
+struct Live<const N: usize> {
+    gyro: LiveNoise<N>,
+    accel: LiveNoise<N>,
+    levels: Vec<NoiseLevel>,
+    moving: Vec<bool>,
+    /// Epochs between outputs.
+    every: usize,
+}
+
+impl<const N: usize> Live<N> {
+    fn new(dt_s: f64, opts: &RedundancyOptions) -> Self {
+        let tau = opts.live_time_constant_s as f32;
+        Self {
+            gyro: LiveNoise::<N>::new(dt_s as f32, tau, MotionThresholds::default()),
+            accel: LiveNoise::<N>::new(dt_s as f32, tau, MotionThresholds::default()),
+            levels: (0..N)
+                .map(|_| NoiseLevel {
+                    t_s: Vec::new(),
+                    gyro_rad_s: Vec::new(),
+                    accel_m_s2: Vec::new(),
+                })
+                .collect(),
+            moving: Vec::new(),
+            every: ((opts.live_output_interval_s / dt_s).round() as usize).max(1),
+        }
+    }
+}
+
+impl<const N: usize> LiveLevels for Live<N> {
+    fn push(&mut self, signals: &[[Vec<f64>; 6]], stretch: &Stretch) {
+        for (e, i) in (stretch.first_epoch..).zip(stretch.own.clone()) {
+            let triad = |first: usize| -> [[f32; 3]; N] {
+                std::array::from_fn(|k| std::array::from_fn(|a| signals[k][first + a][i] as f32))
+            };
+            let g = triad(0);
+            let rate: [f32; 3] =
+                std::array::from_fn(|a| g.iter().map(|u| u[a]).sum::<f32>() / N as f32);
+            self.gyro.push(&g, rate);
+            self.accel.push(&triad(3), rate);
+            if e % self.every == self.every - 1 {
+                for (k, level) in self.levels.iter_mut().enumerate() {
+                    level.t_s.push(stretch.grid.t_s[i]);
+                    level.gyro_rad_s.push(self.gyro.sigma(k) as f64);
+                    level.accel_m_s2.push(self.accel.sigma(k) as f64);
+                }
+                self.moving.push(self.gyro.moving());
+            }
+        }
+    }
+
+    fn finish(self: Box<Self>) -> (Vec<NoiseLevel>, Vec<bool>) {
+        (self.levels, self.moving)
+    }
+}
+
+/// The live levels of `units` units.
+fn live_levels(units: usize, dt_s: f64, opts: &RedundancyOptions) -> Box<dyn LiveLevels> {
+    match units {
+        3 => Box::new(Live::<3>::new(dt_s, opts)),
+        4 => Box::new(Live::<4>::new(dt_s, opts)),
+        5 => Box::new(Live::<5>::new(dt_s, opts)),
+        6 => Box::new(Live::<6>::new(dt_s, opts)),
+        7 => Box::new(Live::<7>::new(dt_s, opts)),
+        _ => Box::new(Live::<8>::new(dt_s, opts)),
+    }
+}
+
+/// The analysis of `units` (name, recording), sampled together, held whole.
 pub fn redundancy(
     units: &[(String, ImuRecording)],
     opts: &RedundancyOptions,
 ) -> Result<RedundancyReport, RedundancyError> {
     check_units(units)?;
-    let grid = grid::common_grid(units)?;
-    check_same_motion(&grid)?;
+    let grid = grid::common_grid(units, None)?;
+    let mut run = stretches::HeldRun::new(units, grid);
+    let mut fused = ImuRecording {
+        gyro_rad_s: Some(Default::default()),
+        accel_m_s2: Some(Default::default()),
+        ..Default::default()
+    };
+    let (mut report, one_frame) = analyse(&mut run, opts, &mut |t, row| {
+        fused.t_s.push(t);
+        for (c, v) in row.iter().enumerate() {
+            let triad = if c < 3 {
+                &mut fused.gyro_rad_s
+            } else {
+                &mut fused.accel_m_s2
+            };
+            triad.as_mut().expect("both triads")[c % 3].push(*v);
+        }
+        Ok(())
+    })?;
+    if one_frame {
+        report.fused = Some(fused);
+    }
+    Ok(report)
+}
+
+/// What [`redundancy_of_files`] wrote besides its report.
+pub struct FilesOutcome {
+    pub report: RedundancyReport,
+    /// Whether the fused output was written (not where the units have no common frame).
+    pub fused_written: bool,
+}
+
+/// The analysis of the units' interchange files at `paths`, between `from_s` and `to_s`,
+/// read stretch by stretch from spill files (memory follows a stretch of
+/// `stretch_epochs` shared times, not the run), the fused virtual IMU written to `fused`
+/// as it is formed (whole, or not at all).
+pub fn redundancy_of_files(
+    paths: &[PathBuf],
+    window_s: (f64, f64),
+    opts: &RedundancyOptions,
+    fused: Option<&Path>,
+    stretch_epochs: usize,
+) -> Result<FilesOutcome, RedundancyError> {
+    if !(3..=MAX_UNITS).contains(&paths.len()) {
+        return Err(RedundancyError::Units(paths.len()));
+    }
+    let mut run = stretches::SpilledRun::open(paths, window_s, stretch_epochs)?;
+    let output = |path: &Path| {
+        let path = path.to_path_buf();
+        move |e: crate::interchange::TableError| RedundancyError::Output {
+            path: path.clone(),
+            message: e.to_string(),
+        }
+    };
+    let fused_error = fused.map(output);
+    let columns = vec![
+        "t_s", "gx_rad_s", "gy_rad_s", "gz_rad_s", "ax_m_s2", "ay_m_s2", "az_m_s2",
+    ];
+    let mut writer = fused
+        .map(|p| RowWriter::create(p, columns, Some(1.0 / run.dt_s())).map_err(output(p)))
+        .transpose()?;
+    let mut rows = 0u64;
+    let (report, one_frame) = analyse(&mut run, opts, &mut |t, row| {
+        rows += 1;
+        match writer.as_mut() {
+            Some(w) => {
+                let mut values = [t; 7];
+                values[1..].copy_from_slice(&row);
+                w.push(&values)
+                    .map_err(fused_error.as_ref().expect("a writer has a path"))
+            }
+            None => Ok(()),
+        }
+    })?;
+    let fused_written = match (writer, fused) {
+        (Some(w), Some(p)) if one_frame && rows > 0 => {
+            w.finish().map_err(output(p))?;
+            true
+        }
+        _ => false,
+    };
+    Ok(FilesOutcome {
+        report,
+        fused_written,
+    })
+}
+
+/// What the first pass over the run gathers: the rotations' sums and what the notes say of
+/// the grid.
+struct Survey {
+    rotations: align::RotationSums,
+    epochs: usize,
+    /// Per unit: shared times without its sample.
+    missing: Vec<usize>,
+    /// Per unit: its rate against the grid's, summed weighted by the stretches' epochs.
+    rate_sums: Vec<f64>,
+    /// Per unit: the furthest its samples were from their grid times, s.
+    furthest_s: Vec<f64>,
+    anchor: usize,
+    spacing: Spacing,
+}
+
+/// The grid's steps against its median step.
+#[derive(Default)]
+struct Spacing {
+    dt_s: Option<f64>,
+    steps: usize,
+    uneven: usize,
+    gaps: usize,
+    longest_gap_s: f64,
+}
+
+impl Survey {
+    fn new(units: usize) -> Self {
+        Self {
+            rotations: align::RotationSums::new(units),
+            epochs: 0,
+            missing: vec![0; units],
+            rate_sums: vec![0.0; units],
+            furthest_s: vec![0.0; units],
+            anchor: 0,
+            spacing: Spacing::default(),
+        }
+    }
+
+    fn push(&mut self, stretch: &Stretch, dt_s: f64) -> Result<(), RedundancyError> {
+        let grid = &stretch.grid;
+        check_same_motion(grid)?;
+        let own = stretch.own.clone();
+        self.epochs += own.len();
+        self.anchor = grid.anchor;
+        for k in 0..self.missing.len() {
+            self.missing[k] += grid.present[k][own.clone()].iter().filter(|p| !**p).count();
+            self.rate_sums[k] += grid.rate_offset[k] * own.len() as f64;
+            let furthest = grid.offset_s[k][own.clone()]
+                .iter()
+                .fold(0.0_f64, |m, o| m.max(o.abs()));
+            self.furthest_s[k] = self.furthest_s[k].max(furthest);
+        }
+        let spacing = &mut self.spacing;
+        let dt = *spacing.dt_s.get_or_insert_with(|| {
+            crate::interchange::median_step_s(&grid.t_s).unwrap_or(f64::NAN)
+        });
+        for i in own.filter(|i| *i > 0 && dt.is_finite()) {
+            let step = grid.t_s[i] - grid.t_s[i - 1];
+            spacing.steps += 1;
+            if step > 1.5 * dt {
+                spacing.gaps += 1;
+                spacing.longest_gap_s = spacing.longest_gap_s.max(step);
+            }
+            if (step / dt - 1.0).abs() > 0.1 {
+                spacing.uneven += 1;
+            }
+        }
+        self.rotations.push(stretch, dt_s);
+        Ok(())
+    }
+}
+
+/// The analysis of a run, stretch by stretch, in three passes: the grid's notes and the
+/// rotations; the platform's motion and the lever arms; the aligned signals' wavelet
+/// variances, live levels and monitors, with the fused output to `fused`. Also says whether
+/// the units are in one frame (else nothing was fused).
+fn analyse(
+    run: &mut dyn Stretches,
+    opts: &RedundancyOptions,
+    fused: &mut faults::FusedSink,
+) -> Result<(RedundancyReport, bool), RedundancyError> {
+    let names = run.names().to_vec();
+    let units = names.len();
+    let dt_s = run.dt_s();
+    let mut survey = Survey::new(units);
+    run.for_each(&mut |stretch| survey.push(stretch, dt_s))?;
     let mut notes = vec![
         "what the units share (a common temperature drift, the same vibration) cancels in \
          every difference: these are the independent parts of the units' errors"
             .to_string(),
     ];
-    note_dropouts(units, &grid.present, &mut notes);
-    note_clocks(units, &grid, &mut notes);
-    note_spacing(&grid.t_s, &mut notes);
-    let first = &grid.filled[0].1;
-    let dt_s = first.median_dt_s();
-    let aligned = align::align(&grid.filled, &mut notes);
-    let per_channel: Vec<Vec<OwnWv>> = (0..6)
-        .map(|c| own_wv(&aligned.signals, c, dt_s, aligned.correction_error.as_ref()))
+    note_dropouts(&names, &survey.missing, survey.epochs, &mut notes);
+    note_clocks(&names, &survey, &mut notes);
+    note_spacing(&survey.spacing, &mut notes);
+    let rotations = survey.rotations.finish();
+    let pieces = run.count();
+    let mut noise = align::DerivativeNoise::new(align::determined_units(&rotations), pieces, dt_s);
+    let mut levers = align::LeverSums::new(units, survey.epochs);
+    run.for_each(&mut |stretch| {
+        align::push_motion(stretch, &rotations, dt_s, &mut noise, &mut levers);
+        Ok(())
+    })?;
+    let aligned = align::alignments(&names, rotations, &noise, &levers, &mut notes);
+    let clipping = run.clipping()?;
+    let ranges: Vec<Ranges> = clipping
+        .iter()
+        .map(|own| [0, 1].map(|sensor| opts.ranges[sensor].or(own[sensor])))
         .collect();
-    let imus = units
+    let setup = faults::MonitorSetup {
+        dt_s,
+        ranges: &ranges,
+        lengths_only: aligned.unobservable,
+    };
+    let mut monitors = faults::monitors(units, &setup);
+    let mut live = live_levels(units, dt_s, opts);
+    let members = members(units);
+    let mut pair_wv: Vec<Vec<PieceWv>> = (0..6)
+        .map(|_| members.iter().map(|_| PieceWv::new(pieces, dt_s)).collect())
+        .collect();
+    run.for_each(&mut |stretch| {
+        let signals = align::aligned_signals(stretch, &aligned, dt_s);
+        for (c, channel) in pair_wv.iter_mut().enumerate() {
+            for (&(k, l), wv) in members.iter().zip(channel.iter_mut()) {
+                let d: Vec<f64> = stretch
+                    .own
+                    .clone()
+                    .map(|i| signals[k][c][i] - signals[l][c][i])
+                    .collect();
+                wv.add(&d);
+            }
+        }
+        live.push(&signals, stretch);
+        let monitored = faults::MonitorStretch {
+            signals: &signals,
+            raw: &stretch.grid.filled,
+            present: &stretch.grid.present,
+            t_s: &stretch.grid.t_s,
+            own: stretch.own.clone(),
+            first_epoch: stretch.first_epoch,
+        };
+        monitors.push(&monitored, fused)
+    })?;
+    let per_channel: Vec<Vec<OwnWv>> = (0..6)
+        .map(|c| {
+            hat_of(&pair_wv[c], units, |level, p, q| {
+                channel_common(aligned.correction_error.as_ref(), c, level, p, q, units)
+            })
+        })
+        .collect();
+    let imus = names
         .iter()
         .zip(aligned.alignments.clone())
         .enumerate()
-        .map(|(k, ((name, _), alignment))| {
+        .map(|(k, (name, alignment))| {
             let wv: BTreeMap<String, OwnWv> = CHANNELS
                 .iter()
                 .zip(&per_channel)
@@ -444,75 +733,52 @@ pub fn redundancy(
             }
         })
         .collect();
-    let (noise_level, moving) = match units.len() {
-        3 => live_levels::<3>(&aligned.signals, &first.t_s, dt_s, opts),
-        4 => live_levels::<4>(&aligned.signals, &first.t_s, dt_s, opts),
-        5 => live_levels::<5>(&aligned.signals, &first.t_s, dt_s, opts),
-        6 => live_levels::<6>(&aligned.signals, &first.t_s, dt_s, opts),
-        7 => live_levels::<7>(&aligned.signals, &first.t_s, dt_s, opts),
-        _ => live_levels::<8>(&aligned.signals, &first.t_s, dt_s, opts),
-    };
-    let ranges: Vec<Ranges> = units
-        .iter()
-        .map(|(_, r)| {
-            let own = |sensor: usize, triad: &Option<[Vec<f64>; 3]>| {
-                opts.ranges[sensor].or_else(|| triad.as_ref().and_then(clipping_level))
-            };
-            [own(0, &r.gyro_rad_s), own(1, &r.accel_m_s2)]
-        })
-        .collect();
-    let lengths_only = aligned.unobservable;
-    let monitoring = faults::monitor(&faults::MonitorInput {
-        signals: &aligned.signals,
-        raw: &grid.filled,
-        present: &grid.present,
-        t_s: &grid.t_s,
-        dt_s,
-        ranges: &ranges,
-        lengths_only,
-    });
-    note_faults(&monitoring, units.len(), &mut notes);
-    Ok(RedundancyReport {
-        imus,
-        noise_level,
-        moving,
-        faults: monitoring.faults,
-        notes,
-        fused: monitoring.fused,
-    })
+    let (noise_level, moving) = live.finish();
+    let monitoring = monitors.finish();
+    note_faults(&monitoring, !aligned.unobservable, units, &mut notes);
+    Ok((
+        RedundancyReport {
+            imus,
+            noise_level,
+            moving,
+            faults: monitoring.faults,
+            notes,
+            fused: None,
+        },
+        !aligned.unobservable,
+    ))
 }
 
 /// What the output must say of a grid whose times are not evenly spaced (a logger's pauses
 /// and late samples): the analysis takes the samples as evenly spaced.
-fn note_spacing(t_s: &[f64], notes: &mut Vec<String>) {
-    let Some(dt) = crate::interchange::median_step_s(t_s) else {
+fn note_spacing(spacing: &Spacing, notes: &mut Vec<String>) {
+    let Some(dt) = spacing.dt_s.filter(|dt| dt.is_finite()) else {
         return;
     };
-    let steps = t_s.windows(2).map(|w| w[1] - w[0]);
-    let gaps: Vec<f64> = steps.clone().filter(|s| *s > 1.5 * dt).collect();
-    let uneven = steps.filter(|s| (s / dt - 1.0).abs() > 0.1).count();
-    if uneven > 0 {
+    if spacing.uneven > 0 {
         notes.push(format!(
-            "the shared times are not evenly spaced: {uneven} of {} steps differ from the median \
+            "the shared times are not evenly spaced: {} of {} steps differ from the median \
              {dt:.4} s by more than 10%, {} of them gaps (the longest {:.3} s), at the same times \
              in every unit; the samples are analysed as evenly spaced (the units' differences \
              do not depend on the motion's timing, but a wavelet scale's time and the angular \
              acceleration across a gap do)",
-            t_s.len() - 1,
-            gaps.len(),
-            gaps.iter().copied().fold(0.0, f64::max)
+            spacing.uneven, spacing.steps, spacing.gaps, spacing.longest_gap_s
         ));
     }
 }
 
 /// What the output must say of units on their own clocks: how far their rates and
 /// instants are from the grid's.
-fn note_clocks(units: &[(String, ImuRecording)], grid: &grid::Grid, notes: &mut Vec<String>) {
-    let dt_s = crate::interchange::median_step_s(&grid.t_s).unwrap_or(0.0);
-    let anchor = &units[grid.anchor].0;
-    for (k, (name, _)) in units.iter().enumerate() {
-        let furthest_s = grid.offset_s[k].iter().fold(0.0_f64, |m, o| m.max(o.abs()));
-        let rate = grid.rate_offset[k];
+fn note_clocks(names: &[String], survey: &Survey, notes: &mut Vec<String>) {
+    let dt_s = survey
+        .spacing
+        .dt_s
+        .filter(|dt| dt.is_finite())
+        .unwrap_or(0.0);
+    let anchor = &names[survey.anchor];
+    for (k, name) in names.iter().enumerate() {
+        let furthest_s = survey.furthest_s[k];
+        let rate = survey.rate_sums[k] / survey.epochs.max(1) as f64;
         // Within a quarter interval, units stamped together with some jitter.
         if furthest_s <= 0.25 * dt_s {
             continue;
@@ -529,21 +795,24 @@ fn note_clocks(units: &[(String, ImuRecording)], grid: &grid::Grid, notes: &mut 
 }
 
 /// What the output must say of units that missed samples.
-fn note_dropouts(units: &[(String, ImuRecording)], present: &[Vec<bool>], notes: &mut Vec<String>) {
-    for ((name, _), p) in units.iter().zip(present) {
-        let missing = p.iter().filter(|x| !**x).count();
-        if missing > 0 {
+fn note_dropouts(names: &[String], missing: &[usize], epochs: usize, notes: &mut Vec<String>) {
+    for (name, missing) in names.iter().zip(missing) {
+        if *missing > 0 {
             notes.push(format!(
-                "{name}: no sample at {missing} of the {} shared times (dropouts): filled by \
-                 interpolation for its wavelet variances, left out of the fused output",
-                p.len()
+                "{name}: no sample at {missing} of the {epochs} shared times (dropouts): filled by \
+                 interpolation for its wavelet variances, left out of the fused output"
             ));
         }
     }
 }
 
 /// What the output must say of the fault monitoring.
-fn note_faults(monitoring: &faults::Monitoring, units: usize, notes: &mut Vec<String>) {
+fn note_faults(
+    monitoring: &faults::Monitoring,
+    one_frame: bool,
+    units: usize,
+    notes: &mut Vec<String>,
+) {
     if monitoring.faults.iter().any(|f| f.imu.is_none()) {
         notes.push(
             "with only two healthy units left, a disagreement is detected but cannot be placed: \
@@ -558,7 +827,7 @@ fn note_faults(monitoring: &faults::Monitoring, units: usize, notes: &mut Vec<St
             monitoring.unfused
         ));
     }
-    if monitoring.fused.is_none() {
+    if !one_frame {
         notes.push(
             "the motion does not show every unit's rotation (static data see only gravity), so \
              the units' axes are not in one frame: faults are sought in the rotation-invariant lengths of the gyro and \

@@ -178,6 +178,14 @@ impl<T: RealField + Copy> LeverArmNormal<T> {
             .all(|(i, v)| self.samples * *v <= half * self.matrix[(i, i)])
     }
 
+    /// Sum of the squared residuals of the solution `x` (r, then the bias) over the samples
+    /// added, from the sums alone: |y|^2 - 2 x^T rhs + x^T A x, `differences_squared` being
+    /// the sum of |f_k - f_0|^2 over the same samples (a long record is not read again).
+    pub fn residual_sum_of_squares(&self, x: &Vector6<T>, differences_squared: T) -> T {
+        let two = T::one() + T::one();
+        differences_squared - two * x.dot(&self.rhs) + (x.transpose() * self.matrix * x)[(0, 0)]
+    }
+
     /// The solution (r, then the bias) and the corrected normal matrix's inverse; None
     /// where the motion leaves the lever arm undetermined. The correction is for errors in
     /// the variables: the noise in the measured W_dot adds [`Self::noise_diagonal`] per
@@ -199,6 +207,38 @@ mod tests {
     use super::*;
     use rand::SeedableRng;
     use rand_distr::{Distribution, Normal};
+
+    /// The residuals' sum of squares from the sums equals the one summed sample by sample
+    /// (a long record's lever-arm sigma is found without reading it again).
+    #[test]
+    fn the_residual_sum_of_squares_from_the_sums_is_the_summed_one() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let d = Normal::new(0.0f64, 1.0).unwrap();
+        let mut normal = LeverArmNormal::<f64>::default();
+        let mut rows = Vec::new();
+        let mut squares = 0.0;
+        for _ in 0..500 {
+            let v = |rng: &mut rand_chacha::ChaCha8Rng| {
+                Vector3::new(d.sample(rng), d.sample(rng), d.sample(rng))
+            };
+            let (w, w_dot, y) = (v(&mut rng), v(&mut rng), v(&mut rng) * 0.1);
+            normal.push(&w, &w_dot, &y);
+            squares += y.norm_squared();
+            rows.push((lever_matrix(&w, &w_dot), y));
+        }
+        let (x, _) = normal.solve(&[0.0; 3]).unwrap();
+        let r = Vector3::new(x[0], x[1], x[2]);
+        let bias = Vector3::new(x[3], x[4], x[5]);
+        let summed: f64 = rows
+            .iter()
+            .map(|(m, y)| (y - m * r - bias).norm_squared())
+            .sum();
+        let from_sums = normal.residual_sum_of_squares(&x, squares);
+        assert!(
+            (from_sums / summed - 1.0).abs() < 1e-10,
+            "{from_sums} vs {summed}"
+        );
+    }
 
     /// Rates turning about all three axes, seen by a second unit rotated by (0.5, -0.4,
     /// 0.6) deg with 2 mrad/s of noise on each: the rotation is recovered within 3 of its

@@ -1,0 +1,387 @@
+//! A run read in stretches, so that the analysis holds one stretch at a time and not the
+//! run: a recording held whole is one stretch ([`HeldRun`]); the units' files of a long
+//! run are each read once into a spill file in the temporary folder (the calibration's
+//! [`SpilledRecording`]) and cut into stretches of [`STRETCH_EPOCHS`] shared times
+//! ([`SpilledRun`]).
+//!
+//! A stretch is gridded with [`MARGIN_EPOCHS`] of the run on each side: the units' phases
+//! settle, the lagged changes of the rotation reach back, and the spectral derivative's
+//! ends, where the FFT sees the stretch as periodic, fall outside the stretch's own samples.
+//! Every stretch's grid follows the run's anchor unit, so the stretches' own samples join
+//! into the run's grid. Each stretch is checked as a run is (the units sampled together,
+//! each covering half its times, on one platform).
+
+use std::ops::Range;
+use std::path::{Path, PathBuf};
+
+use super::grid::{common_grid, Grid};
+use super::{clipping_level, Ranges, RedundancyError};
+use crate::calibration::{ErrorsError, Samples, SpilledRecording};
+use crate::interchange::ImuRecording;
+use crate::wv::{haar_wv, stream::HaarWvStream, WaveletVariance, WvOptions};
+
+/// A stretch of the run on its grid.
+pub(super) struct Stretch {
+    /// The grid of the stretch with its margins.
+    pub grid: Grid,
+    /// The grid samples that are the stretch's own.
+    pub own: Range<usize>,
+    /// The run's index of the first of them.
+    pub first_epoch: usize,
+}
+
+/// The run, stretch by stretch.
+pub(super) trait Stretches {
+    /// The units' names, in input order.
+    fn names(&self) -> &[String];
+    /// Stretches in the run.
+    fn count(&self) -> usize;
+    /// Sampling interval, s.
+    fn dt_s(&self) -> f64;
+    /// Calls `each` with every stretch in order.
+    fn for_each(
+        &mut self,
+        each: &mut dyn FnMut(&Stretch) -> Result<(), RedundancyError>,
+    ) -> Result<(), RedundancyError>;
+    /// Each unit's clipping levels (gyro, accel) as its own data show them.
+    fn clipping(&mut self) -> Result<Vec<Ranges>, RedundancyError>;
+}
+
+/// A unit's clipping levels from its triads.
+fn ranges_of(r: &ImuRecording) -> Ranges {
+    let own = |triad: &Option<[Vec<f64>; 3]>| triad.as_ref().and_then(clipping_level);
+    [own(&r.gyro_rad_s), own(&r.accel_m_s2)]
+}
+
+/// Units held whole: one stretch.
+pub(super) struct HeldRun<'a> {
+    names: Vec<String>,
+    units: &'a [(String, ImuRecording)],
+    stretch: Stretch,
+    dt_s: f64,
+}
+
+impl<'a> HeldRun<'a> {
+    pub fn new(units: &'a [(String, ImuRecording)], grid: Grid) -> Self {
+        let n = grid.t_s.len();
+        let dt_s = grid.filled[0].1.median_dt_s();
+        Self {
+            names: units.iter().map(|(name, _)| name.clone()).collect(),
+            units,
+            stretch: Stretch {
+                grid,
+                own: 0..n,
+                first_epoch: 0,
+            },
+            dt_s,
+        }
+    }
+}
+
+impl Stretches for HeldRun<'_> {
+    fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    fn count(&self) -> usize {
+        1
+    }
+
+    fn dt_s(&self) -> f64 {
+        self.dt_s
+    }
+
+    fn for_each(
+        &mut self,
+        each: &mut dyn FnMut(&Stretch) -> Result<(), RedundancyError>,
+    ) -> Result<(), RedundancyError> {
+        each(&self.stretch)
+    }
+
+    fn clipping(&mut self) -> Result<Vec<Ranges>, RedundancyError> {
+        Ok(self.units.iter().map(|(_, r)| ranges_of(r)).collect())
+    }
+}
+
+/// Shared times a stretch of a long run holds as its own: 2^17, 131 s at 1 kHz.
+pub const STRETCH_EPOCHS: usize = 1 << 17;
+/// Samples of the run gridded on each side of a stretch's own.
+pub const MARGIN_EPOCHS: usize = 4096;
+
+/// Units read from their files into spill files, cut into stretches.
+pub(super) struct SpilledRun {
+    names: Vec<String>,
+    units: Vec<SpilledRecording>,
+    anchor: usize,
+    dt_s: f64,
+    /// The times analysed, [from, to), s.
+    window_s: (f64, f64),
+    /// Where each stretch's own times start (the first at minus infinity), s.
+    starts_s: Vec<f64>,
+    stretch_epochs: usize,
+}
+
+/// Samples of a unit read to find its interval.
+const INTERVAL_PROBE: usize = 1 << 16;
+
+impl SpilledRun {
+    /// The units at `paths`, each spilled once, from `window_s.0` to `window_s.1`, in
+    /// stretches of `stretch_epochs` shared times (the run is checked stretch by stretch as
+    /// it is read).
+    pub fn open(
+        paths: &[PathBuf],
+        window_s: (f64, f64),
+        stretch_epochs: usize,
+    ) -> Result<Self, RedundancyError> {
+        let fail = |path: &Path, message: String| RedundancyError::Unit {
+            name: path.display().to_string(),
+            message,
+        };
+        let units = paths
+            .iter()
+            // The reader's errors name the file and the line.
+            .map(|p| SpilledRecording::read(p).map_err(|e| RedundancyError::Input(e.to_string())))
+            .collect::<Result<Vec<_>, _>>()?;
+        let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
+        for (unit, path) in units.iter().zip(paths) {
+            let [gyro, accel, ..] = unit.triplets();
+            if !(gyro && accel) {
+                return Err(fail(
+                    path,
+                    "needs both a gyro and an accelerometer triad".into(),
+                ));
+            }
+            if unit.len() < 64 {
+                return Err(fail(
+                    path,
+                    format!("{} samples: at least 64 are needed", unit.len()),
+                ));
+            }
+        }
+        let error = |p: &Path| {
+            let name = p.display().to_string();
+            move |e: ErrorsError| RedundancyError::Unit {
+                name: name.clone(),
+                message: e.to_string(),
+            }
+        };
+        let mut dt_s = f64::INFINITY;
+        let (mut start_s, mut end_s) = (f64::NEG_INFINITY, f64::INFINITY);
+        for (unit, path) in units.iter().zip(paths) {
+            let first = unit.count_before(window_s.0, false).map_err(error(path))?;
+            let end = unit.count_before(window_s.1, false).map_err(error(path))?;
+            if end < first + 2 {
+                return Err(fail(
+                    path,
+                    format!("no samples between {} s and {} s", window_s.0, window_s.1),
+                ));
+            }
+            let probe = unit
+                .rows(first..end.min(first + INTERVAL_PROBE))
+                .map_err(error(path))?
+                .0;
+            dt_s = dt_s.min(probe.median_dt_s());
+            start_s = start_s.max(unit.time_s(first).map_err(error(path))?);
+            end_s = end_s.min(unit.time_s(end - 1).map_err(error(path))?);
+        }
+        let mut anchor = 0;
+        let mut most = 0;
+        for (k, (unit, path)) in units.iter().zip(paths).enumerate() {
+            let inside = unit.count_before(end_s, true).map_err(error(path))?
+                - unit.count_before(start_s, false).map_err(error(path))?;
+            if inside > most {
+                (anchor, most) = (k, inside);
+            }
+        }
+        let stretches = ((end_s - start_s) / (stretch_epochs as f64 * dt_s))
+            .floor()
+            .max(1.0) as usize;
+        let starts_s = (0..stretches)
+            .map(|s| {
+                if s == 0 {
+                    f64::NEG_INFINITY
+                } else {
+                    start_s + (s * stretch_epochs) as f64 * dt_s
+                }
+            })
+            .collect();
+        Ok(Self {
+            names,
+            units,
+            anchor,
+            dt_s,
+            window_s,
+            starts_s,
+            stretch_epochs,
+        })
+    }
+
+    /// The units' samples from `from_s` to `to_s`, with the margins.
+    fn units_between(
+        &self,
+        from_s: f64,
+        to_s: f64,
+    ) -> Result<Vec<(String, ImuRecording)>, RedundancyError> {
+        let margin_s = MARGIN_EPOCHS as f64 * self.dt_s;
+        self.units
+            .iter()
+            .zip(&self.names)
+            .map(|(unit, name)| {
+                let error = |e: ErrorsError| RedundancyError::Unit {
+                    name: name.clone(),
+                    message: e.to_string(),
+                };
+                let from_s = (from_s - margin_s).max(self.window_s.0);
+                let to_s = (to_s + margin_s).min(self.window_s.1);
+                let first = unit.count_before(from_s, false).map_err(error)?;
+                let end = unit.count_before(to_s, false).map_err(error)?;
+                Ok((
+                    name.clone(),
+                    unit.rows(first..end).map_err(error)?.0.into_owned(),
+                ))
+            })
+            .collect()
+    }
+}
+
+impl Stretches for SpilledRun {
+    fn names(&self) -> &[String] {
+        &self.names
+    }
+
+    fn count(&self) -> usize {
+        self.starts_s.len()
+    }
+
+    fn dt_s(&self) -> f64 {
+        self.dt_s
+    }
+
+    fn for_each(
+        &mut self,
+        each: &mut dyn FnMut(&Stretch) -> Result<(), RedundancyError>,
+    ) -> Result<(), RedundancyError> {
+        let mut first_epoch = 0;
+        for (s, &from_s) in self.starts_s.iter().enumerate() {
+            let to_s = self.starts_s.get(s + 1).copied().unwrap_or(f64::INFINITY);
+            let units = self.units_between(from_s, to_s)?;
+            let grid = common_grid(&units, Some(self.anchor)).map_err(|e| match e {
+                RedundancyError::Unit { name, message } => RedundancyError::Unit {
+                    name,
+                    message: format!("{message} (in the stretch from {} s)", units_start(&units)),
+                },
+                other => other,
+            })?;
+            let own_start = grid.t_s.partition_point(|t| *t < from_s);
+            let own_end = grid.t_s.partition_point(|t| *t < to_s);
+            let stretch = Stretch {
+                grid,
+                own: own_start..own_end,
+                first_epoch,
+            };
+            if stretch.own.is_empty() {
+                continue;
+            }
+            first_epoch += stretch.own.len();
+            each(&stretch)?;
+        }
+        Ok(())
+    }
+
+    fn clipping(&mut self) -> Result<Vec<Ranges>, RedundancyError> {
+        // A unit clips at its largest value: the largest level any stretch of it shows.
+        let mut levels: Vec<Ranges> = vec![[None, None]; self.units.len()];
+        for (k, (unit, name)) in self.units.iter().zip(&self.names).enumerate() {
+            let error = |e: ErrorsError| RedundancyError::Unit {
+                name: name.clone(),
+                message: e.to_string(),
+            };
+            let mut first = unit.count_before(self.window_s.0, false).map_err(error)?;
+            let last = unit.count_before(self.window_s.1, false).map_err(error)?;
+            while first < last {
+                let end = (first + self.stretch_epochs).min(last);
+                let block = ranges_of(&unit.rows(first..end).map_err(error)?.0);
+                for (level, found) in levels[k].iter_mut().zip(block) {
+                    *level = match (*level, found) {
+                        (Some(a), Some(b)) => Some(a.max(b)),
+                        (a, b) => a.or(b),
+                    };
+                }
+                first = end;
+            }
+        }
+        Ok(levels)
+    }
+}
+
+/// The first time of a stretch's units, s.
+fn units_start(units: &[(String, ImuRecording)]) -> f64 {
+    units
+        .iter()
+        .filter_map(|(_, r)| r.t_s.first().copied())
+        .fold(f64::NEG_INFINITY, f64::max)
+}
+
+/// Full (overlapping) levels of a stream over many stretches: 2 MiB of ring each.
+const STREAM_FULL_LEVELS: u32 = 16;
+
+/// The Haar wavelet variance of a series given in pieces, in run order: the batch
+/// estimator where the run is one piece, the streaming one ([`HaarWvStream`]: levels past
+/// [`STREAM_FULL_LEVELS`] decimated) where it is several.
+pub(super) struct PieceWv {
+    dt_s: f64,
+    estimator: PieceEstimator,
+}
+
+enum PieceEstimator {
+    Batch(Option<WaveletVariance>),
+    Stream(Box<HaarWvStream>),
+}
+
+impl PieceWv {
+    /// For a run of `pieces` pieces sampled every `dt_s` seconds.
+    pub fn new(pieces: usize, dt_s: f64) -> Self {
+        let estimator = if pieces <= 1 {
+            PieceEstimator::Batch(None)
+        } else {
+            PieceEstimator::Stream(Box::new(HaarWvStream::new(STREAM_FULL_LEVELS)))
+        };
+        Self { dt_s, estimator }
+    }
+
+    /// Adds the next piece of the series.
+    pub fn add(&mut self, piece: &[f64]) {
+        match &mut self.estimator {
+            PieceEstimator::Batch(wv) => {
+                assert!(wv.is_none(), "a run of one piece is given one piece");
+                *wv = haar_wv(piece, self.dt_s, &WvOptions::default()).ok();
+            }
+            PieceEstimator::Stream(stream) => stream.push_block(piece),
+        }
+    }
+
+    /// The wavelet variance and each level's equivalent degrees of freedom; None for a
+    /// series too short.
+    pub fn result(&self) -> Option<(WaveletVariance, Vec<f64>)> {
+        let (wv, full) = match &self.estimator {
+            PieceEstimator::Batch(wv) => (wv.clone()?, u32::MAX),
+            PieceEstimator::Stream(stream) => (
+                stream.wavelet_variance(None, 1.0, self.dt_s).ok()?,
+                stream.full_levels(),
+            ),
+        };
+        let eta = wv
+            .n_coefficients
+            .iter()
+            .zip(&wv.levels)
+            .map(|(m, j)| {
+                if *j <= full {
+                    crate::wv::eta3(*m, *j)
+                } else {
+                    (2.0 * *m as f64 / 9.0).max(1.0)
+                }
+            })
+            .collect();
+        Some((wv, eta))
+    }
+}
