@@ -22,7 +22,10 @@ use dynacal_core::board_model::{BoardModel, ChannelNoise, UnitModel};
 use dynacal_core::Channel;
 use serde::Serialize;
 
-use crate::decode::{BoardChannelWv, DecodedLog};
+use std::path::Path;
+
+use crate::calibration::{Samples, SpillBuilder, SpilledRecording};
+use crate::decode::{decode_file_streamed, sample_si, BoardChannelWv, DecodedLog};
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{
     analyze, refit_replicate, set_bootstrap_intervals, BootstrapOptions, ChannelFit, ModelChoice,
@@ -31,6 +34,7 @@ use crate::gmwm::model::{ModelSpec, Process, Structure};
 use crate::interchange::ImuRecording;
 use crate::model::SimModel;
 use crate::redundancy::{redundancy, Alignment, OwnWv, RedundancyOptions, RotationBasis};
+use crate::wv::stream::HaarWvStream;
 use crate::wv::{haar_wv, level_coefficients, WaveletVariance, WvOptions};
 
 /// Why a log cannot be refitted.
@@ -47,6 +51,11 @@ pub enum RefitError {
     },
     #[error(transparent)]
     Redundancy(#[from] crate::redundancy::RedundancyError),
+    #[error(transparent)]
+    Decode(#[from] crate::decode::DecodeError),
+    /// The log's samples could not be spilled or read back (the temporary folder).
+    #[error(transparent)]
+    Spill(#[from] crate::calibration::ErrorsError),
     #[error("IMU {imu_id} {channel}: {detail}")]
     Fit {
         imu_id: u8,
@@ -112,7 +121,15 @@ pub struct RefitOptions {
     pub bootstrap: Option<BootstrapOptions>,
 }
 
-/// The refit of `log` (see the module's note).
+/// A unit of the log: its IMU id, name, samples and sampling interval (s).
+struct LogUnit {
+    imu_id: u8,
+    name: String,
+    samples: usize,
+    dt_s: f64,
+}
+
+/// The refit of `log`, its samples held (see the module's note).
 pub fn refit(log: &DecodedLog, options: &RefitOptions) -> Result<Refit, RefitError> {
     let units: Vec<(u8, String, ImuRecording)> = log
         .imus
@@ -127,27 +144,182 @@ pub fn refit(log: &DecodedLog, options: &RefitOptions) -> Result<Refit, RefitErr
         return Err(RefitError::Units(units.len()));
     }
     let mut notes = Vec::new();
-    let agreement = check_board_wv(log, &units, &mut notes)?;
+    let agreement = check_board_wv(log, &mut notes, |snapshot, board| {
+        let (_, _, recording) = units.iter().find(|(id, _, _)| *id == snapshot.imu_id)?;
+        let values = recording
+            .channel(snapshot.channel.name())
+            .unwrap_or_default();
+        let n = (snapshot.n_samples as usize).min(values.len());
+        Some(haar_wv(&values[..n], board.dt_s, &WvOptions::default()).map_err(|e| e.to_string()))
+    })?;
     let named: Vec<(String, ImuRecording)> = units
         .iter()
         .map(|(_, n, r)| (n.clone(), r.clone()))
         .collect();
     let report = redundancy(&named, &RedundancyOptions::default())?;
-    notes.extend(report.notes.iter().cloned());
-    let mut unit_refits = Vec::new();
-    for ((imu_id, name, recording), unit) in units.iter().zip(&report.imus) {
-        let fits = fit_unit(*imu_id, name, recording, &unit.wv, options)?;
-        unit_refits.push(UnitRefit {
+    let log_units = units
+        .iter()
+        .map(|(imu_id, name, r)| LogUnit {
             imu_id: *imu_id,
             name: name.clone(),
-            alignment: unit.alignment.clone(),
+            samples: r.len(),
+            dt_s: r.median_dt_s(),
+        })
+        .collect();
+    refit_units(log_units, report, agreement, notes, options)
+}
+
+/// The refit of the board log at `path`, in memory that does not grow with it: the log is
+/// decoded once, each IMU's samples written to a spill file as they come; the board's
+/// snapshots are checked on one pass over each spill, and the units' analysis reads them
+/// stretch by stretch of `stretch_epochs` shared times
+/// ([`crate::redundancy::redundancy_of_spills`]).
+pub fn refit_file(
+    path: &Path,
+    options: &RefitOptions,
+    stretch_epochs: usize,
+) -> Result<Refit, RefitError> {
+    let mut spills: BTreeMap<u8, SpillBuilder> = BTreeMap::new();
+    let log = decode_file_streamed(path, |config, set| -> Result<(), RefitError> {
+        let spill = match spills.entry(config.imu_id) {
+            std::collections::btree_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::btree_map::Entry::Vacant(e) => {
+                e.insert(SpillBuilder::new(path, [true, true, false, false, false])?)
+            }
+        };
+        spill.push(&sample_si(config, set))?;
+        Ok(())
+    })?;
+    log.validate(path)?;
+    let mut units: Vec<(LogUnit, SpilledRecording)> = Vec::new();
+    for imu in log.imus.iter().filter(|imu| !imu.is_empty()) {
+        let id = imu.config.imu_id;
+        let Some(spill) = spills.remove(&id) else {
+            continue;
+        };
+        let spilled = spill.finish()?;
+        let unit = LogUnit {
+            imu_id: id,
+            name: format!("imu{id}"),
+            samples: spilled.len(),
+            dt_s: spilled.median_step_s()?.unwrap_or(0.0),
+        };
+        units.push((unit, spilled));
+    }
+    if units.len() < 3 {
+        return Err(RefitError::Units(units.len()));
+    }
+    let mut notes = Vec::new();
+    let batches = snapshot_batches(&log, &units)?;
+    let agreement = check_board_wv(&log, &mut notes, |snapshot, _| {
+        batches
+            .iter()
+            .find(|(id, channel, _)| *id == snapshot.imu_id && *channel == snapshot.channel)
+            .map(|(_, _, wv)| wv.clone())
+    })?;
+    let (log_units, named): (Vec<LogUnit>, Vec<(String, SpilledRecording)>) = units
+        .into_iter()
+        .map(|(unit, spilled)| {
+            let name = unit.name.clone();
+            (unit, (name, spilled))
+        })
+        .unzip();
+    let report = crate::redundancy::redundancy_of_spills(
+        named,
+        &RedundancyOptions::default(),
+        None,
+        stretch_epochs,
+    )?
+    .report;
+    refit_units(log_units, report, agreement, notes, options)
+}
+
+/// The estimator of the logged samples each board snapshot is checked against, from one
+/// pass over each unit's spill: per IMU and channel, the wavelet variance of the samples
+/// the snapshot covers, streamed with at least the snapshot's full levels (so those equal
+/// the batch estimator's to rounding).
+fn snapshot_batches(
+    log: &DecodedLog,
+    units: &[(LogUnit, SpilledRecording)],
+) -> Result<SnapshotBatches, RefitError> {
+    let snapshots: Vec<BoardChannelWv> = log
+        .wavelet_variance_si()
+        .into_iter()
+        .filter(|s| s.wv.is_some())
+        .collect();
+    let mut out = Vec::new();
+    for (unit, spilled) in units {
+        let mut mine: Vec<&BoardChannelWv> = snapshots
+            .iter()
+            .filter(|s| s.imu_id == unit.imu_id)
+            .collect();
+        if mine.is_empty() {
+            continue;
+        }
+        mine.sort_by_key(|s| s.n_samples);
+        let full = mine
+            .iter()
+            .map(|s| u32::from(s.full_levels))
+            .max()
+            .unwrap_or(0);
+        let mut streams: Vec<HaarWvStream> = Channel::ALL
+            .iter()
+            .map(|_| HaarWvStream::new(full.max(HaarWvStream::DEFAULT_FULL_LEVELS - 2)))
+            .collect();
+        let mut fed = 0usize;
+        for snapshot in mine {
+            let n = (snapshot.n_samples as usize).min(spilled.len());
+            while fed < n {
+                let end = (fed + (1 << 16)).min(n);
+                let rows = spilled.rows(fed..end)?.0;
+                for (c, stream) in streams.iter_mut().enumerate() {
+                    if let Some(values) = rows.channel(Channel::ALL[c].name()) {
+                        stream.push_block(values);
+                    }
+                }
+                fed = end;
+            }
+            let c = Channel::ALL.iter().position(|c| *c == snapshot.channel);
+            let dt_s = snapshot.wv.as_ref().map_or(unit.dt_s, |w| w.dt_s);
+            if let Some(c) = c {
+                out.push((
+                    snapshot.imu_id,
+                    snapshot.channel,
+                    streams[c]
+                        .wavelet_variance(None, 1.0, dt_s)
+                        .map_err(|e| e.to_string()),
+                ));
+            }
+        }
+    }
+    Ok(out)
+}
+
+/// Per IMU and channel, the logged samples' wavelet variance a snapshot is checked against.
+type SnapshotBatches = Vec<(u8, Channel, Result<WaveletVariance, String>)>;
+
+/// The refit from the units' analysis: each unit's channels fitted on its own wavelet
+/// variances, the bootstrap's intervals, the board's model.
+fn refit_units(
+    units: Vec<LogUnit>,
+    report: crate::redundancy::RedundancyReport,
+    agreement: Vec<WvAgreement>,
+    mut notes: Vec<String>,
+    options: &RefitOptions,
+) -> Result<Refit, RefitError> {
+    notes.extend(report.notes.iter().cloned());
+    let mut unit_refits = Vec::new();
+    for (unit, own) in units.iter().zip(&report.imus) {
+        let fits = fit_unit(unit, &own.wv, options)?;
+        unit_refits.push(UnitRefit {
+            imu_id: unit.imu_id,
+            name: unit.name.clone(),
+            alignment: own.alignment.clone(),
             fits,
         });
     }
     if let Some(b) = options.bootstrap.filter(|b| b.replicates > 0) {
-        let n = units[0].2.len();
-        let dt_s = units[0].2.median_dt_s();
-        hat_bootstrap(&mut unit_refits, n, dt_s, b);
+        hat_bootstrap(&mut unit_refits, units[0].samples, units[0].dt_s, b);
     }
     let board_model = board_model_of(&unit_refits, &mut notes);
     Ok(Refit {
@@ -158,11 +330,12 @@ pub fn refit(log: &DecodedLog, options: &RefitOptions) -> Result<Refit, RefitErr
     })
 }
 
-/// Checks every board snapshot against the batch estimator on the logged samples.
+/// Checks every board snapshot against the estimator on the logged samples it covers
+/// (`batch(snapshot, board)`: None where the log has no samples of its IMU).
 fn check_board_wv(
     log: &DecodedLog,
-    units: &[(u8, String, ImuRecording)],
     notes: &mut Vec<String>,
+    batch: impl Fn(&BoardChannelWv, &WaveletVariance) -> Option<Result<WaveletVariance, String>>,
 ) -> Result<Vec<WvAgreement>, RefitError> {
     let board = log.wavelet_variance_si();
     if board.is_empty() {
@@ -172,9 +345,6 @@ fn check_board_wv(
         log.stream.frames_dropped > 0 || log.health.iter().any(|h| h.frames_dropped > 0);
     let mut out = Vec::new();
     for snapshot in &board {
-        let Some((_, _, recording)) = units.iter().find(|(id, _, _)| *id == snapshot.imu_id) else {
-            continue;
-        };
         let Some(board_wv) = &snapshot.wv else {
             notes.push(format!(
                 "imu{} {}: the board's snapshot is unusable: {}",
@@ -184,7 +354,15 @@ fn check_board_wv(
             ));
             continue;
         };
-        let agreement = compare_wv(snapshot, board_wv, recording)?;
+        let Some(logged) = batch(snapshot, board_wv) else {
+            continue;
+        };
+        let logged = logged.map_err(|e| RefitError::WvDisagrees {
+            imu_id: snapshot.imu_id,
+            channel: snapshot.channel,
+            detail: format!("no batch variance of the logged samples: {e}"),
+        })?;
+        let agreement = compare_wv(snapshot, board_wv, &logged);
         let disagrees =
             agreement.full_max_relative_difference > 1e-6 || agreement.decimated_disjoint > 0;
         if disagrees && !frames_dropped {
@@ -210,23 +388,14 @@ fn check_board_wv(
     Ok(out)
 }
 
-/// One channel's comparison: the board snapshot against the batch WV of the samples it
-/// covers (the log's samples up to the snapshot's time).
+/// One channel's comparison: the board snapshot against the wavelet variance of the
+/// samples it covers (the log's samples up to the snapshot's time).
 fn compare_wv(
     snapshot: &BoardChannelWv,
     board: &WaveletVariance,
-    recording: &ImuRecording,
-) -> Result<WvAgreement, RefitError> {
+    batch: &WaveletVariance,
+) -> WvAgreement {
     let channel = snapshot.channel;
-    let values = recording.channel(channel.name()).unwrap_or_default();
-    let n = (snapshot.n_samples as usize).min(values.len());
-    let batch = haar_wv(&values[..n], board.dt_s, &WvOptions::default()).map_err(|e| {
-        RefitError::WvDisagrees {
-            imu_id: snapshot.imu_id,
-            channel,
-            detail: format!("no batch variance of the logged samples: {e}"),
-        }
-    })?;
     let mut agreement = WvAgreement {
         imu_id: snapshot.imu_id,
         channel,
@@ -256,7 +425,7 @@ fn compare_wv(
             agreement.decimated_disjoint += usize::from(!overlap);
         }
     }
-    Ok(agreement)
+    agreement
 }
 
 /// A unit's own-error WV of one channel as a wavelet variance the GMWM fits: the levels
@@ -292,13 +461,11 @@ fn own_as_wv(own: &OwnWv, n: usize, dt_s: f64) -> WaveletVariance {
 
 /// The GMWM fit of each of a unit's channels on its own-error variances.
 fn fit_unit(
-    imu_id: u8,
-    name: &str,
-    recording: &ImuRecording,
+    unit: &LogUnit,
     own: &BTreeMap<String, OwnWv>,
     options: &RefitOptions,
 ) -> Result<Vec<ChannelFit>, RefitError> {
-    let dt_s = recording.median_dt_s();
+    let (imu_id, name, dt_s) = (unit.imu_id, unit.name.as_str(), unit.dt_s);
     Channel::ALL
         .into_iter()
         .filter_map(|channel| own.get(channel.name()).map(|w| (channel, w)))
@@ -308,7 +475,7 @@ fn fit_unit(
                 channel,
                 detail,
             };
-            let wv = own_as_wv(w, recording.len(), dt_s);
+            let wv = own_as_wv(w, unit.samples, dt_s);
             let input = FitInput::from_wv(&wv).map_err(|e| err(e.to_string()))?;
             let unit = if channel.is_gyro() { "rad/s" } else { "m/s^2" };
             // Intervals by the delta method here; a bootstrap must simulate the units'

@@ -359,6 +359,60 @@ fn units_on_their_own_crystals_find_their_own_noise_from_the_board_log() {
     );
     ok(&["refit", path(&log), "--out", path(&d.join("refit"))]);
     assert!(d.join("refit").join("board-model.bin").exists());
+    // Streamed (the log decoded into spill files, the units read stretch by stretch), the
+    // refit is the held one: in one stretch to the bit of the board's model, in three the
+    // board's snapshots check alike and every white noise is within 1%.
+    let refit = |name: &str, stretch: &str| -> serde_json::Value {
+        let out = d.join(name);
+        ok(&[
+            "refit",
+            path(&log),
+            "--out",
+            path(&out),
+            "--stream",
+            "always",
+            "--stretch-epochs",
+            stretch,
+            "--bootstrap",
+            "0",
+        ]);
+        read_json(&out.join("refit.json"))
+    };
+    let held = read_json(&d.join("refit").join("refit.json"));
+    let one = refit("refit-one", "1000000");
+    let blob = |name: &str| std::fs::read(d.join(name).join("board-model.bin")).unwrap();
+    assert_eq!(blob("refit-one"), blob("refit"));
+    assert_eq!(one["agreement"], held["agreement"]);
+    let three = refit("refit-three", "16384");
+    assert_eq!(three["agreement"], held["agreement"]);
+    for (h, t) in held["units"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(three["units"].as_array().unwrap())
+    {
+        for (fh, ft) in h["fits"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .zip(t["fits"].as_array().unwrap())
+        {
+            let white = |f: &serde_json::Value| {
+                let model = f["model"].as_str().unwrap().to_string();
+                model
+                    .starts_with("WN")
+                    .then(|| f["theta"][0].as_f64().unwrap())
+            };
+            if let (Some(a), Some(b)) = (white(fh), white(ft)) {
+                assert!(
+                    (b / a - 1.0).abs() < 0.01,
+                    "{} {}: {b} vs {a}",
+                    h["name"],
+                    fh["channel"]
+                );
+            }
+        }
+    }
 }
 
 /// At rest nothing needs aligning: every channel's white-noise variance within 10%, and the

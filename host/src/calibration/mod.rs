@@ -48,7 +48,7 @@ mod signals;
 
 pub use design::{CalibrationDesign, DesignRows};
 pub(crate) use recordings::Samples;
-pub use recordings::SpilledRecording;
+pub use recordings::{SpillBuilder, SpilledRecording};
 
 use std::path::Path;
 

@@ -161,6 +161,49 @@ fn spill_fast(
     Ok(read.then_some(spill))
 }
 
+/// A spill written row by row by a caller that reads its own format (a board log's
+/// decoded samples): rows of `t_s` then the triplets `present` says, times increasing.
+pub struct SpillBuilder {
+    source: PathBuf,
+    present: [bool; 5],
+    writer: SpillWriter,
+}
+
+impl SpillBuilder {
+    /// A spill of the samples of `source` (named in errors) with the triplets `present`
+    /// (gyro, accelerometer, attitude, position, velocity).
+    pub fn new(source: &Path, present: [bool; 5]) -> Result<Self, ErrorsError> {
+        Ok(Self {
+            source: source.to_path_buf(),
+            present,
+            writer: SpillWriter::new()?,
+        })
+    }
+
+    /// Appends a row: the time, then three values per triplet present.
+    pub fn push(&mut self, row: &[f64]) -> Result<(), ErrorsError> {
+        debug_assert_eq!(
+            row.len(),
+            1 + 3 * self.present.iter().filter(|p| **p).count()
+        );
+        self.writer.push(row)
+    }
+
+    /// The spilled recording.
+    pub fn finish(self) -> Result<SpilledRecording, ErrorsError> {
+        let width = 1 + 3 * self.present.iter().filter(|p| **p).count();
+        let (spill, len, index_t_s) = self.writer.finish()?;
+        Ok(SpilledRecording {
+            source: self.source,
+            spill,
+            present: self.present,
+            width,
+            len,
+            index_t_s,
+        })
+    }
+}
+
 impl SpilledRecording {
     /// Reads the interchange file at `path` (CSV, CSV.gz or Parquet) into a spill file.
     pub fn read(path: &Path) -> Result<Self, ErrorsError> {
@@ -237,7 +280,7 @@ impl SpilledRecording {
     }
 
     /// Median step between consecutive times, s (as [`crate::interchange::median_step_s`]).
-    fn median_step_s(&self) -> Result<Option<f64>, ErrorsError> {
+    pub fn median_step_s(&self) -> Result<Option<f64>, ErrorsError> {
         let steps = self.len.saturating_sub(1) as u64;
         crate::numeric::select_by_passes(steps / 2, |visit| {
             let mut previous: Option<f64> = None;

@@ -227,3 +227,21 @@ mod refit;
 mod regress;
 mod simulate;
 mod wv;
+
+/// Allocations of 1 MiB or more (a long drive's series: 8 bytes an epoch, 29 MB an hour at
+/// 1 kHz; a stretch's series of a long run) are mapped on their own and handed back to the
+/// system when freed. glibc's default threshold rises with every such block freed (up to 32
+/// MiB), after which a diagnosis's many short-lived series are carved from the heap and
+/// their space stays resident: the process held a third more than it used (BENCHMARKS.md,
+/// "Diagnosis in bounded memory").
+#[cfg(all(target_os = "linux", target_env = "gnu"))]
+pub(crate) fn map_long_series_alone() {
+    // SAFETY: mallopt only sets a parameter of glibc's allocator (thread-safe); it touches
+    // no memory of the program's.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, 1 << 20);
+    }
+}
+
+#[cfg(not(all(target_os = "linux", target_env = "gnu")))]
+pub(crate) fn map_long_series_alone() {}

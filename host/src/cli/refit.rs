@@ -10,8 +10,9 @@ use std::path::PathBuf;
 use anyhow::Context;
 use dynacal::decode::decode_file;
 use dynacal::gmwm::inference::BootstrapOptions;
+use dynacal::input::stream::StreamMode;
 use dynacal::output::{write_atomic, write_json_atomic, FileSet};
-use dynacal::refit::{refit, typed_model, RefitOptions};
+use dynacal::refit::{refit, refit_file, typed_model, RefitOptions};
 use dynacal_core::board_model::MAX_BOARD_MODEL_LEN;
 
 use super::fit::model_choice;
@@ -34,11 +35,25 @@ pub struct Args {
     /// Seed of the bootstrap.
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// Decode the log into spill files and read the units stretch by stretch instead of
+    /// holding its samples (memory that does not grow with the log): `auto` for logs over
+    /// 64 MiB (about 40 minutes of three 1 kHz IMUs, which held take about 1 GB).
+    #[arg(long, value_enum, default_value_t = StreamMode::Auto)]
+    pub stream: StreamMode,
+    /// Shared times a stretch holds when streamed (tests cut a short log into several).
+    #[arg(long, hide = true, default_value_t = dynacal::redundancy::STRETCH_EPOCHS)]
+    pub stretch_epochs: usize,
 }
 
+/// Size of a log above which `--stream auto` streams it.
+const STREAM_LOG_BYTES: u64 = 64 << 20;
+
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let log = decode_file(&args.log)?;
-    log.validate(&args.log)?;
+    let streamed = match args.stream {
+        StreamMode::Always => true,
+        StreamMode::Never => false,
+        StreamMode::Auto => std::fs::metadata(&args.log).is_ok_and(|m| m.len() > STREAM_LOG_BYTES),
+    };
     let options = RefitOptions {
         choice: model_choice(&args.model)?,
         bootstrap: (args.bootstrap > 0).then_some(BootstrapOptions {
@@ -46,9 +61,23 @@ pub fn run(args: Args) -> anyhow::Result<()> {
             seed: args.seed,
         }),
     };
-    let bar = super::working(&format!("refitting {}", args.log.display()));
-    let result = refit(&log, &options).with_context(|| format!("{}", args.log.display()));
-    bar.finish_and_clear();
+    let result = if streamed {
+        super::map_long_series_alone();
+        let bar = super::working(&format!(
+            "refitting {} stretch by stretch",
+            args.log.display()
+        ));
+        let result = refit_file(&args.log, &options, args.stretch_epochs.max(1024));
+        bar.finish_and_clear();
+        result.with_context(|| format!("{}", args.log.display()))
+    } else {
+        let log = decode_file(&args.log)?;
+        log.validate(&args.log)?;
+        let bar = super::working(&format!("refitting {}", args.log.display()));
+        let result = refit(&log, &options).with_context(|| format!("{}", args.log.display()));
+        bar.finish_and_clear();
+        result
+    };
     let result = result?;
     let mut blob = [0u8; MAX_BOARD_MODEL_LEN];
     let len = result

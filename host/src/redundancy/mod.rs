@@ -522,7 +522,32 @@ pub fn redundancy_of_files(
     if !(3..=MAX_UNITS).contains(&paths.len()) {
         return Err(RedundancyError::Units(paths.len()));
     }
-    let mut run = stretches::SpilledRun::open(paths, window_s, stretch_epochs)?;
+    let run = stretches::SpilledRun::open(paths, window_s, stretch_epochs)?;
+    analyse_spilled(run, opts, fused)
+}
+
+/// The analysis of units already spilled (name, recording), read stretch by stretch as
+/// [`redundancy_of_files`] reads its files.
+pub fn redundancy_of_spills(
+    units: Vec<(String, crate::calibration::SpilledRecording)>,
+    opts: &RedundancyOptions,
+    fused: Option<&Path>,
+    stretch_epochs: usize,
+) -> Result<FilesOutcome, RedundancyError> {
+    if !(3..=MAX_UNITS).contains(&units.len()) {
+        return Err(RedundancyError::Units(units.len()));
+    }
+    let window = (f64::NEG_INFINITY, f64::INFINITY);
+    let run = stretches::SpilledRun::new(units, window, stretch_epochs)?;
+    analyse_spilled(run, opts, fused)
+}
+
+/// [`analyse`] of a spilled run, the fused output written to `fused` as it is formed.
+fn analyse_spilled(
+    mut run: stretches::SpilledRun,
+    opts: &RedundancyOptions,
+    fused: Option<&Path>,
+) -> Result<FilesOutcome, RedundancyError> {
     let output = |path: &Path| {
         let path = path.to_path_buf();
         move |e: crate::interchange::TableError| RedundancyError::Output {

@@ -12,7 +12,7 @@
 //! each covering half its times, on one platform).
 
 use std::ops::Range;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
 use super::grid::{common_grid, Grid};
 use super::{clipping_level, Ranges, RedundancyError};
@@ -133,33 +133,46 @@ impl SpilledRun {
         window_s: (f64, f64),
         stretch_epochs: usize,
     ) -> Result<Self, RedundancyError> {
-        let fail = |path: &Path, message: String| RedundancyError::Unit {
-            name: path.display().to_string(),
-            message,
-        };
         let units = paths
             .iter()
             // The reader's errors name the file and the line.
-            .map(|p| SpilledRecording::read(p).map_err(|e| RedundancyError::Input(e.to_string())))
-            .collect::<Result<Vec<_>, _>>()?;
-        let names: Vec<String> = paths.iter().map(|p| p.display().to_string()).collect();
-        for (unit, path) in units.iter().zip(paths) {
+            .map(|p| {
+                let spilled =
+                    SpilledRecording::read(p).map_err(|e| RedundancyError::Input(e.to_string()))?;
+                Ok((p.display().to_string(), spilled))
+            })
+            .collect::<Result<Vec<_>, RedundancyError>>()?;
+        Self::new(units, window_s, stretch_epochs)
+    }
+
+    /// The spilled units (name, recording), as [`Self::open`].
+    pub fn new(
+        named: Vec<(String, SpilledRecording)>,
+        window_s: (f64, f64),
+        stretch_epochs: usize,
+    ) -> Result<Self, RedundancyError> {
+        let fail = |name: &str, message: String| RedundancyError::Unit {
+            name: name.to_string(),
+            message,
+        };
+        let (names, units): (Vec<String>, Vec<SpilledRecording>) = named.into_iter().unzip();
+        for (unit, name) in units.iter().zip(&names) {
             let [gyro, accel, ..] = unit.triplets();
             if !(gyro && accel) {
                 return Err(fail(
-                    path,
+                    name,
                     "needs both a gyro and an accelerometer triad".into(),
                 ));
             }
             if unit.len() < 64 {
                 return Err(fail(
-                    path,
+                    name,
                     format!("{} samples: at least 64 are needed", unit.len()),
                 ));
             }
         }
-        let error = |p: &Path| {
-            let name = p.display().to_string();
+        let error = |name: &str| {
+            let name = name.to_string();
             move |e: ErrorsError| RedundancyError::Unit {
                 name: name.clone(),
                 message: e.to_string(),
@@ -167,28 +180,28 @@ impl SpilledRun {
         };
         let mut dt_s = f64::INFINITY;
         let (mut start_s, mut end_s) = (f64::NEG_INFINITY, f64::INFINITY);
-        for (unit, path) in units.iter().zip(paths) {
-            let first = unit.count_before(window_s.0, false).map_err(error(path))?;
-            let end = unit.count_before(window_s.1, false).map_err(error(path))?;
+        for (unit, name) in units.iter().zip(&names) {
+            let first = unit.count_before(window_s.0, false).map_err(error(name))?;
+            let end = unit.count_before(window_s.1, false).map_err(error(name))?;
             if end < first + 2 {
                 return Err(fail(
-                    path,
+                    name,
                     format!("no samples between {} s and {} s", window_s.0, window_s.1),
                 ));
             }
             let probe = unit
                 .rows(first..end.min(first + INTERVAL_PROBE))
-                .map_err(error(path))?
+                .map_err(error(name))?
                 .0;
             dt_s = dt_s.min(probe.median_dt_s());
-            start_s = start_s.max(unit.time_s(first).map_err(error(path))?);
-            end_s = end_s.min(unit.time_s(end - 1).map_err(error(path))?);
+            start_s = start_s.max(unit.time_s(first).map_err(error(name))?);
+            end_s = end_s.min(unit.time_s(end - 1).map_err(error(name))?);
         }
         let mut anchor = 0;
         let mut most = 0;
-        for (k, (unit, path)) in units.iter().zip(paths).enumerate() {
-            let inside = unit.count_before(end_s, true).map_err(error(path))?
-                - unit.count_before(start_s, false).map_err(error(path))?;
+        for (k, (unit, name)) in units.iter().zip(&names).enumerate() {
+            let inside = unit.count_before(end_s, true).map_err(error(name))?
+                - unit.count_before(start_s, false).map_err(error(name))?;
             if inside > most {
                 (anchor, most) = (k, inside);
             }
