@@ -17,8 +17,39 @@
 //! simulated drives this filter left the lever-arm-corrected accelerometers' white noise
 //! within 8% of the truth, where a gain set by each bin alone left 25% (BENCHMARKS.md).
 
+use std::cell::RefCell;
+use std::sync::Arc;
+
 use realfft::num_complex::Complex;
-use realfft::RealFftPlanner;
+use realfft::{ComplexToReal, RealFftPlanner, RealToComplex};
+
+/// The forward and inverse real FFTs of one length.
+type Plans = (
+    usize,
+    Arc<dyn RealToComplex<f64>>,
+    Arc<dyn ComplexToReal<f64>>,
+);
+
+thread_local! {
+    /// The plans of the length last transformed on this thread: a stretch's many series
+    /// share one length, and planning it (twiddles, and Bluestein's for a length with a
+    /// large prime factor) cost more than the transforms; only one length is kept, so a
+    /// long run's stretches of varying lengths do not pile up plans.
+    static PLANS: RefCell<Option<Plans>> = const { RefCell::new(None) };
+}
+
+/// The plans for length `n`, planned once per length in a row.
+fn plans(n: usize) -> (Arc<dyn RealToComplex<f64>>, Arc<dyn ComplexToReal<f64>>) {
+    PLANS.with(|cell| {
+        let mut cell = cell.borrow_mut();
+        if cell.as_ref().is_none_or(|(m, _, _)| *m != n) {
+            let mut planner = RealFftPlanner::<f64>::new();
+            *cell = Some((n, planner.plan_fft_forward(n), planner.plan_fft_inverse(n)));
+        }
+        let (_, forward, inverse) = cell.as_ref().expect("set above");
+        (forward.clone(), inverse.clone())
+    })
+}
 
 /// Bins on each side of a bin whose powers set its gain.
 const NEIGHBOURS: usize = 8;
@@ -87,7 +118,7 @@ impl SpectralDerivative {
             let omega_rad_s = 2.0 * std::f64::consts::PI * k as f64 / (n as f64 * self.dt_s);
             *c *= weight(omega_rad_s, self.gains.get(k).copied().unwrap_or(0.0));
         }
-        let inverse = RealFftPlanner::<f64>::new().plan_fft_inverse(n);
+        let inverse = plans(n).1;
         let mut out = inverse.make_output_vec();
         inverse.process(&mut spectrum, &mut out).ok()?;
         Some((out.iter().map(|v| v / n as f64).collect(), slope))
@@ -102,7 +133,7 @@ fn detrended_spectrum(y: &[f64]) -> Option<(Vec<Complex<f64>>, f64)> {
         return None;
     }
     let slope = (y[n - 1] - y[0]) / (n - 1) as f64;
-    let forward = RealFftPlanner::<f64>::new().plan_fft_forward(n);
+    let forward = plans(n).0;
     let mut input: Vec<f64> = y
         .iter()
         .enumerate()

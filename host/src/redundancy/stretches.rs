@@ -119,6 +119,8 @@ pub(super) struct SpilledRun {
     /// Where each stretch's own times start (the first at minus infinity), s.
     starts_s: Vec<f64>,
     stretch_epochs: usize,
+    /// The only stretch of a short run, gridded once.
+    only: Option<Stretch>,
 }
 
 /// Samples of a unit read to find its interval.
@@ -226,6 +228,7 @@ impl SpilledRun {
             window_s,
             starts_s,
             stretch_epochs,
+            only: None,
         })
     }
 
@@ -257,6 +260,30 @@ impl SpilledRun {
     }
 }
 
+impl SpilledRun {
+    /// Stretch `s` on its grid, the run's index of its first own sample `first_epoch`; None
+    /// where it has no shared time of its own.
+    fn stretch(&self, s: usize, first_epoch: usize) -> Result<Option<Stretch>, RedundancyError> {
+        let from_s = self.starts_s[s];
+        let to_s = self.starts_s.get(s + 1).copied().unwrap_or(f64::INFINITY);
+        let units = self.units_between(from_s, to_s)?;
+        let grid = common_grid(&units, Some(self.anchor)).map_err(|e| match e {
+            RedundancyError::Unit { name, message } => RedundancyError::Unit {
+                name,
+                message: format!("{message} (in the stretch from {} s)", units_start(&units)),
+            },
+            other => other,
+        })?;
+        let own_start = grid.t_s.partition_point(|t| *t < from_s);
+        let own_end = grid.t_s.partition_point(|t| *t < to_s);
+        Ok((own_start < own_end).then_some(Stretch {
+            grid,
+            own: own_start..own_end,
+            first_epoch,
+        }))
+    }
+}
+
 impl Stretches for SpilledRun {
     fn names(&self) -> &[String] {
         &self.names
@@ -274,27 +301,18 @@ impl Stretches for SpilledRun {
         &mut self,
         each: &mut dyn FnMut(&Stretch) -> Result<(), RedundancyError>,
     ) -> Result<(), RedundancyError> {
-        let mut first_epoch = 0;
-        for (s, &from_s) in self.starts_s.iter().enumerate() {
-            let to_s = self.starts_s.get(s + 1).copied().unwrap_or(f64::INFINITY);
-            let units = self.units_between(from_s, to_s)?;
-            let grid = common_grid(&units, Some(self.anchor)).map_err(|e| match e {
-                RedundancyError::Unit { name, message } => RedundancyError::Unit {
-                    name,
-                    message: format!("{message} (in the stretch from {} s)", units_start(&units)),
-                },
-                other => other,
-            })?;
-            let own_start = grid.t_s.partition_point(|t| *t < from_s);
-            let own_end = grid.t_s.partition_point(|t| *t < to_s);
-            let stretch = Stretch {
-                grid,
-                own: own_start..own_end,
-                first_epoch,
-            };
-            if stretch.own.is_empty() {
-                continue;
+        if self.starts_s.len() == 1 {
+            // A run of one stretch is gridded once, not once a pass.
+            if self.only.is_none() {
+                self.only = self.stretch(0, 0)?;
             }
+            return self.only.as_ref().map_or(Ok(()), each);
+        }
+        let mut first_epoch = 0;
+        for s in 0..self.starts_s.len() {
+            let Some(stretch) = self.stretch(s, first_epoch)? else {
+                continue;
+            };
             first_epoch += stretch.own.len();
             each(&stretch)?;
         }
