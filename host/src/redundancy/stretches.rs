@@ -121,6 +121,139 @@ pub(super) struct SpilledRun {
     stretch_epochs: usize,
     /// The only stretch of a short run, gridded once.
     only: Option<Stretch>,
+    /// The run on its grid, written by the first pass over a run of several stretches.
+    gridded: Option<GridSpill>,
+}
+
+/// The run's grid in a spill file, each shared time a row: the time, then per unit whether
+/// it has a sample there and its six filled values. The passes after the first read their
+/// stretches (margins included) from it instead of gridding the units again: on units with
+/// their own crystals the grid carries each sample's motion to its shared time, which cost
+/// as much as the rest of a pass.
+struct GridSpill {
+    file: std::fs::File,
+    /// Values a row.
+    width: usize,
+    /// Each stretch's own shared times, as row ranges.
+    stretches: Vec<Range<usize>>,
+}
+
+/// Writes the stretches' own rows of the grid as the first pass forms them.
+struct GridWriter {
+    out: std::io::BufWriter<std::fs::File>,
+    width: usize,
+    stretches: Vec<Range<usize>>,
+    bytes: Vec<u8>,
+}
+
+impl GridWriter {
+    fn new(units: usize) -> Result<Self, RedundancyError> {
+        let file = tempfile::tempfile().map_err(spill_error)?;
+        Ok(Self {
+            out: std::io::BufWriter::with_capacity(1 << 20, file),
+            width: 1 + 7 * units,
+            stretches: Vec::new(),
+            bytes: Vec::new(),
+        })
+    }
+
+    fn push(&mut self, stretch: &Stretch) -> Result<(), RedundancyError> {
+        use std::io::Write;
+        let grid = &stretch.grid;
+        for i in stretch.own.clone() {
+            self.bytes.clear();
+            self.bytes.extend(grid.t_s[i].to_le_bytes());
+            for ((_, r), present) in grid.filled.iter().zip(&grid.present) {
+                self.bytes
+                    .extend(f64::from(u8::from(present[i])).to_le_bytes());
+                for triad in [&r.gyro_rad_s, &r.accel_m_s2] {
+                    let triad = triad.as_ref().expect("checked: both triads");
+                    triad
+                        .iter()
+                        .for_each(|axis| self.bytes.extend(axis[i].to_le_bytes()));
+                }
+            }
+            self.out.write_all(&self.bytes).map_err(spill_error)?;
+        }
+        let first = stretch.first_epoch;
+        self.stretches.push(first..first + stretch.own.len());
+        Ok(())
+    }
+
+    fn finish(self) -> Result<GridSpill, RedundancyError> {
+        let file = self
+            .out
+            .into_inner()
+            .map_err(|e| spill_error(e.into_error()))?;
+        Ok(GridSpill {
+            file,
+            width: self.width,
+            stretches: self.stretches,
+        })
+    }
+}
+
+fn spill_error(e: std::io::Error) -> RedundancyError {
+    RedundancyError::Input(format!(
+        "writing the grid's spill file in {}: {e}",
+        std::env::temp_dir().display()
+    ))
+}
+
+impl GridSpill {
+    /// Stretch `s` with [`MARGIN_EPOCHS`] of the run's grid on each side.
+    fn stretch(
+        &self,
+        s: usize,
+        names: &[String],
+        anchor: usize,
+    ) -> Result<Stretch, RedundancyError> {
+        use std::os::unix::fs::FileExt;
+        let own = self.stretches[s].clone();
+        let epochs = self.stretches.last().map_or(0, |r| r.end);
+        let rows = own.start.saturating_sub(MARGIN_EPOCHS)..(own.end + MARGIN_EPOCHS).min(epochs);
+        let mut bytes = vec![0u8; rows.len() * self.width * 8];
+        self.file
+            .read_exact_at(&mut bytes, (rows.start * self.width * 8) as u64)
+            .map_err(spill_error)?;
+        let values: Vec<f64> = bytes
+            .chunks_exact(8)
+            .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes")))
+            .collect();
+        let n = rows.len();
+        let column =
+            |c: usize| -> Vec<f64> { (0..n).map(|i| values[i * self.width + c]).collect() };
+        let t_s = column(0);
+        let units = names.len();
+        let grid = Grid {
+            present: (0..units)
+                .map(|k| column(1 + 7 * k).iter().map(|p| *p != 0.0).collect())
+                .collect(),
+            filled: names
+                .iter()
+                .enumerate()
+                .map(|(k, name)| {
+                    let at = 2 + 7 * k;
+                    let recording = ImuRecording {
+                        t_s: t_s.clone(),
+                        gyro_rad_s: Some(std::array::from_fn(|a| column(at + a))),
+                        accel_m_s2: Some(std::array::from_fn(|a| column(at + 3 + a))),
+                        ..Default::default()
+                    };
+                    (name.clone(), recording)
+                })
+                .collect(),
+            offset_s: vec![vec![0.0; n]; units],
+            anchor,
+            rate_offset: vec![0.0; units],
+            t_s,
+        };
+        Ok(Stretch {
+            grid,
+            own: own.start - rows.start..own.end - rows.start,
+            first_epoch: own.start,
+        })
+    }
 }
 
 /// Samples of a unit read to find its interval.
@@ -229,6 +362,7 @@ impl SpilledRun {
             starts_s,
             stretch_epochs,
             only: None,
+            gridded: None,
         })
     }
 
@@ -308,14 +442,23 @@ impl Stretches for SpilledRun {
             }
             return self.only.as_ref().map_or(Ok(()), each);
         }
+        if let Some(gridded) = &self.gridded {
+            for s in 0..gridded.stretches.len() {
+                each(&gridded.stretch(s, &self.names, self.anchor)?)?;
+            }
+            return Ok(());
+        }
+        let mut writer = GridWriter::new(self.names.len())?;
         let mut first_epoch = 0;
         for s in 0..self.starts_s.len() {
             let Some(stretch) = self.stretch(s, first_epoch)? else {
                 continue;
             };
             first_epoch += stretch.own.len();
+            writer.push(&stretch)?;
             each(&stretch)?;
         }
+        self.gridded = Some(writer.finish()?);
         Ok(())
     }
 
