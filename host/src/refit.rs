@@ -30,7 +30,7 @@ use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{
     analyze, refit_replicate, set_bootstrap_intervals, BootstrapOptions, ChannelFit, ModelChoice,
 };
-use crate::gmwm::model::{ModelSpec, Process, Structure};
+use crate::gmwm::model::{ModelSimulation, ModelSpec, Process, Structure};
 use crate::interchange::ImuRecording;
 use crate::model::SimModel;
 use crate::redundancy::{redundancy, Alignment, OwnWv, RedundancyOptions, RotationBasis};
@@ -166,7 +166,7 @@ pub fn refit(log: &DecodedLog, options: &RefitOptions) -> Result<Refit, RefitErr
             dt_s: r.median_dt_s(),
         })
         .collect();
-    refit_units(log_units, report, agreement, notes, options)
+    refit_units(log_units, usize::MAX, report, agreement, notes, options)
 }
 
 /// The refit of the board log at `path`, in memory that does not grow with it: the log is
@@ -231,7 +231,7 @@ pub fn refit_file(
         stretch_epochs,
     )?
     .report;
-    refit_units(log_units, report, agreement, notes, options)
+    refit_units(log_units, stretch_epochs, report, agreement, notes, options)
 }
 
 /// The estimator of the logged samples each board snapshot is checked against, from one
@@ -299,9 +299,11 @@ fn snapshot_batches(
 type SnapshotBatches = Vec<(u8, Channel, Result<WaveletVariance, String>)>;
 
 /// The refit from the units' analysis: each unit's channels fitted on its own wavelet
-/// variances, the bootstrap's intervals, the board's model.
+/// variances, the bootstrap's intervals (simulated `block` samples at a time,
+/// [`hat_bootstrap`]), the board's model.
 fn refit_units(
     units: Vec<LogUnit>,
+    block: usize,
     report: crate::redundancy::RedundancyReport,
     agreement: Vec<WvAgreement>,
     mut notes: Vec<String>,
@@ -319,7 +321,7 @@ fn refit_units(
         });
     }
     if let Some(b) = options.bootstrap.filter(|b| b.replicates > 0) {
-        hat_bootstrap(&mut unit_refits, units[0].samples, units[0].dt_s, b);
+        hat_bootstrap(&mut unit_refits, units[0].samples, units[0].dt_s, block, b);
     }
     let board_model = board_model_of(&unit_refits, &mut notes);
     Ok(Refit {
@@ -497,13 +499,16 @@ fn fit_unit(
 /// analysis. Each replicate simulates every unit's channel from its fitted model (`n`
 /// samples, seeded: ChaCha8 from `b.seed`, one stream per channel and replicate, so the
 /// draws do not depend on the thread count), takes their own wavelet variances through the
-/// same N-cornered hat ([`crate::redundancy::own_wv_of`]) and refits each unit on the
-/// levels its fit used. A single-series bootstrap would miss the hat's own variance (the
+/// same N-cornered hat ([`crate::redundancy::own_wv_of_blocks`]) and refits each unit on
+/// the levels its fit used. The series are simulated `block` samples at a time: a log
+/// refitted stretch by stretch gives its stretch, so a replicate holds a block of each unit,
+/// not the log, and its pairs' wavelet variances are streamed as the log's were (a held
+/// log gives `usize::MAX`: one block, the batch estimator). A single-series bootstrap would miss the hat's own variance (the
 /// pairs' differences of large numbers, 2.5 times a single unit's at the white noise's
 /// scales with three units) and the trade between a short-record Gauss-Markov term and the
 /// white noise; the delta method misses both. The simulated units hold no motion, so what
 /// the alignment leaves in the real differences is not in the intervals.
-fn hat_bootstrap(units: &mut [UnitRefit], n: usize, dt_s: f64, b: BootstrapOptions) {
+fn hat_bootstrap(units: &mut [UnitRefit], n: usize, dt_s: f64, block: usize, b: BootstrapOptions) {
     use rand::SeedableRng;
     use rayon::prelude::*;
     let replicates_each = b.replicates as u64;
@@ -526,12 +531,16 @@ fn hat_bootstrap(units: &mut [UnitRefit], n: usize, dt_s: f64, b: BootstrapOptio
             .map(|r| {
                 let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(b.seed);
                 rng.set_stream((c * b.replicates + r) as u64);
-                let series: Vec<Vec<f64>> = fits
+                let mut simulations: Vec<ModelSimulation> = fits
                     .iter()
-                    .map(|f| f.model_object.simulate(n, &mut rng))
+                    .map(|f| ModelSimulation::new(&f.model_object))
                     .collect();
-                let refs: Vec<&[f64]> = series.iter().map(Vec::as_slice).collect();
-                let own = crate::redundancy::own_wv_of(&refs, dt_s);
+                let own = crate::redundancy::own_wv_of_blocks(fits.len(), n, block, dt_s, |len| {
+                    simulations
+                        .iter_mut()
+                        .map(|s| s.next_block(len, &mut rng))
+                        .collect()
+                });
                 let refits = fits
                     .iter()
                     .zip(&structures)

@@ -361,8 +361,9 @@ fn units_on_their_own_crystals_find_their_own_noise_from_the_board_log() {
     assert!(d.join("refit").join("board-model.bin").exists());
     // Streamed (the log decoded into spill files, the units read stretch by stretch), the
     // refit is the held one: in one stretch to the bit of the board's model, in three the
-    // board's snapshots check alike and every white noise is within 1%.
-    let refit = |name: &str, stretch: &str| -> serde_json::Value {
+    // board's snapshots check alike, every white noise is within 1%, and the bootstrap
+    // (each replicate simulated a stretch at a time) brackets it.
+    let refit = |name: &str, stretch: &str, bootstrap: &str| -> serde_json::Value {
         let out = d.join(name);
         ok(&[
             "refit",
@@ -374,16 +375,16 @@ fn units_on_their_own_crystals_find_their_own_noise_from_the_board_log() {
             "--stretch-epochs",
             stretch,
             "--bootstrap",
-            "0",
+            bootstrap,
         ]);
         read_json(&out.join("refit.json"))
     };
     let held = read_json(&d.join("refit").join("refit.json"));
-    let one = refit("refit-one", "1000000");
+    let one = refit("refit-one", "1000000", "0");
     let blob = |name: &str| std::fs::read(d.join(name).join("board-model.bin")).unwrap();
     assert_eq!(blob("refit-one"), blob("refit"));
     assert_eq!(one["agreement"], held["agreement"]);
-    let three = refit("refit-three", "16384");
+    let three = refit("refit-three", "16384", "20");
     assert_eq!(three["agreement"], held["agreement"]);
     for (h, t) in held["units"]
         .as_array()
@@ -409,6 +410,17 @@ fn units_on_their_own_crystals_find_their_own_noise_from_the_board_log() {
                     "{} {}: {b} vs {a}",
                     h["name"],
                     fh["channel"]
+                );
+                // The bootstrap, simulated a stretch at a time, brackets the estimate.
+                let parameter = &ft["parameters"][0];
+                let (value, ci) = (
+                    parameter["value"].as_f64().unwrap(),
+                    floats(&parameter["ci95"]),
+                );
+                assert!(
+                    ci[0] < value && value < ci[1],
+                    "{}: {value} {ci:?}",
+                    ft["interval_method"]
                 );
             }
         }

@@ -276,6 +276,40 @@ pub fn own_wv_of(series: &[&[f64]], dt_s: f64) -> Vec<OwnWv> {
     hat_of(&pair_wvs(series, dt_s), series.len(), |_, _, _| 0.0)
 }
 
+/// [`own_wv_of`] of `units` series of `n` samples given a block at a time: `next(len)`
+/// gives every unit's next `len` samples. In one block (`block >= n`) it is [`own_wv_of`];
+/// in several, the pairs' wavelet variances are streamed (levels past 16 decimated), as a
+/// long run's are ([`redundancy_of_files`]).
+pub fn own_wv_of_blocks(
+    units: usize,
+    n: usize,
+    block: usize,
+    dt_s: f64,
+    mut next: impl FnMut(usize) -> Vec<Vec<f64>>,
+) -> Vec<OwnWv> {
+    let block = block.max(1);
+    let members = members(units);
+    let mut pairs: Vec<PieceWv> = members
+        .iter()
+        .map(|_| PieceWv::new(n.div_ceil(block), dt_s))
+        .collect();
+    let mut done = 0;
+    while done < n {
+        let len = block.min(n - done);
+        let series = next(len);
+        for (&(k, l), wv) in members.iter().zip(pairs.iter_mut()) {
+            let d: Vec<f64> = series[k]
+                .iter()
+                .zip(&series[l])
+                .map(|(a, b)| a - b)
+                .collect();
+            wv.add(&d);
+        }
+        done += len;
+    }
+    hat_of(&pairs, units, |_, _, _| 0.0)
+}
+
 /// The wavelet variance of every pairwise difference of `series` held whole, in
 /// [`members`] order.
 fn pair_wvs(series: &[&[f64]], dt_s: f64) -> Vec<PieceWv> {
