@@ -170,7 +170,7 @@ fn floats(r: &serde_json::Value) -> Vec<f64> {
         .collect()
 }
 
-/// A long run is read stretch by stretch from spill files (`--stream`, automatic above 256
+/// A long run is read stretch by stretch from spill files (`--stream`, automatic above 64
 /// MiB): read as one stretch it gives the report of the run held whole; cut into three
 /// stretches of 164 s (their spectral derivatives, live levels and monitors carried from
 /// one to the next) each unit's white noise stays within 1.5% of the held figure and the

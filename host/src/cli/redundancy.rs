@@ -5,7 +5,7 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use dynacal::input::load_recording;
-use dynacal::input::stream::{StreamMode, STREAM_THRESHOLD_BYTES};
+use dynacal::input::stream::StreamMode;
 use dynacal::redundancy::{redundancy, redundancy_of_files, RedundancyOptions, RedundancyReport};
 
 #[derive(Debug, clap::Args)]
@@ -46,14 +46,19 @@ pub struct Args {
     #[arg(long)]
     pub to_s: Option<f64>,
     /// Read the units stretch by stretch from spill files instead of loading them whole
-    /// (memory that does not grow with the run): `auto` when the files take more than 256
-    /// MiB on disk together.
+    /// (memory that does not grow with the run): `auto` when the files take more than 64
+    /// MiB on disk together (held, about 5 bytes of memory a byte of CSV).
     #[arg(long, value_enum, default_value_t = StreamMode::Auto)]
     pub stream: StreamMode,
     /// Shared times a stretch holds when streamed (tests cut a short run into several).
     #[arg(long, hide = true, default_value_t = dynacal::redundancy::STRETCH_EPOCHS)]
     pub stretch_epochs: usize,
 }
+
+/// Size of the units' files together above which `--stream auto` streams them: held, the
+/// analysis takes about 5 bytes a byte of their CSV (BENCHMARKS.md), stretch by stretch
+/// about 200 MiB whatever their length.
+const STREAM_UNITS_BYTES: u64 = 64 << 20;
 
 pub fn run(args: Args) -> anyhow::Result<()> {
     anyhow::ensure!(
@@ -95,7 +100,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
                 .filter_map(|p| std::fs::metadata(p).ok())
                 .map(|m| m.len())
                 .sum();
-            bytes > STREAM_THRESHOLD_BYTES
+            bytes > STREAM_UNITS_BYTES
         }
     };
     let (report, fused_written) = if streamed {
