@@ -254,6 +254,34 @@ fn a_run_read_in_stretches_finds_what_it_finds_held_whole() {
     for (x, y) in a.iter().zip(&b) {
         assert_eq!(x[..4], y[..4], "fused time and gyros at {} s", x[0]);
     }
+    // A unit silent for a whole stretch (200 s of 600) is refused by name, with the way
+    // out, and nothing is written.
+    let (head, rows) = read_rows(Path::new(&units[1]));
+    let gap = d.join("u1-gap.csv");
+    let kept: Vec<Vec<f64>> = rows
+        .into_iter()
+        .filter(|r| !(200.0..400.0).contains(&r[0]))
+        .collect();
+    write_rows(&gap, &head, &kept);
+    let json = d.join("gap.json");
+    let out = dynacal(&[
+        "redundancy",
+        &units[0],
+        path(&gap),
+        &units[2],
+        "--json",
+        path(&json),
+        "--stream",
+        "always",
+        "--stretch-epochs",
+        "8192",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success() && !json.exists(), "{stderr}");
+    assert!(
+        stderr.contains("u1-gap.csv") && stderr.contains("--stream never"),
+        "{stderr}"
+    );
 }
 
 /// A fault just after a stretch's start is found as in the run held whole: the monitors'

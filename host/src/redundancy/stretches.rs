@@ -401,11 +401,27 @@ impl SpilledRun {
         let from_s = self.starts_s[s];
         let to_s = self.starts_s.get(s + 1).copied().unwrap_or(f64::INFINITY);
         let units = self.units_between(from_s, to_s)?;
+        let (start_s, end_s) = units
+            .iter()
+            .filter_map(|(_, r)| r.t_s.first().zip(r.t_s.last()))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), (f, l)| {
+                (a.min(*f), b.max(*l))
+            });
+        // A gap of a stretch or more: held whole the run would interpolate across it.
+        let stretch_error = |name: String, message: String| RedundancyError::Unit {
+            name,
+            message: format!(
+                "{message} (in the stretch of the run from {start_s:.3} s to {end_s:.3} s: read \
+                 stretch by stretch, a unit may not miss most of a stretch; read the run whole \
+                 with --stream never, or analyse the times before and after the gap apart with \
+                 --from-s and --to-s)"
+            ),
+        };
+        if let Some((name, _)) = units.iter().find(|(_, r)| r.len() < 2) {
+            return Err(stretch_error(name.clone(), "no samples".into()));
+        }
         let grid = common_grid(&units, Some(self.anchor)).map_err(|e| match e {
-            RedundancyError::Unit { name, message } => RedundancyError::Unit {
-                name,
-                message: format!("{message} (in the stretch from {} s)", units_start(&units)),
-            },
+            RedundancyError::Unit { name, message } => stretch_error(name, message),
             other => other,
         })?;
         let own_start = grid.t_s.partition_point(|t| *t < from_s);
@@ -486,14 +502,6 @@ impl Stretches for SpilledRun {
         }
         Ok(levels)
     }
-}
-
-/// The first time of a stretch's units, s.
-fn units_start(units: &[(String, ImuRecording)]) -> f64 {
-    units
-        .iter()
-        .filter_map(|(_, r)| r.t_s.first().copied())
-        .fold(f64::NEG_INFINITY, f64::max)
 }
 
 /// Full (overlapping) levels of a stream over many stretches: 2 MiB of ring each.
