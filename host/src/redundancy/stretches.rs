@@ -407,21 +407,27 @@ impl SpilledRun {
             .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), (f, l)| {
                 (a.min(*f), b.max(*l))
             });
-        // A gap of a stretch or more: held whole the run would interpolate across it.
-        let stretch_error = |name: String, message: String| RedundancyError::Unit {
+        let within = format!("in the stretch of the run from {start_s:.3} s to {end_s:.3} s");
+        // A gap of most of a stretch: held whole, the run would interpolate across it.
+        let gap_error = |name: String, message: String| RedundancyError::Unit {
             name,
             message: format!(
-                "{message} (in the stretch of the run from {start_s:.3} s to {end_s:.3} s: read \
-                 stretch by stretch, a unit may not miss most of a stretch; read the run whole \
-                 with --stream never, or analyse the times before and after the gap apart with \
-                 --from-s and --to-s)"
+                "{message} ({within}: read stretch by stretch, a unit may not miss most of a \
+                 stretch; read the run whole with --stream never, or analyse the times before \
+                 and after the gap apart with --from-s and --to-s)"
             ),
         };
         if let Some((name, _)) = units.iter().find(|(_, r)| r.len() < 2) {
-            return Err(stretch_error(name.clone(), "no samples".into()));
+            return Err(gap_error(name.clone(), "no samples".into()));
         }
         let grid = common_grid(&units, Some(self.anchor)).map_err(|e| match e {
-            RedundancyError::Unit { name, message } => stretch_error(name, message),
+            RedundancyError::Unit { name, message } if message.starts_with("has samples at") => {
+                gap_error(name, message)
+            }
+            RedundancyError::Unit { name, message } => RedundancyError::Unit {
+                name,
+                message: format!("{message} ({within})"),
+            },
             other => other,
         })?;
         let own_start = grid.t_s.partition_point(|t| *t < from_s);
