@@ -264,7 +264,7 @@ fn snapshot_batches(
             .unwrap_or(0);
         let mut streams: Vec<HaarWvStream> = Channel::ALL
             .iter()
-            .map(|_| HaarWvStream::new(full.max(HaarWvStream::DEFAULT_FULL_LEVELS - 2)))
+            .map(|_| HaarWvStream::new(full.max(HaarWvStream::COMPACT_FULL_LEVELS)))
             .collect();
         let mut fed = 0usize;
         for snapshot in mine {

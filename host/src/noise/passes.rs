@@ -25,7 +25,7 @@ use crate::wv::{default_max_level, WaveletVariance};
 /// Full (overlapping, batch-equal) levels of a still stretch's accumulators: every level of
 /// a stretch under 2^18 samples (43 minutes at 100 Hz); longer stretches' top levels are
 /// decimated (4/9 of the degrees of freedom). 2 MiB per axis.
-pub const FULL_LEVELS: u32 = 16;
+pub const FULL_LEVELS: u32 = HaarWvStream::COMPACT_FULL_LEVELS;
 
 /// Samples buffered per axis before they enter an accumulator (its block path is several
 /// times faster than one sample at a time, bit for bit the same).

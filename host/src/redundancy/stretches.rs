@@ -53,6 +53,14 @@ fn ranges_of(r: &ImuRecording) -> Ranges {
     [own(&r.gyro_rad_s), own(&r.accel_m_s2)]
 }
 
+/// A spill file's error, said of unit `name`.
+fn unit_error(name: &str) -> impl Fn(ErrorsError) -> RedundancyError + Copy + '_ {
+    move |e| RedundancyError::Unit {
+        name: name.to_string(),
+        message: e.to_string(),
+    }
+}
+
 /// Units held whole: one stretch.
 pub(super) struct HeldRun<'a> {
     names: Vec<String>,
@@ -306,18 +314,15 @@ impl SpilledRun {
                 ));
             }
         }
-        let error = |name: &str| {
-            let name = name.to_string();
-            move |e: ErrorsError| RedundancyError::Unit {
-                name: name.clone(),
-                message: e.to_string(),
-            }
-        };
         let mut dt_s = f64::INFINITY;
         let (mut start_s, mut end_s) = (f64::NEG_INFINITY, f64::INFINITY);
         for (unit, name) in units.iter().zip(&names) {
-            let first = unit.count_before(window_s.0, false).map_err(error(name))?;
-            let end = unit.count_before(window_s.1, false).map_err(error(name))?;
+            let first = unit
+                .count_before(window_s.0, false)
+                .map_err(unit_error(name))?;
+            let end = unit
+                .count_before(window_s.1, false)
+                .map_err(unit_error(name))?;
             if end < first + 2 {
                 return Err(fail(
                     name,
@@ -326,17 +331,19 @@ impl SpilledRun {
             }
             let probe = unit
                 .rows(first..end.min(first + INTERVAL_PROBE))
-                .map_err(error(name))?
+                .map_err(unit_error(name))?
                 .0;
             dt_s = dt_s.min(probe.median_dt_s());
-            start_s = start_s.max(unit.time_s(first).map_err(error(name))?);
-            end_s = end_s.min(unit.time_s(end - 1).map_err(error(name))?);
+            start_s = start_s.max(unit.time_s(first).map_err(unit_error(name))?);
+            end_s = end_s.min(unit.time_s(end - 1).map_err(unit_error(name))?);
         }
         let mut anchor = 0;
         let mut most = 0;
         for (k, (unit, name)) in units.iter().zip(&names).enumerate() {
-            let inside = unit.count_before(end_s, true).map_err(error(name))?
-                - unit.count_before(start_s, false).map_err(error(name))?;
+            let inside = unit.count_before(end_s, true).map_err(unit_error(name))?
+                - unit
+                    .count_before(start_s, false)
+                    .map_err(unit_error(name))?;
             if inside > most {
                 (anchor, most) = (k, inside);
             }
@@ -377,10 +384,7 @@ impl SpilledRun {
             .iter()
             .zip(&self.names)
             .map(|(unit, name)| {
-                let error = |e: ErrorsError| RedundancyError::Unit {
-                    name: name.clone(),
-                    message: e.to_string(),
-                };
+                let error = unit_error(name);
                 let from_s = (from_s - margin_s).max(self.window_s.0);
                 let to_s = (to_s + margin_s).min(self.window_s.1);
                 let first = unit.count_before(from_s, false).map_err(error)?;
@@ -488,10 +492,7 @@ impl Stretches for SpilledRun {
         // A unit clips at its largest value: the largest level any stretch of it shows.
         let mut levels: Vec<Ranges> = vec![[None, None]; self.units.len()];
         for (k, (unit, name)) in self.units.iter().zip(&self.names).enumerate() {
-            let error = |e: ErrorsError| RedundancyError::Unit {
-                name: name.clone(),
-                message: e.to_string(),
-            };
+            let error = unit_error(name);
             let mut first = unit.count_before(self.window_s.0, false).map_err(error)?;
             let last = unit.count_before(self.window_s.1, false).map_err(error)?;
             while first < last {
@@ -510,12 +511,9 @@ impl Stretches for SpilledRun {
     }
 }
 
-/// Full (overlapping) levels of a stream over many stretches: 2 MiB of ring each.
-const STREAM_FULL_LEVELS: u32 = 16;
-
 /// The Haar wavelet variance of a series given in pieces, in run order: the batch
 /// estimator where the run is one piece, the streaming one ([`HaarWvStream`]: levels past
-/// [`STREAM_FULL_LEVELS`] decimated) where it is several.
+/// [`HaarWvStream::COMPACT_FULL_LEVELS`] decimated) where it is several.
 pub(super) struct PieceWv {
     dt_s: f64,
     estimator: PieceEstimator,
@@ -532,7 +530,9 @@ impl PieceWv {
         let estimator = if pieces <= 1 {
             PieceEstimator::Batch(None)
         } else {
-            PieceEstimator::Stream(Box::new(HaarWvStream::new(STREAM_FULL_LEVELS)))
+            PieceEstimator::Stream(Box::new(HaarWvStream::new(
+                HaarWvStream::COMPACT_FULL_LEVELS,
+            )))
         };
         Self { dt_s, estimator }
     }
@@ -566,7 +566,7 @@ impl PieceWv {
                 if *j <= full {
                     crate::wv::eta3(*m, *j)
                 } else {
-                    (2.0 * *m as f64 / 9.0).max(1.0)
+                    crate::wv::stream::decimated_dof(*m as u64)
                 }
             })
             .collect();

@@ -139,6 +139,10 @@ impl HaarWvStream {
     /// maximum level floor(log2 N) - 1, so such recordings get the batch estimator whole.
     pub const DEFAULT_FULL_LEVELS: u32 = 18;
 
+    /// Full levels 1..=16, 2 MiB of ring: for analyses that keep many streams at once (a
+    /// long run's pairs and channels, a still stretch's axes).
+    pub const COMPACT_FULL_LEVELS: u32 = 16;
+
     /// Levels the stream can hold: enough for 2^62 samples.
     const MAX_LEVELS: u32 = 62;
 
@@ -306,7 +310,7 @@ impl HaarWvStream {
                 (level.total(), level.count, eta3(level.count as usize, j))
             } else {
                 let level = &self.decimated[(j - self.full_levels - 1) as usize];
-                let dof = (2.0 * level.count as f64 / 9.0).max(1.0);
+                let dof = decimated_dof(level.count);
                 (level.squares, level.count, dof)
             };
             if count == 0 {
@@ -328,6 +332,12 @@ impl HaarWvStream {
     pub fn full_levels(&self) -> u32 {
         self.full_levels
     }
+}
+
+/// Equivalent degrees of freedom of a decimated level's variance from its `count`
+/// coefficients: max(2K/9, 1) (see the module's note).
+pub fn decimated_dof(count: u64) -> f64 {
+    (2.0 * count as f64 / 9.0).max(1.0)
 }
 
 #[cfg(test)]
