@@ -32,13 +32,14 @@
 //!   slerp between the two `ATT` samples around it (a fix whose `ATT` neighbours are more than
 //!   [`MAX_ATT_GAP_S`] apart is left out).
 
-use std::collections::BTreeMap;
-use std::io::Read as _;
+use std::collections::{BTreeMap, BTreeSet};
+use std::io::Read;
 use std::path::{Path, PathBuf};
 
 use nalgebra::UnitQuaternion;
 
-use super::ImportError;
+use super::rows::{self, SensorLayout, SensorRows};
+use super::{read_up_to, ImportError};
 use crate::interchange::{open_maybe_gz, ImuRecording};
 
 /// The two bytes every DataFlash message starts with.
@@ -192,15 +193,80 @@ pub struct Message {
     pub offset: usize,
     /// Index into [`DataFlashLog::formats`].
     pub format: usize,
+    /// Where its bytes start in the log's held bytes (its `offset` when the log is held whole).
+    at: usize,
 }
 
-/// A parsed DataFlash log: the bytes, every format defined, every message.
+/// A parsed DataFlash log: every format defined, and the messages it holds with their bytes:
+/// every message when parsed whole ([`DataFlashLog::parse`]), the kept ones after a walk
+/// ([`DataFlashLog::walk`]).
 #[derive(Debug, Clone)]
 pub struct DataFlashLog {
     path: PathBuf,
+    /// The held messages' bytes, one after the other.
     bytes: Vec<u8>,
     formats: Vec<MessageFormat>,
     messages: Vec<Message>,
+    /// Every message of the file, held or not.
+    message_count: usize,
+}
+
+/// One message with its bytes, as a walk meets it or the log holds it: its fields by label.
+#[derive(Clone, Copy)]
+pub struct Record<'a> {
+    path: &'a Path,
+    format: &'a MessageFormat,
+    pub message: Message,
+    /// The whole message, its 3-byte header included.
+    bytes: &'a [u8],
+}
+
+impl Record<'_> {
+    /// The message's format's name (`IMU`, `GPS`...).
+    pub fn name(&self) -> &str {
+        &self.format.name
+    }
+
+    /// The numeric field `label`, scaled by its letter ([`decode_number`]); `None` if the
+    /// message has no such numeric field.
+    pub fn value(&self, label: &str) -> Option<f64> {
+        let i = self.format.field(label)?;
+        let letter = self.format.format.as_bytes()[i];
+        let start = self.format.offsets[i];
+        decode_number(letter, self.bytes.get(start..start + field_size(letter)?)?)
+    }
+
+    /// An error about this message, naming its index, name and byte offset.
+    pub fn error(&self, message: impl std::fmt::Display) -> ImportError {
+        corrupt(
+            self.path,
+            self.message.offset,
+            format!(
+                "message {} ({}): {message}",
+                self.message.index, self.format.name
+            ),
+        )
+    }
+
+    /// Field `label`, which must be present and finite.
+    fn required(&self, label: &str) -> Result<f64, ImportError> {
+        match self.value(label) {
+            Some(v) if v.is_finite() => Ok(v),
+            Some(v) => Err(self.error(format!("`{label}` is {v}, not a finite number"))),
+            None => Err(self.error(format!("has no numeric field `{label}`"))),
+        }
+    }
+
+    /// The first of `clocks` (label, units per second) that the message has, in seconds.
+    fn time_s(&self, clocks: &[(&str, f64)]) -> Result<f64, ImportError> {
+        for (label, unit_per_s) in clocks {
+            if self.value(label).is_some() {
+                return Ok(self.required(label)? / unit_per_s);
+            }
+        }
+        let names: Vec<&str> = clocks.iter().map(|c| c.0).collect();
+        Err(self.error(format!("has no time field ({})", names.join(" or "))))
+    }
 }
 
 /// An error at a byte offset of `path`.
@@ -246,27 +312,56 @@ fn parse_fmt(bytes: &[u8]) -> Result<MessageFormat, String> {
 }
 
 impl DataFlashLog {
-    /// Reads and parses a log file (gzip-compressed or not).
+    /// Reads and parses a log file (gzip-compressed or not), every message held.
     pub fn read(path: &Path) -> Result<Self, ImportError> {
-        let mut bytes = Vec::new();
-        open_maybe_gz(path)?
-            .read_to_end(&mut bytes)
-            .map_err(|e| ImportError::io(path, e))?;
-        Self::parse(path, bytes)
+        Self::walk(path, &|_| true, &mut |_| Ok(()))
     }
 
     /// Parses a whole log held in memory; `path` is only for messages. Every byte must
     /// belong to a complete message of a type an earlier `FMT` defined.
     pub fn parse(path: &Path, bytes: Vec<u8>) -> Result<Self, ImportError> {
-        let mut formats = vec![fmt_format()];
+        Self::walk_reader(path, &mut bytes.as_slice(), &|_| true, &mut |_| Ok(()))
+    }
+
+    /// Walks the file `path` (gzip-compressed or not) message by message, each checked as
+    /// [`DataFlashLog::parse`] checks it, in memory that does not grow with the file: every
+    /// message is handed to `visit`, and only those whose format `keep` accepts are held in
+    /// the log returned (with the formats).
+    pub fn walk(
+        path: &Path,
+        keep: &dyn Fn(&MessageFormat) -> bool,
+        visit: &mut dyn FnMut(Record) -> Result<(), ImportError>,
+    ) -> Result<Self, ImportError> {
+        let reader = open_maybe_gz(path)?;
+        let mut reader = std::io::BufReader::with_capacity(1 << 16, reader);
+        Self::walk_reader(path, &mut reader, keep, visit)
+    }
+
+    fn walk_reader(
+        path: &Path,
+        reader: &mut impl Read,
+        keep: &dyn Fn(&MessageFormat) -> bool,
+        visit: &mut dyn FnMut(Record) -> Result<(), ImportError>,
+    ) -> Result<Self, ImportError> {
+        let mut log = DataFlashLog {
+            path: path.to_path_buf(),
+            bytes: Vec::new(),
+            formats: vec![fmt_format()],
+            messages: Vec::new(),
+            message_count: 0,
+        };
         let mut by_type: [Option<usize>; 256] = [None; 256];
         by_type[usize::from(FMT_TYPE)] = Some(0);
-        let mut messages = Vec::new();
+        let mut buf = vec![0u8; 256];
         let mut offset = 0;
-        while offset < bytes.len() {
-            let index = messages.len();
-            let rest = &bytes[offset..];
-            let start = &rest[..rest.len().min(2)];
+        let io = |e| ImportError::io(path, e);
+        loop {
+            let index = log.message_count;
+            let head = read_up_to(reader, &mut buf[..3]).map_err(io)?;
+            if head == 0 {
+                break;
+            }
+            let start = &buf[..head.min(2)];
             if start != &MESSAGE_HEADER[..start.len()] {
                 return Err(corrupt(
                     path,
@@ -277,17 +372,14 @@ impl DataFlashLog {
                     ),
                 ));
             }
-            if rest.len() < 3 {
+            if head < 3 {
                 return Err(corrupt(
                     path,
                     offset,
-                    format!(
-                        "message {index}: the file ends {} byte(s) into a message header",
-                        rest.len()
-                    ),
+                    format!("message {index}: the file ends {head} byte(s) into a message header"),
                 ));
             }
-            let type_id = rest[2];
+            let type_id = buf[2];
             let Some(format) = by_type[usize::from(type_id)] else {
                 return Err(corrupt(
                     path,
@@ -295,98 +387,89 @@ impl DataFlashLog {
                     format!("message {index}: type {type_id} (0x{type_id:02X}) has no FMT definition before it"),
                 ));
             };
-            let length = formats[format].length;
-            if rest.len() < length {
+            let length = log.formats[format].length;
+            let got = 3 + read_up_to(reader, &mut buf[3..length]).map_err(io)?;
+            if got < length {
                 return Err(corrupt(
                     path,
                     offset,
                     format!(
-                        "message {index} ({}, {length} bytes) is truncated: the file ends after {} of its bytes",
-                        formats[format].name,
-                        rest.len()
+                        "message {index} ({}, {length} bytes) is truncated: the file ends after {got} of its bytes",
+                        log.formats[format].name,
                     ),
                 ));
             }
+            let bytes = &buf[..length];
             if type_id == FMT_TYPE {
-                let defined = parse_fmt(&rest[..length])
+                let defined = parse_fmt(bytes)
                     .map_err(|e| corrupt(path, offset, format!("message {index} (FMT): {e}")))?;
-                by_type[usize::from(defined.type_id)] = Some(formats.len());
-                formats.push(defined);
+                by_type[usize::from(defined.type_id)] = Some(log.formats.len());
+                log.formats.push(defined);
             }
-            messages.push(Message {
+            let message = Message {
                 index,
                 offset,
                 format,
-            });
+                at: log.bytes.len(),
+            };
+            visit(Record {
+                path,
+                format: &log.formats[format],
+                message,
+                bytes,
+            })?;
+            if keep(&log.formats[format]) {
+                log.bytes.extend_from_slice(bytes);
+                log.messages.push(message);
+            }
+            log.message_count += 1;
             offset += length;
         }
-        Ok(DataFlashLog {
-            path: path.to_path_buf(),
-            bytes,
-            formats,
-            messages,
-        })
+        Ok(log)
     }
 
     /// Every format defined, in the order of their `FMT` messages (the first is `FMT`'s own).
     pub fn formats(&self) -> &[MessageFormat] {
         &self.formats
     }
-    /// Every message, in file order.
+    /// Every message held, in file order.
     pub fn messages(&self) -> &[Message] {
         &self.messages
+    }
+    /// Number of messages in the file, held or not.
+    pub fn message_count(&self) -> usize {
+        self.message_count
     }
     /// The format of a message.
     pub fn format_of(&self, m: &Message) -> &MessageFormat {
         &self.formats[m.format]
     }
-    /// The messages named `name`, in file order.
+    /// The held messages named `name`, in file order.
     pub fn named<'a>(&'a self, name: &'a str) -> impl Iterator<Item = &'a Message> + 'a {
         self.messages
             .iter()
             .filter(move |m| self.formats[m.format].name == name)
     }
 
-    /// The numeric field `label` of message `m`, scaled by its letter ([`decode_number`]);
-    /// `None` if the message has no such numeric field.
-    pub fn value(&self, m: &Message, label: &str) -> Option<f64> {
+    /// A held message with its bytes.
+    pub fn record(&self, m: &Message) -> Record<'_> {
         let format = &self.formats[m.format];
-        let i = format.field(label)?;
-        let letter = format.format.as_bytes()[i];
-        let start = m.offset + format.offsets[i];
-        decode_number(letter, self.bytes.get(start..start + field_size(letter)?)?)
+        Record {
+            path: &self.path,
+            format,
+            message: *m,
+            bytes: &self.bytes[m.at..m.at + format.length],
+        }
     }
 
-    /// An error about message `m`, naming its index, name and byte offset.
+    /// The numeric field `label` of held message `m` ([`Record::value`]).
+    pub fn value(&self, m: &Message, label: &str) -> Option<f64> {
+        self.record(m).value(label)
+    }
+
+    /// An error about held message `m`, naming its index, name and byte offset.
     pub fn error_at(&self, m: &Message, message: impl std::fmt::Display) -> ImportError {
-        corrupt(
-            &self.path,
-            m.offset,
-            format!(
-                "message {} ({}): {message}",
-                m.index, self.formats[m.format].name
-            ),
-        )
-    }
-
-    /// Field `label` of `m`, which must be present and finite.
-    fn required(&self, m: &Message, label: &str) -> Result<f64, ImportError> {
-        match self.value(m, label) {
-            Some(v) if v.is_finite() => Ok(v),
-            Some(v) => Err(self.error_at(m, format!("`{label}` is {v}, not a finite number"))),
-            None => Err(self.error_at(m, format!("has no numeric field `{label}`"))),
-        }
-    }
-
-    /// The first of `clocks` (label, seconds per unit) that `m` has, in seconds.
-    fn time_s(&self, m: &Message, clocks: &[(&str, f64)]) -> Result<f64, ImportError> {
-        for (label, unit_per_s) in clocks {
-            if self.value(m, label).is_some() {
-                return Ok(self.required(m, label)? / unit_per_s);
-            }
-        }
-        let names: Vec<&str> = clocks.iter().map(|c| c.0).collect();
-        Err(self.error_at(m, format!("has no time field ({})", names.join(" or "))))
+        self.record(m).error(message)
     }
 }
 
@@ -399,58 +482,67 @@ const GPS_BOOT_CLOCK: [(&str, f64); 2] = [("TimeUS", 1e6), ("T", 1e3)];
 /// Checks that `t` follows `previous` (the last time of the same series); the error names
 /// the message and both times.
 fn check_after(
-    log: &DataFlashLog,
-    m: &Message,
+    record: &Record,
     t: f64,
     previous: Option<f64>,
     series: &str,
 ) -> Result<(), ImportError> {
     match previous {
-        Some(p) if !(t > p) => Err(log.error_at(
-            m,
-            format!(
-                "time {t} s is {} the previous {series} sample's {p} s",
-                if t == p { "a duplicate of" } else { "before" }
-            ),
-        )),
+        Some(p) if !(t > p) => Err(record.error(format!(
+            "time {t} s is {} the previous {series} sample's {p} s",
+            if t == p { "a duplicate of" } else { "before" }
+        ))),
         _ => Ok(()),
     }
 }
 
 /// Which IMU a message is: `IMU` (instance from its field `I` where it has one, else 0),
 /// `IMU2` = 1, `IMU3` = 2, ...; `None` for other messages.
-fn imu_instance(log: &DataFlashLog, m: &Message) -> Option<usize> {
-    let name = log.format_of(m).name.as_str();
-    let suffix = name.strip_prefix("IMU")?;
+fn imu_instance(record: &Record) -> Option<usize> {
+    let suffix = record.name().strip_prefix("IMU")?;
     if suffix.is_empty() {
         // A 4.x IMU message names its instance; the value was written as a small integer.
-        return Some(log.value(m, "I").map_or(0, |i| i as usize));
+        return Some(record.value("I").map_or(0, |i| i as usize));
     }
     let k: usize = suffix.parse().ok()?;
     (2..=9).contains(&k).then(|| k - 1)
 }
 
-/// Every IMU instance of the log as a recording, by instance number (0, 1, 2...).
+/// The interchange row of an IMU message: `t_s` on the boot clock (checked to follow
+/// `previous`, the instance's last), gyro rad/s, accelerometer m/s^2.
+fn imu_row(record: &Record, k: usize, previous: Option<f64>) -> Result<[f64; 7], ImportError> {
+    const FIELDS: [&str; 6] = ["GyrX", "GyrY", "GyrZ", "AccX", "AccY", "AccZ"];
+    let t = record.time_s(&BOOT_CLOCK)?;
+    check_after(record, t, previous, &format!("IMU {k}"))?;
+    let mut row = [t; 7];
+    for (value, label) in row[1..].iter_mut().zip(FIELDS) {
+        *value = record.required(label)?;
+    }
+    Ok(row)
+}
+
+/// Every IMU instance of a log held whole as a recording, by instance number (0, 1, 2...).
 pub fn read_imus(log: &DataFlashLog) -> Result<BTreeMap<usize, ImuRecording>, ImportError> {
-    const GYRO: [&str; 3] = ["GyrX", "GyrY", "GyrZ"];
-    const ACCEL: [&str; 3] = ["AccX", "AccY", "AccZ"];
     let mut out: BTreeMap<usize, ImuRecording> = BTreeMap::new();
     for m in log.messages() {
-        let Some(k) = imu_instance(log, m) else {
+        let record = log.record(m);
+        let Some(k) = imu_instance(&record) else {
             continue;
         };
-        let t = log.time_s(m, &BOOT_CLOCK)?;
         let rec = out.entry(k).or_insert_with(|| ImuRecording {
             gyro_rad_s: Some(Default::default()),
             accel_m_s2: Some(Default::default()),
             ..Default::default()
         });
-        check_after(log, m, t, rec.t_s.last().copied(), &format!("IMU {k}"))?;
-        rec.t_s.push(t);
-        for (labels, triplet) in [(GYRO, &mut rec.gyro_rad_s), (ACCEL, &mut rec.accel_m_s2)] {
+        let row = imu_row(&record, k, rec.t_s.last().copied())?;
+        rec.t_s.push(row[0]);
+        for (triplet, values) in [
+            (&mut rec.gyro_rad_s, &row[1..4]),
+            (&mut rec.accel_m_s2, &row[4..]),
+        ] {
             let columns = triplet.get_or_insert_with(Default::default);
-            for (label, column) in labels.iter().zip(columns.iter_mut()) {
-                column.push(log.required(m, label)?);
+            for (column, v) in columns.iter_mut().zip(values) {
+                column.push(*v);
             }
         }
     }
@@ -464,21 +556,27 @@ pub fn read_imus(log: &DataFlashLog) -> Result<BTreeMap<usize, ImuRecording>, Im
 fn read_attitude(log: &DataFlashLog) -> Result<Vec<(f64, UnitQuaternion<f64>)>, ImportError> {
     let mut out: Vec<(f64, UnitQuaternion<f64>)> = Vec::new();
     for m in log.named("ATT") {
-        let t = log.time_s(m, &BOOT_CLOCK)?;
-        check_after(log, m, t, out.last().map(|s| s.0), "ATT")?;
+        let record = log.record(m);
+        let t = record.time_s(&BOOT_CLOCK)?;
+        check_after(&record, t, out.last().map(|s| s.0), "ATT")?;
         let mut rpy = [0.0; 3];
         for (v, label) in rpy.iter_mut().zip(["Roll", "Pitch", "Yaw"]) {
-            let deg = log.required(m, label)?;
+            let deg = record.required(label)?;
             // Degrees after the letter's scaling; anything larger is a unit the format
             // letters do not explain.
             if deg.abs() > 720.0 {
-                return Err(log.error_at(m, format!("`{label}` = {deg} is not in degrees")));
+                return Err(record.error(format!("`{label}` = {deg} is not in degrees")));
             }
             *v = deg.to_radians();
         }
         out.push((t, UnitQuaternion::from_euler_angles(rpy[0], rpy[1], rpy[2])));
     }
     Ok(out)
+}
+
+/// The messages the reference is made of ([`read_reference`]), kept by a walk.
+fn reference_message(format: &MessageFormat) -> bool {
+    format.name == "ATT" || format.name == "GPS"
 }
 
 /// The reference recording: GPS 3D fixes with NED velocity and the interpolated `ATT`
@@ -493,27 +591,28 @@ pub fn read_reference(log: &DataFlashLog) -> Result<Option<ImuRecording>, Import
     };
     let mut previous = None;
     for m in log.named("GPS") {
+        let m = log.record(m);
         // A 4.x log holds every receiver under `GPS` with an instance field `I`.
-        if log.required(m, "Status")? < GPS_FIX_3D || log.value(m, "I").is_some_and(|i| i != 0.0) {
+        if m.required("Status")? < GPS_FIX_3D || m.value("I").is_some_and(|i| i != 0.0) {
             continue;
         }
-        let t = log.time_s(m, &GPS_BOOT_CLOCK)?;
-        check_after(log, m, t, previous, "GPS fix")?;
+        let t = m.time_s(&GPS_BOOT_CLOCK)?;
+        check_after(&m, t, previous, "GPS fix")?;
         previous = Some(t);
         let Some(q) = crate::import::frames::attitude_at(&att, t, MAX_ATT_GAP_S) else {
             continue;
         };
         let (roll, pitch, yaw) = q.euler_angles();
-        let speed = log.required(m, "Spd")?;
-        let course = log.required(m, "GCrs")?.to_radians();
+        let speed = m.required("Spd")?;
+        let course = m.required("GCrs")?.to_radians();
         let rows = [
             (&mut rec.attitude_rad, [roll, pitch, yaw]),
             (
                 &mut rec.position,
                 [
-                    log.required(m, "Lat")?.to_radians(),
-                    log.required(m, "Lng")?.to_radians(),
-                    log.required(m, "Alt")?,
+                    m.required("Lat")?.to_radians(),
+                    m.required("Lng")?.to_radians(),
+                    m.required("Alt")?,
                 ],
             ),
             (
@@ -521,7 +620,7 @@ pub fn read_reference(log: &DataFlashLog) -> Result<Option<ImuRecording>, Import
                 [
                     speed * course.cos(),
                     speed * course.sin(),
-                    log.required(m, "VZ")?,
+                    m.required("VZ")?,
                 ],
             ),
         ];
@@ -543,29 +642,64 @@ pub fn read_reference(log: &DataFlashLog) -> Result<Option<ImuRecording>, Import
 /// One output of [`read`]: `imu0`, `imu1`, ... or `reference`, and its recording.
 pub type NamedRecording = (String, ImuRecording);
 
-/// Reads a log into `imu{k}` recordings (one per IMU instance) and, where the log has GPS
-/// fixes and `ATT`, a `reference` recording. A log without IMU messages is an error.
-pub fn read(path: &Path) -> Result<Vec<NamedRecording>, ImportError> {
-    let log = DataFlashLog::read(path)?;
-    let imus = read_imus(&log)?;
-    if imus.is_empty() {
+/// Streams a log into `sink` as `imu{k}` sensors (one per IMU instance, in instance order)
+/// and, where the log has GPS fixes and `ATT`, a `reference`, in two walks over the file and
+/// memory that does not grow with its IMU samples: the first checks every message, keeps the
+/// `ATT` and `GPS` messages (a few a second) and finds the IMU instances; the second hands
+/// each IMU message to `sink` as a row. A log without IMU messages is an error.
+pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
+    let mut instances = BTreeSet::new();
+    let survey = DataFlashLog::walk(path, &reference_message, &mut |record| {
+        instances.extend(imu_instance(&record));
+        Ok(())
+    })?;
+    if instances.is_empty() {
         return Err(corrupt(
             path,
             0,
             format!(
                 "no IMU messages among its {} messages (IMU, IMU2, IMU3 expected)",
-                log.messages().len()
+                survey.message_count()
             ),
         ));
     }
-    let mut out: Vec<NamedRecording> = imus
-        .into_iter()
-        .map(|(k, rec)| (format!("imu{k}"), rec))
+    let reference = read_reference(&survey)?;
+    drop(survey);
+    let mut sensors: Vec<SensorLayout> = instances
+        .iter()
+        .map(|k| SensorLayout::imu(format!("imu{k}")))
         .collect();
-    if let Some(reference) = read_reference(&log)? {
-        out.push(("reference".into(), reference));
+    sensors.extend(reference.as_ref().map(|r| rows::layout("reference", r)));
+    sink.begin(sensors)?;
+    let sensor_of: BTreeMap<usize, usize> =
+        instances.iter().enumerate().map(|(i, k)| (*k, i)).collect();
+    let mut previous: Vec<Option<f64>> = vec![None; sensor_of.len()];
+    DataFlashLog::walk(path, &|_| false, &mut |record| {
+        let Some(k) = imu_instance(&record) else {
+            return Ok(());
+        };
+        // The survey saw every instance the file holds.
+        let sensor = sensor_of[&k];
+        let row = imu_row(&record, k, previous[sensor])?;
+        previous[sensor] = Some(row[0]);
+        sink.push(sensor, &row)
+    })?;
+    if let Some(reference) = &reference {
+        rows::push_recording(sink, sensor_of.len(), reference)?;
     }
-    Ok(out)
+    Ok(())
+}
+
+/// Reads a log into `imu{k}` recordings (one per IMU instance) and, where the log has GPS
+/// fixes and `ATT`, a `reference` recording ([`stream`] collected).
+pub fn read(path: &Path) -> Result<Vec<NamedRecording>, ImportError> {
+    let mut collect = rows::Collect::new(path);
+    stream(path, &mut collect)?;
+    Ok(collect
+        .into_sensors()?
+        .into_iter()
+        .map(|s| (s.name, s.recording))
+        .collect())
 }
 
 /// True when `head` (a file's first bytes) starts a DataFlash log: a message header and the

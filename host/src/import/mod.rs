@@ -312,12 +312,12 @@ fn stream_dataset(
         Dataset::PsinsFog => psins_fog_mems::stream_fog(path, sink),
         Dataset::PsinsLaserGyro => psins_lasergyro::stream(path, sink).map(|_| ()),
         Dataset::Mpu9250Tetra => mpu9250_tetra::stream(path, sink),
-        Dataset::ArduPilotDataFlash => rows::replay(&ardupilot_dataflash::read(path)?, sink),
+        Dataset::ArduPilotDataFlash => ardupilot_dataflash::stream(path, sink),
         Dataset::XsensDot => {
             let dot = xsens_dot::read(path)?;
             rows::replay(&[(String::new(), dot.recording)], sink)
         }
-        Dataset::Px4ULog => rows::replay(&px4_ulog::read(path)?, sink),
+        Dataset::Px4ULog => px4_ulog::stream(path, sink),
         Dataset::Interchange => interchange::stream(path, sink),
     };
     streamed.map(|()| Vec::new())
@@ -543,6 +543,23 @@ impl SensorRows for WriteFiles<'_> {
     fn push(&mut self, sensor: usize, row: &[f64]) -> Result<(), ImportError> {
         Ok(self.writers[sensor].2.push(row)?)
     }
+}
+
+/// Reads from `reader` until `buf` is full or the input ends; the number of bytes read.
+pub(crate) fn read_up_to(
+    reader: &mut impl std::io::Read,
+    buf: &mut [u8],
+) -> std::io::Result<usize> {
+    let mut filled = 0;
+    while filled < buf.len() {
+        match reader.read(&mut buf[filled..]) {
+            Ok(0) => break,
+            Ok(n) => filled += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(filled)
 }
 
 /// The time of sample `k` (0-based) of a file with no time column: `k / rate_hz`, s.

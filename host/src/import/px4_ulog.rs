@@ -57,7 +57,6 @@
 //!   apart, is left out).
 
 use std::collections::BTreeMap;
-use std::io::Read as _;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Quaternion, UnitQuaternion};
@@ -387,35 +386,48 @@ fn flatten(
     Ok(layout)
 }
 
-/// One instance of a logged topic (`sensor_gyro` multi_id 1): its layout and samples.
+/// One instance of a logged topic (`sensor_gyro` multi_id 1): its layout, and its samples
+/// where the log holds them (every topic's when read whole; a walk holds those it keeps).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Topic {
     /// The format's name, e.g. `sensor_gyro`.
     pub name: String,
     /// The instance (0 for a single-instance topic).
     pub multi_id: u8,
+    /// Its place in [`ULog::topics`].
+    position: usize,
     layout: Layout,
-    /// The samples' payloads, each [`Layout::size`] bytes (a trailing padding left out by the
-    /// log is zero here).
+    /// Number of samples logged, held or not.
+    count: usize,
+    /// The held samples' payloads, each [`Layout::size`] bytes (a trailing padding left out by
+    /// the log is zero here).
     data: Vec<u8>,
-    /// Byte offset of each sample's `D` message in the file.
+    /// Byte offset of each held sample's `D` message in the file.
     offsets: Vec<u64>,
 }
 
 impl Topic {
-    /// Number of samples.
+    /// Number of samples logged.
     pub fn len(&self) -> usize {
-        self.offsets.len()
+        self.count
     }
     /// True when the topic was subscribed but never logged.
     pub fn is_empty(&self) -> bool {
-        self.offsets.is_empty()
+        self.count == 0
+    }
+    /// True when the log holds the samples (every topic's when read whole).
+    pub fn is_held(&self) -> bool {
+        self.offsets.len() == self.count
     }
     /// The flattened layout of its format.
     pub fn layout(&self) -> &Layout {
         &self.layout
     }
-    /// Byte offset of sample `i`'s `D` message in the file.
+    /// Its place in [`ULog::topics`].
+    pub fn position(&self) -> usize {
+        self.position
+    }
+    /// Byte offset of held sample `i`'s `D` message in the file.
     pub fn offset(&self, i: usize) -> u64 {
         self.offsets[i]
     }
@@ -423,31 +435,101 @@ impl Topic {
     pub fn has(&self, field: &str) -> bool {
         self.layout.field(field).is_some()
     }
-    /// Field `field` of sample `i` as `f64` ([`BasicType::decode`]); `None` if the format has
-    /// no such field or there is no sample `i`.
+    /// Field `field` of held sample `i` as `f64` ([`BasicType::decode`]); `None` if the format
+    /// has no such field or the log holds no sample `i`.
     pub fn value(&self, i: usize, field: &str) -> Option<f64> {
-        let f = self.layout.field(field)?;
-        let start = i.checked_mul(self.layout.size)? + f.offset;
-        f.kind.decode(self.data.get(start..start + f.kind.size())?)
+        field_value(&self.layout, self.payload(i)?, field)
     }
-    /// Field `field` of every sample.
+    /// Field `field` of every held sample.
     pub fn column(&self, field: &str) -> Option<Vec<f64>> {
         self.layout.field(field)?;
-        (0..self.len()).map(|i| self.value(i, field)).collect()
+        (0..self.offsets.len())
+            .map(|i| self.value(i, field))
+            .collect()
     }
-    /// The `timestamp` field of every sample, µs on the boot clock (exact: read as `u64`).
+    /// The `timestamp` field of every held sample, µs on the boot clock (exact: read as `u64`).
     pub fn timestamps_us(&self) -> Option<Vec<u64>> {
         let f = self.layout.field("timestamp")?;
         if f.kind != BasicType::UInt64 {
             return None;
         }
-        (0..self.len())
+        (0..self.offsets.len())
             .map(|i| {
-                let start = i * self.layout.size + f.offset;
-                let bytes: [u8; 8] = self.data.get(start..start + 8)?.try_into().ok()?;
+                let bytes: [u8; 8] = self
+                    .payload(i)?
+                    .get(f.offset..f.offset + 8)?
+                    .try_into()
+                    .ok()?;
                 Some(u64::from_le_bytes(bytes))
             })
             .collect()
+    }
+    /// The payload of held sample `i`.
+    fn payload(&self, i: usize) -> Option<&[u8]> {
+        let start = i.checked_mul(self.layout.size)?;
+        self.data.get(start..start + self.layout.size)
+    }
+}
+
+/// Field `field` of a payload laid out as `layout`, as `f64`.
+fn field_value(layout: &Layout, payload: &[u8], field: &str) -> Option<f64> {
+    let f = layout.field(field)?;
+    f.kind
+        .decode(payload.get(f.offset..f.offset + f.kind.size())?)
+}
+
+/// One sample of a topic instance, as a walk meets it or the log holds it: its fields, where
+/// it is.
+#[derive(Clone, Copy)]
+pub struct Sample<'a> {
+    path: &'a Path,
+    pub topic: &'a Topic,
+    /// Its position among the instance's samples.
+    pub index: usize,
+    /// Byte offset of its `D` message in the file.
+    pub offset: u64,
+    /// [`Layout::size`] bytes (a trailing padding left out by the log is zero here).
+    payload: &'a [u8],
+}
+
+impl Sample<'_> {
+    /// Field `field` as `f64` ([`BasicType::decode`]); `None` if the format has no such field.
+    pub fn value(&self, field: &str) -> Option<f64> {
+        field_value(&self.topic.layout, self.payload, field)
+    }
+
+    /// An error about this sample, naming its message's byte offset.
+    pub fn error(&self, message: impl std::fmt::Display) -> ImportError {
+        corrupt(
+            self.path,
+            self.offset,
+            format!(
+                "{} instance {} sample {}: {message}",
+                self.topic.name, self.topic.multi_id, self.index
+            ),
+        )
+    }
+
+    /// Field `field`, which must be present and finite.
+    pub fn required(&self, field: &str) -> Result<f64, ImportError> {
+        match self.value(field) {
+            Some(v) if v.is_finite() => Ok(v),
+            Some(v) => Err(self.error(format!("`{field}` is {v}, not a finite number"))),
+            None => Err(self.error(format!("has no field `{field}`"))),
+        }
+    }
+
+    /// Field `time_field` (µs) in seconds, checked to follow `previous` (the last time of the
+    /// same series).
+    pub fn time_s(&self, time_field: &str, previous: Option<f64>) -> Result<f64, ImportError> {
+        let t = self.required(time_field)? / 1e6;
+        match previous {
+            Some(p) if !(t > p) => Err(self.error(format!(
+                "`{time_field}` {t} s is {} the previous sample's {p} s",
+                if t == p { "a duplicate of" } else { "before" }
+            ))),
+            _ => Ok(t),
+        }
     }
 }
 
@@ -539,19 +621,41 @@ pub fn is_ulog(head: &[u8]) -> bool {
 mod parse;
 
 impl ULog {
-    /// Reads and parses a log file (gzip-compressed or not).
+    /// Reads and parses a log file (gzip-compressed or not), every topic's samples held.
     pub fn read(path: &Path) -> Result<Self, ImportError> {
-        let mut bytes = Vec::new();
-        open_maybe_gz(path)?
-            .read_to_end(&mut bytes)
-            .map_err(|e| ImportError::io(path, e))?;
-        Self::parse(path, &bytes)
+        Self::walk(path, &|_| true, &mut |_| Ok(()))
     }
 
     /// Parses a whole log held in memory; `path` is only for messages. Every byte must belong
     /// to the header or to a complete, well-formed message.
     pub fn parse(path: &Path, bytes: &[u8]) -> Result<Self, ImportError> {
-        parse::Parser::new(path, bytes)?.run()
+        parse::Parser::new(path, bytes, &|_| true, &mut |_| Ok(()))?.run()
+    }
+
+    /// Walks the file `path` (gzip-compressed or not) message by message, each checked as
+    /// [`ULog::parse`] checks it, in memory that grows only with what is kept: every sample is
+    /// handed to `visit`, and only the topics whose name `keep` accepts hold their samples in
+    /// the log returned (every other topic's samples are counted). Definitions, information,
+    /// parameters and log strings are always held.
+    pub fn walk(
+        path: &Path,
+        keep: &dyn Fn(&str) -> bool,
+        visit: &mut dyn FnMut(Sample) -> Result<(), ImportError>,
+    ) -> Result<Self, ImportError> {
+        let reader = std::io::BufReader::with_capacity(1 << 16, open_maybe_gz(path)?);
+        parse::Parser::new(path, reader, keep, visit)?.run()
+    }
+
+    /// Held sample `i` of `topic` (which must be held, as every topic of a log read whole;
+    /// panics if `i` is not a held sample).
+    pub fn sample<'a>(&'a self, topic: &'a Topic, i: usize) -> Sample<'a> {
+        Sample {
+            path: &self.path,
+            topic,
+            index: i,
+            offset: topic.offsets[i],
+            payload: topic.payload(i).unwrap_or_default(),
+        }
     }
 
     /// The file the log was read from.
@@ -624,55 +728,19 @@ impl ULog {
         self.message_count
     }
 
-    /// An error about sample `i` of `topic`, naming its message's byte offset.
+    /// An error about held sample `i` of `topic`, naming its message's byte offset.
     pub fn error_at(
         &self,
         topic: &Topic,
         i: usize,
         message: impl std::fmt::Display,
     ) -> ImportError {
-        corrupt(
-            &self.path,
-            topic.offset(i),
-            format!(
-                "{} instance {} sample {i}: {message}",
-                topic.name, topic.multi_id
-            ),
-        )
+        self.sample(topic, i).error(message)
     }
 
-    /// Field `field` of sample `i`, which must be present and finite.
+    /// Field `field` of held sample `i`, which must be present and finite.
     pub fn required(&self, topic: &Topic, i: usize, field: &str) -> Result<f64, ImportError> {
-        match topic.value(i, field) {
-            Some(v) if v.is_finite() => Ok(v),
-            Some(v) => {
-                Err(self.error_at(topic, i, format!("`{field}` is {v}, not a finite number")))
-            }
-            None => Err(self.error_at(topic, i, format!("has no field `{field}`"))),
-        }
-    }
-
-    /// Field `time_field` (µs) of sample `i`, in seconds, checked to follow `previous` (the
-    /// last time of the same series).
-    fn time_s(
-        &self,
-        topic: &Topic,
-        i: usize,
-        time_field: &str,
-        previous: Option<f64>,
-    ) -> Result<f64, ImportError> {
-        let t = self.required(topic, i, time_field)? / 1e6;
-        match previous {
-            Some(p) if !(t > p) => Err(self.error_at(
-                topic,
-                i,
-                format!(
-                    "`{time_field}` {t} s is {} the previous sample's {p} s",
-                    if t == p { "a duplicate of" } else { "before" }
-                ),
-            )),
-            _ => Ok(t),
-        }
+        self.sample(topic, i).required(field)
     }
 }
 
@@ -682,7 +750,7 @@ mod convert;
 pub use board::{sensor_to_body, SensorKind, SensorToBody};
 pub use convert::{
     gps_topic, read, read_reference, read_sensor_combined, read_sensor_imus, read_vehicle_imus,
-    NamedRecording, BOARD_FRAME_SUFFIX,
+    reference_topic, stream, NamedRecording, BOARD_FRAME_SUFFIX,
 };
 
 #[cfg(test)]

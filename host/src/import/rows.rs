@@ -147,32 +147,46 @@ pub fn collect_one(
     }
 }
 
+/// The layout of a recording read whole, under the importer's part `name`.
+pub fn layout(name: impl Into<String>, recording: &ImuRecording) -> SensorLayout {
+    SensorLayout {
+        name: name.into(),
+        columns: recording.named_columns().iter().map(|c| c.0).collect(),
+        rate_hz: recording.sample_rate_hz,
+    }
+}
+
+/// Hands every row of `recording` to `sink` as sensor `sensor` (whose layout is
+/// [`layout`]'s).
+pub fn push_recording(
+    sink: &mut dyn SensorRows,
+    sensor: usize,
+    recording: &ImuRecording,
+) -> Result<(), ImportError> {
+    let columns = recording.named_columns();
+    let mut row = vec![0.0; columns.len()];
+    for i in 0..recording.len() {
+        for (value, (_, column)) in row.iter_mut().zip(&columns) {
+            *value = column[i];
+        }
+        sink.push(sensor, &row)?;
+    }
+    Ok(())
+}
+
 /// Hands recordings read whole (named by their importer's part) to `sink`, row by row.
 pub fn replay(
     sensors: &[(String, ImuRecording)],
     sink: &mut dyn SensorRows,
 ) -> Result<(), ImportError> {
-    let columns: Vec<Vec<(&'static str, &[f64])>> =
-        sensors.iter().map(|(_, r)| r.named_columns()).collect();
     sink.begin(
         sensors
             .iter()
-            .zip(&columns)
-            .map(|((name, recording), columns)| SensorLayout {
-                name: name.clone(),
-                columns: columns.iter().map(|c| c.0).collect(),
-                rate_hz: recording.sample_rate_hz,
-            })
+            .map(|(name, r)| layout(name.clone(), r))
             .collect(),
     )?;
-    for (k, ((_, recording), columns)) in sensors.iter().zip(&columns).enumerate() {
-        let mut row = vec![0.0; columns.len()];
-        for i in 0..recording.len() {
-            for (value, (_, column)) in row.iter_mut().zip(columns) {
-                *value = column[i];
-            }
-            sink.push(k, &row)?;
-        }
+    for (k, (_, recording)) in sensors.iter().enumerate() {
+        push_recording(sink, k, recording)?;
     }
     Ok(())
 }

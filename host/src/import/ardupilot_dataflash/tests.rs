@@ -394,3 +394,35 @@ mod fuzz {
         }
     }
 }
+
+#[test]
+fn a_log_walked_twice_gives_what_the_log_held_whole_gives() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("log.bin");
+    std::fs::write(&path, sample_log()).unwrap();
+    let held = parse(sample_log()).unwrap();
+    let imus = read_imus(&held).unwrap();
+    let reference = read_reference(&held).unwrap().unwrap();
+    let streamed = read(&path).unwrap();
+    let names: Vec<&str> = streamed.iter().map(|(n, _)| n.as_str()).collect();
+    assert_eq!(names, ["imu0", "imu1", "reference"]);
+    for (k, rec) in &imus {
+        let got = &streamed[*k].1;
+        assert_eq!(got.t_s, rec.t_s);
+        assert_eq!(got.gyro_rad_s, rec.gyro_rad_s);
+        assert_eq!(got.accel_m_s2, rec.accel_m_s2);
+    }
+    let got = &streamed[2].1;
+    assert_eq!(got.t_s, reference.t_s);
+    assert_eq!(got.attitude_rad, reference.attitude_rad);
+    assert_eq!(got.position, reference.position);
+    assert_eq!(got.velocity_ned_m_s, reference.velocity_ned_m_s);
+
+    // The survey's walk holds the reference's messages alone, and counts every message.
+    let survey = DataFlashLog::walk(&path, &reference_message, &mut |_| Ok(())).unwrap();
+    assert_eq!(survey.message_count(), held.messages().len());
+    assert_eq!(survey.messages().len(), 2 + 3, "two ATT, three GPS");
+    let gps = survey.named("GPS").nth(1).unwrap();
+    assert_eq!(survey.value(gps, "Spd"), Some(5.0));
+    assert_eq!(gps.offset, held.named("GPS").nth(1).unwrap().offset);
+}

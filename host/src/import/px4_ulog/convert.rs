@@ -1,16 +1,27 @@
-//! From parsed ULog topics to interchange recordings (the conversions the parent module's
-//! documentation lists): `sensor_combined`, the raw `sensor_gyro`/`sensor_accel` instances,
-//! the `vehicle_imu` instances, and the GPS + attitude reference.
+//! From ULog topics to interchange rows (the conversions the parent module's documentation
+//! lists): `sensor_combined`, the raw `sensor_gyro`/`sensor_accel` instances, the
+//! `vehicle_imu` instances, and the GPS + attitude reference.
+//!
+//! A log file is imported in two walks ([`stream`]), in memory that does not grow with its IMU
+//! samples. The first checks every message, holds the reference's topics (the GPS fixes and
+//! `vehicle_attitude`, tens of samples a second) and learns of the IMU topics what decides
+//! their outputs ([`Survey`]: which instances have samples, each raw sensor's device ids,
+//! whether an instance's gyro and accelerometer were sampled at the same times); the outputs
+//! are then known ([`Plan`]), and the second walk turns each IMU sample into a row of its
+//! output as it comes ([`Rows`]). A log held whole goes through the same survey, plan and rows
+//! ([`read_sensor_imus`] and its siblings).
 
-use std::collections::BTreeSet;
+use std::collections::{BTreeMap, BTreeSet, VecDeque};
 use std::path::Path;
 
 use super::board::{sensor_to_body, SensorKind, SensorToBody};
 use super::{
-    corrupt, ImportError, ImuRecording, Quaternion, Topic, ULog, UnitQuaternion, GPS_FIXES_3D,
-    GPS_TOPICS, MAX_ATTITUDE_GAP_S, MAX_QUATERNION_NORM_ERROR, RELATIVE_TIMESTAMP_INVALID,
+    corrupt, ImportError, ImuRecording, Quaternion, Sample, Topic, ULog, UnitQuaternion,
+    GPS_FIXES_3D, GPS_TOPICS, MAX_ATTITUDE_GAP_S, MAX_QUATERNION_NORM_ERROR,
+    RELATIVE_TIMESTAMP_INVALID,
 };
-use crate::interchange::Triplet;
+use crate::import::rows::{self, Collect, SensorLayout, SensorRows};
+use crate::interchange::CHANNEL_COLUMNS;
 use nalgebra::Vector3;
 
 /// The end of a raw IMU output's name when the log gives no board rotation and its data stay
@@ -21,29 +32,15 @@ pub const BOARD_FRAME_SUFFIX: &str = "_board";
 /// recording.
 pub type NamedRecording = (String, ImuRecording);
 
-/// An empty recording with the triplets `gyro`, `accel` present.
-fn imu_recording(gyro: bool, accel: bool) -> ImuRecording {
-    ImuRecording {
-        gyro_rad_s: gyro.then(Triplet::default),
-        accel_m_s2: accel.then(Triplet::default),
-        ..Default::default()
-    }
-}
+/// The topic of the attitude the reference interpolates (instance 0).
+const ATTITUDE_TOPIC: &str = "vehicle_attitude";
 
-/// Appends `row` to `triplet` (which must be present).
-fn push(triplet: &mut Option<Triplet>, row: [f64; 3]) {
-    let columns = triplet.get_or_insert_with(Default::default);
-    for (column, v) in columns.iter_mut().zip(row) {
-        column.push(v);
-    }
-}
-
-/// The three fields `names` of sample `i`, each present and finite.
-fn vector(log: &ULog, topic: &Topic, i: usize, names: [&str; 3]) -> Result<[f64; 3], ImportError> {
+/// The three fields `names` of a sample, each present and finite.
+fn vector(s: &Sample, names: [&str; 3]) -> Result<[f64; 3], ImportError> {
     Ok([
-        log.required(topic, i, names[0])?,
-        log.required(topic, i, names[1])?,
-        log.required(topic, i, names[2])?,
+        s.required(names[0])?,
+        s.required(names[1])?,
+        s.required(names[2])?,
     ])
 }
 
@@ -56,46 +53,8 @@ fn instance_suffix(multi_id: u8) -> String {
     }
 }
 
-/// Every `sensor_combined` instance (normally one): gyro and accelerometer in the body frame,
-/// calibrated, on `timestamp`.
-pub fn read_sensor_combined(log: &ULog) -> Result<Vec<NamedRecording>, ImportError> {
-    let mut out = Vec::new();
-    for topic in log.instances("sensor_combined").filter(|t| !t.is_empty()) {
-        let mut rec = imu_recording(true, true);
-        for i in 0..topic.len() {
-            let t = log.time_s(topic, i, "timestamp", rec.t_s.last().copied())?;
-            if topic.value(i, "accelerometer_timestamp_relative")
-                == Some(RELATIVE_TIMESTAMP_INVALID)
-            {
-                return Err(log.error_at(topic, i, "the sample has no accelerometer value"));
-            }
-            rec.t_s.push(t);
-            push(
-                &mut rec.gyro_rad_s,
-                vector(log, topic, i, ["gyro_rad[0]", "gyro_rad[1]", "gyro_rad[2]"])?,
-            );
-            push(
-                &mut rec.accel_m_s2,
-                vector(
-                    log,
-                    topic,
-                    i,
-                    [
-                        "accelerometer_m_s2[0]",
-                        "accelerometer_m_s2[1]",
-                        "accelerometer_m_s2[2]",
-                    ],
-                )?,
-            );
-        }
-        rec.validate(log.path())?;
-        let name = format!("sensor_combined{}", instance_suffix(topic.multi_id));
-        out.push((name, rec));
-    }
-    Ok(out)
-}
-
-/// The sample-time field of a raw sensor topic: `timestamp_sample`, else `timestamp`.
+/// The sample-time field of a raw sensor or `vehicle_imu` topic: `timestamp_sample`, else
+/// `timestamp`.
 fn sample_clock(topic: &Topic) -> &'static str {
     if topic.has("timestamp_sample") {
         "timestamp_sample"
@@ -104,225 +63,503 @@ fn sample_clock(topic: &Topic) -> &'static str {
     }
 }
 
-/// The sample times of a raw sensor topic, s, strictly increasing.
-fn sample_times_s(log: &ULog, topic: &Topic) -> Result<Vec<f64>, ImportError> {
-    let clock = sample_clock(topic);
-    let mut t_s: Vec<f64> = Vec::with_capacity(topic.len());
-    for i in 0..topic.len() {
-        t_s.push(log.time_s(topic, i, clock, t_s.last().copied())?);
+/// The raw sensor a topic is, by its name.
+fn raw_kind(name: &str) -> Option<SensorKind> {
+    match name {
+        "sensor_gyro" => Some(SensorKind::Gyro),
+        "sensor_accel" => Some(SensorKind::Accel),
+        _ => None,
     }
-    Ok(t_s)
 }
 
-/// The `device_id` of every sample of `topic`, if the format has one.
-fn device_ids(topic: &Topic) -> Option<BTreeSet<u64>> {
-    Some(
-        topic
-            .column("device_id")?
-            .into_iter()
-            .map(|v| v as u64)
-            .collect(),
-    )
+/// The device ids one raw sensor topic's samples carry.
+#[derive(Debug, Default)]
+struct DeviceIds {
+    /// The first sample's, where the format has the field.
+    first: Option<f64>,
+    /// The distinct ids seen, at most two (two already say the samples are not one chip's).
+    seen: BTreeSet<u64>,
 }
 
-/// True when gyro and accelerometer instances come from one chip sampled together: the same
-/// single `device_id` throughout (where both formats have one) and identical sample times.
-fn same_device(gyro: &Topic, accel: &Topic, gyro_t: &[f64], accel_t: &[f64]) -> bool {
-    let ids_agree = match (device_ids(gyro), device_ids(accel)) {
-        (Some(g), Some(a)) => g.len() == 1 && g == a,
-        _ => true,
+/// Whether the gyro and accelerometer of one instance were sampled at the same times, one
+/// for one, judged as their samples come: the times of whichever is ahead wait for the other's.
+#[derive(Debug)]
+struct TimesAgree {
+    waiting: VecDeque<f64>,
+    waiting_are_gyro: bool,
+    agree: bool,
+}
+
+impl Default for TimesAgree {
+    fn default() -> Self {
+        Self {
+            waiting: VecDeque::new(),
+            waiting_are_gyro: false,
+            agree: true,
+        }
+    }
+}
+
+impl TimesAgree {
+    fn observe(&mut self, is_gyro: bool, t: Option<f64>) {
+        if !self.agree {
+            return;
+        }
+        match t {
+            Some(t) if !self.waiting.is_empty() && self.waiting_are_gyro != is_gyro => {
+                if self.waiting.pop_front() != Some(t) {
+                    self.disagree();
+                }
+            }
+            Some(t) => {
+                self.waiting_are_gyro = is_gyro;
+                self.waiting.push_back(t);
+            }
+            None => self.disagree(),
+        }
+    }
+
+    fn disagree(&mut self) {
+        self.agree = false;
+        self.waiting = VecDeque::new();
+    }
+
+    fn agreed(&self) -> bool {
+        self.agree && self.waiting.is_empty()
+    }
+}
+
+/// What the first walk learns of the raw sensors' samples.
+#[derive(Debug, Default)]
+pub(super) struct Survey {
+    /// By topic position.
+    device_ids: BTreeMap<usize, DeviceIds>,
+    /// By instance.
+    times: BTreeMap<u8, TimesAgree>,
+}
+
+impl Survey {
+    fn observe(&mut self, s: &Sample) {
+        let Some(kind) = raw_kind(&s.topic.name) else {
+            return;
+        };
+        let ids = self.device_ids.entry(s.topic.position()).or_default();
+        let id = s.value("device_id");
+        if s.index == 0 {
+            ids.first = id;
+        }
+        if let Some(id) = id.filter(|_| ids.seen.len() < 2) {
+            ids.seen.insert(id as u64);
+        }
+        let t = s.value(sample_clock(s.topic)).filter(|t| t.is_finite());
+        self.times
+            .entry(s.topic.multi_id)
+            .or_default()
+            .observe(kind == SensorKind::Gyro, t);
+    }
+
+    /// The first sample's device id of raw topic `topic`.
+    fn first_device_id(&self, topic: &Topic) -> Option<f64> {
+        self.device_ids.get(&topic.position())?.first
+    }
+
+    /// True when instance `k`'s gyro and accelerometer come from one chip sampled together:
+    /// the same single `device_id` throughout (where both formats have one) and the same
+    /// sample times, one for one.
+    fn same_device(&self, gyro: &Topic, accel: &Topic) -> bool {
+        let ids = |t: &Topic| {
+            t.has("device_id")
+                .then(|| self.device_ids.get(&t.position()).map(|d| &d.seen))
+                .flatten()
+        };
+        let ids_agree = match (ids(gyro), ids(accel)) {
+            (Some(g), Some(a)) => g.len() == 1 && g == a,
+            _ => true,
+        };
+        ids_agree
+            && self
+                .times
+                .get(&gyro.multi_id)
+                .is_some_and(TimesAgree::agreed)
+    }
+}
+
+/// Where one IMU topic's samples go.
+#[derive(Debug, Clone)]
+enum Source {
+    /// `sensor_combined`: gyro and accelerometer, body frame, on `timestamp`.
+    Combined,
+    /// `vehicle_imu`: integrated angle and velocity as mean rates.
+    VehicleImu,
+    /// `sensor_gyro` or `sensor_accel`, turned into the body's axes where the log says how;
+    /// `joined` when the instance's gyro and accelerometer share one output.
+    Raw {
+        kind: SensorKind,
+        to_body: Option<SensorToBody>,
+        joined: bool,
+    },
+}
+
+/// The output (an index into [`Plan::sensors`]) and conversion of one IMU topic.
+#[derive(Debug, Clone)]
+struct Route {
+    sensor: usize,
+    source: Source,
+}
+
+/// The IMU outputs of a log, decided from its survey: their layouts, in the order written,
+/// and the route of each topic's samples.
+#[derive(Debug)]
+pub(super) struct Plan {
+    sensors: Vec<SensorLayout>,
+    /// By topic position; `None` for a topic no output reads.
+    routes: Vec<Option<Route>>,
+}
+
+/// The layout of a raw sensor written alone: `t_s` and its triplet.
+fn raw_layout(name: String, kind: SensorKind) -> SensorLayout {
+    let triplet = match kind {
+        SensorKind::Gyro => &CHANNEL_COLUMNS[..3],
+        SensorKind::Accel => &CHANNEL_COLUMNS[3..],
     };
-    ids_agree && gyro_t == accel_t
+    let mut columns = vec!["t_s"];
+    columns.extend(triplet);
+    SensorLayout {
+        name,
+        columns,
+        rate_hz: None,
+    }
 }
 
-/// One raw sensor topic: its sample times (s) and its rotation into the body's axes (`None`:
-/// the log does not say, the data stay in the sensor's axes).
-struct RawSensor<'a> {
-    topic: &'a Topic,
-    t_s: Vec<f64>,
-    to_body: Option<SensorToBody>,
-}
-
-impl RawSensor<'_> {
-    /// Instance `k` of the raw topic of `kind`, if it has samples.
-    fn new(log: &ULog, kind: SensorKind, k: u8) -> Result<Option<RawSensor<'_>>, ImportError> {
-        let name = match kind {
-            SensorKind::Gyro => "sensor_gyro",
-            SensorKind::Accel => "sensor_accel",
+impl Plan {
+    /// The outputs of the IMU topics `wanted` accepts (see the parent module's documentation):
+    /// every `sensor_combined` instance, then each raw instance (`imu{k}`, or `gyro{k}` and
+    /// `accel{k}`), then every `vehicle_imu` instance.
+    fn new(
+        log: &ULog,
+        survey: &Survey,
+        wanted: &dyn Fn(&str) -> bool,
+    ) -> Result<Self, ImportError> {
+        let mut plan = Plan {
+            sensors: Vec::new(),
+            routes: vec![None; log.topics().len()],
         };
-        let Some(topic) = log.topic(name, k).filter(|t| !t.is_empty()) else {
-            return Ok(None);
+        let logged = |name: &'static str| {
+            log.instances(name)
+                .filter(move |t| !t.is_empty() && wanted(name))
         };
-        Ok(Some(RawSensor {
-            topic,
-            t_s: sample_times_s(log, topic)?,
-            to_body: sensor_to_body(log, kind, topic.value(0, "device_id"))?,
-        }))
+        for topic in logged("sensor_combined") {
+            let name = format!("sensor_combined{}", instance_suffix(topic.multi_id));
+            plan.add(topic, SensorLayout::imu(name), Source::Combined);
+        }
+        let raw_ids: BTreeSet<u8> = logged("sensor_gyro")
+            .chain(logged("sensor_accel"))
+            .map(|t| t.multi_id)
+            .collect();
+        for k in raw_ids {
+            plan.add_raw(log, survey, k)?;
+        }
+        for topic in logged("vehicle_imu") {
+            let name = format!("vehicle_imu{}", topic.multi_id);
+            plan.add(topic, SensorLayout::imu(name), Source::VehicleImu);
+        }
+        Ok(plan)
     }
 
-    /// Its `x, y, z` into `triplet` (gyro or accelerometer), rotated into the body's axes
-    /// where the rotation is known.
-    fn axes_into(&self, log: &ULog, triplet: &mut Option<Triplet>) -> Result<(), ImportError> {
-        for i in 0..self.topic.len() {
-            let v = vector(log, self.topic, i, ["x", "y", "z"])?;
-            let v = match &self.to_body {
-                Some(to_body) => (to_body.r_b_s * Vector3::from(v)).into(),
-                None => v,
+    fn add(&mut self, topic: &Topic, layout: SensorLayout, source: Source) {
+        self.routes[topic.position()] = Some(Route {
+            sensor: self.sensors.len(),
+            source,
+        });
+        self.sensors.push(layout);
+    }
+
+    /// Raw instance `k`: one output when its gyro and accelerometer are one chip sampled
+    /// together ([`Survey::same_device`]) in the same frame, else one for each.
+    fn add_raw(&mut self, log: &ULog, survey: &Survey, k: u8) -> Result<(), ImportError> {
+        let mut raw = Vec::new();
+        for kind in [SensorKind::Gyro, SensorKind::Accel] {
+            let name = match kind {
+                SensorKind::Gyro => "sensor_gyro",
+                SensorKind::Accel => "sensor_accel",
             };
-            push(triplet, v);
+            if let Some(topic) = log.topic(name, k).filter(|t| !t.is_empty()) {
+                let to_body = sensor_to_body(log, kind, survey.first_device_id(topic))?;
+                raw.push((kind, topic, to_body));
+            }
+        }
+        let suffix = |to_body: &Option<SensorToBody>| {
+            if to_body.is_some() {
+                ""
+            } else {
+                BOARD_FRAME_SUFFIX
+            }
+        };
+        let joined = matches!(&raw[..], [(_, g, gb), (_, a, ab)]
+            if survey.same_device(g, a) && suffix(gb) == suffix(ab));
+        if joined {
+            let layout = SensorLayout::imu(format!("imu{k}{}", suffix(&raw[1].2)));
+            self.sensors.push(layout);
+        }
+        for (kind, topic, to_body) in raw {
+            if !joined {
+                let prefix = match kind {
+                    SensorKind::Gyro => "gyro",
+                    SensorKind::Accel => "accel",
+                };
+                let name = format!("{prefix}{k}{}", suffix(&to_body));
+                self.sensors.push(raw_layout(name, kind));
+            }
+            self.routes[topic.position()] = Some(Route {
+                sensor: self.sensors.len() - 1,
+                source: Source::Raw {
+                    kind,
+                    to_body,
+                    joined,
+                },
+            });
         }
         Ok(())
     }
-
-    /// The suffix of its output's name: none in the body's axes, `_board` in the sensor's.
-    fn frame_suffix(&self) -> &'static str {
-        if self.to_body.is_some() {
-            ""
-        } else {
-            BOARD_FRAME_SUFFIX
-        }
-    }
 }
 
-/// Every `sensor_gyro` / `sensor_accel` instance on `timestamp_sample`, uncalibrated, turned
-/// into the body's axes with the log's board rotation ([`sensor_to_body`]). Instance k's gyro
-/// and accelerometer share `imu{k}` when they are one chip sampled together ([`same_device`])
-/// in the same frame, else they are `gyro{k}` and `accel{k}`. Without a rotation in the log
-/// the data stay in the sensor's axes and the name ends in [`BOARD_FRAME_SUFFIX`].
-pub fn read_sensor_imus(log: &ULog) -> Result<Vec<NamedRecording>, ImportError> {
-    let ids: BTreeSet<u8> = log
-        .instances("sensor_gyro")
-        .chain(log.instances("sensor_accel"))
-        .filter(|t| !t.is_empty())
-        .map(|t| t.multi_id)
-        .collect();
-    let mut out = Vec::new();
-    for k in ids {
-        let gyro = RawSensor::new(log, SensorKind::Gyro, k)?;
-        let accel = RawSensor::new(log, SensorKind::Accel, k)?;
-        let mut pieces: Vec<(String, ImuRecording)> = Vec::new();
-        match (gyro, accel) {
-            (Some(g), Some(a))
-                if same_device(g.topic, a.topic, &g.t_s, &a.t_s)
-                    && g.frame_suffix() == a.frame_suffix() =>
-            {
-                let mut rec = imu_recording(true, true);
-                g.axes_into(log, &mut rec.gyro_rad_s)?;
-                a.axes_into(log, &mut rec.accel_m_s2)?;
-                rec.t_s = g.t_s;
-                pieces.push((format!("imu{k}{}", a.frame_suffix()), rec));
-            }
-            (g, a) => {
-                if let Some(g) = g {
-                    let mut rec = imu_recording(true, false);
-                    g.axes_into(log, &mut rec.gyro_rad_s)?;
-                    let name = format!("gyro{k}{}", g.frame_suffix());
-                    rec.t_s = g.t_s;
-                    pieces.push((name, rec));
-                }
-                if let Some(a) = a {
-                    let mut rec = imu_recording(false, true);
-                    a.axes_into(log, &mut rec.accel_m_s2)?;
-                    let name = format!("accel{k}{}", a.frame_suffix());
-                    rec.t_s = a.t_s;
-                    pieces.push((name, rec));
-                }
-            }
-        }
-        for (_, rec) in &pieces {
-            rec.validate(log.path())?;
-        }
-        out.extend(pieces);
-    }
-    Ok(out)
-}
-
-/// `value / (dt_us / 1e6)` for the three axes, `dt_us` checked positive.
-fn per_second(
-    log: &ULog,
-    topic: &Topic,
-    i: usize,
-    delta: &str,
-    dt_field: &str,
-) -> Result<[f64; 3], ImportError> {
-    let dt_us = log.required(topic, i, dt_field)?;
+/// `value / (dt_us / 1e6)` for the three axes of `delta`, `dt_us` checked positive.
+fn per_second(s: &Sample, delta: &str, dt_field: &str) -> Result<[f64; 3], ImportError> {
+    let dt_us = s.required(dt_field)?;
     if dt_us <= 0.0 {
-        return Err(log.error_at(topic, i, format!("`{dt_field}` is {dt_us} µs")));
+        return Err(s.error(format!("`{dt_field}` is {dt_us} µs")));
     }
     let names = [0, 1, 2].map(|a| format!("{delta}[{a}]"));
-    let v = vector(log, topic, i, [&names[0], &names[1], &names[2]])?;
+    let v = vector(s, [&names[0], &names[1], &names[2]])?;
     Ok(v.map(|x| x / (dt_us * 1e-6)))
 }
 
-/// Every `vehicle_imu` instance: the integrated angle and velocity over their intervals as
-/// mean rates (rad/s, m/s^2), calibrated and in the body frame, on `timestamp_sample`.
-pub fn read_vehicle_imus(log: &ULog) -> Result<Vec<NamedRecording>, ImportError> {
-    let mut out = Vec::new();
-    for topic in log.instances("vehicle_imu").filter(|t| !t.is_empty()) {
-        let mut rec = imu_recording(true, true);
-        rec.t_s = sample_times_s(log, topic)?;
-        for i in 0..topic.len() {
-            let omega = per_second(log, topic, i, "delta_angle", "delta_angle_dt")?;
-            let f = per_second(log, topic, i, "delta_velocity", "delta_velocity_dt")?;
-            push(&mut rec.gyro_rad_s, omega);
-            push(&mut rec.accel_m_s2, f);
+/// The gyro and accelerometer samples of a joined raw instance waiting for their partner:
+/// time (s) and axes in the body frame.
+#[derive(Debug, Default)]
+struct Join {
+    gyro: VecDeque<(f64, [f64; 3])>,
+    accel: VecDeque<(f64, [f64; 3])>,
+}
+
+/// Turns IMU samples into rows of their outputs as a [`Plan`] routes them.
+struct Rows<'p> {
+    plan: &'p Plan,
+    /// The last sample time of each topic, s, by topic position.
+    previous: Vec<Option<f64>>,
+    /// By output.
+    joins: BTreeMap<usize, Join>,
+}
+
+impl<'p> Rows<'p> {
+    fn new(plan: &'p Plan) -> Self {
+        Self {
+            plan,
+            previous: vec![None; plan.routes.len()],
+            joins: BTreeMap::new(),
         }
-        rec.validate(log.path())?;
-        out.push((format!("vehicle_imu{}", topic.multi_id), rec));
     }
-    Ok(out)
+
+    /// The row of sample `s` to `sink`, if an output reads its topic (a joined raw sample
+    /// waits for its partner's).
+    fn sample(&mut self, s: &Sample, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
+        let position = s.topic.position();
+        let Some(route) = self.plan.routes.get(position).and_then(Option::as_ref) else {
+            return Ok(());
+        };
+        let previous = self.previous[position];
+        let (t, first, second) = match &route.source {
+            Source::Combined => {
+                let t = s.time_s("timestamp", previous)?;
+                if s.value("accelerometer_timestamp_relative") == Some(RELATIVE_TIMESTAMP_INVALID) {
+                    return Err(s.error("the sample has no accelerometer value"));
+                }
+                let gyro = vector(s, ["gyro_rad[0]", "gyro_rad[1]", "gyro_rad[2]"])?;
+                let accel = [
+                    "accelerometer_m_s2[0]",
+                    "accelerometer_m_s2[1]",
+                    "accelerometer_m_s2[2]",
+                ];
+                (t, gyro, Some(vector(s, accel)?))
+            }
+            Source::VehicleImu => {
+                let t = s.time_s(sample_clock(s.topic), previous)?;
+                let omega = per_second(s, "delta_angle", "delta_angle_dt")?;
+                (
+                    t,
+                    omega,
+                    Some(per_second(s, "delta_velocity", "delta_velocity_dt")?),
+                )
+            }
+            Source::Raw {
+                kind,
+                to_body,
+                joined,
+            } => {
+                let t = s.time_s(sample_clock(s.topic), previous)?;
+                let v = vector(s, ["x", "y", "z"])?;
+                let v = match to_body {
+                    Some(to_body) => (to_body.r_b_s * Vector3::from(v)).into(),
+                    None => v,
+                };
+                self.previous[position] = Some(t);
+                if *joined {
+                    return self.join(route.sensor, *kind, t, v, sink);
+                }
+                (t, v, None)
+            }
+        };
+        self.previous[position] = Some(t);
+        let mut row = [t; 7];
+        row[1..4].copy_from_slice(&first);
+        match second {
+            Some(second) => {
+                row[4..].copy_from_slice(&second);
+                sink.push(route.sensor, &row)
+            }
+            None => sink.push(route.sensor, &row[..4]),
+        }
+    }
+
+    /// A joined raw sample: its row once the partner with the same place in its series has
+    /// come (the survey found their times equal one for one).
+    fn join(
+        &mut self,
+        sensor: usize,
+        kind: SensorKind,
+        t: f64,
+        v: [f64; 3],
+        sink: &mut dyn SensorRows,
+    ) -> Result<(), ImportError> {
+        let join = self.joins.entry(sensor).or_default();
+        let (mine, theirs) = match kind {
+            SensorKind::Gyro => (&mut join.gyro, &mut join.accel),
+            SensorKind::Accel => (&mut join.accel, &mut join.gyro),
+        };
+        let Some((_, other)) = theirs.pop_front() else {
+            mine.push_back((t, v));
+            return Ok(());
+        };
+        let (gyro, accel) = match kind {
+            SensorKind::Gyro => (v, other),
+            SensorKind::Accel => (other, v),
+        };
+        let mut row = [t; 7];
+        row[1..4].copy_from_slice(&gyro);
+        row[4..].copy_from_slice(&accel);
+        sink.push(sensor, &row)
+    }
+
+    /// Checks no joined sample was left without its partner (the file changed between the
+    /// walks).
+    fn finish(&self, path: &Path) -> Result<(), ImportError> {
+        for (sensor, join) in &self.joins {
+            if !join.gyro.is_empty() || !join.accel.is_empty() {
+                return Err(corrupt(
+                    path,
+                    0,
+                    format!(
+                        "`{}`: its gyro and accelerometer samples no longer pair one for one \
+                         (did the file change while it was read?)",
+                        self.plan.sensors[*sensor].name
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The IMU outputs of the topics `wanted` accepts, from a log held whole.
+fn read_held(
+    log: &ULog,
+    wanted: &dyn Fn(&str) -> bool,
+) -> Result<Vec<NamedRecording>, ImportError> {
+    let samples = || {
+        log.topics()
+            .iter()
+            .filter(|t| wanted(&t.name))
+            .flat_map(|t| (0..t.len()).map(move |i| log.sample(t, i)))
+    };
+    let mut survey = Survey::default();
+    samples().for_each(|s| survey.observe(&s));
+    let plan = Plan::new(log, &survey, wanted)?;
+    let mut collect = Collect::new(log.path());
+    collect.begin(plan.sensors.clone())?;
+    let mut rows = Rows::new(&plan);
+    for s in samples() {
+        rows.sample(&s, &mut collect)?;
+    }
+    rows.finish(log.path())?;
+    Ok(collect
+        .into_sensors()?
+        .into_iter()
+        .map(|s| (s.name, s.recording))
+        .collect())
+}
+
+/// Every `sensor_combined` instance (normally one) of a log held whole: gyro and
+/// accelerometer in the body frame, calibrated, on `timestamp`.
+pub fn read_sensor_combined(log: &ULog) -> Result<Vec<NamedRecording>, ImportError> {
+    read_held(log, &|name| name == "sensor_combined")
+}
+
+/// Every `sensor_gyro` / `sensor_accel` instance of a log held whole, on `timestamp_sample`,
+/// uncalibrated, turned into the body's axes with the log's board rotation
+/// ([`sensor_to_body`]). Instance k's gyro and accelerometer share `imu{k}` when they are one
+/// chip sampled together in the same frame, else they are `gyro{k}` and `accel{k}`. Without a
+/// rotation in the log the data stay in the sensor's axes and the name ends in
+/// [`BOARD_FRAME_SUFFIX`].
+pub fn read_sensor_imus(log: &ULog) -> Result<Vec<NamedRecording>, ImportError> {
+    read_held(log, &|name| raw_kind(name).is_some())
+}
+
+/// Every `vehicle_imu` instance of a log held whole: the integrated angle and velocity over
+/// their intervals as mean rates (rad/s, m/s^2), calibrated and in the body frame, on
+/// `timestamp_sample`.
+pub fn read_vehicle_imus(log: &ULog) -> Result<Vec<NamedRecording>, ImportError> {
+    read_held(log, &|name| name == "vehicle_imu")
 }
 
 /// `vehicle_attitude` instance 0: time (s, boot clock) and attitude (body FRD to NED).
 fn read_attitude(log: &ULog) -> Result<Vec<(f64, UnitQuaternion<f64>)>, ImportError> {
-    let Some(topic) = log.topic("vehicle_attitude", 0) else {
+    let Some(topic) = log.topic(ATTITUDE_TOPIC, 0) else {
         return Ok(Vec::new());
     };
     let mut out: Vec<(f64, UnitQuaternion<f64>)> = Vec::with_capacity(topic.len());
     for i in 0..topic.len() {
-        let t = log.time_s(topic, i, "timestamp", out.last().map(|s| s.0))?;
+        let s = log.sample(topic, i);
+        let t = s.time_s("timestamp", out.last().map(|s| s.0))?;
         let mut q = [0.0; 4];
         for (a, v) in q.iter_mut().enumerate() {
-            *v = log.required(topic, i, &format!("q[{a}]"))?;
+            *v = s.required(&format!("q[{a}]"))?;
         }
         let q = Quaternion::new(q[0], q[1], q[2], q[3]);
         if (q.norm() - 1.0).abs() > MAX_QUATERNION_NORM_ERROR {
-            return Err(log.error_at(
-                topic,
-                i,
-                format!("quaternion `q` has the norm {}, not 1", q.norm()),
-            ));
+            return Err(s.error(format!("quaternion `q` has the norm {}, not 1", q.norm())));
         }
         out.push((t, UnitQuaternion::from_quaternion(q)));
     }
     Ok(out)
 }
 
-/// Latitude, longitude (rad) and ellipsoidal height (m) of GPS sample `i`, from the
+/// Latitude, longitude (rad) and ellipsoidal height (m) of a GPS sample, from the
 /// integer fields (1e-7 deg, mm) or the newer float ones (deg, m).
-fn gps_position(log: &ULog, gps: &Topic, i: usize) -> Result<[f64; 3], ImportError> {
-    let (lat_deg, lon_deg) = if gps.has("lat") {
-        (
-            log.required(gps, i, "lat")? * 1e-7,
-            log.required(gps, i, "lon")? * 1e-7,
-        )
+fn gps_position(s: &Sample) -> Result<[f64; 3], ImportError> {
+    let (lat_deg, lon_deg) = if s.topic.has("lat") {
+        (s.required("lat")? * 1e-7, s.required("lon")? * 1e-7)
     } else {
-        (
-            log.required(gps, i, "latitude_deg")?,
-            log.required(gps, i, "longitude_deg")?,
-        )
+        (s.required("latitude_deg")?, s.required("longitude_deg")?)
     };
-    let h_m = if gps.has("alt_ellipsoid") {
-        log.required(gps, i, "alt_ellipsoid")? * 1e-3
+    let h_m = if s.topic.has("alt_ellipsoid") {
+        s.required("alt_ellipsoid")? * 1e-3
     } else {
-        log.required(gps, i, "altitude_ellipsoid_m")?
+        s.required("altitude_ellipsoid_m")?
     };
     if lat_deg.abs() > 90.0 || lon_deg.abs() > 180.0 {
-        return Err(log.error_at(
-            gps,
-            i,
-            format!("position {lat_deg} deg, {lon_deg} deg is not on Earth"),
-        ));
+        return Err(s.error(format!(
+            "position {lat_deg} deg, {lon_deg} deg is not on Earth"
+        )));
     }
     Ok([lat_deg.to_radians(), lon_deg.to_radians(), h_m])
 }
@@ -338,7 +575,8 @@ pub fn gps_topic(log: &ULog) -> Option<&Topic> {
 
 /// The reference recording: 3D GPS fixes with NED velocity and the interpolated
 /// `vehicle_attitude` (see the parent module's documentation). `None` when the log has no GPS
-/// fix inside the attitude's span.
+/// fix inside the attitude's span. The GPS and attitude topics must be held
+/// ([`reference_topic`]).
 pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
     let Some(gps) = gps_topic(log) else {
         return Ok(None);
@@ -352,22 +590,22 @@ pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
     };
     let mut previous = None;
     for i in 0..gps.len() {
-        if !GPS_FIXES_3D.contains(&log.required(gps, i, "fix_type")?)
-            || gps.value(i, "vel_ned_valid") == Some(0.0)
+        let s = log.sample(gps, i);
+        if !GPS_FIXES_3D.contains(&s.required("fix_type")?) || s.value("vel_ned_valid") == Some(0.0)
         {
             continue;
         }
-        let t = log.time_s(gps, i, "timestamp", previous)?;
+        let t = s.time_s("timestamp", previous)?;
         previous = Some(t);
         let Some(q) = crate::import::frames::attitude_at(&att, t, MAX_ATTITUDE_GAP_S) else {
             continue;
         };
         let (roll, pitch, yaw) = q.euler_angles();
         push(&mut rec.attitude_rad, [roll, pitch, yaw]);
-        push(&mut rec.position, gps_position(log, gps, i)?);
+        push(&mut rec.position, gps_position(&s)?);
         push(
             &mut rec.velocity_ned_m_s,
-            vector(log, gps, i, ["vel_n_m_s", "vel_e_m_s", "vel_d_m_s"])?,
+            vector(&s, ["vel_n_m_s", "vel_e_m_s", "vel_d_m_s"])?,
         );
         rec.t_s.push(t);
     }
@@ -378,15 +616,31 @@ pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
     Ok(Some(rec))
 }
 
-/// Reads a log into its IMU recordings (`sensor_combined`, `imu{k}` or `gyro{k}`/`accel{k}`,
-/// `vehicle_imu{k}`) and, where it has 3D GPS fixes and `vehicle_attitude`, a `reference`. A
-/// log with none of the IMU topics is an error.
-pub fn read(path: &Path) -> Result<Vec<NamedRecording>, ImportError> {
-    let log = ULog::read(path)?;
-    let mut out = read_sensor_combined(&log)?;
-    out.extend(read_sensor_imus(&log)?);
-    out.extend(read_vehicle_imus(&log)?);
-    if out.is_empty() {
+/// Appends `row` to `triplet`.
+fn push(triplet: &mut Option<crate::interchange::Triplet>, row: [f64; 3]) {
+    let columns = triplet.get_or_insert_with(Default::default);
+    for (column, v) in columns.iter_mut().zip(row) {
+        column.push(v);
+    }
+}
+
+/// True for the topics the reference reads, which a streamed import holds.
+pub fn reference_topic(name: &str) -> bool {
+    name == ATTITUDE_TOPIC || GPS_TOPICS.contains(&name)
+}
+
+/// Streams a log into `sink` as its IMU outputs (`sensor_combined`, `imu{k}` or
+/// `gyro{k}`/`accel{k}`, `vehicle_imu{k}`) and, where it has 3D GPS fixes and
+/// `vehicle_attitude`, a `reference`, in two walks over the file (the module's documentation).
+/// A log with none of the IMU topics is an error.
+pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
+    let mut survey = Survey::default();
+    let log = ULog::walk(path, &reference_topic, &mut |s| {
+        survey.observe(&s);
+        Ok(())
+    })?;
+    let plan = Plan::new(&log, &survey, &|_| true)?;
+    if plan.sensors.is_empty() {
         return Err(corrupt(
             path,
             0,
@@ -396,8 +650,27 @@ pub fn read(path: &Path) -> Result<Vec<NamedRecording>, ImportError> {
             ),
         ));
     }
-    if let Some(reference) = read_reference(&log)? {
-        out.push(("reference".into(), reference));
+    let reference = read_reference(&log)?;
+    drop(log);
+    let mut sensors = plan.sensors.clone();
+    sensors.extend(reference.as_ref().map(|r| rows::layout("reference", r)));
+    sink.begin(sensors)?;
+    let mut rows = Rows::new(&plan);
+    ULog::walk(path, &|_| false, &mut |s| rows.sample(&s, sink))?;
+    rows.finish(path)?;
+    if let Some(reference) = &reference {
+        rows::push_recording(sink, plan.sensors.len(), reference)?;
     }
-    Ok(out)
+    Ok(())
+}
+
+/// Reads a log into its IMU recordings and reference ([`stream`] collected).
+pub fn read(path: &Path) -> Result<Vec<NamedRecording>, ImportError> {
+    let mut collect = Collect::new(path);
+    stream(path, &mut collect)?;
+    Ok(collect
+        .into_sensors()?
+        .into_iter()
+        .map(|s| (s.name, s.recording))
+        .collect())
 }

@@ -1,14 +1,17 @@
-//! The ULog message walk: the header, then one message at a time, each checked whole before
-//! it is used; every error names the message's byte offset, index and type.
+//! The ULog message walk: the header, then one message at a time read from the file, each
+//! checked whole before it is used; every error names the message's byte offset, index and
+//! type. Only one message is in memory at a time, so a walk holds what it keeps, not the file.
 
 use std::collections::BTreeMap;
+use std::io::Read;
 use std::path::Path;
 
 use super::{
     corrupt, flatten, hex, parse_format, BasicType, DefaultParameter, Dropout, FieldDecl,
-    ImportError, InfoValue, Layout, LoggedString, Topic, ULog, FLAG_BITS_LEN, HEADER_LEN,
+    ImportError, InfoValue, Layout, LoggedString, Sample, Topic, ULog, FLAG_BITS_LEN, HEADER_LEN,
     INCOMPAT_DATA_APPENDED, MAGIC, MAX_VERSION, MESSAGE_HEADER_LEN, SYNC_MAGIC,
 };
+use crate::import::read_up_to;
 
 /// Where a message is: byte offset, 0-based index, type byte.
 #[derive(Debug, Clone, Copy)]
@@ -19,14 +22,21 @@ struct At {
 }
 
 /// The state of a parse.
-pub(super) struct Parser<'a> {
-    bytes: &'a [u8],
+pub(super) struct Parser<'v, R> {
+    reader: R,
     log: ULog,
     layouts: BTreeMap<String, Layout>,
     /// Active subscriptions: msg_id -> index into `log.topics`.
     active: BTreeMap<u16, usize>,
-    /// Offsets of appended data (`B`), checked to fall on message starts.
-    appended: Vec<u64>,
+    /// Offsets of appended data (`B`), checked to fall on message starts, and whether a
+    /// message started there.
+    appended: Vec<(u64, bool)>,
+    /// Which topics hold their samples.
+    keep: &'v dyn Fn(&str) -> bool,
+    /// Sees every sample.
+    visit: &'v mut dyn FnMut(Sample) -> Result<(), ImportError>,
+    /// A data payload padded to its format's size.
+    padded: Vec<u8>,
 }
 
 /// A key `type name` and its value: the payload of `I`, `P` (after `skip` bytes: `M` has
@@ -109,10 +119,17 @@ fn at_least(payload: &[u8], min: usize, what: &str) -> Result<(), String> {
     Ok(())
 }
 
-impl<'a> Parser<'a> {
-    /// Checks the header and starts a parse of `bytes`.
-    pub(super) fn new(path: &Path, bytes: &'a [u8]) -> Result<Self, ImportError> {
-        let head = &bytes[..bytes.len().min(MAGIC.len())];
+impl<'v, R: Read> Parser<'v, R> {
+    /// Reads and checks the header and starts a parse of `reader`.
+    pub(super) fn new(
+        path: &Path,
+        mut reader: R,
+        keep: &'v dyn Fn(&str) -> bool,
+        visit: &'v mut dyn FnMut(Sample) -> Result<(), ImportError>,
+    ) -> Result<Self, ImportError> {
+        let mut header = [0u8; HEADER_LEN];
+        let got = read_up_to(&mut reader, &mut header).map_err(|e| ImportError::io(path, e))?;
+        let head = &header[..got.min(MAGIC.len())];
         if head != &MAGIC[..head.len()] {
             return Err(corrupt(
                 path,
@@ -124,17 +141,14 @@ impl<'a> Parser<'a> {
                 ),
             ));
         }
-        if bytes.len() < HEADER_LEN {
+        if got < HEADER_LEN {
             return Err(corrupt(
                 path,
                 0,
-                format!(
-                    "the file ends {} byte(s) into the {HEADER_LEN}-byte ULog header",
-                    bytes.len()
-                ),
+                format!("the file ends {got} byte(s) into the {HEADER_LEN}-byte ULog header"),
             ));
         }
-        let version = bytes[7];
+        let version = header[7];
         if version > MAX_VERSION {
             return Err(corrupt(
                 path,
@@ -143,11 +157,11 @@ impl<'a> Parser<'a> {
             ));
         }
         Ok(Parser {
-            bytes,
+            reader,
             log: ULog {
                 path: path.to_path_buf(),
                 version,
-                start_time_us: u64_at(bytes, 8),
+                start_time_us: u64_at(&header, 8),
                 compat_flags: [0; 8],
                 incompat_flags: [0; 8],
                 formats: BTreeMap::new(),
@@ -165,6 +179,9 @@ impl<'a> Parser<'a> {
             layouts: BTreeMap::new(),
             active: BTreeMap::new(),
             appended: Vec::new(),
+            keep,
+            visit,
+            padded: Vec::new(),
         })
     }
 
@@ -183,49 +200,51 @@ impl<'a> Parser<'a> {
     /// Walks every message, then checks every format resolves and the appended-data
     /// offsets fall on message starts.
     pub(super) fn run(mut self) -> Result<ULog, ImportError> {
-        let bytes = self.bytes;
         let mut offset = HEADER_LEN;
-        let mut starts = Vec::new();
-        while offset < bytes.len() {
-            let index = starts.len();
-            let rest = &bytes[offset..];
-            if rest.len() < MESSAGE_HEADER_LEN {
+        let mut payload = Vec::new();
+        let io = |path: &Path, e| ImportError::io(path, e);
+        loop {
+            let index = self.log.message_count;
+            let mut head = [0u8; MESSAGE_HEADER_LEN];
+            let got = read_up_to(&mut self.reader, &mut head).map_err(|e| io(&self.log.path, e))?;
+            if got == 0 {
+                break;
+            }
+            if got < MESSAGE_HEADER_LEN {
                 return Err(corrupt(
                     &self.log.path,
                     offset as u64,
-                    format!(
-                        "message {index}: the file ends {} byte(s) into a message header",
-                        rest.len()
-                    ),
+                    format!("message {index}: the file ends {got} byte(s) into a message header"),
                 ));
             }
-            let size = usize::from(u16_at(rest, 0));
+            let size = usize::from(u16_at(&head, 0));
             let at = At {
                 offset,
                 index,
-                kind: rest[2],
+                kind: head[2],
             };
-            let end = MESSAGE_HEADER_LEN + size;
-            if rest.len() < end {
+            payload.resize(size, 0);
+            let got =
+                read_up_to(&mut self.reader, &mut payload).map_err(|e| io(&self.log.path, e))?;
+            if got < size {
                 return Err(self.error(
                     at,
-                    format!(
-                        "truncated: a payload of {size} bytes, but the file ends after {}",
-                        rest.len() - MESSAGE_HEADER_LEN
-                    ),
+                    format!("truncated: a payload of {size} bytes, but the file ends after {got}"),
                 ));
             }
-            self.message(at, &rest[MESSAGE_HEADER_LEN..end])?;
-            starts.push(offset as u64);
-            offset += end;
+            self.message(at, &payload)?;
+            for (start, found) in &mut self.appended {
+                *found |= *start == offset as u64;
+            }
+            self.log.message_count += 1;
+            offset += MESSAGE_HEADER_LEN + size;
         }
-        self.log.message_count = starts.len();
         let names: Vec<String> = self.log.formats.keys().cloned().collect();
         for name in names {
             self.layout(&name)?;
         }
-        for &a in &self.appended {
-            if a as usize != bytes.len() && starts.binary_search(&a).is_err() {
+        for &(a, found) in &self.appended {
+            if a != offset as u64 && !found {
                 return Err(corrupt(
                     &self.log.path,
                     a,
@@ -247,7 +266,7 @@ impl<'a> Parser<'a> {
             b'Q' => self.default_parameter(p),
             b'A' => return self.subscribe(at, p),
             b'R' => self.unsubscribe(p),
-            b'D' => self.data(at, p),
+            b'D' => return self.data(at, p),
             b'L' => self.logged(at, p, false),
             b'C' => self.logged(at, p, true),
             b'S' => {
@@ -306,6 +325,7 @@ impl<'a> Parser<'a> {
             self.appended = (0..3)
                 .map(|k| u64_at(p, 16 + 8 * k))
                 .filter(|o| *o != 0)
+                .map(|o| (o, false))
                 .collect();
         }
         Ok(())
@@ -428,7 +448,9 @@ impl<'a> Parser<'a> {
                 self.log.topics.push(Topic {
                     name: name.to_string(),
                     multi_id,
+                    position: self.log.topics.len(),
                     layout,
+                    count: 0,
                     data: Vec::new(),
                     offsets: Vec::new(),
                 });
@@ -453,15 +475,17 @@ impl<'a> Parser<'a> {
             .ok_or_else(|| format!("removes msg_id {msg_id}, which is not subscribed"))
     }
 
-    fn data(&mut self, at: At, p: &[u8]) -> Result<(), String> {
-        at_least(p, 2, "a data message's msg_id")?;
+    /// A sample: checked against its format, held if its topic is kept, and visited.
+    fn data(&mut self, at: At, p: &[u8]) -> Result<(), ImportError> {
+        at_least(p, 2, "a data message's msg_id").map_err(|e| self.error(at, e))?;
         let msg_id = u16_at(p, 0);
         let Some(&k) = self.active.get(&msg_id) else {
-            return Err(format!(
-                "data for msg_id {msg_id}, which no subscription ('A') announced"
+            return Err(self.error(
+                at,
+                format!("data for msg_id {msg_id}, which no subscription ('A') announced"),
             ));
         };
-        let topic = &mut self.log.topics[k];
+        let topic = &self.log.topics[k];
         let payload = &p[2..];
         let size = topic.layout.size;
         let min = size - topic.layout.trailing_padding;
@@ -471,19 +495,30 @@ impl<'a> Parser<'a> {
             } else {
                 format!("{min} to {size}")
             };
-            return Err(format!(
+            let message = format!(
                 "`{}` instance {} data of {} bytes, its format needs {needs}",
                 topic.name,
                 topic.multi_id,
                 payload.len()
-            ));
+            );
+            return Err(self.error(at, message));
         }
-        topic.data.extend_from_slice(payload);
-        topic
-            .data
-            .resize(topic.data.len() + size - payload.len(), 0);
-        topic.offsets.push(at.offset as u64);
-        Ok(())
+        self.padded.clear();
+        self.padded.extend_from_slice(payload);
+        self.padded.resize(size, 0);
+        let topic = &mut self.log.topics[k];
+        if (self.keep)(&topic.name) {
+            topic.data.extend_from_slice(&self.padded);
+            topic.offsets.push(at.offset as u64);
+        }
+        topic.count += 1;
+        (self.visit)(Sample {
+            path: &self.log.path,
+            topic: &self.log.topics[k],
+            index: self.log.topics[k].count - 1,
+            offset: at.offset as u64,
+            payload: &self.padded,
+        })
     }
 
     fn logged(&mut self, at: At, p: &[u8], tagged: bool) -> Result<(), String> {

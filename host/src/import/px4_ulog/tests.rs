@@ -1015,3 +1015,98 @@ mod fuzz {
         }
     }
 }
+
+/// Writes `bytes` as `name` in a fresh folder.
+fn log_file(bytes: &[u8], name: &str) -> (tempfile::TempDir, std::path::PathBuf) {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join(name);
+    std::fs::write(&path, bytes).unwrap();
+    (dir, path)
+}
+
+#[test]
+fn a_log_walked_twice_gives_what_the_log_held_whole_gives() {
+    let (_dir, path) = log_file(&sample_log(), "sample.ulg");
+    let held = parse(&sample_log()).unwrap();
+    let mut expected = read_sensor_combined(&held).unwrap();
+    expected.extend(read_sensor_imus(&held).unwrap());
+    expected.extend(read_vehicle_imus(&held).unwrap());
+    expected.push(("reference".into(), read_reference(&held).unwrap().unwrap()));
+    let streamed = read(&path).unwrap();
+    let names = |r: &[NamedRecording]| r.iter().map(|(n, _)| n.clone()).collect::<Vec<_>>();
+    assert_eq!(
+        names(&streamed),
+        [
+            "sensor_combined",
+            "imu0",
+            "gyro1",
+            "accel1",
+            "vehicle_imu0",
+            "reference"
+        ]
+    );
+    assert_eq!(names(&streamed), names(&expected));
+    for ((name, got), (_, want)) in streamed.iter().zip(&expected) {
+        assert_eq!(got.t_s, want.t_s, "{name}");
+        assert_eq!(got.named_columns(), want.named_columns(), "{name}");
+    }
+
+    // The first walk holds the reference's topics alone, and counts every sample.
+    let survey = ULog::walk(&path, &reference_topic, &mut |_| Ok(())).unwrap();
+    for topic in survey.topics() {
+        let whole = held.topic(&topic.name, topic.multi_id).unwrap();
+        assert_eq!(topic.len(), whole.len(), "{}", topic.name);
+        assert_eq!(
+            topic.is_held(),
+            reference_topic(&topic.name),
+            "{}",
+            topic.name
+        );
+    }
+    assert_eq!(survey.topic("sensor_gyro", 0).unwrap().value(0, "x"), None);
+    assert_eq!(survey.parameter("SENS_BOARD_ROT"), Some(4.0));
+    assert_eq!(survey.message_count(), held.message_count());
+}
+
+#[test]
+fn one_chips_gyro_and_accel_logged_out_of_step_still_share_a_recording() {
+    // GIVEN instance 0's accelerometer samples logged three ahead of its gyro's
+    let mut log = definitions();
+    let t = |s: u64| 30_000_000 + 1_000 * s;
+    for s in 0..3 {
+        log.data(2, &raw_sample(true, t(s), 9, [0.0, 0.0, -9.8 + s as f32]));
+    }
+    for s in 0..5 {
+        log.data(0, &raw_sample(false, t(s), 9, [s as f32, 0.0, 0.0]));
+        if s + 3 < 5 {
+            log.data(
+                2,
+                &raw_sample(true, t(s + 3), 9, [0.0, 0.0, -6.8 + s as f32]),
+            );
+        }
+    }
+    let (_dir, path) = log_file(&log.bytes, "skew.ulg");
+    // WHEN it is imported THEN gyro and accelerometer samples pair by their times.
+    let imus = read(&path).unwrap();
+    assert_eq!(imus.len(), 1);
+    let (name, rec) = &imus[0];
+    assert_eq!(name, "imu0");
+    assert_eq!(rec.t_s, [30.0, 30.001, 30.002, 30.003, 30.004]);
+    let close = |a: &[f64], b: [f64; 5]| {
+        assert!(a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-5), "{a:?}")
+    };
+    // SENS_BOARD_ROT 4: x changes sign, z stays.
+    close(rec.channel("gx").unwrap(), [0.0, -1.0, -2.0, -3.0, -4.0]);
+    close(rec.channel("az").unwrap(), [-9.8, -8.8, -7.8, -6.8, -5.8]);
+
+    // GIVEN one accelerometer time differing from its gyro's THEN they are written apart.
+    let mut log = definitions();
+    for s in 0..3 {
+        log.data(0, &raw_sample(false, t(s), 9, [0.0; 3]));
+        let late = if s == 1 { 1 } else { 0 };
+        log.data(2, &raw_sample(true, t(s) + late, 9, [0.0, 0.0, -9.8]));
+    }
+    let (_dir, path) = log_file(&log.bytes, "apart.ulg");
+    let names: Vec<String> = read(&path).unwrap().into_iter().map(|r| r.0).collect();
+    assert_eq!(names, ["gyro0", "accel0"]);
+}
