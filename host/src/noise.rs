@@ -21,11 +21,12 @@ use std::ops::Range;
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ChannelFit, ModelChoice};
 use crate::gmwm::model::Structure;
+use crate::input::stream::StreamMode;
 use crate::interchange::{ImuRecording, Sampling, CHANNELS, CHANNEL_COLUMNS};
 use crate::wv::WaveletVariance;
 
 pub mod passes;
-pub use passes::{BagTopicSamples, FileSamples, ImuSamples, RecordingSamples};
+pub use passes::{BagTopicSamples, DatasetSamples, FileSamples, ImuSamples, RecordingSamples};
 
 /// Errors of [`analyse`].
 #[derive(Debug, thiserror::Error)]
@@ -488,6 +489,9 @@ pub enum ImuSource {
     /// An interchange file over [`crate::input::stream::STREAM_THRESHOLD_BYTES`], read anew
     /// each pass.
     File(FileSamples),
+    /// A sensor of a flight log or text recording over
+    /// [`crate::input::stream::STREAM_THRESHOLD_BYTES`], imported anew each pass.
+    Dataset(DatasetSamples),
 }
 
 impl ChosenImu {
@@ -497,6 +501,7 @@ impl ChosenImu {
             ImuSource::Recording(rec) => analyse(&self.name, rec, opts),
             ImuSource::Bag(bag) => analyse_samples(&self.name, bag, opts),
             ImuSource::File(file) => analyse_samples(&self.name, file, opts),
+            ImuSource::Dataset(dataset) => analyse_samples(&self.name, dataset, opts),
         }
     }
 }
@@ -513,17 +518,32 @@ pub enum ChooseError {
 
 /// The IMU of `input` named by `topic` (a ROS topic, `/xsens/imu_data`, or an imported
 /// sensor's name, `xsens-imu_data`), or its only IMU.
-pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<ChosenImu, ChooseError> {
+pub fn choose_imu(
+    input: &std::path::Path,
+    topic: Option<&str>,
+    mode: StreamMode,
+) -> Result<ChosenImu, ChooseError> {
     use crate::import::{
         find_datasets, import_bag_topic, import_file_noted, ros_bag::file_name_of_topic, Dataset,
     };
     let (found, _) = find_datasets(input)?;
+    let in_passes = |file: &std::path::Path| match mode {
+        StreamMode::Always => true,
+        StreamMode::Never => false,
+        StreamMode::Auto => std::fs::metadata(file)
+            .is_ok_and(|m| m.len() > crate::input::stream::STREAM_THRESHOLD_BYTES),
+    };
+    // A long flight log or text recording is imported anew each pass: its length costs no
+    // memory.
+    if let [(file, dataset)] = found.as_slice() {
+        if dataset.streams_rows() && in_passes(file) {
+            return choose_streamed(input, file, *dataset, topic);
+        }
+    }
     // A long interchange file is read in passes, not imported: its length costs no memory.
     if let [(file, Dataset::Interchange)] = found.as_slice() {
         let name = crate::import::file_stem(file);
-        let long = std::fs::metadata(file)
-            .is_ok_and(|m| m.len() > crate::input::stream::STREAM_THRESHOLD_BYTES);
-        if long && topic.is_none_or(|t| t == name) {
+        if in_passes(file) && topic.is_none_or(|t| t == name) {
             return Ok(ChosenImu {
                 name,
                 topic: None,
@@ -538,7 +558,8 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
         .filter(|(_, d)| *d == Dataset::RosBag)
         .map(|(f, _)| f.clone())
         .collect();
-    if let Some(topic) = topic.filter(|_| !bags.is_empty() && bags.len() == found.len()) {
+    let bag_topic = topic.filter(|_| !bags.is_empty() && bags.len() == found.len());
+    if let Some(topic) = bag_topic.filter(|_| mode != StreamMode::Never) {
         if let Some((source, notes)) = BagTopicSamples::open(bags, topic)? {
             return Ok(ChosenImu {
                 name: file_name_of_topic(topic),
@@ -547,6 +568,15 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
                 notes,
             });
         }
+    }
+    if mode == StreamMode::Always && bag_topic.is_none() {
+        return Err(ChooseError::Choice {
+            path: input.display().to_string(),
+            message: "--stream always: only one flight log, text recording or interchange \
+                      file, or a ROS bag's --topic, can be read in passes; this input is \
+                      imported whole (--stream auto)"
+                .into(),
+        });
     }
     let read_all = |only: Option<&str>| -> Result<_, ChooseError> {
         let (mut sensors, mut notes) = (Vec::new(), Vec::new());
@@ -566,30 +596,69 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
     if topic.is_some() && sensors.is_empty() {
         (sensors, notes) = read_all(None)?;
     }
+    let described: Vec<Described> = sensors
+        .iter()
+        .map(|s| Described {
+            name: s.name.clone(),
+            is_imu: !axes_of(&s.recording).is_empty(),
+            contents: crate::import::contents(&s.recording),
+        })
+        .collect();
+    let index = pick(input, &described, topic, &notes)?;
+    let topic = topic
+        .map(str::to_string)
+        .or_else(|| topic_of(&notes, &sensors[index].name));
+    let sensor = sensors.swap_remove(index);
+    Ok(ChosenImu {
+        name: sensor.name,
+        topic,
+        source: ImuSource::Recording(Box::new(sensor.recording)),
+        notes,
+    })
+}
+
+/// One sensor an input holds, as [`pick`] chooses among them.
+struct Described {
+    name: String,
+    is_imu: bool,
+    /// What it holds ([`crate::import::contents`]).
+    contents: Vec<&'static str>,
+}
+
+/// The ROS topic a sensor named `name` was made of, where the importer's notes name one.
+fn topic_of(notes: &[String], name: &str) -> Option<String> {
+    use crate::import::ros_bag::file_name_of_topic;
+    notes.iter().find_map(|n| {
+        let (t, _) = n.split_once(": frame_id ")?;
+        (file_name_of_topic(t) == name).then(|| t.to_string())
+    })
+}
+
+/// The place among `sensors` of the IMU named by `topic` (a ROS topic or a sensor's name),
+/// or of the only IMU; the error says what there is to choose.
+fn pick(
+    input: &std::path::Path,
+    sensors: &[Described],
+    topic: Option<&str>,
+    notes: &[String],
+) -> Result<usize, ChooseError> {
+    use crate::import::ros_bag::file_name_of_topic;
     let fail = |message: String| ChooseError::Choice {
         path: input.display().to_string(),
         message,
     };
-    let is_imu = |r: &ImuRecording| !axes_of(r).is_empty();
-    // A bag's topic, where the importer's notes name the one a sensor was made of.
-    let topic_of = |name: &str| {
-        notes.iter().find_map(|n| {
-            let (t, _) = n.split_once(": frame_id ")?;
-            (file_name_of_topic(t) == name).then(|| t.to_string())
-        })
-    };
     let imus: Vec<&str> = sensors
         .iter()
-        .filter(|s| is_imu(&s.recording))
+        .filter(|s| s.is_imu)
         .map(|s| s.name.as_str())
         .collect();
     // What a user can pass to --topic: the IMUs' topics where they came from a bag.
     let listed = imus
         .iter()
-        .map(|name| topic_of(name).unwrap_or_else(|| name.to_string()))
+        .map(|name| topic_of(notes, name).unwrap_or_else(|| name.to_string()))
         .collect::<Vec<_>>()
         .join(", ");
-    let index = match topic {
+    match topic {
         Some(topic) => {
             let wanted = file_name_of_topic(topic);
             let suffix = format!("-{wanted}");
@@ -606,33 +675,53 @@ pub fn choose_imu(input: &std::path::Path, topic: Option<&str>) -> Result<Chosen
                     None => format!("no topic or sensor {topic}; its IMUs: {listed}"),
                 }));
             };
-            if !is_imu(&sensors[k].recording) {
+            if !sensors[k].is_imu {
                 return Err(fail(format!(
                     "topic {topic} holds {}, not IMU data (a reference topic: Odometry or NavSatFix, not sensor_msgs/Imu); its IMUs: {listed}",
-                    crate::import::contents(&sensors[k].recording).join(", "),
+                    sensors[k].contents.join(", "),
                 )));
             }
-            k
+            Ok(k)
         }
         None => match imus.as_slice() {
-            [one] => sensors.iter().position(|s| s.name == *one).expect("listed"),
-            [] => return Err(fail("no IMU in it".into())),
-            many => {
-                return Err(fail(format!(
-                    "{} IMUs, name one with --topic: {listed}",
-                    many.len()
-                )))
-            }
+            [one] => Ok(sensors.iter().position(|s| s.name == *one).expect("listed")),
+            [] => Err(fail("no IMU in it".into())),
+            many => Err(fail(format!(
+                "{} IMUs, name one with --topic: {listed}",
+                many.len()
+            ))),
         },
-    };
-    let topic = topic
-        .map(str::to_string)
-        .or_else(|| topic_of(&sensors[index].name));
-    let sensor = sensors.swap_remove(index);
+    }
+}
+
+/// The IMU of one long dataset file whose importer streams its rows, read anew each pass
+/// ([`DatasetSamples`]): chosen as [`choose_imu`] chooses, after a first pass over the file.
+fn choose_streamed(
+    input: &std::path::Path,
+    file: &std::path::Path,
+    dataset: crate::import::Dataset,
+    topic: Option<&str>,
+) -> Result<ChosenImu, ChooseError> {
+    let passes::DatasetSurvey {
+        layouts,
+        mut steps,
+        notes,
+    } = DatasetSamples::survey(file, dataset)?;
+    let described: Vec<Described> = layouts
+        .iter()
+        .map(|layout| Described {
+            name: layout.name.clone(),
+            is_imu: !passes::channels_of(layout).0.is_empty(),
+            contents: crate::import::contents_of(&layout.columns),
+        })
+        .collect();
+    let index = pick(input, &described, topic, &notes)?;
+    let layout = &layouts[index];
+    let samples = DatasetSamples::new(file, dataset, index, layout, steps.swap_remove(index));
     Ok(ChosenImu {
-        name: sensor.name,
-        topic,
-        source: ImuSource::Recording(Box::new(sensor.recording)),
+        name: layout.name.clone(),
+        topic: topic.map(str::to_string),
+        source: ImuSource::Dataset(samples),
         notes,
     })
 }

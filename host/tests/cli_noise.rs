@@ -150,6 +150,56 @@ fn a_simulated_bag_gives_kalibr_its_noise_and_the_model_exports_the_same() {
     }
 }
 
+/// `noise` on one IMU of the real ArduPilot log, its samples imported anew each pass
+/// (`--stream always`), says and writes what the log imported whole says and writes;
+/// `--stream always` on an input that cannot be read in passes fails saying so.
+#[test]
+fn a_flight_logs_imu_read_in_passes_gives_the_model_imported_whole() {
+    let log = dynacal::data_dir().join("ardupilot-3imu-copter/log171.bin");
+    if !log.exists() {
+        eprintln!("SKIP: {} not found (set DYNACAL_DATA)", log.display());
+        return;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let d = |name: &str| dir.path().join(name).display().to_string();
+    let log = log.display().to_string();
+    let run = |mode: &str| {
+        let json = d(&format!("{mode}.json"));
+        let stdout = ok(&dynacal(&[
+            "noise", &log, "--topic", "imu1", "--stream", mode, "--json", &json,
+        ]));
+        (
+            stdout.replace(&json, "MODEL"),
+            std::fs::read_to_string(&json).unwrap(),
+        )
+    };
+    let (passes, passes_json) = run("always");
+    let (whole, whole_json) = run("never");
+    assert!(passes.contains("IMU ardupilot-log171-imu1"), "{passes}");
+    assert_eq!(passes, whole);
+    assert_eq!(passes_json, whole_json);
+
+    // A folder of two logs is imported whole.
+    let folder = dir.path().join("logs");
+    std::fs::create_dir(&folder).unwrap();
+    for name in ["a.bin", "b.bin"] {
+        std::os::unix::fs::symlink(&log, folder.join(name)).unwrap();
+    }
+    let out = dynacal(&[
+        "noise",
+        &folder.display().to_string(),
+        "--topic",
+        "ardupilot-a-imu1",
+        "--stream",
+        "always",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success() && stderr.contains("--stream always"),
+        "{stderr}"
+    );
+}
+
 /// Wall time and peak memory of one command, from GNU time, and whether it succeeded (a
 /// peer that finds no random walk fails, after its work).
 fn timed(program: &str, args: &[&str]) -> Option<(f64, f64, bool)> {

@@ -447,3 +447,278 @@ fn errors_memory_is_flat_from_1e5_to_1e7_rows() {
         "`errors`'s memory grows with the length: {rss:?}"
     );
 }
+
+/// The seconds of a flight log of `samples` IMU samples at 1 kHz, and the sample times, µs
+/// on the boot clock (from 10 s).
+fn flight_time_us(i: u64) -> u64 {
+    10_000_000 + 1_000 * i
+}
+
+/// One gyro (rad/s) and accelerometer (m/s^2) sample of a flight log's IMU at rest: white
+/// noise on gravity, forward-right-down.
+fn imu_at_rest(rng: &mut ChaCha8Rng) -> [f32; 6] {
+    let gyro = Normal::new(0.0, 0.01).unwrap();
+    let accel = Normal::new(0.0, 0.05).unwrap();
+    [
+        gyro.sample(rng),
+        gyro.sample(rng),
+        gyro.sample(rng),
+        accel.sample(rng),
+        accel.sample(rng),
+        -9.81 + accel.sample(rng),
+    ]
+}
+
+/// Little-endian bytes of a list of values.
+macro_rules! le {
+    ($($v:expr),* $(,)?) => {{
+        let mut b: Vec<u8> = Vec::new();
+        $(b.extend_from_slice(&($v).to_le_bytes());)*
+        b
+    }};
+}
+
+/// A seeded PX4 ULog of one IMU (`sensor_gyro` and `sensor_accel` instance 0, one chip) at
+/// 1 kHz, `vehicle_attitude` at 50 Hz and 3D fixes at 5 Hz (PX4 v1.11 layouts).
+fn write_ulog(path: &Path, samples: u64) {
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    out.write_all(b"ULog\x01\x12\x35\x01").unwrap();
+    out.write_all(&0u64.to_le_bytes()).unwrap();
+    let mut message = |kind: u8, payload: &[u8]| {
+        out.write_all(&(payload.len() as u16).to_le_bytes())
+            .unwrap();
+        out.write_all(&[kind]).unwrap();
+        out.write_all(payload).unwrap();
+    };
+    message(b'B', &[0; 40]);
+    for format in [
+        "sensor_gyro:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;float y;float z;float temperature;uint32_t error_count;",
+        "sensor_accel:uint64_t timestamp;uint64_t timestamp_sample;uint32_t device_id;float x;float y;float z;float temperature;uint32_t error_count;",
+        "vehicle_attitude:uint64_t timestamp;float[4] q;",
+        "vehicle_gps_position:uint64_t timestamp;int32_t lat;int32_t lon;int32_t alt;int32_t alt_ellipsoid;float vel_n_m_s;float vel_e_m_s;float vel_d_m_s;uint8_t fix_type;bool vel_ned_valid;",
+    ] {
+        message(b'F', format.as_bytes());
+    }
+    let key = "int32_t SENS_BOARD_ROT";
+    let mut param = vec![key.len() as u8];
+    param.extend(key.as_bytes());
+    param.extend(0i32.to_le_bytes());
+    message(b'P', &param);
+    for (msg_id, name) in [
+        "sensor_gyro",
+        "sensor_accel",
+        "vehicle_attitude",
+        "vehicle_gps_position",
+    ]
+    .iter()
+    .enumerate()
+    {
+        message(
+            b'A',
+            &[&[0u8][..], &(msg_id as u16).to_le_bytes(), name.as_bytes()].concat(),
+        );
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(samples);
+    for i in 0..samples {
+        let t = flight_time_us(i);
+        let v = imu_at_rest(&mut rng);
+        let raw = |msg_id: u16, x: &[f32]| {
+            le!(
+                msg_id,
+                t + 300,
+                t,
+                0x25000au32,
+                x[0],
+                x[1],
+                x[2],
+                40.0f32,
+                0u32
+            )
+        };
+        message(b'D', &raw(0, &v[..3]));
+        message(b'D', &raw(1, &v[3..]));
+        if i % 20 == 0 {
+            message(b'D', &le!(2u16, t, 1.0f32, 0.0f32, 0.0f32, 0.0f32));
+        }
+        if i % 200 == 100 {
+            let mut fix = le!(
+                3u16,
+                t,
+                634_170_612i32,
+                104_082_151i32,
+                50_000i32,
+                90_000i32
+            );
+            fix.extend(le!(0.0f32, 0.0f32, 0.0f32));
+            fix.extend([3u8, 1u8]);
+            message(b'D', &fix);
+        }
+    }
+    out.flush().unwrap();
+}
+
+/// A seeded ArduPilot DataFlash log (4.x layouts) of one IMU at 1 kHz, `ATT` at 10 Hz and 3D
+/// fixes at 5 Hz.
+fn write_dataflash(path: &Path, samples: u64) {
+    let mut out = std::io::BufWriter::new(std::fs::File::create(path).unwrap());
+    let mut fmt = |type_id: u8, name: &str, format: &str, labels: &str| {
+        let sizes = format.bytes().map(|c| match c {
+            b'B' => 1,
+            b'f' | b'L' => 4,
+            b'Q' => 8,
+            b'n' => 4,
+            b'N' => 16,
+            b'Z' => 64,
+            _ => unreachable!(),
+        });
+        let length = 3 + sizes.sum::<usize>() as u8;
+        let pad = |s: &str, n: usize| {
+            let mut b = s.as_bytes().to_vec();
+            b.resize(n, 0);
+            b
+        };
+        let mut m = vec![0xA3, 0x95, 0x80, type_id, length];
+        m.extend(pad(name, 4));
+        m.extend(pad(format, 16));
+        m.extend(pad(labels, 64));
+        out.write_all(&m).unwrap();
+    };
+    fmt(0x80, "FMT", "BBnNZ", "Type,Length,Name,Format,Columns");
+    fmt(
+        200,
+        "IMU",
+        "QBffffff",
+        "TimeUS,I,GyrX,GyrY,GyrZ,AccX,AccY,AccZ",
+    );
+    fmt(201, "ATT", "Qfff", "TimeUS,Roll,Pitch,Yaw");
+    fmt(
+        202,
+        "GPS",
+        "QBLLffff",
+        "TimeUS,Status,Lat,Lng,Alt,Spd,GCrs,VZ",
+    );
+    let mut rng = ChaCha8Rng::seed_from_u64(samples);
+    for i in 0..samples {
+        let t = flight_time_us(i);
+        let v = imu_at_rest(&mut rng);
+        let mut m = vec![0xA3, 0x95, 200];
+        m.extend(le!(t, 0u8, v[0], v[1], v[2], v[3], v[4], v[5]));
+        if i % 100 == 0 {
+            m.extend([0xA3, 0x95, 201]);
+            m.extend(le!(t, 0.5f32, -1.0f32, 45.0f32));
+        }
+        if i % 200 == 150 {
+            m.extend([0xA3, 0x95, 202]);
+            m.extend(le!(
+                t,
+                3u8,
+                -353_640_332i32,
+                1_491_647_457i32,
+                590.0f32,
+                0.0f32,
+                0.0f32,
+                0.0f32
+            ));
+        }
+        out.write_all(&m).unwrap();
+    }
+    out.flush().unwrap();
+}
+
+/// What `dynacal import` did with a flight log before it walked it twice: the whole log read
+/// and parsed (`ULog::read`, `DataFlashLog::read`) and converted into recordings, then written
+/// row by row (the writing, whose memory is the streamed path's, left out). Run as a child of
+/// [`flight_log_import_memory_is_flat`] (the log in `FLIGHT_LOG_HELD_INPUT`), so its peak
+/// memory is its own.
+#[test]
+#[ignore = "run by flight_log_import_memory_is_flat"]
+fn flight_log_held_whole() {
+    use dynacal::import::{ardupilot_dataflash as df, px4_ulog};
+    let Ok(input) = std::env::var("FLIGHT_LOG_HELD_INPUT") else {
+        return;
+    };
+    let input = Path::new(&input);
+    let samples = if input.extension().is_some_and(|e| e == "ulg") {
+        let log = px4_ulog::ULog::read(input).unwrap();
+        let imus = px4_ulog::read_sensor_imus(&log).unwrap();
+        assert!(px4_ulog::read_reference(&log).unwrap().is_some());
+        imus[0].1.len()
+    } else {
+        let log = df::DataFlashLog::read(input).unwrap();
+        let imus = df::read_imus(&log).unwrap();
+        assert!(df::read_reference(&log).unwrap().is_some());
+        imus[&0].len()
+    };
+    assert!(samples > 0);
+}
+
+#[test]
+#[ignore = "minutes and ~2 GB of temporary disk; run by hand for the benchmark"]
+fn flight_log_import_memory_is_flat() {
+    let dir = tempfile::tempdir().unwrap();
+    println!(
+        "| log | IMU samples | file MB | walked twice: peak RSS MiB | wall s | held whole: peak RSS MiB | wall s |\n|---|---|---|---|---|---|---|"
+    );
+    let lengths: Vec<u64> = match std::env::var("FLIGHT_LOG_SAMPLES") {
+        Ok(list) => list
+            .split(',')
+            .map(|n| n.parse::<f64>().unwrap() as u64)
+            .collect(),
+        Err(_) => vec![1_000_000, 10_000_000],
+    };
+    let mut rss: Vec<(&str, f64)> = vec![];
+    for samples in lengths {
+        for (kind, extension) in [("ULog", "ulg"), ("DataFlash", "bin")] {
+            let input = dir.path().join(format!("flight-{samples}.{extension}"));
+            match kind {
+                "ULog" => write_ulog(&input, samples),
+                _ => write_dataflash(&input, samples),
+            }
+            let mb = std::fs::metadata(&input).unwrap().len() as f64 / 1e6;
+            let out = dir.path().join(format!("imported-{samples}"));
+            let (peak, wall) = time_dynacal(&[
+                "import",
+                input.to_str().unwrap(),
+                "--out",
+                out.to_str().unwrap(),
+                "--format",
+                "parquet",
+            ]);
+            let written: Vec<String> = std::fs::read_dir(&out)
+                .unwrap()
+                .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect();
+            assert_eq!(written.len(), 2, "an IMU and the reference: {written:?}");
+            let (held_peak, held_wall) = if samples <= 10_000_000 {
+                let mut command = Command::new(std::env::current_exe().unwrap());
+                command
+                    .args([
+                        "--exact",
+                        "flight_log_held_whole",
+                        "--ignored",
+                        "--test-threads=1",
+                    ])
+                    .env("FLIGHT_LOG_HELD_INPUT", &input);
+                timed(command)
+            } else {
+                (f64::NAN, f64::NAN)
+            };
+            println!(
+                "| {kind} | {samples:.0e} | {mb:.0} | {peak:.1} | {wall:.1} | {held_peak:.1} | {held_wall:.1} |"
+            );
+            rss.push((kind, peak));
+            std::fs::remove_file(&input).unwrap();
+            std::fs::remove_dir_all(&out).unwrap();
+        }
+    }
+    for kind in ["ULog", "DataFlash"] {
+        let peaks: Vec<f64> = rss.iter().filter(|r| r.0 == kind).map(|r| r.1).collect();
+        let spread = peaks.iter().cloned().fold(f64::MIN, f64::max)
+            - peaks.iter().cloned().fold(f64::MAX, f64::min);
+        println!("`import` of a {kind} log: peak RSS spread {spread:.1} MiB");
+        assert!(
+            spread < 64.0,
+            "`import`'s memory grows with the {kind} log: {peaks:?}"
+        );
+    }
+}

@@ -1,4 +1,5 @@
-//! `dynacal noise INPUT [--topic T] [--kalibr imu.yaml] [--json MODEL] [--report DIR]`: the
+//! `dynacal noise INPUT [--topic T] [--kalibr imu.yaml] [--json MODEL] [--report DIR]
+//! [--stream auto|always|never]`: the
 //! `allan_variance_ros` workflow in one command on one IMU of any importable input
 //! (`dynacal::noise`): the still stretches found, each axis' GMWM model chosen by the WIC,
 //! the table people copy from, Kalibr's `imu.yaml`, and the noise in motion over at rest.
@@ -6,6 +7,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
+use dynacal::input::stream::StreamMode;
 use dynacal::noise::{choose_imu, kalibr_yaml, model_of, report_page, table, NoiseOptions};
 use dynacal::output::write_atomic;
 
@@ -33,10 +35,15 @@ pub struct Args {
     /// Window of the stillness test, s.
     #[arg(long, default_value_t = 1.0)]
     pub window_s: f64,
+    /// Read the IMU's samples anew each pass (in memory that does not grow with the input)
+    /// rather than importing them whole: `auto` for a flight log, text recording or
+    /// interchange file over 256 MiB, and a ROS bag's `--topic`.
+    #[arg(long, value_enum, default_value_t = StreamMode::Auto)]
+    pub stream: StreamMode,
 }
 
 pub fn run(args: Args) -> anyhow::Result<()> {
-    let mut chosen = choose_imu(&args.input, args.topic.as_deref())?;
+    let mut chosen = choose_imu(&args.input, args.topic.as_deref(), args.stream)?;
     for note in &chosen.notes {
         println!("{}: {note}", args.input.display());
     }

@@ -38,6 +38,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::UnitQuaternion;
 
+use super::frames::AttitudeTrack;
 use super::rows::{self, SensorLayout, SensorRows};
 use super::{read_up_to, ImportError};
 use crate::interchange::{open_maybe_gz, ImuRecording};
@@ -552,91 +553,126 @@ pub fn read_imus(log: &DataFlashLog) -> Result<BTreeMap<usize, ImuRecording>, Im
     Ok(out)
 }
 
-/// `ATT` samples: time (s, boot clock) and attitude (body FRD w.r.t. NED).
-fn read_attitude(log: &DataFlashLog) -> Result<Vec<(f64, UnitQuaternion<f64>)>, ImportError> {
-    let mut out: Vec<(f64, UnitQuaternion<f64>)> = Vec::new();
-    for m in log.named("ATT") {
-        let record = log.record(m);
-        let t = record.time_s(&BOOT_CLOCK)?;
-        check_after(&record, t, out.last().map(|s| s.0), "ATT")?;
-        let mut rpy = [0.0; 3];
-        for (v, label) in rpy.iter_mut().zip(["Roll", "Pitch", "Yaw"]) {
-            let deg = record.required(label)?;
-            // Degrees after the letter's scaling; anything larger is a unit the format
-            // letters do not explain.
-            if deg.abs() > 720.0 {
-                return Err(record.error(format!("`{label}` = {deg} is not in degrees")));
-            }
-            *v = deg.to_radians();
+/// An `ATT` message: time (s, boot clock, after `previous_s`) and attitude (body FRD w.r.t.
+/// NED).
+fn attitude(
+    record: &Record,
+    previous_s: Option<f64>,
+) -> Result<(f64, UnitQuaternion<f64>), ImportError> {
+    let t = record.time_s(&BOOT_CLOCK)?;
+    check_after(record, t, previous_s, "ATT")?;
+    let mut rpy = [0.0; 3];
+    for (v, label) in rpy.iter_mut().zip(["Roll", "Pitch", "Yaw"]) {
+        let deg = record.required(label)?;
+        // Degrees after the letter's scaling; anything larger is a unit the format letters
+        // do not explain.
+        if deg.abs() > 720.0 {
+            return Err(record.error(format!("`{label}` = {deg} is not in degrees")));
         }
-        out.push((t, UnitQuaternion::from_euler_angles(rpy[0], rpy[1], rpy[2])));
+        *v = deg.to_radians();
     }
-    Ok(out)
+    Ok((t, UnitQuaternion::from_euler_angles(rpy[0], rpy[1], rpy[2])))
 }
 
-/// The messages the reference is made of ([`read_reference`]), kept by a walk.
-fn reference_message(format: &MessageFormat) -> bool {
-    format.name == "ATT" || format.name == "GPS"
+/// A fix's position (lat, lon rad, altitude m) and NED velocity (m/s), or the error they
+/// gave: kept until the fix has its attitude, as a fix without one is left out unread.
+type FixValues = Result<[f64; 6], ImportError>;
+
+/// The position and NED velocity `(Spd cos GCrs, Spd sin GCrs, VZ)` of a `GPS` message.
+fn fix_values(m: &Record) -> FixValues {
+    let speed = m.required("Spd")?;
+    let course = m.required("GCrs")?.to_radians();
+    Ok([
+        m.required("Lat")?.to_radians(),
+        m.required("Lng")?.to_radians(),
+        m.required("Alt")?,
+        speed * course.cos(),
+        speed * course.sin(),
+        m.required("VZ")?,
+    ])
 }
 
-/// The reference recording: GPS 3D fixes with NED velocity and the interpolated `ATT`
-/// attitude (see the module docs). `None` when the log has no `ATT` or no fix inside it.
-pub fn read_reference(log: &DataFlashLog) -> Result<Option<ImuRecording>, ImportError> {
-    let att = read_attitude(log)?;
-    let mut rec = ImuRecording {
-        attitude_rad: Some(Default::default()),
-        position: Some(Default::default()),
-        velocity_ned_m_s: Some(Default::default()),
-        ..Default::default()
-    };
-    let mut previous = None;
-    for m in log.named("GPS") {
-        let m = log.record(m);
-        // A 4.x log holds every receiver under `GPS` with an instance field `I`.
-        if m.required("Status")? < GPS_FIX_3D || m.value("I").is_some_and(|i| i != 0.0) {
-            continue;
+/// The reference as a log's messages come (see the module docs): the `ATT` attitude
+/// interpolated to the first receiver's 3D fixes. Holds the fixes and a short stretch of
+/// attitude ([`AttitudeTrack`]).
+struct Reference {
+    attitude_previous_s: Option<f64>,
+    fix_previous_s: Option<f64>,
+    track: AttitudeTrack<FixValues>,
+}
+
+impl Reference {
+    fn new() -> Self {
+        Self {
+            attitude_previous_s: None,
+            fix_previous_s: None,
+            track: AttitudeTrack::new(MAX_ATT_GAP_S),
         }
-        let t = m.time_s(&GPS_BOOT_CLOCK)?;
-        check_after(&m, t, previous, "GPS fix")?;
-        previous = Some(t);
-        let Some(q) = crate::import::frames::attitude_at(&att, t, MAX_ATT_GAP_S) else {
-            continue;
+    }
+
+    /// Message `m`, if it is one the reference reads.
+    fn observe(&mut self, m: &Record) -> Result<(), ImportError> {
+        match m.name() {
+            "ATT" => {
+                let (t, q) = attitude(m, self.attitude_previous_s)?;
+                self.attitude_previous_s = Some(t);
+                self.track.attitude(t, q);
+            }
+            // A 4.x log holds every receiver under `GPS` with an instance field `I`.
+            "GPS"
+                if m.required("Status")? >= GPS_FIX_3D && m.value("I").is_none_or(|i| i == 0.0) =>
+            {
+                let t = m.time_s(&GPS_BOOT_CLOCK)?;
+                check_after(m, t, self.fix_previous_s, "GPS fix")?;
+                self.fix_previous_s = Some(t);
+                self.track.fix(t, fix_values(m));
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    /// The reference recording; `None` when the log has no `ATT` or no fix inside it.
+    fn finish(self, path: &Path) -> Result<Option<ImuRecording>, ImportError> {
+        let mut rec = ImuRecording {
+            attitude_rad: Some(Default::default()),
+            position: Some(Default::default()),
+            velocity_ned_m_s: Some(Default::default()),
+            ..Default::default()
         };
-        let (roll, pitch, yaw) = q.euler_angles();
-        let speed = m.required("Spd")?;
-        let course = m.required("GCrs")?.to_radians();
-        let rows = [
-            (&mut rec.attitude_rad, [roll, pitch, yaw]),
-            (
-                &mut rec.position,
-                [
-                    m.required("Lat")?.to_radians(),
-                    m.required("Lng")?.to_radians(),
-                    m.required("Alt")?,
-                ],
-            ),
-            (
-                &mut rec.velocity_ned_m_s,
-                [
-                    speed * course.cos(),
-                    speed * course.sin(),
-                    m.required("VZ")?,
-                ],
-            ),
-        ];
-        for (triplet, row) in rows {
-            let columns = triplet.get_or_insert_with(Default::default);
-            for (column, v) in columns.iter_mut().zip(row) {
-                column.push(v);
+        for (t, q, values) in self.track.finish() {
+            let v = values?;
+            let (roll, pitch, yaw) = q.euler_angles();
+            let rows = [
+                (&mut rec.attitude_rad, [roll, pitch, yaw]),
+                (&mut rec.position, [v[0], v[1], v[2]]),
+                (&mut rec.velocity_ned_m_s, [v[3], v[4], v[5]]),
+            ];
+            for (triplet, row) in rows {
+                let columns = triplet.get_or_insert_with(Default::default);
+                for (column, v) in columns.iter_mut().zip(row) {
+                    column.push(v);
+                }
             }
+            rec.t_s.push(t);
         }
-        rec.t_s.push(t);
+        if rec.t_s.is_empty() {
+            return Ok(None);
+        }
+        rec.validate(path)?;
+        Ok(Some(rec))
     }
-    if rec.t_s.is_empty() {
-        return Ok(None);
+}
+
+/// The reference recording of a log held whole: GPS 3D fixes with NED velocity and the
+/// interpolated `ATT` attitude (see the module docs), its messages in file order as a walk
+/// meets them ([`Reference`]). `None` when the log has no `ATT` or no fix inside it.
+pub fn read_reference(log: &DataFlashLog) -> Result<Option<ImuRecording>, ImportError> {
+    let mut reference = Reference::new();
+    for m in log.messages() {
+        reference.observe(&log.record(m))?;
     }
-    rec.validate(&log.path)?;
-    Ok(Some(rec))
+    reference.finish(&log.path)
 }
 
 /// One output of [`read`]: `imu0`, `imu1`, ... or `reference`, and its recording.
@@ -644,14 +680,14 @@ pub type NamedRecording = (String, ImuRecording);
 
 /// Streams a log into `sink` as `imu{k}` sensors (one per IMU instance, in instance order)
 /// and, where the log has GPS fixes and `ATT`, a `reference`, in two walks over the file and
-/// memory that does not grow with its IMU samples: the first checks every message, keeps the
-/// `ATT` and `GPS` messages (a few a second) and finds the IMU instances; the second hands
-/// each IMU message to `sink` as a row. A log without IMU messages is an error.
+/// memory that does not grow with its IMU samples: the first checks every message, forms the
+/// reference as its messages come ([`Reference`]) and finds the IMU instances; the second
+/// hands each IMU message to `sink` as a row. A log without IMU messages is an error.
 pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
-    let mut instances = BTreeSet::new();
-    let survey = DataFlashLog::walk(path, &reference_message, &mut |record| {
+    let (mut instances, mut reference) = (BTreeSet::new(), Reference::new());
+    let survey = DataFlashLog::walk(path, &|_| false, &mut |record| {
         instances.extend(imu_instance(&record));
-        Ok(())
+        reference.observe(&record)
     })?;
     if instances.is_empty() {
         return Err(corrupt(
@@ -663,8 +699,7 @@ pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError>
             ),
         ));
     }
-    let reference = read_reference(&survey)?;
-    drop(survey);
+    let reference = reference.finish(path)?;
     let mut sensors: Vec<SensorLayout> = instances
         .iter()
         .map(|k| SensorLayout::imu(format!("imu{k}")))

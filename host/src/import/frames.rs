@@ -9,7 +9,10 @@
 //! `C_frd^ned = P C_rfu^enu P`.
 //!
 //! Also the attitude between two logged samples ([`attitude_at`]), which the flight-log
-//! importers interpolate to their GPS fixes.
+//! importers interpolate to their GPS fixes, and the same as a log is walked
+//! ([`AttitudeTrack`]).
+
+use std::collections::VecDeque;
 
 use nalgebra::{Matrix3, Rotation3, UnitQuaternion, Vector3};
 
@@ -78,6 +81,77 @@ pub(crate) fn attitude_at(
         return None;
     }
     Some(q0.slerp(q1, (t_s - t0) / (t1 - t0)))
+}
+
+/// Longest a GPS fix may be written into a log after the attitude samples around its time
+/// and still be given its attitude by an [`AttitudeTrack`], s. A log writes a fix within a
+/// second or so of its time; older attitude samples are let go, so that a log with attitude
+/// and no fix holds a minute of it, not all of it.
+pub const MAX_FIX_LATENESS_S: f64 = 60.0;
+
+/// The attitude at each GPS fix of a log walked once: attitude samples and fixes come each in
+/// time order, interleaved as the log holds them. A fix gets what [`attitude_at`] gives on
+/// the whole attitude series (held whole, the same) once a sample at or after its time has
+/// come; only the samples a later fix can still need are held (those since the last fix, or
+/// [`MAX_FIX_LATENESS_S`]), and the fixes waiting for the attitude to pass them.
+pub(crate) struct AttitudeTrack<F> {
+    max_gap_s: f64,
+    /// Attitude samples (time s, body to NED), in time order.
+    recent: VecDeque<(f64, UnitQuaternion<f64>)>,
+    /// Fixes later than every attitude sample so far: time s and what the caller keeps.
+    waiting: VecDeque<(f64, F)>,
+    /// Fixes given an attitude, in time order.
+    resolved: Vec<(f64, UnitQuaternion<f64>, F)>,
+}
+
+impl<F> AttitudeTrack<F> {
+    /// Interpolating between samples at most `max_gap_s` apart ([`attitude_at`]).
+    pub(crate) fn new(max_gap_s: f64) -> Self {
+        Self {
+            max_gap_s,
+            recent: VecDeque::new(),
+            waiting: VecDeque::new(),
+            resolved: Vec::new(),
+        }
+    }
+
+    /// An attitude sample at `t_s`, after every earlier one.
+    pub(crate) fn attitude(&mut self, t_s: f64, q: UnitQuaternion<f64>) {
+        self.recent.push_back((t_s, q));
+        while self.waiting.front().is_some_and(|(fix_s, _)| *fix_s <= t_s) {
+            let (fix_s, data) = self.waiting.pop_front().expect("a waiting fix");
+            self.resolve(fix_s, data);
+        }
+        let horizon_s = t_s - MAX_FIX_LATENESS_S;
+        while self.recent.len() >= 2 && self.recent[1].0 < horizon_s {
+            self.recent.pop_front();
+        }
+    }
+
+    /// A fix at `t_s`, after every earlier one, and what the caller keeps of it.
+    pub(crate) fn fix(&mut self, t_s: f64, data: F) {
+        // Later fixes are later still: a sample before the one before this fix is of no use.
+        while self.recent.len() >= 2 && self.recent[1].0 < t_s {
+            self.recent.pop_front();
+        }
+        if self.recent.back().is_some_and(|(s, _)| *s >= t_s) {
+            self.resolve(t_s, data);
+        } else {
+            self.waiting.push_back((t_s, data));
+        }
+    }
+
+    fn resolve(&mut self, t_s: f64, data: F) {
+        if let Some(q) = attitude_at(self.recent.make_contiguous(), t_s, self.max_gap_s) {
+            self.resolved.push((t_s, q, data));
+        }
+    }
+
+    /// The fixes given an attitude, in time order (those after the attitude's last sample
+    /// have none).
+    pub(crate) fn finish(self) -> Vec<(f64, UnitQuaternion<f64>, F)> {
+        self.resolved
+    }
 }
 
 #[cfg(test)]
@@ -180,6 +254,78 @@ mod tests {
                     c[(1, 0)].atan2(c[(0, 0)]),
                 ],
             );
+        }
+    }
+
+    /// Attitude samples every 20-80 ms with a few gaps over the slerp limit, and fixes every
+    /// 200 ms written up to `lateness_s` after their time, interleaved as a log would hold
+    /// them: the track gives every fix what the whole series gives.
+    fn track_agrees_with_the_whole_series(seed: u64, lateness_s: f64) {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let mut att = Vec::new();
+        let mut t = 1.0;
+        while t < 120.0 {
+            let q = UnitQuaternion::from_euler_angles(
+                rng.random(),
+                rng.random(),
+                rng.random::<f64>() * 6.0,
+            );
+            att.push((t, q));
+            t += if rng.random::<f64>() < 0.01 {
+                0.7
+            } else {
+                rng.random_range(0.02..0.08)
+            };
+        }
+        // Fixes from before the attitude's start to after its end.
+        let fixes: Vec<f64> = (0..650)
+            .map(|k| 0.5 + 0.2 * k as f64 + rng.random_range(0.0..0.1))
+            .collect();
+        // Each message at the time it is written: attitude at once, a fix up to `lateness_s` on.
+        let mut written: Vec<(f64, Option<usize>, Option<usize>)> = att
+            .iter()
+            .enumerate()
+            .map(|(i, (t, _))| (*t, Some(i), None))
+            .collect();
+        let mut write_s = 0.0f64;
+        for (k, f) in fixes.iter().enumerate() {
+            // Fixes keep their order when written.
+            write_s = write_s.max(f + lateness_s * rng.random::<f64>());
+            written.push((write_s, None, Some(k)));
+        }
+        written.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let mut track = AttitudeTrack::new(0.5);
+        for (_, a, f) in written {
+            match (a, f) {
+                (Some(i), _) => track.attitude(att[i].0, att[i].1),
+                (_, Some(k)) => track.fix(fixes[k], k),
+                _ => unreachable!(),
+            }
+        }
+        let got = track.finish();
+        let want: Vec<(usize, UnitQuaternion<f64>)> = fixes
+            .iter()
+            .enumerate()
+            .filter_map(|(k, f)| Some((k, attitude_at(&att, *f, 0.5)?)))
+            .collect();
+        assert!(
+            want.len() > 400 && want.len() + 60 < fixes.len(),
+            "{}",
+            want.len()
+        );
+        assert_eq!(got.len(), want.len(), "seed {seed}");
+        for ((t, q, k), (k_want, q_want)) in got.iter().zip(&want) {
+            assert_eq!((*k, *t), (*k_want, fixes[*k_want]));
+            assert!(q.angle_to(q_want) < 1e-12, "seed {seed}, fix {k}");
+        }
+    }
+
+    #[test]
+    fn a_walked_attitude_track_gives_each_fix_what_the_whole_series_gives() {
+        for seed in 0..20 {
+            track_agrees_with_the_whole_series(seed, 0.0);
+            track_agrees_with_the_whole_series(100 + seed, 3.0);
         }
     }
 }

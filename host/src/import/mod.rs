@@ -128,6 +128,17 @@ pub enum Dataset {
 }
 
 impl Dataset {
+    /// True when its importer hands over its rows as it reads them, in memory that does not
+    /// grow with the file (the text formats row by row, the flight logs in two walks); false
+    /// for the Xsens DOT export (read whole), a ROS bag (its topics streamed on their own,
+    /// `ros_bag::stream_imu_topic`) and an interchange file (read as one).
+    pub fn streams_rows(self) -> bool {
+        !matches!(
+            self,
+            Dataset::XsensDot | Dataset::RosBag | Dataset::Interchange
+        )
+    }
+
     /// A short human description.
     pub fn describe(self) -> &'static str {
         match self {
@@ -275,7 +286,7 @@ pub fn import_file_noted(
 /// Streams the sensors of `path`, as its dataset's importer reads them, into `sink`, each
 /// named as its output file is (`adis16405-session1`, `mpu9250-imu0`...). Returns what the
 /// importer found worth telling the user (a ROS bag's report per topic), one line each.
-fn stream_dataset(
+pub(crate) fn stream_dataset(
     path: &Path,
     dataset: Dataset,
     sink: &mut dyn SensorRows,
@@ -436,7 +447,7 @@ pub fn contents(rec: &ImuRecording) -> Vec<&'static str> {
 }
 
 /// What interchange columns hold, as listed in [`WrittenFile::contents`].
-fn contents_of(columns: &[&str]) -> Vec<&'static str> {
+pub fn contents_of(columns: &[&str]) -> Vec<&'static str> {
     let mut out: Vec<&'static str> = CHANNELS
         .iter()
         .zip(CHANNEL_COLUMNS)

@@ -1,7 +1,8 @@
 //! The passes `dynacal noise` makes over one IMU's samples, in memory that does not grow
 //! with the recording's length: a recording already in memory is walked, a ROS bag's topic
 //! is decoded anew each pass (as `imu-calib` and `allan_variance_ros` stream a bag), so an
-//! hours-long bag costs what a minute costs.
+//! hours-long bag costs what a minute costs; a long interchange file is read anew each pass,
+//! and one sensor of a long flight log or text recording imported anew each pass.
 //!
 //! The first pass (the source's own) gives the time line's summary; the window pass finds
 //! the still and moving stretches (the module rule of [`super`]) and the gaps; the
@@ -17,8 +18,9 @@ use std::ops::Range;
 
 use super::{axes_of, NoiseError, NoiseOptions, Stillness, Stretch};
 use crate::import::ros_bag::{stream_imu_topic, StreamedImu};
+use crate::import::rows::{CheckUnits, SensorLayout, SensorRows};
 use crate::import::ImportError;
-use crate::interchange::{ImuRecording, Sampling, StepCounts};
+use crate::interchange::{ImuRecording, Sampling, StepCounts, CHANNEL_COLUMNS};
 use crate::wv::stream::HaarWvStream;
 use crate::wv::{default_max_level, WaveletVariance};
 
@@ -513,6 +515,163 @@ pub fn stretch_wavelet_variances(
     Ok((still, moving))
 }
 
+/// One sensor of a dataset file whose importer streams its rows (a flight log walked twice, a
+/// text recording row by row), imported anew each pass ([`crate::import::stream_dataset`]):
+/// a recording longer than memory.
+pub struct DatasetSamples {
+    path: std::path::PathBuf,
+    dataset: crate::import::Dataset,
+    /// The sensor's place among the importer's sensors.
+    sensor: usize,
+    /// Where each channel's value is in the sensor's rows.
+    columns: Vec<usize>,
+    channels: Vec<usize>,
+    steps: StepCounts,
+}
+
+/// What the first pass over a dataset file found ([`DatasetSamples::survey`]).
+pub struct DatasetSurvey {
+    /// Every sensor the importer gives, in its order.
+    pub layouts: Vec<SensorLayout>,
+    /// Each sensor's time steps.
+    pub steps: Vec<StepCounts>,
+    /// What the importer found worth telling, one line each.
+    pub notes: Vec<String>,
+}
+
+/// The first pass's sink: every sensor's layout and time steps, its times checked to
+/// increase.
+struct SurveySink {
+    path: std::path::PathBuf,
+    layouts: Vec<SensorLayout>,
+    steps: Vec<StepCounts>,
+    last: Vec<(u64, f64)>,
+}
+
+impl SensorRows for SurveySink {
+    fn begin(&mut self, sensors: Vec<SensorLayout>) -> Result<(), ImportError> {
+        self.steps = vec![StepCounts::default(); sensors.len()];
+        self.last = vec![(0, f64::NEG_INFINITY); sensors.len()];
+        self.layouts = sensors;
+        Ok(())
+    }
+
+    fn push(&mut self, sensor: usize, row: &[f64]) -> Result<(), ImportError> {
+        let (count, previous) = &mut self.last[sensor];
+        if !(row[0] > *previous) && *count > 0 {
+            return Err(crate::interchange::TableError::TimeNotIncreasingAtSample {
+                path: self.path.clone(),
+                sample: *count + 1,
+                t_s: row[0],
+                previous_t_s: *previous,
+            }
+            .into());
+        }
+        (*count, *previous) = (*count + 1, row[0]);
+        self.steps[sensor].push(row[0]);
+        Ok(())
+    }
+}
+
+/// A pass's sink: one sensor's rows to the pass's callback.
+struct OneSensor<'a> {
+    sensor: usize,
+    columns: &'a [usize],
+    values: Vec<f64>,
+    each: &'a mut dyn FnMut(f64, &[f64]),
+}
+
+impl SensorRows for OneSensor<'_> {
+    fn begin(&mut self, _: Vec<SensorLayout>) -> Result<(), ImportError> {
+        Ok(())
+    }
+
+    fn push(&mut self, sensor: usize, row: &[f64]) -> Result<(), ImportError> {
+        if sensor == self.sensor {
+            self.values.clear();
+            self.values.extend(self.columns.iter().map(|&c| row[c]));
+            (self.each)(row[0], &self.values);
+        }
+        Ok(())
+    }
+}
+
+/// What one sensor's layout holds: its channels (indices into [`crate::interchange::CHANNELS`])
+/// and where each is in its rows.
+pub fn channels_of(layout: &SensorLayout) -> (Vec<usize>, Vec<usize>) {
+    CHANNEL_COLUMNS
+        .iter()
+        .enumerate()
+        .filter_map(|(c, name)| Some((c, layout.columns.iter().position(|n| n == name)?)))
+        .unzip()
+}
+
+impl DatasetSamples {
+    /// The first pass over the dataset file `path`: every sensor's layout and time steps,
+    /// checked as an import checks them (the units, increasing times), and the importer's
+    /// notes.
+    pub fn survey(
+        path: &std::path::Path,
+        dataset: crate::import::Dataset,
+    ) -> Result<DatasetSurvey, ImportError> {
+        let mut survey = SurveySink {
+            path: path.to_path_buf(),
+            layouts: Vec::new(),
+            steps: Vec::new(),
+            last: Vec::new(),
+        };
+        let mut checked = CheckUnits::new(path, &mut survey);
+        let notes = crate::import::stream_dataset(path, dataset, &mut checked)?;
+        checked.finish()?;
+        Ok(DatasetSurvey {
+            layouts: survey.layouts,
+            steps: survey.steps,
+            notes,
+        })
+    }
+
+    /// Sensor `sensor` (of layout `layout` and time steps `steps`, from [`Self::survey`]) of
+    /// the dataset file `path`.
+    pub fn new(
+        path: &std::path::Path,
+        dataset: crate::import::Dataset,
+        sensor: usize,
+        layout: &SensorLayout,
+        steps: StepCounts,
+    ) -> Self {
+        let (channels, columns) = channels_of(layout);
+        Self {
+            path: path.to_path_buf(),
+            dataset,
+            sensor,
+            columns,
+            channels,
+            steps,
+        }
+    }
+}
+
+impl ImuSamples for DatasetSamples {
+    fn channels(&self) -> &[usize] {
+        &self.channels
+    }
+
+    fn sampling(&self) -> Option<Sampling> {
+        self.steps.sampling_without_gaps()
+    }
+
+    fn pass(&mut self, each: &mut dyn FnMut(f64, &[f64])) -> Result<(), NoiseError> {
+        let mut sink = OneSensor {
+            sensor: self.sensor,
+            columns: &self.columns,
+            values: Vec::with_capacity(self.columns.len()),
+            each,
+        };
+        crate::import::stream_dataset(&self.path, self.dataset, &mut sink)?;
+        Ok(())
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -604,6 +763,54 @@ mod tests {
             message.contains("bad.csv") && message.contains("line 3"),
             "{message}"
         );
+    }
+
+    /// Each IMU of a real flight log, imported anew each pass, gives the report its
+    /// recording imported whole gives.
+    #[test]
+    fn a_flight_logs_imu_imported_each_pass_is_analysed_as_held_whole() {
+        use crate::import::{import_file, Dataset};
+        // The log, and how many of its IMUs give a report (the PX4 sample is too short for
+        // its others).
+        let logs = [
+            (
+                "ardupilot-3imu-copter/log171.bin",
+                Dataset::ArduPilotDataFlash,
+                3,
+            ),
+            ("px4-ulog/sample_log_small.ulg", Dataset::Px4ULog, 1),
+        ];
+        let opts = NoiseOptions::default();
+        for (file, dataset, reports) in logs {
+            let path = crate::data_dir().join(file);
+            if !path.exists() {
+                eprintln!("SKIP: {} not found (set DYNACAL_DATA)", path.display());
+                continue;
+            }
+            let held = import_file(&path, dataset).unwrap();
+            let DatasetSurvey { layouts, steps, .. } =
+                DatasetSamples::survey(&path, dataset).unwrap();
+            let names: Vec<&str> = layouts.iter().map(|l| l.name.as_str()).collect();
+            let held_names: Vec<&str> = held.iter().map(|s| s.name.as_str()).collect();
+            assert_eq!(names, held_names);
+            let mut analysed = 0;
+            for (k, (layout, steps)) in layouts.iter().zip(steps).enumerate() {
+                if channels_of(layout).0.is_empty() {
+                    continue;
+                }
+                let whole = super::super::analyse(&layout.name, &held[k].recording, &opts);
+                let mut source = DatasetSamples::new(&path, dataset, k, layout, steps);
+                let streamed = super::super::analyse_samples(&layout.name, &mut source, &opts);
+                assert_eq!(
+                    format!("{streamed:?}"),
+                    format!("{whole:?}"),
+                    "{}",
+                    layout.name
+                );
+                analysed += usize::from(streamed.is_ok());
+            }
+            assert_eq!(analysed, reports, "{file}: IMUs analysed");
+        }
     }
 
     /// A span given by time is taken whole, and a gap in the time line is found.

@@ -3,9 +3,9 @@
 //! `vehicle_imu` instances, and the GPS + attitude reference.
 //!
 //! A log file is imported in two walks ([`stream`]), in memory that does not grow with its IMU
-//! samples. The first checks every message, holds the reference's topics (the GPS fixes and
-//! `vehicle_attitude`, tens of samples a second) and learns of the IMU topics what decides
-//! their outputs ([`Survey`]: which instances have samples, each raw sensor's device ids,
+//! samples. The first checks every message, forms the reference as its samples come
+//! ([`Reference`]: the fixes, and a short stretch of attitude) and learns of the IMU topics
+//! what decides their outputs ([`Survey`]: which instances have samples, each raw sensor's device ids,
 //! whether an instance's gyro and accelerometer were sampled at the same times); the outputs
 //! are then known ([`Plan`]), and the second walk turns each IMU sample into a row of its
 //! output as it comes ([`Rows`]). A log held whole goes through the same survey, plan and rows
@@ -20,6 +20,7 @@ use super::{
     GPS_FIXES_3D, GPS_TOPICS, MAX_ATTITUDE_GAP_S, MAX_QUATERNION_NORM_ERROR,
     RELATIVE_TIMESTAMP_INVALID,
 };
+use crate::import::frames::AttitudeTrack;
 use crate::import::rows::{self, Collect, SensorLayout, SensorRows};
 use crate::interchange::CHANNEL_COLUMNS;
 use nalgebra::Vector3;
@@ -521,28 +522,6 @@ pub fn read_vehicle_imus(log: &ULog) -> Result<Vec<NamedRecording>, ImportError>
     read_held(log, &|name| name == "vehicle_imu")
 }
 
-/// `vehicle_attitude` instance 0: time (s, boot clock) and attitude (body FRD to NED).
-fn read_attitude(log: &ULog) -> Result<Vec<(f64, UnitQuaternion<f64>)>, ImportError> {
-    let Some(topic) = log.topic(ATTITUDE_TOPIC, 0) else {
-        return Ok(Vec::new());
-    };
-    let mut out: Vec<(f64, UnitQuaternion<f64>)> = Vec::with_capacity(topic.len());
-    for i in 0..topic.len() {
-        let s = log.sample(topic, i);
-        let t = s.time_s("timestamp", out.last().map(|s| s.0))?;
-        let mut q = [0.0; 4];
-        for (a, v) in q.iter_mut().enumerate() {
-            *v = s.required(&format!("q[{a}]"))?;
-        }
-        let q = Quaternion::new(q[0], q[1], q[2], q[3]);
-        if (q.norm() - 1.0).abs() > MAX_QUATERNION_NORM_ERROR {
-            return Err(s.error(format!("quaternion `q` has the norm {}, not 1", q.norm())));
-        }
-        out.push((t, UnitQuaternion::from_quaternion(q)));
-    }
-    Ok(out)
-}
-
 /// Latitude, longitude (rad) and ellipsoidal height (m) of a GPS sample, from the
 /// integer fields (1e-7 deg, mm) or the newer float ones (deg, m).
 fn gps_position(s: &Sample) -> Result<[f64; 3], ImportError> {
@@ -573,47 +552,165 @@ pub fn gps_topic(log: &ULog) -> Option<&Topic> {
         .or_else(|| subscribed().next())
 }
 
-/// The reference recording: 3D GPS fixes with NED velocity and the interpolated
-/// `vehicle_attitude` (see the parent module's documentation). `None` when the log has no GPS
-/// fix inside the attitude's span. The GPS and attitude topics must be held
-/// ([`reference_topic`]).
-pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
-    let Some(gps) = gps_topic(log) else {
-        return Ok(None);
-    };
-    let att = read_attitude(log)?;
-    let mut rec = ImuRecording {
-        attitude_rad: Some(Default::default()),
-        position: Some(Default::default()),
-        velocity_ned_m_s: Some(Default::default()),
-        ..Default::default()
-    };
-    let mut previous = None;
-    for i in 0..gps.len() {
-        let s = log.sample(gps, i);
-        if !GPS_FIXES_3D.contains(&s.required("fix_type")?) || s.value("vel_ned_valid") == Some(0.0)
-        {
-            continue;
+/// A fix's position (lat, lon rad, ellipsoidal height m) and NED velocity (m/s), or the
+/// error they gave: kept until the fix has its attitude, as a fix without one is left out
+/// unread.
+type FixValues = Result<[f64; 6], ImportError>;
+
+/// The fixes of one GPS topic (instance 0) as they come, each given its attitude.
+struct FixTrack {
+    previous_s: Option<f64>,
+    track: AttitudeTrack<FixValues>,
+    /// The first error of its samples: the reference fails on it if this topic is read.
+    error: Option<ImportError>,
+}
+
+/// The reference as a log's samples come (see the parent module's documentation): the
+/// attitude of `vehicle_attitude` 0 interpolated to the 3D fixes of each of [`GPS_TOPICS`]
+/// (instance 0); which topic it is, and so which errors count, is known at the end
+/// ([`gps_topic`]). Holds the fixes and a short stretch of attitude ([`AttitudeTrack`]).
+pub(super) struct Reference {
+    attitude_previous_s: Option<f64>,
+    attitude_error: Option<ImportError>,
+    /// In [`GPS_TOPICS`]' order.
+    gps: Vec<FixTrack>,
+}
+
+impl Reference {
+    pub(super) fn new() -> Self {
+        Self {
+            attitude_previous_s: None,
+            attitude_error: None,
+            gps: GPS_TOPICS
+                .iter()
+                .map(|_| FixTrack {
+                    previous_s: None,
+                    track: AttitudeTrack::new(MAX_ATTITUDE_GAP_S),
+                    error: None,
+                })
+                .collect(),
         }
-        let t = s.time_s("timestamp", previous)?;
-        previous = Some(t);
-        let Some(q) = crate::import::frames::attitude_at(&att, t, MAX_ATTITUDE_GAP_S) else {
-            continue;
-        };
-        let (roll, pitch, yaw) = q.euler_angles();
-        push(&mut rec.attitude_rad, [roll, pitch, yaw]);
-        push(&mut rec.position, gps_position(&s)?);
-        push(
-            &mut rec.velocity_ned_m_s,
-            vector(&s, ["vel_n_m_s", "vel_e_m_s", "vel_d_m_s"])?,
-        );
-        rec.t_s.push(t);
     }
-    if rec.t_s.is_empty() {
+
+    /// Sample `s`, if it is one the reference reads.
+    pub(super) fn observe(&mut self, s: &Sample) {
+        if s.topic.multi_id != 0 {
+            return;
+        }
+        if s.topic.name == ATTITUDE_TOPIC && self.attitude_error.is_none() {
+            match attitude(s, self.attitude_previous_s) {
+                Ok((t, q)) => {
+                    self.attitude_previous_s = Some(t);
+                    for gps in &mut self.gps {
+                        gps.track.attitude(t, q);
+                    }
+                }
+                Err(e) => self.attitude_error = Some(e),
+            }
+        } else if let Some(k) = GPS_TOPICS.iter().position(|n| *n == s.topic.name) {
+            let gps = &mut self.gps[k];
+            if gps.error.is_some() {
+                return;
+            }
+            match fix_time(s, gps.previous_s) {
+                Ok(Some(t)) => {
+                    gps.previous_s = Some(t);
+                    let velocity = ["vel_n_m_s", "vel_e_m_s", "vel_d_m_s"];
+                    let values = gps_position(s).and_then(|p| {
+                        let v = vector(s, velocity)?;
+                        Ok([p[0], p[1], p[2], v[0], v[1], v[2]])
+                    });
+                    gps.track.fix(t, values);
+                }
+                Ok(None) => {}
+                Err(e) => gps.error = Some(e),
+            }
+        }
+    }
+
+    /// The reference recording of `log` (whose topics these samples were): `None` when it
+    /// has no GPS topic or no 3D fix inside the attitude's span.
+    pub(super) fn finish(self, log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
+        let Some(topic) = gps_topic(log) else {
+            return Ok(None);
+        };
+        if let Some(e) = self.attitude_error {
+            return Err(e);
+        }
+        let k = GPS_TOPICS
+            .iter()
+            .position(|n| *n == topic.name)
+            .expect("one of the GPS topics");
+        let gps = self.gps.into_iter().nth(k).expect("a track per GPS topic");
+        if let Some(e) = gps.error {
+            return Err(e);
+        }
+        let mut rec = ImuRecording {
+            attitude_rad: Some(Default::default()),
+            position: Some(Default::default()),
+            velocity_ned_m_s: Some(Default::default()),
+            ..Default::default()
+        };
+        for (t, q, values) in gps.track.finish() {
+            let v = values?;
+            let (roll, pitch, yaw) = q.euler_angles();
+            push(&mut rec.attitude_rad, [roll, pitch, yaw]);
+            push(&mut rec.position, [v[0], v[1], v[2]]);
+            push(&mut rec.velocity_ned_m_s, [v[3], v[4], v[5]]);
+            rec.t_s.push(t);
+        }
+        if rec.t_s.is_empty() {
+            return Ok(None);
+        }
+        rec.validate(log.path())?;
+        Ok(Some(rec))
+    }
+}
+
+/// A `vehicle_attitude` sample: time (s, boot clock, after `previous_s`) and attitude (body
+/// FRD to NED).
+fn attitude(
+    s: &Sample,
+    previous_s: Option<f64>,
+) -> Result<(f64, UnitQuaternion<f64>), ImportError> {
+    let t = s.time_s("timestamp", previous_s)?;
+    let mut q = [0.0; 4];
+    for (a, v) in q.iter_mut().enumerate() {
+        *v = s.required(&format!("q[{a}]"))?;
+    }
+    let q = Quaternion::new(q[0], q[1], q[2], q[3]);
+    if (q.norm() - 1.0).abs() > MAX_QUATERNION_NORM_ERROR {
+        return Err(s.error(format!("quaternion `q` has the norm {}, not 1", q.norm())));
+    }
+    Ok((t, UnitQuaternion::from_quaternion(q)))
+}
+
+/// The time (s, boot clock, after `previous_s`) of a GPS sample that is a measured 3D fix
+/// with its velocity; `None` for another sample.
+fn fix_time(s: &Sample, previous_s: Option<f64>) -> Result<Option<f64>, ImportError> {
+    if !GPS_FIXES_3D.contains(&s.required("fix_type")?) || s.value("vel_ned_valid") == Some(0.0) {
         return Ok(None);
     }
-    rec.validate(log.path())?;
-    Ok(Some(rec))
+    s.time_s("timestamp", previous_s).map(Some)
+}
+
+/// The reference recording of a log held whole: 3D GPS fixes with NED velocity and the
+/// interpolated `vehicle_attitude` (see the parent module's documentation), the samples in
+/// file order as a walk meets them ([`Reference`]). `None` when the log has no GPS fix inside
+/// the attitude's span.
+pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
+    let mut samples: Vec<Sample> = log
+        .topics()
+        .iter()
+        .filter(|t| reference_topic(&t.name) && t.multi_id == 0)
+        .flat_map(|t| (0..t.len()).map(move |i| log.sample(t, i)))
+        .collect();
+    samples.sort_by_key(|s| s.offset);
+    let mut reference = Reference::new();
+    for s in &samples {
+        reference.observe(s);
+    }
+    reference.finish(log)
 }
 
 /// Appends `row` to `triplet`.
@@ -624,7 +721,7 @@ fn push(triplet: &mut Option<crate::interchange::Triplet>, row: [f64; 3]) {
     }
 }
 
-/// True for the topics the reference reads, which a streamed import holds.
+/// True for the topics the reference reads.
 pub fn reference_topic(name: &str) -> bool {
     name == ATTITUDE_TOPIC || GPS_TOPICS.contains(&name)
 }
@@ -634,9 +731,10 @@ pub fn reference_topic(name: &str) -> bool {
 /// `vehicle_attitude`, a `reference`, in two walks over the file (the module's documentation).
 /// A log with none of the IMU topics is an error.
 pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
-    let mut survey = Survey::default();
-    let log = ULog::walk(path, &reference_topic, &mut |s| {
+    let (mut survey, mut reference) = (Survey::default(), Reference::new());
+    let log = ULog::walk(path, &|_| false, &mut |s| {
         survey.observe(&s);
+        reference.observe(&s);
         Ok(())
     })?;
     let plan = Plan::new(&log, &survey, &|_| true)?;
@@ -650,7 +748,7 @@ pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError>
             ),
         ));
     }
-    let reference = read_reference(&log)?;
+    let reference = reference.finish(&log)?;
     drop(log);
     let mut sensors = plan.sensors.clone();
     sensors.extend(reference.as_ref().map(|r| rows::layout("reference", r)));
