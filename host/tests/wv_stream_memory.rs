@@ -722,3 +722,64 @@ fn flight_log_import_memory_is_flat() {
         );
     }
 }
+
+#[test]
+#[ignore = "minutes and ~2 GB of temporary disk; run by hand for the benchmark"]
+fn flight_log_noise_memory_is_flat() {
+    let dir = tempfile::tempdir().unwrap();
+    println!(
+        "| log | IMU samples | file MB | read in passes: peak RSS MiB | wall s | imported whole: peak RSS MiB | wall s |\n|---|---|---|---|---|---|---|"
+    );
+    let lengths: Vec<u64> = match std::env::var("FLIGHT_LOG_SAMPLES") {
+        Ok(list) => list
+            .split(',')
+            .map(|n| n.parse::<f64>().unwrap() as u64)
+            .collect(),
+        Err(_) => vec![1_000_000, 10_000_000],
+    };
+    let mut rss: Vec<(&str, f64)> = vec![];
+    for samples in lengths {
+        for (kind, extension, prefix) in [("ULog", "ulg", "px4"), ("DataFlash", "bin", "ardupilot")]
+        {
+            let input = dir.path().join(format!("flight-{samples}.{extension}"));
+            match kind {
+                "ULog" => write_ulog(&input, samples),
+                _ => write_dataflash(&input, samples),
+            }
+            let mb = std::fs::metadata(&input).unwrap().len() as f64 / 1e6;
+            let topic = format!("{prefix}-flight-{samples}-imu0");
+            let run = |mode: &str| {
+                let json = dir.path().join(format!("noise-{mode}.json"));
+                let measured = time_dynacal(&[
+                    "noise",
+                    input.to_str().unwrap(),
+                    "--topic",
+                    &topic,
+                    "--stream",
+                    mode,
+                    "--json",
+                    json.to_str().unwrap(),
+                ]);
+                (measured, std::fs::read_to_string(&json).unwrap())
+            };
+            let ((peak, wall), passes) = run("always");
+            let ((whole_peak, whole_wall), whole) = if samples <= 10_000_000 {
+                run("never")
+            } else {
+                ((f64::NAN, f64::NAN), passes.clone())
+            };
+            assert_eq!(passes, whole, "{kind} {samples}: the same model both ways");
+            println!(
+                "| {kind} | {samples:.0e} | {mb:.0} | {peak:.1} | {wall:.1} | {whole_peak:.1} | {whole_wall:.1} |"
+            );
+            rss.push((kind, peak));
+            std::fs::remove_file(&input).unwrap();
+        }
+    }
+    for kind in ["ULog", "DataFlash"] {
+        let peaks: Vec<f64> = rss.iter().filter(|r| r.0 == kind).map(|r| r.1).collect();
+        let spread = peaks.iter().cloned().fold(f64::MIN, f64::max)
+            - peaks.iter().cloned().fold(f64::MAX, f64::min);
+        println!("`noise` on a {kind} log: peak RSS spread {spread:.1} MiB");
+    }
+}

@@ -38,7 +38,7 @@ use std::path::{Path, PathBuf};
 
 use nalgebra::UnitQuaternion;
 
-use super::frames::AttitudeTrack;
+use super::frames::{reference_layout, reference_recording, FixValues, ReferenceRows};
 use super::rows::{self, SensorLayout, SensorRows};
 use super::{read_up_to, ImportError};
 use crate::interchange::{open_maybe_gz, ImuRecording};
@@ -574,10 +574,6 @@ fn attitude(
     Ok((t, UnitQuaternion::from_euler_angles(rpy[0], rpy[1], rpy[2])))
 }
 
-/// A fix's position (lat, lon rad, altitude m) and NED velocity (m/s), or the error they
-/// gave: kept until the fix has its attitude, as a fix without one is left out unread.
-type FixValues = Result<[f64; 6], ImportError>;
-
 /// The position and NED velocity `(Spd cos GCrs, Spd sin GCrs, VZ)` of a `GPS` message.
 fn fix_values(m: &Record) -> FixValues {
     let speed = m.required("Spd")?;
@@ -593,74 +589,43 @@ fn fix_values(m: &Record) -> FixValues {
 }
 
 /// The reference as a log's messages come (see the module docs): the `ATT` attitude
-/// interpolated to the first receiver's 3D fixes. Holds the fixes and a short stretch of
-/// attitude ([`AttitudeTrack`]).
+/// interpolated to the first receiver's 3D fixes ([`ReferenceRows`]: counted by a first walk,
+/// kept until taken by one that writes them).
 struct Reference {
     attitude_previous_s: Option<f64>,
-    fix_previous_s: Option<f64>,
-    track: AttitudeTrack<FixValues>,
+    rows: ReferenceRows,
 }
 
 impl Reference {
-    fn new() -> Self {
+    fn new(keeps_rows: bool) -> Self {
         Self {
             attitude_previous_s: None,
-            fix_previous_s: None,
-            track: AttitudeTrack::new(MAX_ATT_GAP_S),
+            rows: ReferenceRows::new(MAX_ATT_GAP_S, keeps_rows),
         }
     }
 
-    /// Message `m`, if it is one the reference reads.
+    /// Message `m`, if it is one the reference reads; the error that fails the reference.
     fn observe(&mut self, m: &Record) -> Result<(), ImportError> {
         match m.name() {
             "ATT" => {
                 let (t, q) = attitude(m, self.attitude_previous_s)?;
                 self.attitude_previous_s = Some(t);
-                self.track.attitude(t, q);
+                self.rows.attitude(t, q);
             }
             // A 4.x log holds every receiver under `GPS` with an instance field `I`.
             "GPS"
                 if m.required("Status")? >= GPS_FIX_3D && m.value("I").is_none_or(|i| i == 0.0) =>
             {
                 let t = m.time_s(&GPS_BOOT_CLOCK)?;
-                check_after(m, t, self.fix_previous_s, "GPS fix")?;
-                self.fix_previous_s = Some(t);
-                self.track.fix(t, fix_values(m));
+                check_after(m, t, self.rows.previous_fix_s, "GPS fix")?;
+                self.rows.fix(t, fix_values(m));
             }
             _ => {}
         }
-        Ok(())
-    }
-
-    /// The reference recording; `None` when the log has no `ATT` or no fix inside it.
-    fn finish(self, path: &Path) -> Result<Option<ImuRecording>, ImportError> {
-        let mut rec = ImuRecording {
-            attitude_rad: Some(Default::default()),
-            position: Some(Default::default()),
-            velocity_ned_m_s: Some(Default::default()),
-            ..Default::default()
-        };
-        for (t, q, values) in self.track.finish() {
-            let v = values?;
-            let (roll, pitch, yaw) = q.euler_angles();
-            let rows = [
-                (&mut rec.attitude_rad, [roll, pitch, yaw]),
-                (&mut rec.position, [v[0], v[1], v[2]]),
-                (&mut rec.velocity_ned_m_s, [v[3], v[4], v[5]]),
-            ];
-            for (triplet, row) in rows {
-                let columns = triplet.get_or_insert_with(Default::default);
-                for (column, v) in columns.iter_mut().zip(row) {
-                    column.push(v);
-                }
-            }
-            rec.t_s.push(t);
+        match self.rows.error.take() {
+            Some(e) => Err(e),
+            None => Ok(()),
         }
-        if rec.t_s.is_empty() {
-            return Ok(None);
-        }
-        rec.validate(path)?;
-        Ok(Some(rec))
     }
 }
 
@@ -668,26 +633,34 @@ impl Reference {
 /// interpolated `ATT` attitude (see the module docs), its messages in file order as a walk
 /// meets them ([`Reference`]). `None` when the log has no `ATT` or no fix inside it.
 pub fn read_reference(log: &DataFlashLog) -> Result<Option<ImuRecording>, ImportError> {
-    let mut reference = Reference::new();
+    let mut reference = Reference::new(true);
+    let mut rows = Vec::new();
     for m in log.messages() {
         reference.observe(&log.record(m))?;
+        rows.extend(reference.rows.take());
     }
-    reference.finish(&log.path)
+    if rows.is_empty() {
+        return Ok(None);
+    }
+    let rec = reference_recording(&rows);
+    rec.validate(&log.path)?;
+    Ok(Some(rec))
 }
 
 /// One output of [`read`]: `imu0`, `imu1`, ... or `reference`, and its recording.
 pub type NamedRecording = (String, ImuRecording);
 
 /// Streams a log into `sink` as `imu{k}` sensors (one per IMU instance, in instance order)
-/// and, where the log has GPS fixes and `ATT`, a `reference`, in two walks over the file and
-/// memory that does not grow with its IMU samples: the first checks every message, forms the
-/// reference as its messages come ([`Reference`]) and finds the IMU instances; the second
-/// hands each IMU message to `sink` as a row. A log without IMU messages is an error.
+/// and, where the log has GPS fixes and `ATT`, a `reference`, in two walks over the file, in
+/// memory that does not grow with it: the first checks every message, counts the reference's
+/// rows as its messages come ([`Reference`]) and finds the IMU instances; the second hands
+/// each IMU message and each fix given its attitude to `sink` as a row. A log without IMU
+/// messages is an error.
 pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
-    let (mut instances, mut reference) = (BTreeSet::new(), Reference::new());
+    let (mut instances, mut counting) = (BTreeSet::new(), Reference::new(false));
     let survey = DataFlashLog::walk(path, &|_| false, &mut |record| {
         instances.extend(imu_instance(&record));
-        reference.observe(&record)
+        counting.observe(&record)
     })?;
     if instances.is_empty() {
         return Err(corrupt(
@@ -699,17 +672,24 @@ pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError>
             ),
         ));
     }
-    let reference = reference.finish(path)?;
+    let has_reference = counting.rows.count > 0;
     let mut sensors: Vec<SensorLayout> = instances
         .iter()
         .map(|k| SensorLayout::imu(format!("imu{k}")))
         .collect();
-    sensors.extend(reference.as_ref().map(|r| rows::layout("reference", r)));
+    sensors.extend(has_reference.then(|| reference_layout("reference")));
     sink.begin(sensors)?;
     let sensor_of: BTreeMap<usize, usize> =
         instances.iter().enumerate().map(|(i, k)| (*k, i)).collect();
     let mut previous: Vec<Option<f64>> = vec![None; sensor_of.len()];
+    let mut reference = Reference::new(true);
     DataFlashLog::walk(path, &|_| false, &mut |record| {
+        if has_reference {
+            reference.observe(&record)?;
+            for row in reference.rows.take() {
+                sink.push(sensor_of.len(), &row)?;
+            }
+        }
         let Some(k) = imu_instance(&record) else {
             return Ok(());
         };
@@ -719,9 +699,6 @@ pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError>
         previous[sensor] = Some(row[0]);
         sink.push(sensor, &row)
     })?;
-    if let Some(reference) = &reference {
-        rows::push_recording(sink, sensor_of.len(), reference)?;
-    }
     Ok(())
 }
 

@@ -147,10 +147,108 @@ impl<F> AttitudeTrack<F> {
         }
     }
 
-    /// The fixes given an attitude, in time order (those after the attitude's last sample
-    /// have none).
-    pub(crate) fn finish(self) -> Vec<(f64, UnitQuaternion<f64>, F)> {
-        self.resolved
+    /// The fixes given an attitude since the last call, in time order (a fix after the
+    /// attitude's last sample never gets one).
+    pub(crate) fn drain_resolved(&mut self) -> std::vec::Drain<'_, (f64, UnitQuaternion<f64>, F)> {
+        self.resolved.drain(..)
+    }
+}
+
+/// What a fix keeps until it has its attitude: its position (lat, lon rad, height m) and
+/// NED velocity (m/s), or the error they gave (a fix that gets no attitude is left out unread,
+/// so its error is not raised).
+pub(crate) type FixValues = Result<[f64; 6], super::ImportError>;
+
+/// The reference row of a fix: `t_s`, then attitude (roll, pitch, yaw rad, body FRD w.r.t.
+/// NED, Z-Y-X), position (lat, lon rad, height m) and NED velocity (m/s), in the interchange
+/// columns' order ([`reference_layout`]).
+pub(crate) type ReferenceRow = [f64; 10];
+
+/// The layout of a flight log's reference rows ([`ReferenceRow`]), named `name`.
+pub(crate) fn reference_layout(name: &str) -> super::rows::SensorLayout {
+    let empty = crate::interchange::ImuRecording {
+        attitude_rad: Some(Default::default()),
+        position: Some(Default::default()),
+        velocity_ned_m_s: Some(Default::default()),
+        ..Default::default()
+    };
+    super::rows::layout(name, &empty)
+}
+
+/// A flight log's reference as the log is walked: one GPS series' fixes given their attitude
+/// ([`AttitudeTrack`]) and made rows, counted (a first walk, which only asks whether there
+/// are any) or kept until taken (a walk that writes them). Its first error is kept: the
+/// reference fails on it.
+pub(crate) struct ReferenceRows {
+    track: AttitudeTrack<FixValues>,
+    keeps_rows: bool,
+    rows: Vec<ReferenceRow>,
+    pub(crate) count: usize,
+    pub(crate) error: Option<super::ImportError>,
+    /// The last fix's time, s.
+    pub(crate) previous_fix_s: Option<f64>,
+}
+
+impl ReferenceRows {
+    pub(crate) fn new(max_gap_s: f64, keeps_rows: bool) -> Self {
+        Self {
+            track: AttitudeTrack::new(max_gap_s),
+            keeps_rows,
+            rows: Vec::new(),
+            count: 0,
+            error: None,
+            previous_fix_s: None,
+        }
+    }
+
+    /// An attitude sample ([`AttitudeTrack::attitude`]).
+    pub(crate) fn attitude(&mut self, t_s: f64, q: UnitQuaternion<f64>) {
+        self.track.attitude(t_s, q);
+        self.form_rows();
+    }
+
+    /// A fix at `t_s` ([`AttitudeTrack::fix`]).
+    pub(crate) fn fix(&mut self, t_s: f64, values: FixValues) {
+        self.previous_fix_s = Some(t_s);
+        self.track.fix(t_s, values);
+        self.form_rows();
+    }
+
+    fn form_rows(&mut self) {
+        for (t, q, values) in self.track.drain_resolved() {
+            match values {
+                Ok(v) if self.error.is_none() => {
+                    self.count += 1;
+                    if self.keeps_rows {
+                        let (roll, pitch, yaw) = q.euler_angles();
+                        self.rows
+                            .push([t, roll, pitch, yaw, v[0], v[1], v[2], v[3], v[4], v[5]]);
+                    }
+                }
+                Ok(_) => {}
+                Err(e) => {
+                    self.error.get_or_insert(e);
+                }
+            }
+        }
+    }
+
+    /// The rows formed since the last call, in time order.
+    pub(crate) fn take(&mut self) -> std::vec::Drain<'_, ReferenceRow> {
+        self.rows.drain(..)
+    }
+}
+
+/// A recording of reference rows.
+pub(crate) fn reference_recording(rows: &[ReferenceRow]) -> crate::interchange::ImuRecording {
+    let column = |k: usize| rows.iter().map(|r| r[k]).collect::<Vec<f64>>();
+    let triplet = |k: usize| [column(k), column(k + 1), column(k + 2)];
+    crate::interchange::ImuRecording {
+        t_s: column(0),
+        attitude_rad: Some(triplet(1)),
+        position: Some(triplet(4)),
+        velocity_ned_m_s: Some(triplet(7)),
+        ..Default::default()
     }
 }
 
@@ -296,14 +394,15 @@ mod tests {
         }
         written.sort_by(|a, b| a.0.total_cmp(&b.0));
         let mut track = AttitudeTrack::new(0.5);
+        let mut got = Vec::new();
         for (_, a, f) in written {
             match (a, f) {
                 (Some(i), _) => track.attitude(att[i].0, att[i].1),
                 (_, Some(k)) => track.fix(fixes[k], k),
                 _ => unreachable!(),
             }
+            got.extend(track.drain_resolved());
         }
-        let got = track.finish();
         let want: Vec<(usize, UnitQuaternion<f64>)> = fixes
             .iter()
             .enumerate()

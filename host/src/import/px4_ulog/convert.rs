@@ -3,12 +3,12 @@
 //! `vehicle_imu` instances, and the GPS + attitude reference.
 //!
 //! A log file is imported in two walks ([`stream`]), in memory that does not grow with its IMU
-//! samples. The first checks every message, forms the reference as its samples come
-//! ([`Reference`]: the fixes, and a short stretch of attitude) and learns of the IMU topics
-//! what decides their outputs ([`Survey`]: which instances have samples, each raw sensor's device ids,
+//! samples. The first checks every message, counts the reference's rows as its samples come
+//! ([`Reference`]: a fix and a short stretch of attitude at a time) and learns of the IMU
+//! topics what decides their outputs ([`Survey`]: which instances have samples, each raw sensor's device ids,
 //! whether an instance's gyro and accelerometer were sampled at the same times); the outputs
 //! are then known ([`Plan`]), and the second walk turns each IMU sample into a row of its
-//! output as it comes ([`Rows`]). A log held whole goes through the same survey, plan and rows
+//! output as it comes ([`Rows`]), and each fix given its attitude into a row of the reference. A log held whole goes through the same survey, plan and rows
 //! ([`read_sensor_imus`] and its siblings).
 
 use std::collections::{BTreeMap, BTreeSet, VecDeque};
@@ -20,8 +20,8 @@ use super::{
     GPS_FIXES_3D, GPS_TOPICS, MAX_ATTITUDE_GAP_S, MAX_QUATERNION_NORM_ERROR,
     RELATIVE_TIMESTAMP_INVALID,
 };
-use crate::import::frames::AttitudeTrack;
-use crate::import::rows::{self, Collect, SensorLayout, SensorRows};
+use crate::import::frames::{reference_layout, reference_recording, ReferenceRow, ReferenceRows};
+use crate::import::rows::{Collect, SensorLayout, SensorRows};
 use crate::interchange::CHANNEL_COLUMNS;
 use nalgebra::Vector3;
 
@@ -552,43 +552,35 @@ pub fn gps_topic(log: &ULog) -> Option<&Topic> {
         .or_else(|| subscribed().next())
 }
 
-/// A fix's position (lat, lon rad, ellipsoidal height m) and NED velocity (m/s), or the
-/// error they gave: kept until the fix has its attitude, as a fix without one is left out
-/// unread.
-type FixValues = Result<[f64; 6], ImportError>;
-
-/// The fixes of one GPS topic (instance 0) as they come, each given its attitude.
-struct FixTrack {
-    previous_s: Option<f64>,
-    track: AttitudeTrack<FixValues>,
-    /// The first error of its samples: the reference fails on it if this topic is read.
-    error: Option<ImportError>,
-}
-
 /// The reference as a log's samples come (see the parent module's documentation): the
-/// attitude of `vehicle_attitude` 0 interpolated to the 3D fixes of each of [`GPS_TOPICS`]
-/// (instance 0); which topic it is, and so which errors count, is known at the end
-/// ([`gps_topic`]). Holds the fixes and a short stretch of attitude ([`AttitudeTrack`]).
+/// attitude of `vehicle_attitude` 0 interpolated to the 3D fixes of the GPS topics (instance
+/// 0) it follows ([`ReferenceRows`]). A first walk follows every one of [`GPS_TOPICS`], counting
+/// their rows, as which of them the reference reads ([`gps_topic`]), and so which errors
+/// count, is known at the end ([`Reference::chosen`]); a walk that writes the rows follows
+/// that one.
 pub(super) struct Reference {
     attitude_previous_s: Option<f64>,
     attitude_error: Option<ImportError>,
-    /// In [`GPS_TOPICS`]' order.
-    gps: Vec<FixTrack>,
+    /// In [`GPS_TOPICS`]' order; `None` for a topic not followed.
+    gps: Vec<Option<ReferenceRows>>,
 }
 
 impl Reference {
-    pub(super) fn new() -> Self {
+    /// Following every GPS topic, counting its rows.
+    pub(super) fn counting() -> Self {
+        Self::following(|_| Some(ReferenceRows::new(MAX_ATTITUDE_GAP_S, false)))
+    }
+
+    /// Following the GPS topic `k` of [`GPS_TOPICS`], keeping its rows until taken.
+    pub(super) fn writing(k: usize) -> Self {
+        Self::following(|i| (i == k).then(|| ReferenceRows::new(MAX_ATTITUDE_GAP_S, true)))
+    }
+
+    fn following(rows: impl Fn(usize) -> Option<ReferenceRows>) -> Self {
         Self {
             attitude_previous_s: None,
             attitude_error: None,
-            gps: GPS_TOPICS
-                .iter()
-                .map(|_| FixTrack {
-                    previous_s: None,
-                    track: AttitudeTrack::new(MAX_ATTITUDE_GAP_S),
-                    error: None,
-                })
-                .collect(),
+            gps: (0..GPS_TOPICS.len()).map(rows).collect(),
         }
     }
 
@@ -601,69 +593,57 @@ impl Reference {
             match attitude(s, self.attitude_previous_s) {
                 Ok((t, q)) => {
                     self.attitude_previous_s = Some(t);
-                    for gps in &mut self.gps {
-                        gps.track.attitude(t, q);
+                    for rows in self.gps.iter_mut().flatten() {
+                        rows.attitude(t, q);
                     }
                 }
                 Err(e) => self.attitude_error = Some(e),
             }
         } else if let Some(k) = GPS_TOPICS.iter().position(|n| *n == s.topic.name) {
-            let gps = &mut self.gps[k];
-            if gps.error.is_some() {
+            let Some(rows) = self.gps[k].as_mut().filter(|r| r.error.is_none()) else {
                 return;
-            }
-            match fix_time(s, gps.previous_s) {
+            };
+            match fix_time(s, rows.previous_fix_s) {
                 Ok(Some(t)) => {
-                    gps.previous_s = Some(t);
                     let velocity = ["vel_n_m_s", "vel_e_m_s", "vel_d_m_s"];
                     let values = gps_position(s).and_then(|p| {
                         let v = vector(s, velocity)?;
                         Ok([p[0], p[1], p[2], v[0], v[1], v[2]])
                     });
-                    gps.track.fix(t, values);
+                    rows.fix(t, values);
                 }
                 Ok(None) => {}
-                Err(e) => gps.error = Some(e),
+                Err(e) => rows.error = Some(e),
             }
         }
     }
 
-    /// The reference recording of `log` (whose topics these samples were): `None` when it
-    /// has no GPS topic or no 3D fix inside the attitude's span.
-    pub(super) fn finish(self, log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
+    /// The place in [`GPS_TOPICS`] of the topic the reference of `log` (whose samples these
+    /// were) reads, if it has rows; the error that fails the reference.
+    pub(super) fn chosen(&mut self, log: &ULog) -> Result<Option<usize>, ImportError> {
         let Some(topic) = gps_topic(log) else {
             return Ok(None);
         };
-        if let Some(e) = self.attitude_error {
-            return Err(e);
-        }
         let k = GPS_TOPICS
             .iter()
             .position(|n| *n == topic.name)
             .expect("one of the GPS topics");
-        let gps = self.gps.into_iter().nth(k).expect("a track per GPS topic");
-        if let Some(e) = gps.error {
+        if let Some(e) = self.failed(k) {
             return Err(e);
         }
-        let mut rec = ImuRecording {
-            attitude_rad: Some(Default::default()),
-            position: Some(Default::default()),
-            velocity_ned_m_s: Some(Default::default()),
-            ..Default::default()
-        };
-        for (t, q, values) in gps.track.finish() {
-            let v = values?;
-            let (roll, pitch, yaw) = q.euler_angles();
-            push(&mut rec.attitude_rad, [roll, pitch, yaw]);
-            push(&mut rec.position, [v[0], v[1], v[2]]);
-            push(&mut rec.velocity_ned_m_s, [v[3], v[4], v[5]]);
-            rec.t_s.push(t);
-        }
-        if rec.t_s.is_empty() {
-            return Ok(None);
-        }
-        rec.validate(log.path())?;
-        Ok(Some(rec))
+        Ok(self.gps[k].as_ref().filter(|r| r.count > 0).map(|_| k))
+    }
+
+    /// The error that fails the reference read from GPS topic `k`, taken.
+    pub(super) fn failed(&mut self, k: usize) -> Option<ImportError> {
+        self.attitude_error
+            .take()
+            .or_else(|| self.gps[k].as_mut()?.error.take())
+    }
+
+    /// The rows formed since the last call, of the GPS topic followed to write them.
+    pub(super) fn take_rows(&mut self) -> impl Iterator<Item = ReferenceRow> + '_ {
+        self.gps.iter_mut().flatten().flat_map(|r| r.take())
     }
 }
 
@@ -699,6 +679,13 @@ fn fix_time(s: &Sample, previous_s: Option<f64>) -> Result<Option<f64>, ImportEr
 /// file order as a walk meets them ([`Reference`]). `None` when the log has no GPS fix inside
 /// the attitude's span.
 pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
+    let Some(gps) = gps_topic(log) else {
+        return Ok(None);
+    };
+    let k = GPS_TOPICS
+        .iter()
+        .position(|n| *n == gps.name)
+        .expect("one of the GPS topics");
     let mut samples: Vec<Sample> = log
         .topics()
         .iter()
@@ -706,19 +693,21 @@ pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
         .flat_map(|t| (0..t.len()).map(move |i| log.sample(t, i)))
         .collect();
     samples.sort_by_key(|s| s.offset);
-    let mut reference = Reference::new();
+    let mut reference = Reference::writing(k);
+    let mut rows = Vec::new();
     for s in &samples {
         reference.observe(s);
+        rows.extend(reference.take_rows());
     }
-    reference.finish(log)
-}
-
-/// Appends `row` to `triplet`.
-fn push(triplet: &mut Option<crate::interchange::Triplet>, row: [f64; 3]) {
-    let columns = triplet.get_or_insert_with(Default::default);
-    for (column, v) in columns.iter_mut().zip(row) {
-        column.push(v);
+    if let Some(e) = reference.failed(k) {
+        return Err(e);
     }
+    if rows.is_empty() {
+        return Ok(None);
+    }
+    let rec = reference_recording(&rows);
+    rec.validate(log.path())?;
+    Ok(Some(rec))
 }
 
 /// True for the topics the reference reads.
@@ -731,10 +720,10 @@ pub fn reference_topic(name: &str) -> bool {
 /// `vehicle_attitude`, a `reference`, in two walks over the file (the module's documentation).
 /// A log with none of the IMU topics is an error.
 pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError> {
-    let (mut survey, mut reference) = (Survey::default(), Reference::new());
+    let (mut survey, mut counting) = (Survey::default(), Reference::counting());
     let log = ULog::walk(path, &|_| false, &mut |s| {
         survey.observe(&s);
-        reference.observe(&s);
+        counting.observe(&s);
         Ok(())
     })?;
     let plan = Plan::new(&log, &survey, &|_| true)?;
@@ -748,18 +737,27 @@ pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError>
             ),
         ));
     }
-    let reference = reference.finish(&log)?;
+    let chosen = counting.chosen(&log)?;
     drop(log);
     let mut sensors = plan.sensors.clone();
-    sensors.extend(reference.as_ref().map(|r| rows::layout("reference", r)));
+    sensors.extend(chosen.map(|_| reference_layout("reference")));
     sink.begin(sensors)?;
     let mut rows = Rows::new(&plan);
-    ULog::walk(path, &|_| false, &mut |s| rows.sample(&s, sink))?;
-    rows.finish(path)?;
-    if let Some(reference) = &reference {
-        rows::push_recording(sink, plan.sensors.len(), reference)?;
-    }
-    Ok(())
+    let mut reference = chosen.map(Reference::writing);
+    ULog::walk(path, &|_| false, &mut |s| {
+        rows.sample(&s, sink)?;
+        if let Some((reference, k)) = reference.as_mut().zip(chosen) {
+            reference.observe(&s);
+            if let Some(e) = reference.failed(k) {
+                return Err(e);
+            }
+            for row in reference.take_rows() {
+                sink.push(plan.sensors.len(), &row)?;
+            }
+        }
+        Ok(())
+    })?;
+    rows.finish(path)
 }
 
 /// Reads a log into its IMU recordings and reference ([`stream`] collected).
