@@ -652,6 +652,8 @@ fn flight_log_held_whole() {
     assert!(samples > 0);
 }
 
+/// `FLIGHT_LOG_SAMPLES=1e6,1e7,1e8` sets the lengths (1e6 and 1e7 by default; the logs
+/// held whole only up to 1e7), `FLIGHT_LOG_FORMAT=csv` the output's form (Parquet by default).
 #[test]
 #[ignore = "minutes and ~2 GB of temporary disk; run by hand for the benchmark"]
 fn flight_log_import_memory_is_flat() {
@@ -676,13 +678,14 @@ fn flight_log_import_memory_is_flat() {
             }
             let mb = std::fs::metadata(&input).unwrap().len() as f64 / 1e6;
             let out = dir.path().join(format!("imported-{samples}"));
+            let format = std::env::var("FLIGHT_LOG_FORMAT").unwrap_or("parquet".into());
             let (peak, wall) = time_dynacal(&[
                 "import",
                 input.to_str().unwrap(),
                 "--out",
                 out.to_str().unwrap(),
                 "--format",
-                "parquet",
+                &format,
             ]);
             let written: Vec<String> = std::fs::read_dir(&out)
                 .unwrap()
