@@ -9,6 +9,7 @@ use std::path::Path;
 use dynacal::export::imu_noise;
 use dynacal::gmwm::model::ModelSpec;
 use dynacal::import::ros_bag;
+use dynacal::input::stream::StreamMode;
 use dynacal::interchange::ImuRecording;
 use dynacal::noise::{analyse, choose_imu, kalibr_yaml, model_of, ImuSource, NoiseOptions};
 use dynacal::sim::{self, Scenario, SimModel, SimOptions};
@@ -57,7 +58,7 @@ fn simulate_static_bag(dir: &Path, seconds: f64, seed: u64) -> std::path::PathBu
 fn noise_of_a_simulated_static_bag_recovers_its_white_noise_and_random_walk() {
     let dir = tempfile::tempdir().unwrap();
     let bag = simulate_static_bag(dir.path(), 1800.0, 7);
-    let mut chosen = choose_imu(&bag, Some("/mems/imu")).unwrap();
+    let mut chosen = choose_imu(&bag, Some("/mems/imu"), StreamMode::Auto).unwrap();
     assert_eq!(chosen.name, "mems-imu");
     assert!(
         matches!(chosen.source, ImuSource::Bag(_)),
@@ -164,12 +165,15 @@ fn a_simulated_drive_written_as_a_ros2_bag_imports_back() {
 fn noise_refuses_what_is_not_an_imu_naming_the_topic() {
     let dir = tempfile::tempdir().unwrap();
     let bag = simulate_static_bag(dir.path(), 5.0, 1);
-    let several = choose_imu(&bag, None).err().unwrap().to_string();
+    let several = choose_imu(&bag, None, StreamMode::Auto)
+        .err()
+        .unwrap()
+        .to_string();
     assert!(
         several.contains("2 IMUs, name one with --topic: /mems/imu, /reference/imu"),
         "{several}"
     );
-    let odometry = choose_imu(&bag, Some("/reference/odometry"))
+    let odometry = choose_imu(&bag, Some("/reference/odometry"), StreamMode::Auto)
         .err()
         .unwrap()
         .to_string();
@@ -177,7 +181,7 @@ fn noise_refuses_what_is_not_an_imu_naming_the_topic() {
         odometry.contains("topic /reference/odometry holds attitude, velocity_ned, not IMU data"),
         "{odometry}"
     );
-    let missing = choose_imu(&bag, Some("/nothing"))
+    let missing = choose_imu(&bag, Some("/nothing"), StreamMode::Auto)
         .err()
         .unwrap()
         .to_string();
@@ -186,7 +190,7 @@ fn noise_refuses_what_is_not_an_imu_naming_the_topic() {
         "{missing}"
     );
     // Five seconds at rest: white noise only, and no imu.yaml without a random walk.
-    let mut chosen = choose_imu(&bag, Some("/mems/imu")).unwrap();
+    let mut chosen = choose_imu(&bag, Some("/mems/imu"), StreamMode::Auto).unwrap();
     let report = chosen.analyse(&NoiseOptions::default()).unwrap();
     assert!(report
         .axes

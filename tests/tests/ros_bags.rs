@@ -355,3 +355,36 @@ fn one_topic_asked_is_the_only_one_decoded() {
         }));
     }
 }
+
+/// A bag is read in two passes, its time lines summarised as they come: every recording's
+/// sampling note (median, spread, gaps) is the one its whole time line gives
+/// (`Sampling::of`), on the written bags and the shared real ones (whose stamps jitter and
+/// pause).
+#[test]
+fn a_bag_read_in_two_passes_describes_each_time_line_as_held_whole() {
+    let mut bags: Vec<PathBuf> = WRITTEN.iter().map(|b| fixture(b)).collect();
+    for real in ["ros-bags/xsens-test1.bag", "ros-bags/xsens-test1-mcap"] {
+        let path = dynacal::data_dir().join(real);
+        match path.exists() {
+            true => bags.push(path),
+            false => eprintln!("SKIP: {} not found (set DYNACAL_DATA)", path.display()),
+        }
+    }
+    let mut gaps = 0;
+    for bag in bags {
+        let (recordings, notes) = read(&bag);
+        assert!(!recordings.is_empty(), "{}", bag.display());
+        for (name, rec) in &recordings {
+            let sampling = dynacal::interchange::Sampling::of(&rec.t_s).unwrap();
+            gaps += sampling.gaps.len();
+            let whole = format!(": {sampling}");
+            assert!(
+                notes.iter().any(|n| n.ends_with(&whole)
+                    && ros_bag::file_name_of_topic(n.split(": ").next().unwrap()) == *name),
+                "{}: {name}: no `{whole}` in {notes:#?}",
+                bag.display()
+            );
+        }
+    }
+    assert!(gaps > 0, "no bag has a gap: the gaps were not tried");
+}

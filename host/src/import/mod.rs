@@ -312,11 +312,7 @@ pub(crate) fn stream_dataset(
         prefix,
     };
     let streamed = match dataset {
-        Dataset::RosBag => {
-            let (recordings, report) = ros_bag::read(path)?;
-            rows::replay(&recordings, sink)?;
-            return Ok(report.notes);
-        }
+        Dataset::RosBag => return Ok(ros_bag::stream(path, sink)?.notes),
         Dataset::Adis16405 => adis16405::stream(path, sink),
         Dataset::MtigGyroX => mtig::stream(path, sink),
         Dataset::PsinsMems => psins_fog_mems::stream_mems(path, sink),

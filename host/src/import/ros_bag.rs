@@ -265,10 +265,41 @@ pub fn read_only(
     path: &Path,
     only: Option<&str>,
 ) -> Result<(Vec<(String, ImuRecording)>, BagReport), ImportError> {
-    let mut collector = collect::Collector::new(path);
-    collector.only = only.map(file_name_of_topic);
-    visit(path, &mut collector).map_err(|e| collector.with_last_message(e))?;
-    collector.finish()
+    let mut collect = crate::import::rows::Collect::new(path);
+    let report = stream_only(path, only, &mut collect)?;
+    let recordings = collect
+        .into_sensors()?
+        .into_iter()
+        .map(|s| (s.name, s.recording))
+        .collect();
+    Ok((recordings, report))
+}
+
+/// Streams the bag at `path` into `sink`, one sensor per recording it gives (named after its
+/// topic, in topic name order), in two passes over the bag and memory that does not grow with
+/// it (`collect`'s documentation); the report.
+pub fn stream(
+    path: &Path,
+    sink: &mut dyn crate::import::rows::SensorRows,
+) -> Result<BagReport, ImportError> {
+    stream_only(path, None, sink)
+}
+
+fn stream_only(
+    path: &Path,
+    only: Option<&str>,
+    sink: &mut dyn crate::import::rows::SensorRows,
+) -> Result<BagReport, ImportError> {
+    let only = only.map(file_name_of_topic);
+    let mut survey = collect::Collector::new(path, collect::Out::Count);
+    survey.only = only.clone();
+    visit(path, &mut survey).map_err(|e| survey.with_last_message(e))?;
+    let (layouts, outputs) = survey.plan()?;
+    sink.begin(layouts)?;
+    let mut writer = collect::Collector::new(path, collect::Out::Rows { sink, outputs });
+    writer.only = only;
+    visit(path, &mut writer).map_err(|e| writer.with_last_message(e))?;
+    Ok(survey.report(Some(&writer.gaps())))
 }
 
 /// Streams the Imu topic `topic` of the bag at `path`: its kept samples (time s, angular
@@ -282,13 +313,10 @@ pub fn stream_imu_topic(
     topic: &str,
     sink: collect::ImuSink<'_>,
 ) -> Result<(Option<StreamedImu>, BagReport), ImportError> {
-    let mut collector = collect::Collector::new(path);
+    let mut collector = collect::Collector::new(path, collect::Out::Imu(sink));
     collector.only = Some(file_name_of_topic(topic));
-    collector.sink = Some(sink);
     visit(path, &mut collector).map_err(|e| collector.with_last_message(e))?;
-    let streamed = collector.streamed_imu();
-    let (_, report) = collector.finish()?;
-    Ok((streamed, report))
+    Ok((collector.streamed_imu(), collector.report(None)))
 }
 
 mod collect;

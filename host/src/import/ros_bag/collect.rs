@@ -1,6 +1,9 @@
-//! Collects a bag's messages topic by topic and turns each topic into an interchange
-//! recording, measuring and reporting what is irregular about it (see the parent module for
-//! the conversions).
+//! Reads a bag's messages topic by topic, measuring and reporting what is irregular about
+//! each (see the parent module for the conversions), in memory that does not grow with the
+//! bag: a first pass ([`Out::Count`]) counts every topic's messages, kept stamps and time
+//! steps and decides which topics become recordings ([`Collector::plan`]); a second pass hands
+//! each kept sample to the outputs as a row ([`Out::Rows`]), finding the gaps of each time
+//! line on the way; the report is written from both ([`Collector::report`]).
 
 use std::collections::{BTreeMap, BTreeSet};
 use std::path::{Path, PathBuf};
@@ -8,8 +11,9 @@ use std::path::{Path, PathBuf};
 use super::frames::{enu_to_ned, flu_to_frd, ned_rpy_of_ros, rotate_by_ros};
 use super::messages::{self, Encoding};
 use super::{seconds, BagReport, BagVisitor, Location, TopicInfo, ZSTD_MAGIC};
+use crate::import::rows::{self, SensorLayout, SensorRows};
 use crate::import::ImportError;
-use crate::interchange::ImuRecording;
+use crate::interchange::{ImuRecording, Sampling, StepCounts, Triplet};
 
 const IMU: &str = "sensor_msgs/Imu";
 const NAV_SAT_FIX: &str = "sensor_msgs/NavSatFix";
@@ -87,8 +91,7 @@ impl CovarianceSeen {
 }
 
 /// What an Imu topic's messages say, counted as they come (for the report and the
-/// "not a sensor" test), with its kept samples: stored for an import, handed to the
-/// collector's sink when streamed.
+/// "not a sensor" test); its kept samples go to the pass's [`Out`].
 #[derive(Debug, Default)]
 struct ImuTopic {
     frames: BTreeSet<String>,
@@ -101,11 +104,6 @@ struct ImuTopic {
     accel_covariance: CovarianceSeen,
     /// Sum of the kept specific forces, m/s^2 forward-right-down (their mean is reported).
     kept_accel_sum: [f64; 3],
-    /// Kept samples (time increasing), s; forward-right-down rad/s and m/s^2. Empty when
-    /// streamed.
-    t_s: Vec<f64>,
-    gyro: Vec<[f64; 3]>,
-    accel: Vec<[f64; 3]>,
 }
 
 impl ImuTopic {
@@ -153,21 +151,22 @@ pub struct StreamedImu {
 /// m/s^2), both forward-right-down.
 pub type ImuSink<'a> = &'a mut dyn FnMut(f64, [f64; 3], [f64; 3]);
 
+/// A NavSatFix topic, counted as its messages come.
 #[derive(Debug, Default)]
 struct FixTopic {
     frames: BTreeSet<String>,
-    stamps: Vec<Stamp>,
-    /// deg, deg, m.
-    fixes: Vec<[f64; 3]>,
+    /// The stamps of the messages with a fix.
+    line: StampLine,
     no_fix: usize,
 }
 
+/// An Odometry topic, counted as its messages come.
 #[derive(Debug, Default)]
 struct OdometryTopic {
     frames: BTreeSet<(String, String)>,
-    stamps: Vec<Stamp>,
-    orientation: Vec<[f64; 4]>,
-    body_velocity: Vec<[f64; 3]>,
+    line: StampLine,
+    /// The first message whose orientation is not a unit quaternion, and it.
+    not_unit: Option<(usize, [f64; 4])>,
 }
 
 #[derive(Debug)]
@@ -182,7 +181,57 @@ enum TopicData {
     },
 }
 
-/// Collects the messages of one bag.
+impl TopicData {
+    fn line(&self) -> Option<&StampLine> {
+        match self {
+            TopicData::Imu(t) => Some(&t.line),
+            TopicData::Fix(t) => Some(&t.line),
+            TopicData::Odometry(t) => Some(&t.line),
+            TopicData::Other { .. } => None,
+        }
+    }
+}
+
+/// One recording a bag gives: its topic's row layout and where its rows go.
+#[derive(Debug)]
+pub struct Output {
+    /// Its place among the pass's sensors.
+    sensor: usize,
+    /// Which of an Imu topic's vectors hold data.
+    gyro: bool,
+    accel: bool,
+    /// A step longer than this is a gap ([`Sampling::GAP_STEPS`] median steps), s.
+    gap_s: f64,
+    previous_s: Option<f64>,
+    /// (start, length) s.
+    gaps: Vec<(f64, f64)>,
+}
+
+/// What a pass does with the kept samples.
+pub enum Out<'a> {
+    /// Counts them (a first pass).
+    Count,
+    /// Hands the asked Imu topic's to a closure (`dynacal noise`).
+    Imu(ImuSink<'a>),
+    /// Hands every recording's rows to a sink, the topics of [`Collector::plan`] as its
+    /// sensors.
+    Rows {
+        sink: &'a mut dyn SensorRows,
+        outputs: BTreeMap<String, Output>,
+    },
+}
+
+/// One kept sample, as its message gave it.
+enum Kept {
+    /// Time s; angular velocity rad/s and specific force m/s^2, forward-right-down.
+    Imu(f64, [f64; 3], [f64; 3]),
+    /// Time s; latitude, longitude deg, altitude m.
+    Fix(f64, [f64; 3]),
+    /// Time s; orientation (ROS x, y, z, w) and body velocity (ROS axes), m/s.
+    Odometry(f64, [f64; 4], [f64; 3]),
+}
+
+/// Reads the messages of one bag in one pass.
 pub struct Collector<'a> {
     path: PathBuf,
     /// Per topic name, in name order.
@@ -194,27 +243,27 @@ pub struct Collector<'a> {
     /// Whether a topic is the one asked, by name (a topic's file name made once, not per
     /// message).
     asked: BTreeMap<String, bool>,
-    /// Where the asked Imu topic's samples go instead of being stored (memory then
-    /// independent of the bag's length).
-    pub sink: Option<ImuSink<'a>>,
+    /// Where the kept samples go.
+    out: Out<'a>,
 }
 
 impl<'a> Collector<'a> {
-    pub fn new(path: &Path) -> Self {
+    pub fn new(path: &Path, out: Out<'a>) -> Self {
         Self {
             path: path.to_path_buf(),
             topics: BTreeMap::new(),
             last: None,
             only: None,
             asked: BTreeMap::new(),
-            sink: None,
+            out,
         }
     }
 
-    /// The streamed Imu topic (the asked one, when a sink is set and it is an Imu topic).
+    /// The streamed Imu topic (the asked one, when its samples go to a closure and it is an
+    /// Imu topic).
     pub fn streamed_imu(&self) -> Option<StreamedImu> {
         self.topics.values().find_map(|data| match data {
-            TopicData::Imu(t) if self.sink.is_some() => Some(StreamedImu {
+            TopicData::Imu(t) if matches!(self.out, Out::Imu(_)) => Some(StreamedImu {
                 varies: t.varies,
                 gyro: t.has_gyro(),
                 accel: t.has_accel(),
@@ -336,48 +385,154 @@ impl BagVisitor for Collector<'_> {
             self.topics.insert(topic.name.clone(), data);
         }
         let entry = self.topics.get_mut(&topic.name).expect("inserted");
-        let sink = &mut self.sink;
-        let error = |e: messages::DecodeError| (topic, at, receive_ns, e);
-        let result = match entry {
+        let kept = match entry {
             TopicData::Imu(t) => messages::imu(data, encoding).map(|m| {
-                if let Some((t_s, gyro, accel)) = t.add(&m, receive_ns) {
-                    match sink {
-                        Some(sink) => sink(t_s, gyro, accel),
-                        None => {
-                            t.t_s.push(t_s);
-                            t.gyro.push(gyro);
-                            t.accel.push(accel);
-                        }
-                    }
-                }
+                t.add(&m, receive_ns)
+                    .map(|(t_s, gyro, accel)| Kept::Imu(t_s, gyro, accel))
             }),
             TopicData::Fix(t) => messages::nav_sat_fix(data, encoding).map(|m| {
                 if m.status < 0 {
                     t.no_fix += 1;
-                } else {
-                    t.stamps.push(Stamp::of(&m.header, receive_ns));
-                    t.frames.insert(m.header.frame_id);
-                    t.fixes
-                        .push([m.latitude_deg, m.longitude_deg, m.altitude_m]);
+                    return None;
                 }
+                let stamp = Stamp::of(&m.header, receive_ns);
+                t.frames.insert(m.header.frame_id);
+                t.line.push(stamp).then(|| {
+                    let fix = [m.latitude_deg, m.longitude_deg, m.altitude_m];
+                    Kept::Fix(stamp_seconds(stamp.ns), fix)
+                })
             }),
             TopicData::Odometry(t) => messages::odometry(data, encoding).map(|m| {
-                t.stamps.push(Stamp::of(&m.header, receive_ns));
+                let norm = m.orientation.iter().map(|x| x * x).sum::<f64>().sqrt();
+                if !((norm - 1.0).abs() < 1e-3) && t.not_unit.is_none() {
+                    t.not_unit = Some((t.line.messages, m.orientation));
+                }
+                let stamp = Stamp::of(&m.header, receive_ns);
                 t.frames.insert((m.header.frame_id, m.child_frame_id));
-                t.orientation.push(m.orientation);
-                t.body_velocity.push(m.linear_velocity);
+                t.line.push(stamp).then(|| {
+                    Kept::Odometry(stamp_seconds(stamp.ns), m.orientation, m.linear_velocity)
+                })
             }),
-            TopicData::Other { .. } => Ok(()),
+            TopicData::Other { .. } => Ok(None),
         };
-        result.map_err(|e| {
-            let (topic, at, receive_ns, e) = error(e);
-            self.decode_error(topic, at, receive_ns, e)
-        })?;
+        let kept = kept.map_err(|e| self.decode_error(topic, at, receive_ns, e))?;
+        if let Some(kept) = kept {
+            self.hand_over(&topic.name, kept)?;
+        }
         self.last = Some((topic.name.clone(), receive_ns));
         Ok(())
     }
 }
 
+impl Collector<'_> {
+    /// A kept sample of `topic` to the pass's [`Out`].
+    fn hand_over(&mut self, topic: &str, kept: Kept) -> Result<(), ImportError> {
+        let (sink, outputs) = match &mut self.out {
+            Out::Count => return Ok(()),
+            Out::Imu(sink) => {
+                if let Kept::Imu(t_s, gyro, accel) = kept {
+                    sink(t_s, gyro, accel);
+                }
+                return Ok(());
+            }
+            Out::Rows { sink, outputs } => (sink, outputs),
+        };
+        let Some(output) = outputs.get_mut(topic) else {
+            return Ok(());
+        };
+        let mut row = Vec::with_capacity(7);
+        match kept {
+            Kept::Imu(t_s, gyro, accel) => {
+                row.push(t_s);
+                if output.gyro {
+                    row.extend(gyro);
+                }
+                if output.accel {
+                    row.extend(accel);
+                }
+            }
+            Kept::Fix(t_s, [lat_deg, lon_deg, altitude_m]) => {
+                row.extend([t_s, lat_deg.to_radians(), lon_deg.to_radians(), altitude_m]);
+            }
+            Kept::Odometry(t_s, orientation, body_velocity) => {
+                let v_enu = rotate_by_ros(orientation, body_velocity);
+                let v_ned = enu_to_ned() * nalgebra::Vector3::from(v_enu);
+                row.push(t_s);
+                row.extend(ned_rpy_of_ros(orientation));
+                row.extend([v_ned.x, v_ned.y, v_ned.z]);
+            }
+        }
+        let t_s = row[0];
+        if let Some(previous) = output.previous_s.filter(|p| t_s - p > output.gap_s) {
+            output.gaps.push((previous, t_s - previous));
+        }
+        output.previous_s = Some(t_s);
+        sink.push(output.sensor, &row)
+    }
+
+    /// The recordings this bag gives, in topic name order: their layouts, and where a pass
+    /// that writes them sends each topic's rows ([`Out::Rows`]). Two topics making one name
+    /// are an error.
+    pub fn plan(&self) -> Result<(Vec<SensorLayout>, BTreeMap<String, Output>), ImportError> {
+        let (mut layouts, mut outputs) = (Vec::new(), BTreeMap::new());
+        let mut names: BTreeMap<String, String> = BTreeMap::new();
+        for (topic, data) in &self.topics {
+            let (gyro, accel) = match data {
+                TopicData::Imu(t) => (t.has_gyro(), t.has_accel()),
+                _ => (false, false),
+            };
+            let holds = |attitude: bool, position: bool, velocity: bool| ImuRecording {
+                gyro_rad_s: gyro.then(Triplet::default),
+                accel_m_s2: accel.then(Triplet::default),
+                attitude_rad: attitude.then(Triplet::default),
+                position: position.then(Triplet::default),
+                velocity_ned_m_s: velocity.then(Triplet::default),
+                ..Default::default()
+            };
+            let empty = match data {
+                TopicData::Imu(t) => {
+                    (t.first.is_some() && t.varies).then(|| holds(false, false, false))
+                }
+                TopicData::Fix(t) => (t.line.messages > 0).then(|| holds(false, true, false)),
+                TopicData::Odometry(t) => t.not_unit.is_none().then(|| holds(true, false, true)),
+                TopicData::Other { .. } => None,
+            };
+            let (Some(empty), Some(line)) = (empty, data.line()) else {
+                continue;
+            };
+            let name = file_name_of_topic(topic);
+            if let Some(other) = names.insert(name.clone(), topic.clone()) {
+                return Err(ImportError::Implausible {
+                    path: self.path.clone(),
+                    sensor: topic.clone(),
+                    message: format!("topics {other} and {topic} both make the name {name}"),
+                });
+            }
+            let median_s = line.steps.sampling_without_gaps().map(|s| s.median_step_s);
+            outputs.insert(
+                topic.clone(),
+                Output {
+                    sensor: layouts.len(),
+                    gyro,
+                    accel,
+                    gap_s: median_s.map_or(f64::INFINITY, |m| Sampling::GAP_STEPS * m),
+                    previous_s: None,
+                    gaps: Vec::new(),
+                },
+            );
+            layouts.push(rows::layout(name, &empty));
+        }
+        Ok((layouts, outputs))
+    }
+
+    /// The gaps a pass that wrote the rows found, by topic.
+    pub fn gaps(self) -> BTreeMap<String, Vec<(f64, f64)>> {
+        match self.out {
+            Out::Rows { outputs, .. } => outputs.into_iter().map(|(t, o)| (t, o.gaps)).collect(),
+            _ => BTreeMap::new(),
+        }
+    }
+}
 /// `/xsens/imu_data` -> `xsens-imu_data`: a file name made of the topic's name.
 pub fn file_name_of_topic(topic: &str) -> String {
     let name: String = topic
@@ -413,6 +568,8 @@ struct StampLine {
     first_back: Option<(i128, i128)>,
     from_receive: usize,
     first_from_receive: Option<i128>,
+    /// The kept stamps' steps.
+    steps: StepCounts,
 }
 
 impl StampLine {
@@ -439,6 +596,7 @@ impl StampLine {
         if keep {
             self.latest = Some(stamp.ns);
             self.kept += 1;
+            self.steps.push(stamp_seconds(stamp.ns));
         }
         keep
     }
@@ -477,27 +635,6 @@ impl StampLine {
     }
 }
 
-/// The kept samples of a stored topic ([`StampLine`]): their indices and times, with the
-/// report.
-struct Timeline {
-    keep: Vec<usize>,
-    t_s: Vec<f64>,
-    notes: Vec<String>,
-}
-
-fn timeline(topic: &str, stamps: &[Stamp]) -> Timeline {
-    let mut line = StampLine::default();
-    let keep: Vec<usize> = (0..stamps.len())
-        .filter(|&i| line.push(stamps[i]))
-        .collect();
-    let t_s = keep.iter().map(|&i| stamp_seconds(stamps[i].ns)).collect();
-    Timeline {
-        keep,
-        t_s,
-        notes: line.notes(topic),
-    }
-}
-
 /// ns since the Unix epoch -> s, rounded once (the integer seconds are exact in an f64).
 fn stamp_seconds(ns: i128) -> f64 {
     let sec = ns.div_euclid(1_000_000_000);
@@ -505,66 +642,53 @@ fn stamp_seconds(ns: i128) -> f64 {
     sec as f64 + nsec as f64 * 1e-9
 }
 
-/// Median rate, jitter and gaps of a kept time line.
-fn sampling_note(topic: &str, t_s: &[f64]) -> Option<String> {
-    crate::interchange::Sampling::of(t_s).map(|s| format!("{topic}: {s}"))
+/// The note on a kept time line: median rate, jitter and, where a pass that wrote the rows
+/// found them, its gaps.
+fn sampling_note(topic: &str, line: &StampLine, gaps: Option<&[(f64, f64)]>) -> Option<String> {
+    let mut sampling = line.steps.sampling_without_gaps()?;
+    sampling.gaps = gaps.map(<[_]>::to_vec).unwrap_or_default();
+    Some(format!("{topic}: {sampling}"))
 }
 
 impl Collector<'_> {
-    /// The recordings and the report.
-    pub fn finish(self) -> Result<(Vec<(String, ImuRecording)>, BagReport), ImportError> {
-        let mut recordings = Vec::new();
-        let mut report = BagReport::default();
-        let mut names: BTreeMap<String, String> = BTreeMap::new();
-        let streamed = self.sink.is_some();
-        for (topic, data) in self.topics {
-            let converted = match data {
-                TopicData::Imu(t) => imu_recording(&topic, *t, streamed, &mut report.notes),
-                TopicData::Fix(t) => fix_recording(&topic, &t, &mut report.notes),
-                TopicData::Odometry(t) => odometry_recording(&topic, &t, &mut report.notes),
-                TopicData::Other { msg_type, count } => {
-                    report.notes.push(match &self.only {
-                        Some(only) if *only != file_name_of_topic(&topic) => format!(
-                            "{topic}: {count} messages of {msg_type}, not read (only {only} was asked)"
-                        ),
-                        _ => format!(
-                            "{topic}: {count} messages of {msg_type}, not read (dynacal reads {IMU}, {NAV_SAT_FIX}, {ODOMETRY})"
-                        ),
-                    });
-                    None
-                }
-            };
-            if let Some(recording) = converted {
-                let name = file_name_of_topic(&topic);
-                if let Some(other) = names.insert(name.clone(), topic.clone()) {
-                    return Err(ImportError::Implausible {
-                        path: self.path.clone(),
-                        sensor: topic.clone(),
-                        message: format!("topics {other} and {topic} both make the name {name}"),
-                    });
-                }
-                recordings.push((name, recording));
+    /// The report: what each topic held and what was done with it, in topic name order.
+    /// `gaps` are the time lines' gaps a pass that wrote the rows found ([`Collector::gaps`]);
+    /// without them (a streamed Imu topic, whose reader measures its own time line) an Imu
+    /// topic's time line is not described.
+    pub fn report(&self, gaps: Option<&BTreeMap<String, Vec<(f64, f64)>>>) -> BagReport {
+        let mut notes = Vec::new();
+        for (topic, data) in &self.topics {
+            let gaps = gaps.map(|g| g.get(topic).map_or(&[][..], Vec::as_slice));
+            match data {
+                TopicData::Imu(t) => imu_notes(topic, t, gaps, &mut notes),
+                TopicData::Fix(t) => fix_notes(topic, t, gaps, &mut notes),
+                TopicData::Odometry(t) => odometry_notes(topic, t, gaps, &mut notes),
+                TopicData::Other { msg_type, count } => notes.push(match &self.only {
+                    Some(only) if *only != file_name_of_topic(topic) => format!(
+                        "{topic}: {count} messages of {msg_type}, not read (only {only} was asked)"
+                    ),
+                    _ => format!(
+                        "{topic}: {count} messages of {msg_type}, not read (dynacal reads {IMU}, {NAV_SAT_FIX}, {ODOMETRY})"
+                    ),
+                }),
             }
         }
-        Ok((recordings, report))
+        BagReport { notes }
     }
 }
 
-fn imu_recording(
-    topic: &str,
-    t: ImuTopic,
-    streamed: bool,
-    notes: &mut Vec<String>,
-) -> Option<ImuRecording> {
+fn imu_notes(topic: &str, t: &ImuTopic, gaps: Option<&[(f64, f64)]>, notes: &mut Vec<String>) {
     let count = t.line.messages;
-    let first = t.first?;
+    let Some(first) = t.first else {
+        return;
+    };
     notes.extend(t.line.notes(topic));
     if !t.varies {
         notes.push(format!(
             "{topic}: skipped, not a sensor: its {count} angular velocities are all {:?} and its linear accelerations all {:?}",
             first.0, first.1
         ));
-        return None;
+        return;
     }
     let partly = |absent: usize| absent > 0 && absent < count;
     if partly(t.gyro_covariance.absent) || partly(t.accel_covariance.absent) {
@@ -573,8 +697,8 @@ fn imu_recording(
         ));
     }
     // A streamed topic's time line is summarised by its reader (`dynacal noise`).
-    if !streamed {
-        notes.extend(sampling_note(topic, &t.t_s));
+    if gaps.is_some() {
+        notes.extend(sampling_note(topic, &t.line, gaps));
     }
     let frames: Vec<&str> = t.frames.iter().map(String::as_str).collect();
     let mean_f = t.kept_accel_sum.map(|sum| match t.has_accel() {
@@ -598,75 +722,37 @@ fn imu_recording(
         "m^2/s^4",
         count,
     ));
-    if streamed {
-        return None;
-    }
-    let column = |values: &[[f64; 3]]| -> [Vec<f64>; 3] {
-        std::array::from_fn(|axis| values.iter().map(|v| v[axis]).collect())
-    };
-    Some(ImuRecording {
-        gyro_rad_s: t.has_gyro().then(|| column(&t.gyro)),
-        accel_m_s2: t.has_accel().then(|| column(&t.accel)),
-        t_s: t.t_s,
-        ..Default::default()
-    })
 }
 
-fn fix_recording(topic: &str, t: &FixTopic, notes: &mut Vec<String>) -> Option<ImuRecording> {
+fn fix_notes(topic: &str, t: &FixTopic, gaps: Option<&[(f64, f64)]>, notes: &mut Vec<String>) {
     if t.no_fix > 0 {
         notes.push(format!(
             "{topic}: {} messages without a fix (status -1) left out",
             t.no_fix
         ));
     }
-    if t.fixes.is_empty() {
+    if t.line.messages == 0 {
         notes.push(format!("{topic}: skipped, no fix"));
-        return None;
+        return;
     }
-    let line = timeline(topic, &t.stamps);
-    notes.extend(line.notes);
-    notes.extend(sampling_note(topic, &line.t_s));
-    let position = std::array::from_fn(|axis| {
-        line.keep
-            .iter()
-            .map(|&i| match axis {
-                2 => t.fixes[i][2],
-                _ => t.fixes[i][axis].to_radians(),
-            })
-            .collect()
-    });
-    Some(ImuRecording {
-        t_s: line.t_s,
-        position: Some(position),
-        ..Default::default()
-    })
+    notes.extend(t.line.notes(topic));
+    notes.extend(sampling_note(topic, &t.line, gaps));
 }
 
-fn odometry_recording(
+fn odometry_notes(
     topic: &str,
     t: &OdometryTopic,
+    gaps: Option<&[(f64, f64)]>,
     notes: &mut Vec<String>,
-) -> Option<ImuRecording> {
-    if let Some(bad) = t.orientation.iter().position(|q| {
-        let norm = q.iter().map(|x| x * x).sum::<f64>().sqrt();
-        !((norm - 1.0).abs() < 1e-3)
-    }) {
+) {
+    if let Some((bad, orientation)) = t.not_unit {
         notes.push(format!(
-            "{topic}: skipped: orientation {:?} of message {bad} is not a unit quaternion, so neither attitude nor velocity can be told",
-            t.orientation[bad]
+            "{topic}: skipped: orientation {orientation:?} of message {bad} is not a unit quaternion, so neither attitude nor velocity can be told"
         ));
-        return None;
+        return;
     }
-    let line = timeline(topic, &t.stamps);
-    notes.extend(line.notes);
-    notes.extend(sampling_note(topic, &line.t_s));
-    let (mut attitude, mut velocity) = (Vec::new(), Vec::new());
-    for &i in &line.keep {
-        attitude.push(ned_rpy_of_ros(t.orientation[i]));
-        let v_enu = rotate_by_ros(t.orientation[i], t.body_velocity[i]);
-        let v_ned = enu_to_ned() * nalgebra::Vector3::from(v_enu);
-        velocity.push([v_ned.x, v_ned.y, v_ned.z]);
-    }
+    notes.extend(t.line.notes(topic));
+    notes.extend(sampling_note(topic, &t.line, gaps));
     let frames: Vec<String> = t
         .frames
         .iter()
@@ -679,13 +765,4 @@ fn odometry_recording(
         "{topic}: attitude and velocity of {}, the world frame taken as east-north-up (REP 103): yaw is from its x axis, north only if the frame is geo-referenced; positions (m in the odometry frame) not carried",
         frames.join(", ")
     ));
-    let split = |rows: &[[f64; 3]]| -> [Vec<f64>; 3] {
-        std::array::from_fn(|axis| rows.iter().map(|r| r[axis]).collect())
-    };
-    Some(ImuRecording {
-        t_s: line.t_s,
-        attitude_rad: Some(split(&attitude)),
-        velocity_ned_m_s: Some(split(&velocity)),
-        ..Default::default()
-    })
 }
