@@ -533,8 +533,26 @@ pub fn choose_imu(
         StreamMode::Auto => std::fs::metadata(file)
             .is_ok_and(|m| m.len() > crate::input::stream::STREAM_THRESHOLD_BYTES),
     };
-    // A long flight log or text recording is imported anew each pass: its length costs no
-    // memory.
+    // A bag's Imu topic is streamed, not imported (only that topic decoded, one decoding a
+    // pass): its length then costs no memory.
+    let bags: Vec<std::path::PathBuf> = found
+        .iter()
+        .filter(|(_, d)| *d == Dataset::RosBag)
+        .map(|(f, _)| f.clone())
+        .collect();
+    let bag_topic = topic.filter(|_| !bags.is_empty() && bags.len() == found.len());
+    if let Some(topic) = bag_topic.filter(|_| mode != StreamMode::Never) {
+        if let Some((source, notes)) = BagTopicSamples::open(bags, topic)? {
+            return Ok(ChosenImu {
+                name: file_name_of_topic(topic),
+                topic: Some(topic.to_string()),
+                source: ImuSource::Bag(source),
+                notes,
+            });
+        }
+    }
+    // A long flight log, text recording or bag is imported anew each pass: its length costs
+    // no memory.
     if let [(file, dataset)] = found.as_slice() {
         if dataset.streams_rows() && in_passes(file) {
             return choose_streamed(input, file, *dataset, topic);
@@ -552,29 +570,12 @@ pub fn choose_imu(
             });
         }
     }
-    // A bag's Imu topic is streamed, not imported: its length then costs no memory.
-    let bags: Vec<std::path::PathBuf> = found
-        .iter()
-        .filter(|(_, d)| *d == Dataset::RosBag)
-        .map(|(f, _)| f.clone())
-        .collect();
-    let bag_topic = topic.filter(|_| !bags.is_empty() && bags.len() == found.len());
-    if let Some(topic) = bag_topic.filter(|_| mode != StreamMode::Never) {
-        if let Some((source, notes)) = BagTopicSamples::open(bags, topic)? {
-            return Ok(ChosenImu {
-                name: file_name_of_topic(topic),
-                topic: Some(topic.to_string()),
-                source: ImuSource::Bag(source),
-                notes,
-            });
-        }
-    }
-    if mode == StreamMode::Always && bag_topic.is_none() {
+    if mode == StreamMode::Always {
         return Err(ChooseError::Choice {
             path: input.display().to_string(),
-            message: "--stream always: only one flight log, text recording or interchange \
-                      file, or a ROS bag's --topic, can be read in passes; this input is \
-                      imported whole (--stream auto)"
+            message: "--stream always: only one flight log, text recording, ROS bag or \
+                      interchange file can be read in passes; this input is imported whole \
+                      (--stream auto)"
                 .into(),
         });
     }

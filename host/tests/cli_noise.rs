@@ -200,6 +200,47 @@ fn a_flight_logs_imu_read_in_passes_gives_the_model_imported_whole() {
     );
 }
 
+/// `noise` on a bag read in passes (`--stream always`) says and writes what the bag imported
+/// whole (`--stream never`) says and writes: without `--topic` (the bag surveyed in a pass of
+/// its own) the same choice to make, naming the same topics; with it the same model.
+#[test]
+fn a_bag_read_in_passes_gives_what_it_gives_imported_whole() {
+    let dir = tempfile::tempdir().unwrap();
+    let bag = simulate_bag(dir.path(), "300");
+    let refused = |mode: &str| {
+        let out = dynacal(&["noise", &bag, "--stream", mode]);
+        assert!(!out.status.success());
+        String::from_utf8_lossy(&out.stderr).into_owned()
+    };
+    let message = refused("always");
+    assert!(
+        message.contains("2 IMUs, name one with --topic: /mems/imu, /reference/imu"),
+        "{message}"
+    );
+    assert_eq!(message, refused("never"));
+    let run = |mode: &str| {
+        let json = dir
+            .path()
+            .join(format!("{mode}.json"))
+            .display()
+            .to_string();
+        let stdout = ok(&dynacal(&[
+            "noise", &bag, "--topic", "mems-imu", "--stream", mode, "--json", &json,
+        ]));
+        (
+            stdout.replace(&json, "MODEL"),
+            std::fs::read_to_string(&json).unwrap(),
+        )
+    };
+    // The report from the IMU's line on (the streamed topic's importer notes leave its time
+    // line to the reader, which states it in that line).
+    let report = |out: &str| out[out.find("IMU mems-imu").expect("the IMU's line")..].to_string();
+    let (passes, passes_json) = run("always");
+    let (whole, whole_json) = run("never");
+    assert_eq!(report(&passes), report(&whole));
+    assert_eq!(passes_json, whole_json);
+}
+
 /// Wall time and peak memory of one command, from GNU time, and whether it succeeded (a
 /// peer that finds no random walk fails, after its work).
 fn timed(program: &str, args: &[&str]) -> Option<(f64, f64, bool)> {

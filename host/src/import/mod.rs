@@ -129,14 +129,11 @@ pub enum Dataset {
 
 impl Dataset {
     /// True when its importer hands over its rows as it reads them, in memory that does not
-    /// grow with the file (the text formats row by row, the flight logs in two walks); false
-    /// for the Xsens DOT export (read whole), a ROS bag (its topics streamed on their own,
-    /// `ros_bag::stream_imu_topic`) and an interchange file (read as one).
+    /// grow with the file (the text formats row by row, the flight logs in two walks, a ROS
+    /// bag in two passes); false for the Xsens DOT export (read whole) and an interchange
+    /// file (read as one).
     pub fn streams_rows(self) -> bool {
-        !matches!(
-            self,
-            Dataset::XsensDot | Dataset::RosBag | Dataset::Interchange
-        )
+        !matches!(self, Dataset::XsensDot | Dataset::Interchange)
     }
 
     /// A short human description.

@@ -4,9 +4,10 @@
 //! files as it reads (`dynacal import`), in memory that does not grow with the file.
 //! The text formats read row by row (ADIS16405, MTi-G, PSINS MEMS and FOG, the laser-gyro
 //! log, the MPU-9250 rig); the flight logs (ULog, DataFlash) are walked twice, the first walk
-//! deciding the outputs and forming the reference, the second handing over each IMU sample;
-//! the Xsens DOT export, whose lost samples take a neighbour with them, is read whole and
-//! replayed ([`replay`]), as a ROS bag's topics are.
+//! deciding the outputs and counting the reference's rows, the second handing over each IMU
+//! sample and each fix given its attitude; a ROS bag in two passes likewise (`ros_bag`); the
+//! Xsens DOT export, whose lost samples take a neighbour with them, is read whole and
+//! replayed ([`replay`]).
 //!
 //! The units check ([`CheckUnits`]) judges a sensor by the medians of its first
 //! [`UNITS_PROBE_SAMPLES`] samples, the same way on both paths.
