@@ -92,6 +92,23 @@ fn measure(command: &[&str], input: &Path, stream: &str, json: &Path) -> (f64, f
     time_dynacal(&full)
 }
 
+/// The lengths listed in the environment variable `var` (`1e6,1e7`), else `default`.
+fn lengths_from_env(var: &str, default: &[u64]) -> Vec<u64> {
+    match std::env::var(var) {
+        Ok(list) => list
+            .split(',')
+            .map(|n| n.parse::<f64>().expect("a length") as u64)
+            .collect(),
+        Err(_) => default.to_vec(),
+    }
+}
+
+/// Largest minus smallest of `values`.
+fn spread(values: &[f64]) -> f64 {
+    values.iter().cloned().fold(f64::MIN, f64::max)
+        - values.iter().cloned().fold(f64::MAX, f64::min)
+}
+
 /// Peak resident memory (MiB) and wall time (s) of `dynacal ARGS`.
 fn time_dynacal(args: &[&str]) -> (f64, f64) {
     let mut command = Command::new(env!("CARGO_BIN_EXE_dynacal"));
@@ -182,8 +199,7 @@ fn memory_is_flat_from_1e6_to_1e8_rows() {
             .filter(|(name, _)| name == command)
             .map(|(_, rss)| *rss)
             .collect();
-        let spread = rss.iter().cloned().fold(f64::MIN, f64::max)
-            - rss.iter().cloned().fold(f64::MAX, f64::min);
+        let spread = spread(&rss);
         println!("`{command}` streamed: peak RSS spread over the streamed sizes {spread:.1} MiB");
         assert!(
             spread < 16.0,
@@ -216,8 +232,7 @@ fn import_memory_is_flat_from_1e6_to_1e8_rows() {
         std::fs::remove_file(&input).unwrap();
         std::fs::remove_dir_all(&out).unwrap();
     }
-    let spread =
-        rss.iter().cloned().fold(f64::MIN, f64::max) - rss.iter().cloned().fold(f64::MAX, f64::min);
+    let spread = spread(&rss);
     println!("`import` peak RSS spread from 1e6 to 1e8 rows {spread:.1} MiB");
     assert!(
         spread < 16.0,
@@ -268,10 +283,7 @@ fn regress_memory_is_flat_from_1e5_to_1e7_rows() {
     let mut rss = vec![];
     // REGRESS_MEMORY_ROWS=1e8 (say) runs that length alone, streamed only: loaded whole it
     // would need about 90 GB, and the file takes 23 GB of disk and the spill 14 GB more.
-    let lengths: Vec<u64> = match std::env::var("REGRESS_MEMORY_ROWS") {
-        Ok(rows) => vec![rows.parse::<f64>().expect("a row count") as u64],
-        Err(_) => vec![100_000, 1_000_000, 10_000_000],
-    };
+    let lengths = lengths_from_env("REGRESS_MEMORY_ROWS", &[100_000, 1_000_000, 10_000_000]);
     for rows in lengths {
         let input = dir.path().join(format!("errors-{rows}.csv"));
         write_error_signals(&input, rows);
@@ -303,8 +315,7 @@ fn regress_memory_is_flat_from_1e5_to_1e7_rows() {
         rss.push(peak);
         std::fs::remove_file(&input).unwrap();
     }
-    let spread =
-        rss.iter().cloned().fold(f64::MIN, f64::max) - rss.iter().cloned().fold(f64::MAX, f64::min);
+    let spread = spread(&rss);
     println!("`regress` peak RSS spread from 1e5 to 1e7 rows {spread:.1} MiB");
     assert!(
         spread < 16.0,
@@ -391,10 +402,7 @@ fn errors_memory_is_flat_from_1e5_to_1e7_rows() {
         "| rows | files MB | streamed: peak RSS MiB | wall s | loaded whole: peak RSS MiB | wall s |\n|---|---|---|---|---|---|"
     );
     // ERRORS_MEMORY_ROWS=1e8 (say) runs that length alone, streamed only.
-    let lengths: Vec<u64> = match std::env::var("ERRORS_MEMORY_ROWS") {
-        Ok(rows) => vec![rows.parse::<f64>().expect("a row count") as u64],
-        Err(_) => vec![100_000, 1_000_000, 10_000_000],
-    };
+    let lengths = lengths_from_env("ERRORS_MEMORY_ROWS", &[100_000, 1_000_000, 10_000_000]);
     let mut rss = vec![];
     for rows in lengths {
         write_imu_pair(&sensor, &reference, rows);
@@ -439,8 +447,7 @@ fn errors_memory_is_flat_from_1e5_to_1e7_rows() {
         );
         rss.push(peak);
     }
-    let spread =
-        rss.iter().cloned().fold(f64::MIN, f64::max) - rss.iter().cloned().fold(f64::MAX, f64::min);
+    let spread = spread(&rss);
     println!("`errors` streamed peak RSS spread {spread:.1} MiB");
     assert!(
         spread < 32.0,
@@ -661,13 +668,7 @@ fn flight_log_import_memory_is_flat() {
     println!(
         "| log | IMU samples | file MB | walked twice: peak RSS MiB | wall s | held whole: peak RSS MiB | wall s |\n|---|---|---|---|---|---|---|"
     );
-    let lengths: Vec<u64> = match std::env::var("FLIGHT_LOG_SAMPLES") {
-        Ok(list) => list
-            .split(',')
-            .map(|n| n.parse::<f64>().unwrap() as u64)
-            .collect(),
-        Err(_) => vec![1_000_000, 10_000_000],
-    };
+    let lengths = lengths_from_env("FLIGHT_LOG_SAMPLES", &[1_000_000, 10_000_000]);
     let mut rss: Vec<(&str, f64)> = vec![];
     for samples in lengths {
         for (kind, extension) in [("ULog", "ulg"), ("DataFlash", "bin")] {
@@ -716,11 +717,10 @@ fn flight_log_import_memory_is_flat() {
     }
     for kind in ["ULog", "DataFlash"] {
         let peaks: Vec<f64> = rss.iter().filter(|r| r.0 == kind).map(|r| r.1).collect();
-        let spread = peaks.iter().cloned().fold(f64::MIN, f64::max)
-            - peaks.iter().cloned().fold(f64::MAX, f64::min);
-        println!("`import` of a {kind} log: peak RSS spread {spread:.1} MiB");
+        let range = spread(&peaks);
+        println!("`import` of a {kind} log: peak RSS spread {range:.1} MiB");
         assert!(
-            spread < 64.0,
+            range < 64.0,
             "`import`'s memory grows with the {kind} log: {peaks:?}"
         );
     }
@@ -733,13 +733,7 @@ fn flight_log_noise_memory_is_flat() {
     println!(
         "| log | IMU samples | file MB | read in passes: peak RSS MiB | wall s | imported whole: peak RSS MiB | wall s |\n|---|---|---|---|---|---|---|"
     );
-    let lengths: Vec<u64> = match std::env::var("FLIGHT_LOG_SAMPLES") {
-        Ok(list) => list
-            .split(',')
-            .map(|n| n.parse::<f64>().unwrap() as u64)
-            .collect(),
-        Err(_) => vec![1_000_000, 10_000_000],
-    };
+    let lengths = lengths_from_env("FLIGHT_LOG_SAMPLES", &[1_000_000, 10_000_000]);
     let mut rss: Vec<(&str, f64)> = vec![];
     for samples in lengths {
         for (kind, extension, prefix) in [("ULog", "ulg", "px4"), ("DataFlash", "bin", "ardupilot")]
@@ -781,8 +775,81 @@ fn flight_log_noise_memory_is_flat() {
     }
     for kind in ["ULog", "DataFlash"] {
         let peaks: Vec<f64> = rss.iter().filter(|r| r.0 == kind).map(|r| r.1).collect();
-        let spread = peaks.iter().cloned().fold(f64::MIN, f64::max)
-            - peaks.iter().cloned().fold(f64::MAX, f64::min);
-        println!("`noise` on a {kind} log: peak RSS spread {spread:.1} MiB");
+        let range = spread(&peaks);
+        println!("`noise` on a {kind} log: peak RSS spread {range:.1} MiB");
     }
+}
+
+/// What a bag's import held before it read the bag in two passes: every topic's samples
+/// collected into recordings (`ros_bag::read`). Run as a child of
+/// [`bag_import_memory_is_flat`] (the bag's storage file in `BAG_HELD_INPUT`).
+#[test]
+#[ignore = "run by bag_import_memory_is_flat"]
+fn bag_read_whole() {
+    let Ok(input) = std::env::var("BAG_HELD_INPUT") else {
+        return;
+    };
+    let (recordings, _) = dynacal::import::ros_bag::read(Path::new(&input)).unwrap();
+    assert!(recordings.len() >= 3);
+}
+
+/// `dynacal import` of ROS2 bags (MCAP) of static runs of the three-unit 1 kHz example
+/// model (`simulate --ros2`: three MEMS IMUs at 1 kHz, the reference IMU and its odometry at
+/// 200 Hz, fixes at 10 Hz). `BAG_SECONDS=600,6000` sets the runs' lengths.
+#[test]
+#[ignore = "minutes and ~10 GB of temporary disk; run by hand for the benchmark"]
+fn bag_import_memory_is_flat() {
+    let dir = tempfile::tempdir().unwrap();
+    let model =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("../examples/models/three-mems-1khz.json");
+    println!(
+        "| run s | IMU samples | bag MB | two passes: peak RSS MiB | wall s | read whole: peak RSS MiB | wall s |\n|---|---|---|---|---|---|---|"
+    );
+    let lengths = lengths_from_env("BAG_SECONDS", &[300, 3000]);
+    let mut rss = vec![];
+    for seconds in lengths {
+        let (sim, bag) = (dir.path().join("sim"), dir.path().join("bag"));
+        time_dynacal(&[
+            "simulate",
+            "--scenario",
+            "static",
+            "--seconds",
+            &seconds.to_string(),
+            "--seed",
+            "1",
+            "--model",
+            model.to_str().unwrap(),
+            "--out",
+            sim.to_str().unwrap(),
+            "--ros2",
+            bag.to_str().unwrap(),
+        ]);
+        std::fs::remove_dir_all(&sim).unwrap();
+        let storage = std::fs::read_dir(&bag)
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .find(|p| p.extension().is_some_and(|e| e == "mcap"))
+            .expect("the bag's MCAP file");
+        let mb = std::fs::metadata(&storage).unwrap().len() as f64 / 1e6;
+        let out = dir.path().join("imported");
+        let (peak, wall) = time_dynacal(&[
+            "import",
+            bag.to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--format",
+            "parquet",
+        ]);
+        let mut command = Command::new(std::env::current_exe().unwrap());
+        command
+            .args(["--exact", "bag_read_whole", "--ignored", "--test-threads=1"])
+            .env("BAG_HELD_INPUT", &storage);
+        let (held_peak, held_wall) = timed(command);
+        let samples = seconds * 3 * 1000;
+        println!("| {seconds} | {samples:.1e} | {mb:.0} | {peak:.1} | {wall:.1} | {held_peak:.1} | {held_wall:.1} |");
+        rss.push(peak);
+        std::fs::remove_dir_all(&bag).unwrap();
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+    println!("`import` of a bag: peak RSS spread {:.1} MiB", spread(&rss));
 }

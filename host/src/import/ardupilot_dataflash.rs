@@ -39,7 +39,7 @@ use std::path::{Path, PathBuf};
 use nalgebra::UnitQuaternion;
 
 use super::frames::{reference_layout, reference_recording, FixValues, ReferenceRows};
-use super::rows::{self, SensorLayout, SensorRows};
+use super::rows::{SensorLayout, SensorRows};
 use super::{read_up_to, ImportError};
 use crate::interchange::{open_maybe_gz, ImuRecording};
 
@@ -705,13 +705,7 @@ pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError>
 /// Reads a log into `imu{k}` recordings (one per IMU instance) and, where the log has GPS
 /// fixes and `ATT`, a `reference` recording ([`stream`] collected).
 pub fn read(path: &Path) -> Result<Vec<NamedRecording>, ImportError> {
-    let mut collect = rows::Collect::new(path);
-    stream(path, &mut collect)?;
-    Ok(collect
-        .into_sensors()?
-        .into_iter()
-        .map(|s| (s.name, s.recording))
-        .collect())
+    Ok(super::rows::collect_named(path, |sink| stream(path, sink))?.0)
 }
 
 /// True when `head` (a file's first bytes) starts a DataFlash log: a message header and the

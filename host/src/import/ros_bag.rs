@@ -265,14 +265,7 @@ pub fn read_only(
     path: &Path,
     only: Option<&str>,
 ) -> Result<(Vec<(String, ImuRecording)>, BagReport), ImportError> {
-    let mut collect = crate::import::rows::Collect::new(path);
-    let report = stream_only(path, only, &mut collect)?;
-    let recordings = collect
-        .into_sensors()?
-        .into_iter()
-        .map(|s| (s.name, s.recording))
-        .collect();
-    Ok((recordings, report))
+    crate::import::rows::collect_named(path, |sink| stream_only(path, only, sink))
 }
 
 /// Streams the bag at `path` into `sink`, one sensor per recording it gives (named after its

@@ -135,6 +135,22 @@ impl SensorRows for Collect {
     }
 }
 
+/// The recordings an importer streams into `stream`, named by their importer's part, and
+/// what the stream returned.
+pub fn collect_named<T>(
+    path: &Path,
+    stream: impl FnOnce(&mut dyn SensorRows) -> Result<T, ImportError>,
+) -> Result<(Vec<(String, ImuRecording)>, T), ImportError> {
+    let mut collect = Collect::new(path);
+    let returned = stream(&mut collect)?;
+    let recordings = collect
+        .into_sensors()?
+        .into_iter()
+        .map(|s| (s.name, s.recording))
+        .collect();
+    Ok((recordings, returned))
+}
+
 /// The one recording an importer of one sensor streams into `stream`.
 pub fn collect_one(
     path: &Path,

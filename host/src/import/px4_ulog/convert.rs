@@ -762,11 +762,5 @@ pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<(), ImportError>
 
 /// Reads a log into its IMU recordings and reference ([`stream`] collected).
 pub fn read(path: &Path) -> Result<Vec<NamedRecording>, ImportError> {
-    let mut collect = Collect::new(path);
-    stream(path, &mut collect)?;
-    Ok(collect
-        .into_sensors()?
-        .into_iter()
-        .map(|s| (s.name, s.recording))
-        .collect())
+    Ok(crate::import::rows::collect_named(path, |sink| stream(path, sink))?.0)
 }
