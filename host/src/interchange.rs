@@ -608,6 +608,11 @@ impl StepCounts {
         self.samples += 1;
     }
 
+    /// True when no time was counted.
+    pub fn is_empty(&self) -> bool {
+        self.samples == 0
+    }
+
     /// The k-th smallest step (0-based).
     fn nth(&self, k: u64) -> f64 {
         let mut seen = 0;

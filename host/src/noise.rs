@@ -573,9 +573,9 @@ pub fn choose_imu(
     if mode == StreamMode::Always {
         return Err(ChooseError::Choice {
             path: input.display().to_string(),
-            message: "--stream always: only one flight log, text recording, ROS bag or \
-                      interchange file can be read in passes; this input is imported whole \
-                      (--stream auto)"
+            message: "--stream always: only one file (a flight log, text recording, ROS bag \
+                      or interchange file) can be read in passes; these files are imported \
+                      whole (--stream auto)"
                 .into(),
         });
     }

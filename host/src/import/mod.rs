@@ -129,11 +129,10 @@ pub enum Dataset {
 
 impl Dataset {
     /// True when its importer hands over its rows as it reads them, in memory that does not
-    /// grow with the file (the text formats row by row, the flight logs in two walks, a ROS
-    /// bag in two passes); false for the Xsens DOT export (read whole) and an interchange
-    /// file (read as one).
+    /// grow with the file (the text formats row by row, the flight logs, a ROS bag and an
+    /// Xsens DOT export in two passes); false for an interchange file (read as one).
     pub fn streams_rows(self) -> bool {
-        !matches!(self, Dataset::XsensDot | Dataset::Interchange)
+        self != Dataset::Interchange
     }
 
     /// A short human description.
@@ -261,8 +260,7 @@ pub fn import_bag_topic(
 ) -> Result<(Vec<ImportedSensor>, Vec<String>), ImportError> {
     let mut collect = Collect::new(path);
     let mut checked = CheckUnits::new(path, &mut collect);
-    let (recordings, report) = ros_bag::read_only(path, Some(topic))?;
-    rows::replay(&recordings, &mut checked)?;
+    let report = ros_bag::stream(path, Some(topic), &mut checked)?;
     checked.finish()?;
     Ok((collect.into_sensors()?, report.notes))
 }
@@ -309,7 +307,7 @@ pub(crate) fn stream_dataset(
         prefix,
     };
     let streamed = match dataset {
-        Dataset::RosBag => return Ok(ros_bag::stream(path, sink)?.notes),
+        Dataset::RosBag => return Ok(ros_bag::stream(path, None, sink)?.notes),
         Dataset::Adis16405 => adis16405::stream(path, sink),
         Dataset::MtigGyroX => mtig::stream(path, sink),
         Dataset::PsinsMems => psins_fog_mems::stream_mems(path, sink),
@@ -317,10 +315,7 @@ pub(crate) fn stream_dataset(
         Dataset::PsinsLaserGyro => psins_lasergyro::stream(path, sink).map(|_| ()),
         Dataset::Mpu9250Tetra => mpu9250_tetra::stream(path, sink),
         Dataset::ArduPilotDataFlash => ardupilot_dataflash::stream(path, sink),
-        Dataset::XsensDot => {
-            let dot = xsens_dot::read(path)?;
-            rows::replay(&[(String::new(), dot.recording)], sink)
-        }
+        Dataset::XsensDot => xsens_dot::stream(path, sink).map(|_| ()),
         Dataset::Px4ULog => px4_ulog::stream(path, sink),
         Dataset::Interchange => interchange::stream(path, sink),
     };

@@ -265,20 +265,14 @@ pub fn read_only(
     path: &Path,
     only: Option<&str>,
 ) -> Result<(Vec<(String, ImuRecording)>, BagReport), ImportError> {
-    crate::import::rows::collect_named(path, |sink| stream_only(path, only, sink))
+    crate::import::rows::collect_named(path, |sink| stream(path, only, sink))
 }
 
 /// Streams the bag at `path` into `sink`, one sensor per recording it gives (named after its
-/// topic, in topic name order), in two passes over the bag and memory that does not grow with
-/// it (`collect`'s documentation); the report.
+/// topic, in topic name order; only the topic `only` where given, as [`read_only`]), in two
+/// passes over the bag and memory that does not grow with it (`collect`'s documentation);
+/// the report.
 pub fn stream(
-    path: &Path,
-    sink: &mut dyn crate::import::rows::SensorRows,
-) -> Result<BagReport, ImportError> {
-    stream_only(path, None, sink)
-}
-
-fn stream_only(
     path: &Path,
     only: Option<&str>,
     sink: &mut dyn crate::import::rows::SensorRows,

@@ -5,9 +5,8 @@
 //! The text formats read row by row (ADIS16405, MTi-G, PSINS MEMS and FOG, the laser-gyro
 //! log, the MPU-9250 rig); the flight logs (ULog, DataFlash) are walked twice, the first walk
 //! deciding the outputs and counting the reference's rows, the second handing over each IMU
-//! sample and each fix given its attitude; a ROS bag in two passes likewise (`ros_bag`); the
-//! Xsens DOT export, whose lost samples take a neighbour with them, is read whole and
-//! replayed ([`replay`]).
+//! sample and each fix given its attitude; a ROS bag and an Xsens DOT export in two passes
+//! likewise. [`replay`] hands over recordings already in memory.
 //!
 //! The units check ([`CheckUnits`]) judges a sensor by the medians of its first
 //! [`UNITS_PROBE_SAMPLES`] samples, the same way on both paths.

@@ -24,8 +24,9 @@
 use std::io::{BufRead, BufReader, Read as _};
 use std::path::Path;
 
+use super::rows::{SensorLayout, SensorRows};
 use super::ImportError;
-use crate::interchange::{median_step_s, open_maybe_gz, ImuRecording, TableError};
+use crate::interchange::{open_maybe_gz, ImuRecording, StepCounts, TableError};
 
 /// The time column: microseconds of the unit's clock, wrapping at 2^32.
 pub const TIME_COLUMN: &str = "SampleTimeFine";
@@ -163,8 +164,11 @@ fn parse_row(path: &Path, line: u64, fields: &[&str], cols: &Columns) -> Result<
     })
 }
 
-/// Reads the header (after any preamble) and every data row.
-fn read_rows(path: &Path) -> Result<Vec<Row>, ImportError> {
+/// Reads the header (after any preamble) and hands every data row to `each`, in file order.
+fn for_each_row(
+    path: &Path,
+    each: &mut dyn FnMut(Row) -> Result<(), ImportError>,
+) -> Result<(), ImportError> {
     let mut reader = BufReader::new(open_maybe_gz(path)?);
     let mut buf = Vec::new();
     let mut line_no = 0;
@@ -199,69 +203,98 @@ fn read_rows(path: &Path) -> Result<Vec<Row>, ImportError> {
             };
         }
     };
-    let mut rows = Vec::new();
     loop {
         line_no += 1;
         if !next_line(path, &mut reader, &mut buf, line_no)? {
-            break;
+            return Ok(());
         }
         let text = String::from_utf8_lossy(&buf);
-        if text.trim().is_empty() {
-            continue;
+        if !text.trim().is_empty() {
+            each(parse_row(path, line_no, &split(&text), &cols)?)?;
         }
-        rows.push(parse_row(path, line_no, &split(&text), &cols)?);
     }
-    Ok(rows)
 }
 
-/// The rows kept (see the module docs) and the lines dropped, in file order.
-fn keep_rows(rows: Vec<Row>) -> (Vec<Row>, Vec<u64>) {
-    let mut kept: Vec<Row> = Vec::with_capacity(rows.len());
-    let mut dropped = Vec::new();
-    let mut lost_stamp = None;
-    for (i, row) in rows.into_iter().enumerate() {
+/// Which rows are kept (see the module docs), decided as they come: a kept row waits while
+/// a lost sample with its stamp may still follow (the kept rows sharing the last kept stamp
+/// wait together, as each lost row drops the last one kept).
+#[derive(Default)]
+struct Keeper {
+    rows: usize,
+    waiting: Vec<Row>,
+    lost_stamp: Option<u32>,
+    dropped: Vec<u64>,
+}
+
+impl Keeper {
+    /// The next row; the rows now certain to be kept go to `kept`.
+    fn push(
+        &mut self,
+        row: Row,
+        kept: &mut dyn FnMut(Row) -> Result<(), ImportError>,
+    ) -> Result<(), ImportError> {
+        let first = self.rows == 0;
+        self.rows += 1;
         match row.values {
             None => {
-                if kept.last().is_some_and(|k| k.stamp_us == row.stamp_us) {
-                    dropped.extend(kept.pop().map(|k| k.line));
+                if self
+                    .waiting
+                    .last()
+                    .is_some_and(|k| k.stamp_us == row.stamp_us)
+                {
+                    self.dropped.extend(self.waiting.pop().map(|k| k.line));
                 }
-                lost_stamp = Some(row.stamp_us);
-                dropped.push(row.line);
+                self.lost_stamp = Some(row.stamp_us);
+                self.dropped.push(row.line);
             }
-            Some(v) if i == 0 && v.iter().all(|x| *x == 0.0) => dropped.push(row.line),
-            Some(_) if lost_stamp == Some(row.stamp_us) => dropped.push(row.line),
-            Some(_) => kept.push(row),
+            Some(v) if first && v.iter().all(|x| *x == 0.0) => self.dropped.push(row.line),
+            Some(_) if self.lost_stamp == Some(row.stamp_us) => self.dropped.push(row.line),
+            Some(_) => {
+                if self
+                    .waiting
+                    .last()
+                    .is_some_and(|k| k.stamp_us != row.stamp_us)
+                {
+                    for waiting in self.waiting.drain(..) {
+                        kept(waiting)?;
+                    }
+                }
+                self.waiting.push(row);
+            }
         }
+        Ok(())
     }
-    (kept, dropped)
-}
 
-/// An imported DOT file: the recording and the lines of the rows dropped.
-#[derive(Debug, Clone, PartialEq)]
-pub struct DotFile {
-    /// Gyro rad/s and accelerometer m/s^2 in the unit's sensor axes, `t_s` on its clock.
-    pub recording: ImuRecording,
-    /// 1-based lines of the rows left out (the empty first sample, lost samples).
-    pub dropped_lines: Vec<u64>,
-}
-
-/// Reads one DOT export.
-pub fn read(path: &Path) -> Result<DotFile, ImportError> {
-    let (rows, dropped_lines) = keep_rows(read_rows(path)?);
-    let Some(first) = rows.first() else {
-        return Err(TableError::Empty {
-            path: path.to_path_buf(),
+    /// The rows still waiting to `kept`; the lines dropped, in file order.
+    fn finish(
+        mut self,
+        kept: &mut dyn FnMut(Row) -> Result<(), ImportError>,
+    ) -> Result<Vec<u64>, ImportError> {
+        for waiting in self.waiting.drain(..) {
+            kept(waiting)?;
         }
-        .into());
-    };
-    let mut t_us = u64::from(first.stamp_us);
-    let mut previous = first.stamp_us;
-    let mut t_s = Vec::with_capacity(rows.len());
-    let mut gyro: [Vec<f64>; 3] = Default::default();
-    let mut accel: [Vec<f64>; 3] = Default::default();
-    for (i, row) in rows.iter().enumerate() {
+        self.dropped.sort_unstable();
+        Ok(self.dropped)
+    }
+}
+
+/// The unit's clock unwrapped at 2^32 µs over the kept rows, each step checked.
+struct Clock {
+    t_us: u64,
+    previous: Option<u32>,
+}
+
+impl Clock {
+    /// The time of `row`, µs since the clock's zero; a zero step or one of 2^31 µs or more is
+    /// an error naming the line.
+    fn time_us(&mut self, path: &Path, row: &Row) -> Result<u64, ImportError> {
+        let Some(previous) = self.previous else {
+            self.previous = Some(row.stamp_us);
+            self.t_us = u64::from(row.stamp_us);
+            return Ok(self.t_us);
+        };
         let step = row.stamp_us.wrapping_sub(previous);
-        if i > 0 && (step == 0 || step >= 1 << 31) {
+        if step == 0 || step >= 1 << 31 {
             return Err(ImportError::malformed(
                 path,
                 row.line,
@@ -276,28 +309,89 @@ pub fn read(path: &Path) -> Result<DotFile, ImportError> {
                 ),
             ));
         }
-        t_us += u64::from(step);
-        previous = row.stamp_us;
-        t_s.push(crate::decode::seconds_of_us(t_us));
-        let v = row.values.unwrap_or_default();
-        for k in 0..3 {
-            gyro[k].push(v[k].to_radians());
-            accel[k].push(v[3 + k]);
-        }
+        self.t_us += u64::from(step);
+        self.previous = Some(row.stamp_us);
+        Ok(self.t_us)
     }
-    let sample_rate_hz = median_step_s(&t_s).and_then(|step| {
+}
+
+/// Walks the kept rows of the export at `path`: `each(t_s, gyro rad/s and accelerometer
+/// m/s^2)` for each, in file order; the lines dropped.
+fn for_each_kept(
+    path: &Path,
+    each: &mut dyn FnMut(f64, [f64; 6]) -> Result<(), ImportError>,
+) -> Result<Vec<u64>, ImportError> {
+    let mut clock = Clock {
+        t_us: 0,
+        previous: None,
+    };
+    let mut kept = |row: Row| {
+        let t_s = crate::decode::seconds_of_us(clock.time_us(path, &row)?);
+        let v = row.values.unwrap_or_default();
+        each(
+            t_s,
+            [
+                v[0].to_radians(),
+                v[1].to_radians(),
+                v[2].to_radians(),
+                v[3],
+                v[4],
+                v[5],
+            ],
+        )
+    };
+    let mut keeper = Keeper::default();
+    for_each_row(path, &mut |row| keeper.push(row, &mut kept))?;
+    keeper.finish(&mut kept)
+}
+
+/// Streams one DOT export into `sink` as one sensor (`t_s`, gyro, accelerometer), in two
+/// passes and memory that does not grow with it: the first checks every row and finds the
+/// rate ([`OUTPUT_RATES_HZ`]: the one within 1% of the median step), the second writes the
+/// kept rows. The lines dropped.
+pub fn stream(path: &Path, sink: &mut dyn SensorRows) -> Result<Vec<u64>, ImportError> {
+    let mut steps = StepCounts::default();
+    for_each_kept(path, &mut |t_s, _| {
+        steps.push(t_s);
+        Ok(())
+    })?;
+    if steps.is_empty() {
+        return Err(TableError::Empty {
+            path: path.to_path_buf(),
+        }
+        .into());
+    }
+    let rate_hz = steps.sampling_without_gaps().and_then(|s| {
         OUTPUT_RATES_HZ
             .into_iter()
-            .find(|rate| (step * rate - 1.0).abs() < 0.01)
+            .find(|rate| (s.median_step_s * rate - 1.0).abs() < 0.01)
     });
-    let recording = ImuRecording {
-        t_s,
-        gyro_rad_s: Some(gyro),
-        accel_m_s2: Some(accel),
-        sample_rate_hz,
-        ..Default::default()
-    };
-    recording.validate(path)?;
+    sink.begin(vec![SensorLayout {
+        rate_hz,
+        ..SensorLayout::imu("")
+    }])?;
+    let mut row = [0.0; 7];
+    for_each_kept(path, &mut |t_s, values| {
+        row[0] = t_s;
+        row[1..].copy_from_slice(&values);
+        sink.push(0, &row)
+    })
+}
+
+/// An imported DOT file: the recording and the lines of the rows dropped.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DotFile {
+    /// Gyro rad/s and accelerometer m/s^2 in the unit's sensor axes, `t_s` on its clock.
+    pub recording: ImuRecording,
+    /// 1-based lines of the rows left out (the empty first sample, lost samples).
+    pub dropped_lines: Vec<u64>,
+}
+
+/// Reads one DOT export ([`stream`] collected).
+pub fn read(path: &Path) -> Result<DotFile, ImportError> {
+    let (mut recordings, dropped_lines) =
+        super::rows::collect_named(path, |sink| stream(path, sink))?;
+    let (_, recording) = recordings.remove(0);
     Ok(DotFile {
         recording,
         dropped_lines,
@@ -389,6 +483,46 @@ mod tests {
         let dot = read(&path).unwrap();
         assert_eq!(dot.dropped_lines, vec![3, 4]);
         assert_eq!(dot.recording.t_s, vec![0.0001, 0.025099]);
+    }
+
+    /// Read as it comes, a row waits while a lost sample with its stamp may follow: each
+    /// lost row drops the last row kept with its stamp, however many wait.
+    #[test]
+    fn rows_sharing_a_stamp_wait_for_the_lost_rows_that_drop_them() {
+        let g = ["1", "2", "3"];
+        let a = ["0", "0", "9.8"];
+        let lost = ([" NaN"; 3], [" NaN"; 3]);
+        let text = [
+            HEADER.to_string(),
+            row(100, a, g),
+            row(200, a, g),
+            row(200, a, g),
+            row(200, lost.0, lost.1),
+            row(300, a, g),
+            row(300, a, g),
+            row(300, lost.0, lost.1),
+            row(300, lost.0, lost.1),
+            row(400, a, g),
+        ]
+        .join("\n");
+        let (_dir, path) = write(&text);
+        let dot = read(&path).unwrap();
+        assert_eq!(dot.dropped_lines, vec![4, 5, 6, 7, 8, 9]);
+        assert_eq!(dot.recording.t_s, vec![0.0001, 0.0002, 0.0004]);
+        // Without a lost row to drop one of them, two rows with one stamp are an error.
+        let text = [
+            HEADER.to_string(),
+            row(100, a, g),
+            row(100, a, g),
+            row(200, a, g),
+        ]
+        .join("\n");
+        let (_dir, path) = write(&text);
+        let msg = read(&path).unwrap_err().to_string();
+        assert!(
+            msg.contains("line 3") && msg.contains("100 µs repeats"),
+            "{msg}"
+        );
     }
 
     #[test]
