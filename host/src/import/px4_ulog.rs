@@ -646,6 +646,12 @@ impl ULog {
         parse::Parser::new(path, reader, keep, visit)?.run()
     }
 
+    /// The held samples of `topic`, in order (every sample of a log read whole; none of a
+    /// topic a walk did not keep).
+    pub fn held_samples<'a>(&'a self, topic: &'a Topic) -> impl Iterator<Item = Sample<'a>> + 'a {
+        (0..topic.offsets.len()).map(move |i| self.sample(topic, i))
+    }
+
     /// Held sample `i` of `topic` (which must be held, as every topic of a log read whole;
     /// panics if `i` is not a held sample).
     pub fn sample<'a>(&'a self, topic: &'a Topic, i: usize) -> Sample<'a> {

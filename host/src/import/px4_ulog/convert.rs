@@ -480,7 +480,7 @@ fn read_held(
         log.topics()
             .iter()
             .filter(|t| wanted(&t.name))
-            .flat_map(|t| (0..t.len()).map(move |i| log.sample(t, i)))
+            .flat_map(|t| log.held_samples(t))
     };
     let mut survey = Survey::default();
     samples().for_each(|s| survey.observe(&s));
@@ -690,7 +690,7 @@ pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
         .topics()
         .iter()
         .filter(|t| reference_topic(&t.name) && t.multi_id == 0)
-        .flat_map(|t| (0..t.len()).map(move |i| log.sample(t, i)))
+        .flat_map(|t| log.held_samples(t))
         .collect();
     samples.sort_by_key(|s| s.offset);
     let mut reference = Reference::writing(k);
