@@ -613,6 +613,16 @@ impl StepCounts {
         self.samples == 0
     }
 
+    /// Number of times counted.
+    pub fn len(&self) -> usize {
+        self.samples
+    }
+
+    /// The last time counted, s.
+    pub fn last_s(&self) -> Option<f64> {
+        self.last_s
+    }
+
     /// The k-th smallest step (0-based).
     fn nth(&self, k: u64) -> f64 {
         let mut seen = 0;

@@ -545,30 +545,27 @@ struct SurveySink {
     path: std::path::PathBuf,
     layouts: Vec<SensorLayout>,
     steps: Vec<StepCounts>,
-    last: Vec<(u64, f64)>,
 }
 
 impl SensorRows for SurveySink {
     fn begin(&mut self, sensors: Vec<SensorLayout>) -> Result<(), ImportError> {
         self.steps = vec![StepCounts::default(); sensors.len()];
-        self.last = vec![(0, f64::NEG_INFINITY); sensors.len()];
         self.layouts = sensors;
         Ok(())
     }
 
     fn push(&mut self, sensor: usize, row: &[f64]) -> Result<(), ImportError> {
-        let (count, previous) = &mut self.last[sensor];
-        if !(row[0] > *previous) && *count > 0 {
+        let steps = &mut self.steps[sensor];
+        if let Some(previous_t_s) = steps.last_s().filter(|p| !(row[0] > *p)) {
             return Err(crate::interchange::TableError::TimeNotIncreasingAtSample {
                 path: self.path.clone(),
-                sample: *count + 1,
+                sample: steps.len() as u64 + 1,
                 t_s: row[0],
-                previous_t_s: *previous,
+                previous_t_s,
             }
             .into());
         }
-        (*count, *previous) = (*count + 1, row[0]);
-        self.steps[sensor].push(row[0]);
+        steps.push(row[0]);
         Ok(())
     }
 }
@@ -618,7 +615,6 @@ impl DatasetSamples {
             path: path.to_path_buf(),
             layouts: Vec::new(),
             steps: Vec::new(),
-            last: Vec::new(),
         };
         let mut checked = CheckUnits::new(path, &mut survey);
         let notes = crate::import::stream_dataset(path, dataset, &mut checked)?;

@@ -552,6 +552,12 @@ pub fn gps_topic(log: &ULog) -> Option<&Topic> {
         .or_else(|| subscribed().next())
 }
 
+/// The place in [`GPS_TOPICS`] of the topic the reference reads ([`gps_topic`]).
+fn gps_topic_index(log: &ULog) -> Option<usize> {
+    let topic = gps_topic(log)?;
+    GPS_TOPICS.iter().position(|n| *n == topic.name)
+}
+
 /// The reference as a log's samples come (see the parent module's documentation): the
 /// attitude of `vehicle_attitude` 0 interpolated to the 3D fixes of the GPS topics (instance
 /// 0) it follows ([`ReferenceRows`]). A first walk follows every one of [`GPS_TOPICS`], counting
@@ -621,13 +627,9 @@ impl Reference {
     /// The place in [`GPS_TOPICS`] of the topic the reference of `log` (whose samples these
     /// were) reads, if it has rows; the error that fails the reference.
     pub(super) fn chosen(&mut self, log: &ULog) -> Result<Option<usize>, ImportError> {
-        let Some(topic) = gps_topic(log) else {
+        let Some(k) = gps_topic_index(log) else {
             return Ok(None);
         };
-        let k = GPS_TOPICS
-            .iter()
-            .position(|n| *n == topic.name)
-            .expect("one of the GPS topics");
         if let Some(e) = self.failed(k) {
             return Err(e);
         }
@@ -679,13 +681,9 @@ fn fix_time(s: &Sample, previous_s: Option<f64>) -> Result<Option<f64>, ImportEr
 /// file order as a walk meets them ([`Reference`]). `None` when the log has no GPS fix inside
 /// the attitude's span.
 pub fn read_reference(log: &ULog) -> Result<Option<ImuRecording>, ImportError> {
-    let Some(gps) = gps_topic(log) else {
+    let Some(k) = gps_topic_index(log) else {
         return Ok(None);
     };
-    let k = GPS_TOPICS
-        .iter()
-        .position(|n| *n == gps.name)
-        .expect("one of the GPS topics");
     let mut samples: Vec<Sample> = log
         .topics()
         .iter()
