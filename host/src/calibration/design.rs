@@ -159,12 +159,22 @@ impl DesignRows<'_> {
     }
 }
 
-impl CalibrationDesign {
-    /// The design of `layout` without its time-offset columns over the epochs of `data`
-    /// (the sensor at the final boresight and time offset), weighted by `weights`.
-    pub(super) fn new(layout: &Layout, weights: [f64; 2], data: &EpochData) -> Self {
-        let reference = &data.reference;
-        let (omega_dot, f_dot) = (&data.omega_dot_b_rad_s2, &data.f_dot_b_m_s3);
+/// The sums a [`CalibrationDesign`] is made of, added a block of epochs at a time (one
+/// held block gives the design of all epochs at once; many agree with it to rounding).
+pub(super) struct DesignSums {
+    present: [bool; 2],
+    weights: [f64; 2],
+    layout: Layout,
+    /// X' W X over the epochs added.
+    xtwx: DMatrix<f64>,
+    epochs: usize,
+    f_dot_b_m_s3: [Vec<f64>; 3],
+}
+
+impl DesignSums {
+    /// No epochs yet, for the design of `layout` without its time-offset columns over a
+    /// sensor with the gyro and accelerometer channels `present`, weighted by `weights`.
+    pub(super) fn new(layout: &Layout, weights: [f64; 2], present: [bool; 2]) -> Self {
         // The time offset is the one common to the consistent channels, which a
         // channel-specific term does not move: the design the engine strips candidates with
         // holds it fixed.
@@ -172,14 +182,27 @@ impl CalibrationDesign {
             time: false,
             ..*layout
         };
-        let present = [data.gyro_rad_s.is_some(), data.accel_m_s2.is_some()];
         let p = layout.len();
-        let mut xtwx = DMatrix::<f64>::zeros(p, p);
-        for ch in (0..6).filter(|ch| present[ch / 3]) {
-            let w = weights[ch / 3];
-            for k in 0..data.len() {
+        Self {
+            present,
+            weights,
+            layout,
+            xtwx: DMatrix::zeros(p, p),
+            epochs: 0,
+            f_dot_b_m_s3: Default::default(),
+        }
+    }
+
+    /// Adds epochs `own` of `data` (the sensor at the final boresight and time offset).
+    pub(super) fn add(&mut self, data: &EpochData, own: std::ops::Range<usize>) {
+        let reference = &data.reference;
+        let (omega_dot, f_dot) = (&data.omega_dot_b_rad_s2, &data.f_dot_b_m_s3);
+        let p = self.layout.len();
+        for ch in (0..6).filter(|ch| self.present[ch / 3]) {
+            let w = self.weights[ch / 3];
+            for k in own.clone() {
                 let x = design_row(
-                    &layout,
+                    &self.layout,
                     &reference.omega_ib_b_rad_s[k],
                     &reference.f_b_m_s2[k],
                     &omega_dot[k],
@@ -189,20 +212,29 @@ impl CalibrationDesign {
                 );
                 for a in 0..p {
                     for b in 0..p {
-                        xtwx[(a, b)] += w * x[a] * x[b];
+                        self.xtwx[(a, b)] += w * x[a] * x[b];
                     }
                 }
             }
         }
+        for (i, column) in self.f_dot_b_m_s3.iter_mut().enumerate() {
+            column.extend(f_dot[own.clone()].iter().map(|v| v[i]));
+        }
+        self.epochs += own.len();
+    }
+
+    /// The design of the epochs added.
+    pub(super) fn finish(self) -> CalibrationDesign {
+        let p = self.layout.len();
         CalibrationDesign {
-            epochs: data.len(),
-            present,
-            weights,
+            epochs: self.epochs,
+            present: self.present,
+            weights: self.weights,
             // The same design with the time columns left out was solvable, so this inverse
             // exists; zeros (nothing absorbed) only guard the impossible case.
-            bread: normal_matrix_inverse(&xtwx).unwrap_or_else(|| DMatrix::zeros(p, p)),
-            layout,
-            f_dot_b_m_s3: std::array::from_fn(|i| f_dot.iter().map(|v| v[i]).collect()),
+            bread: normal_matrix_inverse(&self.xtwx).unwrap_or_else(|| DMatrix::zeros(p, p)),
+            layout: self.layout,
+            f_dot_b_m_s3: self.f_dot_b_m_s3,
         }
     }
 }

@@ -46,6 +46,7 @@ mod passes;
 mod recordings;
 mod signals;
 
+use design::DesignSums;
 pub use design::{CalibrationDesign, DesignRows};
 pub(crate) use recordings::Samples;
 pub use recordings::{SpillBuilder, SpilledRecording};
@@ -163,6 +164,10 @@ pub struct ErrorOptions {
     /// Epochs a streamed calibration ([`write_error_signals_streamed`]) forms at a time
     /// (about 200 bytes each, a few blocks held at once); the result does not depend on it.
     pub block_epochs: usize,
+    /// Most epochs [`build_error_signals`] forms whole (their interpolated reference beside
+    /// the recordings, about 330 bytes an epoch at its peak); a longer overlap is formed in
+    /// blocks of `block_epochs`, again on each of the fit's passes.
+    pub held_epochs: usize,
 }
 
 impl Default for ErrorOptions {
@@ -173,6 +178,7 @@ impl Default for ErrorOptions {
             max_time_offset_s: 0.2,
             rates_only: false,
             block_epochs: passes::BLOCK_EPOCHS,
+            held_epochs: usize::MAX,
         }
     }
 }
@@ -187,6 +193,10 @@ pub fn build_error_signals(
 }
 
 /// [`build_error_signals`], also returning the calibration's linear model at its solution.
+/// Up to [`ErrorOptions::held_epochs`] epochs are formed whole, once per time offset and
+/// rotation; more are formed in blocks of [`ErrorOptions::block_epochs`] on every pass, so
+/// only the recordings and the error signals are held, not the epochs' interpolated
+/// reference beside them (the result agrees to rounding).
 pub fn build_error_signals_with_design(
     sensor: &ImuRecording,
     reference: &ImuRecording,
@@ -197,33 +207,43 @@ pub fn build_error_signals_with_design(
     }
     crate::progress::stage(|| "aligning the sensor's samples with the reference".into());
     let grid = EpochGrid::new(sensor, reference, opts)?;
-    let block = grid.block(sensor, reference, 0..grid.epochs)?;
-    let epochs = Epochs::Held {
-        grid: &grid,
-        source: EpochSource::new(&block)?,
+    let block;
+    let epochs = if grid.epochs <= opts.held_epochs {
+        block = grid.block(sensor, reference, 0..grid.epochs)?;
+        Epochs::Held {
+            grid: &grid,
+            source: EpochSource::new(&block)?,
+        }
+    } else {
+        Epochs::Streamed {
+            grid: &grid,
+            sensor,
+            reference,
+            block_epochs: opts.block_epochs.max(1),
+        }
     };
     let fit = calibrate(&epochs, opts)?;
-    // Final errors at the estimated boresight and time offset.
-    let View::Held { t_s, data } = epochs.at(fit.shift_s, fit.r_sb)? else {
-        unreachable!("held epochs give a held view")
-    };
     crate::progress::stage(|| "forming the error signals and the dynamics".into());
-    let design = CalibrationDesign::new(&fit.layout, fit.weights, &data);
-    let errors = signals::error_columns(&data, fit.lever_arm_b_m());
-    let dynamics = signals::dynamics_columns(t_s, &data, opts.rates_only);
+    // Final errors at the estimated boresight and time offset.
+    let view = epochs.at(fit.shift_s, fit.r_sb)?;
+    let lever_arm_b_m = fit.lever_arm_b_m();
+    let present = [grid.has_gyro(), grid.has_accel()];
+    let mut design = DesignSums::new(&fit.layout, fit.weights, present);
+    let mut gathered = signals::Gathered::default();
     let mut spread = signals::ErrorSpread::default();
-    spread.add(&errors, 0..t_s.len());
-    let epoch_dt_s = crate::interchange::median_step_s(t_s).unwrap_or(0.0);
+    view.pass(&mut |block| {
+        let errors = signals::error_columns(block.data, lever_arm_b_m);
+        let dynamics = signals::dynamics_columns(block.t_s, block.data, opts.rates_only);
+        spread.add(&errors, block.own.clone());
+        design.add(block.data, block.own.clone());
+        gathered.add(block.t_s, errors, dynamics, block.data, block.own.clone());
+        Ok(())
+    })?;
+    drop(view);
+    let signals = gathered.finish();
+    let epoch_dt_s = crate::interchange::median_step_s(&signals.t_s).unwrap_or(0.0);
     let summary = signals::summary(fit, &grid, spread.std_dev(), epoch_dt_s);
-    let signals = ErrorSignals {
-        specific_force_b_m_s2: Some(std::array::from_fn(|i| {
-            data.reference.f_b_m_s2.iter().map(|v| v[i]).collect()
-        })),
-        t_s: t_s.to_vec(),
-        errors,
-        dynamics,
-    };
-    Ok((signals, summary, design))
+    Ok((signals, summary, design.finish()))
 }
 
 /// The motion check and the fit, over epochs held or streamed.
@@ -504,6 +524,42 @@ mod tests {
             assert_eq!(streamed.dynamics, held.dynamics);
             assert_eq!(streamed.specific_force_b_m_s2, held.specific_force_b_m_s2);
         }
+    }
+
+    #[test]
+    fn recordings_formed_in_blocks_give_the_signals_and_design_held_ones_give() {
+        let (sensor, reference) = simulated_pair(20_000);
+        let rates = ErrorOptions {
+            rates_only: true,
+            ..Default::default()
+        };
+        let (held, held_summary, held_design) =
+            build_error_signals_with_design(&sensor, &reference, &rates).unwrap();
+        let blocked_opts = ErrorOptions {
+            held_epochs: 5_000,
+            block_epochs: 997,
+            ..rates
+        };
+        let (blocked, summary, design) =
+            build_error_signals_with_design(&sensor, &reference, &blocked_opts).unwrap();
+        // Each epoch is formed from the same samples: the signals are the same to the bit,
+        // the pooled spread and the design's normal matrix to rounding.
+        assert_eq!(blocked.t_s, held.t_s);
+        assert_eq!(blocked.errors, held.errors);
+        assert_eq!(blocked.dynamics, held.dynamics);
+        assert_eq!(blocked.specific_force_b_m_s2, held.specific_force_b_m_s2);
+        assert!(blocked.dynamics[6..].iter().all(Vec::is_empty));
+        assert_eq!(design.f_dot_b_m_s3, held_design.f_dot_b_m_s3);
+        let (a, b) = (design.over(&blocked), held_design.over(&held));
+        let scale = b.bread().amax();
+        assert!((a.bread() - b.bread()).amax() <= 1e-9 * scale);
+        assert_eq!(
+            CalibrationSummary {
+                error_std: held_summary.error_std,
+                ..summary
+            },
+            held_summary
+        );
     }
 
     #[test]

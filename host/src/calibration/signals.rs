@@ -9,6 +9,7 @@ use nalgebra::{Rotation3, Vector3};
 use super::epochs::{EpochData, EpochGrid};
 use super::least_squares::{skew, triplet_estimate, Fit};
 use super::{CalibrationSummary, Estimate1, Estimate3};
+use crate::error_signal::ErrorSignals;
 use crate::model::Channel;
 
 /// The error of each channel over the epochs (gx .. az; `None` for a sensor type the sensor
@@ -138,6 +139,65 @@ impl ErrorSpread {
         std::array::from_fn(|c| {
             (self.count[c] > 0.0).then(|| (self.squares[c] / (self.count[c] - 1.0)).sqrt())
         })
+    }
+}
+
+/// Error signals gathered a block at a time: each block's own epochs of its times, errors,
+/// dynamics and the reference's specific force, appended in order.
+#[derive(Debug, Default)]
+pub(super) struct Gathered {
+    t_s: Vec<f64>,
+    errors: [Option<Vec<f64>>; 6],
+    dynamics: [Vec<f64>; 15],
+    specific_force_b_m_s2: [Vec<f64>; 3],
+}
+
+impl Gathered {
+    /// Appends epochs `own` of a block: its times `t_s`, its `errors` and `dynamics` (as
+    /// [`error_columns`] and [`dynamics_columns`] formed them) and the reference in `data`.
+    /// The first block's columns are taken whole when they are all its own (a held block),
+    /// so the epochs held whole are not copied.
+    pub(super) fn add(
+        &mut self,
+        t_s: &[f64],
+        errors: [Option<Vec<f64>>; 6],
+        dynamics: [Vec<f64>; 15],
+        data: &EpochData,
+        own: Range<usize>,
+    ) {
+        let whole = self.t_s.is_empty() && own == (0..t_s.len());
+        let append = |gathered: &mut Vec<f64>, column: Vec<f64>| {
+            if whole {
+                *gathered = column;
+            } else {
+                gathered.extend_from_slice(&column[own.clone()]);
+            }
+        };
+        for (gathered, e) in self.errors.iter_mut().zip(errors) {
+            if let Some(e) = e {
+                append(gathered.get_or_insert_with(Vec::new), e);
+            }
+        }
+        // A dynamics column left empty (rates only) stays empty.
+        for (gathered, d) in self.dynamics.iter_mut().zip(dynamics) {
+            if !d.is_empty() {
+                append(gathered, d);
+            }
+        }
+        for (i, f) in self.specific_force_b_m_s2.iter_mut().enumerate() {
+            f.extend(data.reference.f_b_m_s2[own.clone()].iter().map(|v| v[i]));
+        }
+        self.t_s.extend_from_slice(&t_s[own]);
+    }
+
+    /// The error signals gathered.
+    pub(super) fn finish(self) -> ErrorSignals {
+        ErrorSignals {
+            t_s: self.t_s,
+            errors: self.errors,
+            dynamics: self.dynamics,
+            specific_force_b_m_s2: Some(self.specific_force_b_m_s2),
+        }
     }
 }
 

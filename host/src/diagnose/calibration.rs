@@ -25,11 +25,13 @@ pub(super) struct Calibrated {
     pub calibration: Option<(CalibrationSummary, CalibrationDesign)>,
 }
 
-/// Calibrates `sensor` against `reference`; without one, the data are taken as static (a
-/// note says so) and the error is each channel minus its mean.
+/// Calibrates `sensor` against `reference` (forming more than `held_epochs` epochs a block
+/// at a time); without one, the data are taken as static (a note says so) and the error is
+/// each channel minus its mean.
 pub(super) fn calibrate(
     sensor: &ImuRecording,
     reference: Option<&ImuRecording>,
+    held_epochs: usize,
     notes: &mut Vec<String>,
 ) -> Result<Calibrated, DiagnoseError> {
     Ok(match reference {
@@ -39,6 +41,7 @@ pub(super) fn calibrate(
                 r,
                 &ErrorOptions {
                     rates_only: true,
+                    held_epochs,
                     ..Default::default()
                 },
             )?;

@@ -97,6 +97,15 @@ pub struct DiagnoseOptions {
 /// replicates of a 280 s drive at 1 kHz).
 pub const HELD_SAMPLES: usize = 1 << 23;
 
+impl DiagnoseOptions {
+    /// Most epochs a run holds everything of: above it the run is long (one channel's
+    /// simulations exceed [`DiagnoseOptions::held_samples`]), its simulations are drawn
+    /// again at each stage and its calibration forms the epochs a block at a time.
+    pub fn held_epochs(&self) -> usize {
+        self.held_samples / self.replicates.max(1)
+    }
+}
+
 impl Default for DiagnoseOptions {
     fn default() -> Self {
         Self {
@@ -331,7 +340,7 @@ impl Run<'_> {
     /// Whether the run is long: one channel's simulations exceed
     /// [`DiagnoseOptions::held_samples`].
     pub fn is_long(&self) -> bool {
-        self.opts.replicates.saturating_mul(self.n) > self.opts.held_samples
+        self.n > self.opts.held_epochs()
     }
 
     /// `f(slot, channel, item)` for each channel of the run with its item, in order: in
@@ -549,7 +558,7 @@ pub fn diagnose(
     if has_dynamics {
         stage(|| "calibrating against the reference (boresight, lever arm, time offset)".into());
     }
-    let mut calibrated = calibrate(&sensor, reference.as_ref(), &mut notes)?;
+    let mut calibrated = calibrate(&sensor, reference.as_ref(), opts.held_epochs(), &mut notes)?;
     drop(reference);
     let sensor_start_s = sensor.t_s.first().copied().unwrap_or(0.0);
     let raw_lattice = std::array::from_fn(|ch| {
