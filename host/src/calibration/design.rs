@@ -172,9 +172,15 @@ pub(super) struct DesignSums {
 }
 
 impl DesignSums {
-    /// No epochs yet, for the design of `layout` without its time-offset columns over a
-    /// sensor with the gyro and accelerometer channels `present`, weighted by `weights`.
-    pub(super) fn new(layout: &Layout, weights: [f64; 2], present: [bool; 2]) -> Self {
+    /// No epochs yet (room for `epochs`), for the design of `layout` without its
+    /// time-offset columns over a sensor with the gyro and accelerometer channels `present`,
+    /// weighted by `weights`.
+    pub(super) fn new(
+        layout: &Layout,
+        weights: [f64; 2],
+        present: [bool; 2],
+        epochs: usize,
+    ) -> Self {
         // The time offset is the one common to the consistent channels, which a
         // channel-specific term does not move: the design the engine strips candidates with
         // holds it fixed.
@@ -189,7 +195,7 @@ impl DesignSums {
             layout,
             xtwx: DMatrix::zeros(p, p),
             epochs: 0,
-            f_dot_b_m_s3: Default::default(),
+            f_dot_b_m_s3: std::array::from_fn(|_| Vec::with_capacity(epochs)),
         }
     }
 

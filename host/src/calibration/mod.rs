@@ -228,8 +228,8 @@ pub fn build_error_signals_with_design(
     let view = epochs.at(fit.shift_s, fit.r_sb)?;
     let lever_arm_b_m = fit.lever_arm_b_m();
     let present = [grid.has_gyro(), grid.has_accel()];
-    let mut design = DesignSums::new(&fit.layout, fit.weights, present);
-    let mut gathered = signals::Gathered::default();
+    let mut design = DesignSums::new(&fit.layout, fit.weights, present, grid.epochs);
+    let mut gathered = signals::Gathered::new(grid.epochs);
     let mut spread = signals::ErrorSpread::default();
     view.pass(&mut |block| {
         let errors = signals::error_columns(block.data, lever_arm_b_m);

@@ -146,6 +146,8 @@ impl ErrorSpread {
 /// dynamics and the reference's specific force, appended in order.
 #[derive(Debug, Default)]
 pub(super) struct Gathered {
+    /// Epochs in all.
+    epochs: usize,
     t_s: Vec<f64>,
     errors: [Option<Vec<f64>>; 6],
     dynamics: [Vec<f64>; 15],
@@ -153,6 +155,14 @@ pub(super) struct Gathered {
 }
 
 impl Gathered {
+    /// Nothing gathered yet, of `epochs` epochs in all.
+    pub(super) fn new(epochs: usize) -> Self {
+        Self {
+            epochs,
+            ..Self::default()
+        }
+    }
+
     /// Appends epochs `own` of a block: its times `t_s`, its `errors` and `dynamics` (as
     /// [`error_columns`] and [`dynamics_columns`] formed them) and the reference in `data`.
     /// The first block's columns are taken whole when they are all its own (a held block),
@@ -166,10 +176,19 @@ impl Gathered {
         own: Range<usize>,
     ) {
         let whole = self.t_s.is_empty() && own == (0..t_s.len());
+        let epochs = self.epochs;
+        // Room for every epoch at the first block: grown block by block, a long drive's
+        // series would each hold up to twice their length.
+        let room = |gathered: &mut Vec<f64>| {
+            if gathered.capacity() == 0 {
+                gathered.reserve_exact(epochs);
+            }
+        };
         let append = |gathered: &mut Vec<f64>, column: Vec<f64>| {
             if whole {
                 *gathered = column;
             } else {
+                room(gathered);
                 gathered.extend_from_slice(&column[own.clone()]);
             }
         };
@@ -185,8 +204,10 @@ impl Gathered {
             }
         }
         for (i, f) in self.specific_force_b_m_s2.iter_mut().enumerate() {
+            room(f);
             f.extend(data.reference.f_b_m_s2[own.clone()].iter().map(|v| v[i]));
         }
+        room(&mut self.t_s);
         self.t_s.extend_from_slice(&t_s[own]);
     }
 

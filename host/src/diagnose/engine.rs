@@ -501,12 +501,20 @@ fn diagnose_channel(
 ) -> Result<ChannelResult, DiagnoseError> {
     let spec = run.spec(channel)?;
     // The error as the joint calibration leaves it.
-    let e: Vec<f64> = run
-        .error(channel)
-        .iter()
-        .zip(&found.calibration_spill)
-        .map(|(v, s)| v - s)
-        .collect();
+    let spill = found
+        .calibration_spill
+        .as_ref()
+        .zip(run.design)
+        .map(|(pushed, design)| design.fitted(channel.index(), pushed));
+    let e: Vec<f64> = match spill {
+        Some(spill) => run
+            .error(channel)
+            .iter()
+            .zip(spill)
+            .map(|(v, s)| v - s)
+            .collect(),
+        None => run.error(channel).to_vec(),
+    };
     stage(|| format!("channel {}: stochastic effects", channel.name()));
     let sims = run.baseline_sims(slot);
     let mut discrepancies = std::mem::take(&mut found.discrepancies);

@@ -386,33 +386,37 @@ pub struct LocalStep {
 /// floor: an outlier, or noise that grows in a manoeuvre, moves a window's mean as a step
 /// does, but it also inflates that window's variance, while a step leaves both windows as
 /// quiet as the rest of the run.
+///
+/// The running sums are kept for the last `2 w + 1` positions only (w the longest window
+/// scanned), so the scan holds no series of `x`'s length.
 pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<LocalStep> {
     let n = x.len();
-    let mut sum = Vec::with_capacity(n + 1);
-    let mut sum_sq = Vec::with_capacity(n + 1);
-    let (mut a, mut b) = (0.0, 0.0);
-    sum.push(0.0);
-    sum_sq.push(0.0);
+    let scanned: Vec<(usize, f64)> = windows
+        .iter()
+        .copied()
+        .zip(null_sd.iter().copied())
+        .filter(|&(w, sd)| w > 0 && sd > 0.0)
+        .collect();
+    let reach = 2 * scanned.iter().map(|&(w, _)| w).max()? + 1;
     // Centred on the series' mean, so the sums of squares lose no precision to a bias.
     let centre = x.iter().sum::<f64>() / n.max(1) as f64;
-    for v in x {
-        a += v - centre;
-        b += (v - centre).powi(2);
-        sum.push(a);
-        sum_sq.push(b);
-    }
-    let window_variance = |from: usize, w: usize| {
-        let l = w as f64;
-        let m = (sum[from + w] - sum[from]) / l;
-        ((sum_sq[from + w] - sum_sq[from]) / l - m * m).max(0.0) * l / (l - 1.0).max(1.0)
-    };
-    let prefix = PrefixSums::of(x);
-    let mut best: Option<LocalStep> = None;
-    for (&w, &sd) in windows.iter().zip(null_sd) {
-        if !(sd > 0.0) {
-            continue;
+    let mut ring = vec![RunningSums::default(); reach.min(n + 1)];
+    let mut running = RunningSums::default();
+    // Each window's best in index order; across windows the first best in window order,
+    // as one scan window after window would choose.
+    let mut best: Vec<Option<LocalStep>> = vec![None; scanned.len()];
+    for p in 0..=n {
+        if p > 0 {
+            running = running.after(x[p - 1], centre);
         }
-        for (i, d) in prefix.local_steps(w).enumerate() {
+        let len = ring.len();
+        ring[p % len] = running;
+        for (&(w, sd), best) in scanned.iter().zip(best.iter_mut()) {
+            let Some(i) = p.checked_sub(2 * w) else {
+                continue;
+            };
+            let [before, at, after] = [i, i + w, p].map(|q| &ring[q % len]);
+            let d = ((after.sum - at.sum) - (at.sum - before.sum)) / w as f64;
             // The local floor only lowers z below |d| / sd: a step that cannot beat the best
             // even so is passed over before its windows' variances are taken (a margin of
             // 1e-12 over the roundings keeps the choice the full computation makes).
@@ -422,11 +426,11 @@ pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<
             {
                 continue;
             }
-            let local_sd = ((window_variance(i, w) + window_variance(i + w, w)) / w as f64).sqrt();
-            let sd = sd.max(local_sd);
+            let local_variance = before.window_variance(at, w) + at.window_variance(after, w);
+            let sd = sd.max((local_variance / w as f64).sqrt());
             let z = d.abs() / sd;
             if best.as_ref().is_none_or(|b| z > b.z) {
-                best = Some(LocalStep {
+                *best = Some(LocalStep {
                     index: i + w,
                     window: w,
                     size: d,
@@ -436,7 +440,39 @@ pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<
             }
         }
     }
-    best
+    best.into_iter()
+        .flatten()
+        .fold(None, |acc: Option<LocalStep>, s| match acc {
+            Some(a) if !(s.z > a.z) => Some(a),
+            _ => Some(s),
+        })
+}
+
+/// The running sums of a series up to a position: of the samples (for the local steps),
+/// and of their deviations from a centre and its squares (for the windows' variances).
+#[derive(Debug, Clone, Copy, Default)]
+struct RunningSums {
+    sum: f64,
+    centred: f64,
+    centred_sq: f64,
+}
+
+impl RunningSums {
+    /// The sums one sample `v` further on.
+    fn after(self, v: f64, centre: f64) -> Self {
+        Self {
+            sum: self.sum + v,
+            centred: self.centred + (v - centre),
+            centred_sq: self.centred_sq + (v - centre).powi(2),
+        }
+    }
+
+    /// Sample variance (n - 1) of the `w` samples between this position and `end`.
+    fn window_variance(&self, end: &Self, w: usize) -> f64 {
+        let l = w as f64;
+        let m = (end.centred - self.centred) / l;
+        ((end.centred_sq - self.centred_sq) / l - m * m).max(0.0) * l / (l - 1.0).max(1.0)
+    }
 }
 
 /// Window at which [`step_sharpness`] looks again at a step found at `window`: a quarter of
@@ -736,6 +772,62 @@ pub fn outlier_process(devs: &[f64], t_abs: f64, noise_sigma: f64, n: usize) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The scan as it was written before [`local_step_scan`] kept its sums in a ring: every
+    /// running sum held, window after window.
+    fn scan_held_whole(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<LocalStep> {
+        let n = x.len();
+        let mut sum = Vec::with_capacity(n + 1);
+        let mut sum_sq = Vec::with_capacity(n + 1);
+        let (mut a, mut b) = (0.0, 0.0);
+        sum.push(0.0);
+        sum_sq.push(0.0);
+        // Centred on the series' mean, so the sums of squares lose no precision to a bias.
+        let centre = x.iter().sum::<f64>() / n.max(1) as f64;
+        for v in x {
+            a += v - centre;
+            b += (v - centre).powi(2);
+            sum.push(a);
+            sum_sq.push(b);
+        }
+        let window_variance = |from: usize, w: usize| {
+            let l = w as f64;
+            let m = (sum[from + w] - sum[from]) / l;
+            ((sum_sq[from + w] - sum_sq[from]) / l - m * m).max(0.0) * l / (l - 1.0).max(1.0)
+        };
+        let prefix = PrefixSums::of(x);
+        let mut best: Option<LocalStep> = None;
+        for (&w, &sd) in windows.iter().zip(null_sd) {
+            if !(sd > 0.0) {
+                continue;
+            }
+            for (i, d) in prefix.local_steps(w).enumerate() {
+                // The local floor only lowers z below |d| / sd: a step that cannot beat the best
+                // even so is passed over before its windows' variances are taken (a margin of
+                // 1e-12 over the roundings keeps the choice the full computation makes).
+                if best
+                    .as_ref()
+                    .is_some_and(|b| d.abs() < b.z * sd * (1.0 - 1e-12))
+                {
+                    continue;
+                }
+                let local_sd =
+                    ((window_variance(i, w) + window_variance(i + w, w)) / w as f64).sqrt();
+                let sd = sd.max(local_sd);
+                let z = d.abs() / sd;
+                if best.as_ref().is_none_or(|b| z > b.z) {
+                    best = Some(LocalStep {
+                        index: i + w,
+                        window: w,
+                        size: d,
+                        z,
+                        sd,
+                    });
+                }
+            }
+        }
+        best
+    }
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
     use rand_distr::StandardNormal;
@@ -962,6 +1054,40 @@ mod tests {
             assert!(
                 (fast.z - slow.z).abs() < 1e-9 * slow.z,
                 "{fast:?} vs {slow:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_scan_in_a_ring_chooses_what_the_scan_of_every_sum_chose() {
+        // White noise with a step, an outlier and a burst, of lengths short and long against
+        // the windows (some windows longer than half the series), with null spreads that
+        // make the local floor bind or not, and a window left out (sd 0).
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        for case in 0..60 {
+            let n = [3, 40, 129, 1_000, 5_000][case % 5] + rng.random_range(0..50);
+            let mut x = white(&mut rng, n, 0.05);
+            if n > 20 {
+                let at = rng.random_range(1..n);
+                x[at..].iter_mut().for_each(|v| *v += 0.05);
+                x[rng.random_range(0..n)] += 1.0;
+            }
+            let windows: Vec<usize> = [1usize, 4, 16, 64, 256, 1024]
+                .into_iter()
+                .filter(|_| rng.random_bool(0.7))
+                .collect();
+            let sd: Vec<f64> = windows
+                .iter()
+                .map(|&w| match rng.random_range(0..4) {
+                    0 => 0.0,
+                    1 => 1e-6,
+                    _ => 0.07 / (w as f64).sqrt(),
+                })
+                .collect();
+            assert_eq!(
+                local_step_scan(&x, &windows, &sd),
+                scan_held_whole(&x, &windows, &sd),
+                "case {case}: n {n}, windows {windows:?}, sd {sd:?}"
             );
         }
     }

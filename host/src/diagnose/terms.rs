@@ -45,8 +45,10 @@ pub(super) struct ChannelTerms<'a> {
     pub step_at_s: Option<f64>,
     pub discrepancies: Vec<Discrepancy>,
     /// What the other channels' terms pushed into this channel through the calibration, to
-    /// be taken out of its error (zeros without a calibration).
-    pub calibration_spill: Vec<f64>,
+    /// be taken out of its error: the calibration parameters they moved, whose fit on this
+    /// channel's rows is the series (None without a calibration: nothing). Kept as
+    /// parameters, so a channel's series is made only when its later stages run.
+    pub calibration_spill: Option<nalgebra::DVector<f64>>,
 }
 
 /// The deterministic candidates of `channel` by physics. Each is fitted jointly with the
@@ -354,7 +356,7 @@ fn channel_terms<'a>(
         terms,
         step_at_s,
         discrepancies,
-        calibration_spill: vec![0.0; run.n],
+        calibration_spill: None,
     })
 }
 
@@ -412,9 +414,7 @@ pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, Diag
         per_channel[run.slot(t.channel)].terms.push(t);
     }
     for (found, channel) in per_channel.iter_mut().zip(&run.channels) {
-        if let Some(spill) = joint_spill[channel.index()].take() {
-            found.calibration_spill = spill;
-        }
+        found.calibration_spill = joint_spill[channel.index()].take();
     }
     Ok(per_channel)
 }
@@ -446,10 +446,11 @@ fn step_spill(
 }
 
 /// The terms the joint fit keeps and, per channel, what the other channels' kept terms
-/// had pushed into it through the calibration (to be taken out of its error).
+/// had pushed into it through the calibration (to be taken out of its error): the
+/// calibration parameters they moved.
 struct JointTerms<'a> {
     terms: Vec<Term<'a>>,
-    spill: [Option<Vec<f64>>; 6],
+    spill: [Option<nalgebra::DVector<f64>>; 6],
 }
 
 /// Fits the terms of all channels jointly with the calibration and with each other, and
@@ -482,8 +483,11 @@ fn joint_terms<'a>(
         .collect();
     kept.extend(fixed_kept);
     terms.extend(fixed);
-    let mut spill: [Option<Vec<f64>>; 6] =
-        std::array::from_fn(|ch| design.has_channel(ch).then(|| vec![0.0; design.epochs()]));
+    let mut spill: [Option<nalgebra::DVector<f64>>; 6] = std::array::from_fn(|ch| {
+        design
+            .has_channel(ch)
+            .then(|| nalgebra::DVector::zeros(design.parameters()))
+    });
     let mut terms: Vec<Option<Term>> = terms.into_iter().map(Some).collect();
     let mut out = Vec::new();
     for (i, coef, se) in kept {
@@ -492,8 +496,7 @@ fn joint_terms<'a>(
         // -coef * X_ch absorbed.
         for (ch, s) in spill.iter_mut().enumerate() {
             if let Some(s) = s.as_mut().filter(|_| ch != t.channel.index()) {
-                let fit = design.fitted(ch, &t.projection.absorbed);
-                s.iter_mut().zip(fit).for_each(|(v, x)| *v -= coef * x);
+                s.axpy(-coef, &t.projection.absorbed, 1.0);
             }
         }
         t.coef = coef;
