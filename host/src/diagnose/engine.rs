@@ -73,6 +73,16 @@ pub enum DiagnoseError {
     /// A channel cannot be diagnosed (no baseline model for it, or its baseline fit failed).
     #[error("channel {channel}: {message}")]
     Channel { channel: Channel, message: String },
+    /// A long run's series could not be written to, or read back from, their temporary file.
+    #[error(
+        "the temporary file in {dir} that holds a long run's series: {source} (set TMPDIR to a \
+         folder with room for a few dozen series of the drive's length, 8 bytes an epoch each)"
+    )]
+    Spill {
+        dir: std::path::PathBuf,
+        #[source]
+        source: std::io::Error,
+    },
 }
 
 /// Options of [`diagnose`].

@@ -2,6 +2,7 @@
 //! model and the measured gain (`dynacal diagnose`). [`engine::diagnose`] runs the stages
 //! of the sibling modules in order.
 
+mod bank;
 pub mod baseline;
 mod calibration;
 pub mod engine;

@@ -10,8 +10,12 @@
 //! [`eliminate_on_moments`] is the stepwise selection over such terms.
 
 use std::borrow::Cow;
-use std::sync::Arc;
+use std::ops::Range;
 
+use rayon::prelude::*;
+
+use super::bank::SeriesBank;
+use super::engine::DiagnoseError;
 use super::terms::Candidate;
 pub(super) use super::white_space::WhiteSpace;
 use crate::calibration::DesignRows;
@@ -112,12 +116,98 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
+/// The consecutive blocks of a run's epochs the batch-means spread sums scores over
+/// ([`MeasuredSpread`]): `count` blocks of `len` epochs from the first (a tail shorter than
+/// a block is in none).
+#[derive(Debug, Clone, Copy, PartialEq)]
+struct SpreadBlocks {
+    len: usize,
+    count: usize,
+}
+
+impl SpreadBlocks {
+    fn of(n: usize) -> Self {
+        let len = (n / SPREAD_BLOCKS).max(1);
+        Self {
+            len,
+            count: n / len,
+        }
+    }
+
+    /// Adds to `per_block` the products of `x` and `y` (both over epochs `range`) within
+    /// each block.
+    fn add_products(&self, range: Range<usize>, x: &[f64], y: &[f64], per_block: &mut [f64]) {
+        let mut t = range.start;
+        while t < range.end {
+            let b = t / self.len;
+            if b >= self.count {
+                break;
+            }
+            let end = ((b + 1) * self.len).min(range.end);
+            let at = t - range.start..end - range.start;
+            per_block[b] += dot(&x[at.clone()], &y[at]);
+            t = end;
+        }
+    }
+
+    /// Adds to `per_block` the sums of `x` (over epochs `range`) within each block.
+    fn add_sums(&self, range: Range<usize>, x: &[f64], per_block: &mut [f64]) {
+        let mut t = range.start;
+        while t < range.end {
+            let b = t / self.len;
+            if b >= self.count {
+                break;
+            }
+            let end = ((b + 1) * self.len).min(range.end);
+            per_block[b] += x[t - range.start..end - range.start].iter().sum::<f64>();
+            t = end;
+        }
+    }
+}
+
+/// A series' inner products with every series of `bank`: over all epochs, and within each
+/// spread block.
+fn products_with(
+    bank: &SeriesBank,
+    y: &[f64],
+    blocks: SpreadBlocks,
+) -> Result<Vec<(f64, Vec<f64>)>, DiagnoseError> {
+    let mut out = vec![(0.0, vec![0.0; blocks.count]); bank.len()];
+    bank.for_each_block(&mut |range, series| {
+        let y = &y[range.clone()];
+        for ((total, per_block), x) in out.iter_mut().zip(series) {
+            *total += dot(x, y);
+            blocks.add_products(range.clone(), x, y, per_block);
+        }
+    })?;
+    Ok(out)
+}
+
+/// Where another term's filtered signature on the same channel meets this one's: its
+/// inner product with this term's, over all epochs and within each spread block.
+#[derive(Clone)]
+struct Partner {
+    id: u64,
+    product: f64,
+    block_products: Vec<f64>,
+}
+
+/// Gives each term a number no other term of the process has: terms are told apart by it
+/// among their partners.
+fn next_term_id() -> u64 {
+    static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
+    NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
 /// A deterministic term on one channel: its regressor stripped of what the calibration
 /// absorbs from it on its own channel (`own`), filtered by the channel's whitening filter;
 /// on the other channels the calibration reaches, its signature is minus the calibration's
 /// filtered columns times what it absorbed, kept as moments ([`WhiteSpace`]). With them, its
-/// inner products in that metric with the error and with each baseline simulation, and its
-/// coefficient with the standard error the simulations give it.
+/// inner products in that metric with the error, with each baseline simulation and with the
+/// terms made beside it on its channel, and its coefficient with the standard error the
+/// simulations give it. The filtered signature itself is not kept (a channel's dozen
+/// candidates would hold a dozen series of the drive's length): every statistic of it a
+/// fit needs is summed when it is made.
 #[derive(Clone)]
 pub(super) struct Term<'a> {
     pub channel: Channel,
@@ -126,18 +216,23 @@ pub(super) struct Term<'a> {
     /// The body axis of the regressor (x, y, z = 0, 1, 2).
     pub axis: usize,
     /// The regressor, and what absorbs of it: the term's unfiltered signature on its own
-    /// channel ([`Term::own`]) is made from them when asked for rather than held, as a
-    /// channel's dozen candidates would hold a dozen series of the drive's length.
+    /// channel ([`Term::own`]) is made from them when asked for rather than held.
     regressor: Regressor<'a>,
     absorber: Absorber<'a>,
     /// Mean and variance of [`Term::own`] (channel unit / regressor unit, squared).
     pub own_mean: f64,
     pub own_variance: f64,
     pub projection: Projection,
-    /// `own` filtered by its channel's whitening filter.
-    white_own: Arc<[f64]>,
-    /// The filtered calibration columns of its own channel times `white_own` (where the
-    /// calibration reaches that channel).
+    id: u64,
+    /// The filtered signature's sum over all epochs, and within each spread block its sum
+    /// and its inner product with the channel's filtered error.
+    white_sum: f64,
+    block_sums: Vec<f64>,
+    block_on_error: Vec<f64>,
+    /// The terms made or joined beside it on its channel, itself included.
+    partners: Vec<Partner>,
+    /// The filtered calibration columns of its own channel times its filtered signature
+    /// (where the calibration reaches that channel).
     on_own_columns: Option<nalgebra::DVector<f64>>,
     /// Per other channel the calibration reaches, the Gram matrix of its filtered columns
     /// times what this term's regressor gives the calibration.
@@ -156,93 +251,187 @@ pub(super) struct Term<'a> {
     pub fixed: Option<f64>,
 }
 
-impl<'a> Term<'a> {
-    /// One candidate as a term, coefficient not yet set.
-    pub fn new(space: &WhiteSpace<'a>, channel: Channel, c: &Candidate<'a>) -> Self {
-        Self::batch(space, channel, std::slice::from_ref(c))
-            .pop()
-            .expect("one term per candidate")
-    }
+/// Every candidate of a batch as terms, and their filtered signatures in a bank (held on a
+/// short run, spilled on a long one), against which later terms of the channel are joined.
+pub(super) struct Batch<'a> {
+    pub terms: Vec<Term<'a>>,
+    pub signatures: SeriesBank,
+}
 
+impl<'a> Term<'a> {
     /// Every candidate on `channel` as a term, coefficients not yet set; the simulations
     /// are visited once for all of them.
-    pub fn batch(space: &WhiteSpace<'a>, channel: Channel, cands: &[Candidate<'a>]) -> Vec<Self> {
-        use rayon::prelude::*;
+    pub fn batch(
+        space: &WhiteSpace<'a>,
+        channel: Channel,
+        cands: &[Candidate<'a>],
+    ) -> Result<Batch<'a>, DiagnoseError> {
         let own_ch = channel.index();
-        let absorber = space.absorber();
-        let whitener = space.whitener(own_ch).expect("a channel of the run");
-        let mut terms: Vec<Term> = cands
-            .par_iter()
-            .map(|c| {
-                let values = c.values.values();
-                let projection = absorber.project(channel, &values);
-                let own = absorber.own(channel, &values, &projection);
-                let own_mean = own.iter().sum::<f64>() / own.len().max(1) as f64;
-                let pulled = std::array::from_fn(|ch| {
-                    let g = space.column_gram(ch).filter(|_| ch != own_ch)?;
-                    Some(g * &projection.absorbed)
-                });
-                Term {
-                    channel,
-                    name: c.name.clone(),
-                    cause: c.cause,
-                    axis: c.axis,
-                    white_own: whitener.apply(&own).into(),
-                    regressor: c.values,
-                    absorber,
-                    own_mean,
-                    own_variance: super::engine::variance(&own),
-                    projection,
-                    on_own_columns: None,
-                    pulled,
-                    on_error: 0.0,
-                    on_sims: Vec::new(),
-                    coef: 0.0,
-                    se: f64::NAN,
-                    sd_floor: 0.0,
-                    fixed: None,
+        let white_error = space.error(channel);
+        let blocks = SpreadBlocks::of(white_error.len());
+        let mut signatures = SeriesBank::new(white_error.len(), space.is_long())?;
+        let mut terms: Vec<Term> = Vec::with_capacity(cands.len());
+        // A core's worth at a time, each signature banked as soon as it is made.
+        for chunk in cands.chunks(rayon::current_num_threads().max(1)) {
+            let made: Vec<(Term, Vec<f64>)> = chunk
+                .par_iter()
+                .map(|c| Self::made(space, channel, c, blocks))
+                .collect();
+            for (term, white_own) in made {
+                signatures.push(white_own)?;
+                terms.push(term);
+            }
+        }
+        // Each pair's products, over all epochs and per spread block, in one pass.
+        let k = terms.len();
+        let mut pairs = vec![vec![(0.0, vec![0.0; blocks.count]); k]; k];
+        signatures.for_each_block(&mut |range, series| {
+            for a in 0..k {
+                for b in a..k {
+                    let (total, per_block) = &mut pairs[a][b];
+                    *total += dot(series[a], series[b]);
+                    blocks.add_products(range.clone(), series[a], series[b], per_block);
                 }
-            })
-            .collect();
-        if let Some(on_columns) = space.on_white_columns(own_ch, &|column| {
-            terms
-                .iter()
-                .map(|t| dot(column, &t.white_own))
-                .collect::<Vec<f64>>()
-        }) {
+            }
+        })?;
+        for a in 0..k {
+            for b in a..k {
+                let (product, block_products) = pairs[a][b].clone();
+                let id = terms[b].id;
+                terms[a].partners.push(Partner {
+                    id,
+                    product,
+                    block_products: block_products.clone(),
+                });
+                if a != b {
+                    let id = terms[a].id;
+                    terms[b].partners.push(Partner {
+                        id,
+                        product,
+                        block_products,
+                    });
+                }
+            }
+        }
+        if let Some(on_columns) = space.on_white_columns(own_ch, &|column| signatures.dots(column))
+        {
+            let on_columns = on_columns.into_iter().collect::<Result<Vec<_>, _>>()?;
             for (k, t) in terms.iter_mut().enumerate() {
                 let m = on_columns.iter().map(|c| c[k]);
                 t.on_own_columns = Some(nalgebra::DVector::from_iterator(on_columns.len(), m));
             }
         }
-        let white_error = space.error(channel);
-        for t in terms.iter_mut() {
-            t.on_error =
-                dot(&t.white_own, white_error) + t.pulled_moments(|ch| space.columns_on_error(ch));
-        }
-        let per_replicate: Vec<Vec<f64>> = {
-            let terms = &terms;
-            let on_own = space.map_white_sims(own_ch, &|sim| {
-                terms
-                    .iter()
-                    .map(|t| dot(&t.white_own, sim))
-                    .collect::<Vec<f64>>()
-            });
-            on_own
-                .into_iter()
-                .enumerate()
-                .map(|(r, own)| {
-                    own.iter()
-                        .zip(terms)
-                        .map(|(o, t)| o + t.pulled_moments(|ch| space.columns_on_sim(ch, r)))
-                        .collect()
-                })
-                .collect()
-        };
+        let on_own = space
+            .map_white_sims(own_ch, &|sim| signatures.dots(sim))
+            .into_iter()
+            .collect::<Result<Vec<_>, _>>()?;
         for (k, t) in terms.iter_mut().enumerate() {
-            t.on_sims = per_replicate.iter().map(|r| r[k]).collect();
+            t.on_sims = on_own
+                .iter()
+                .enumerate()
+                .map(|(r, own)| own[k] + t.pulled_moments(|ch| space.columns_on_sim(ch, r)))
+                .collect();
         }
-        terms
+        Ok(Batch { terms, signatures })
+    }
+
+    /// A candidate as a term with what its filtered signature gives alone (its sums and its
+    /// products with the error), and the signature.
+    fn made(
+        space: &WhiteSpace<'a>,
+        channel: Channel,
+        c: &Candidate<'a>,
+        blocks: SpreadBlocks,
+    ) -> (Self, Vec<f64>) {
+        let own_ch = channel.index();
+        let absorber = space.absorber();
+        let whitener = space.whitener(own_ch).expect("a channel of the run");
+        let white_error = space.error(channel);
+        let values = c.values.values();
+        let projection = absorber.project(channel, &values);
+        let own = absorber.own(channel, &values, &projection);
+        let own_mean = own.iter().sum::<f64>() / own.len().max(1) as f64;
+        let pulled = std::array::from_fn(|ch| {
+            let g = space.column_gram(ch).filter(|_| ch != own_ch)?;
+            Some(g * &projection.absorbed)
+        });
+        let white_own = whitener.apply(&own);
+        let mut block_sums = vec![0.0; blocks.count];
+        let mut block_on_error = vec![0.0; blocks.count];
+        let all = 0..white_own.len();
+        blocks.add_sums(all.clone(), &white_own, &mut block_sums);
+        blocks.add_products(all, &white_own, white_error, &mut block_on_error);
+        let mut term = Term {
+            channel,
+            name: c.name.clone(),
+            cause: c.cause,
+            axis: c.axis,
+            regressor: c.values,
+            absorber,
+            own_mean,
+            own_variance: super::engine::variance(&own),
+            projection,
+            id: next_term_id(),
+            white_sum: white_own.iter().sum(),
+            block_sums,
+            block_on_error,
+            partners: Vec::new(),
+            on_own_columns: None,
+            pulled,
+            on_error: 0.0,
+            on_sims: Vec::new(),
+            coef: 0.0,
+            se: f64::NAN,
+            sd_floor: 0.0,
+            fixed: None,
+        };
+        term.on_error =
+            dot(&white_own, white_error) + term.pulled_moments(|ch| space.columns_on_error(ch));
+        (term, white_own)
+    }
+
+    /// `c` as a term beside a batch already made on `channel`: its products with each of
+    /// the batch's terms are given to both.
+    pub fn join(
+        space: &WhiteSpace<'a>,
+        channel: Channel,
+        c: &Candidate<'a>,
+        batch: &mut Batch<'a>,
+    ) -> Result<Self, DiagnoseError> {
+        let blocks = SpreadBlocks::of(space.error(channel).len());
+        let joined = Self::batch(space, channel, std::slice::from_ref(c))?;
+        let mut term = joined
+            .terms
+            .into_iter()
+            .next()
+            .expect("one term per candidate");
+        // The joined signature read back whole (one series), against the batch's bank.
+        let mut white_own = Vec::new();
+        joined.signatures.for_each_block(&mut |_, series| {
+            white_own.extend_from_slice(series[0]);
+        })?;
+        let products = products_with(&batch.signatures, &white_own, blocks)?;
+        for (other, (product, block_products)) in batch.terms.iter_mut().zip(products) {
+            other.partners.push(Partner {
+                id: term.id,
+                product,
+                block_products: block_products.clone(),
+            });
+            term.partners.push(Partner {
+                id: other.id,
+                product,
+                block_products,
+            });
+        }
+        Ok(term)
+    }
+
+    /// This term's meeting with `other`, a term made or joined beside it on its channel.
+    fn partner(&self, other: &Term) -> &Partner {
+        self.partners
+            .iter()
+            .find(|p| p.id == other.id)
+            .expect("terms of one channel meet only when made or joined together")
     }
 
     /// A series' inner product with what the calibration's pull leaves of this term on the
@@ -262,11 +451,6 @@ impl<'a> Term<'a> {
         self.absorber.own(self.channel, &values, &self.projection)
     }
 
-    /// The filtered signature on the term's own channel.
-    fn white_own(&self) -> &[f64] {
-        &self.white_own
-    }
-
     /// A term whose coefficient `coef` (standard error `se`, two-sided p-value `p_value`
     /// against zero) comes from outside the regression; see [`Term::fixed`].
     pub fn fix(&mut self, coef: f64, se: f64, p_value: f64) {
@@ -283,16 +467,6 @@ impl<'a> Term<'a> {
         let g = gram(self, fixed);
         self.on_error -= fixed.coef * g;
     }
-
-    /// The filtered error of the term's own channel less `coef` times this term there:
-    /// what [`MeasuredSpread`] needs when this term is fixed.
-    pub fn taken_from(&self, white_error: &[f64]) -> Vec<f64> {
-        white_error
-            .iter()
-            .zip(self.white_own())
-            .map(|(v, x)| v - self.coef * x)
-            .collect()
-    }
 }
 
 /// Inner product of two terms' signatures in the whitened metric, over every channel: on a
@@ -301,7 +475,7 @@ impl<'a> Term<'a> {
 pub(super) fn gram(a: &Term, b: &Term) -> f64 {
     let (ca, cb) = (a.channel.index(), b.channel.index());
     let mut g = if ca == cb {
-        dot(&a.white_own, &b.white_own)
+        a.partner(b).product
     } else {
         let own_a = a.on_own_columns.as_ref();
         let own_b = b.on_own_columns.as_ref();
@@ -354,12 +528,16 @@ struct MomentFit {
     z: Vec<f64>,
 }
 
-/// The error a fit of terms on one channel leaves, for a spread of its coefficients that
-/// does not lean on the baseline model: the channel's filtered error
-/// ([`WhiteSpace::error`]).
+/// What the batch-means spread of a fit of terms on one channel needs beyond the terms'
+/// own moments: the channel's filtered error ([`WhiteSpace::error`]) summed over its
+/// epochs, and a term fixed outside the fit (a bias step), whose coefficient times its
+/// signature is taken out of that error first.
 #[derive(Clone, Copy)]
-pub(super) struct MeasuredSpread<'a> {
-    pub white_error: &'a [f64],
+pub(super) struct MeasuredSpread<'a, 't> {
+    /// Epochs of the channel, and its filtered error's sum over them.
+    pub epochs: usize,
+    pub white_error_sum: f64,
+    pub fixed: Option<&'t Term<'a>>,
 }
 
 /// Blocks of the batch-means spread: long enough (45 s of a 900 s drive) to hold most of the
@@ -371,6 +549,11 @@ const SPREAD_BLOCKS: usize = 20;
 /// the inverse Gram matrix). Why: the simulated spread assumes the baseline's noise; when the
 /// channel's correlated noise is stronger than the baseline's (a noise change), that spread
 /// is too small and slow wander correlated with slow manoeuvres is named as terms.
+///
+/// A term's score over a block is its signature's product with the residual's deviation
+/// from its mean there, which the moments each term carries give without its series: the
+/// product with the error, less the fitted terms' products with it, less the mean times
+/// its sum.
 fn measured_spread(
     spread: MeasuredSpread,
     terms: &[Term],
@@ -378,26 +561,30 @@ fn measured_spread(
     beta: &[f64],
     gram_inv: &nalgebra::DMatrix<f64>,
 ) -> Vec<f64> {
-    let n = spread.white_error.len();
-    let mut u = spread.white_error.to_vec();
-    for (a, &k) in active.iter().enumerate() {
-        u.iter_mut()
-            .zip(terms[k].white_own())
-            .for_each(|(v, x)| *v -= beta[a] * x);
-    }
-    let mean = u.iter().sum::<f64>() / n.max(1) as f64;
-    let block = (n / SPREAD_BLOCKS).max(1);
-    let scores: Vec<nalgebra::DVector<f64>> = (0..n / block)
-        .map(|b| {
-            let range = b * block..(b + 1) * block;
+    let blocks = terms[active[0]].block_sums.len();
+    let fixed = spread.fixed.map(|f| (f.coef, f));
+    let error_sum = spread.white_error_sum - fixed.map_or(0.0, |(coef, f)| coef * f.white_sum);
+    let residual_sum = error_sum
+        - active
+            .iter()
+            .zip(beta)
+            .map(|(&k, b)| b * terms[k].white_sum)
+            .sum::<f64>();
+    let mean = residual_sum / spread.epochs.max(1) as f64;
+    let scores: Vec<nalgebra::DVector<f64>> = (0..blocks)
+        .map(|blk| {
             nalgebra::DVector::from_iterator(
                 active.len(),
                 active.iter().map(|&k| {
-                    terms[k].white_own()[range.clone()]
+                    let t = &terms[k];
+                    let on_error = t.block_on_error[blk]
+                        - fixed.map_or(0.0, |(coef, f)| coef * t.partner(f).block_products[blk]);
+                    let fitted: f64 = active
                         .iter()
-                        .zip(&u[range.clone()])
-                        .map(|(x, v)| x * (v - mean))
-                        .sum::<f64>()
+                        .zip(beta)
+                        .map(|(&a, b)| b * t.partner(&terms[a]).block_products[blk])
+                        .sum();
+                    on_error - fitted - mean * t.block_sums[blk]
                 }),
             )
         })
@@ -553,11 +740,14 @@ mod tests {
     /// Candidates on one channel without a calibration design, fitted with a white-noise
     /// baseline of sd 0.05 (so generalised least squares is ordinary least squares): the
     /// columns' terms, their Gram matrix and the channel's filtered error.
+    /// `held_samples` as [`WhiteSpace::new`] takes it: 0 banks the terms' signatures in a
+    /// temporary file.
     fn moment_terms<'a>(
         e: &[f64],
         sims: &'a [Vec<f64>],
         columns: &'a [(&str, Vec<f64>)],
-    ) -> (nalgebra::DMatrix<f64>, Vec<Term<'a>>, Vec<f64>) {
+        held_samples: usize,
+    ) -> (nalgebra::DMatrix<f64>, Vec<Term<'a>>, (usize, f64)) {
         let absorber = Absorber::Mean;
         let spec = crate::gmwm::model::ModelSpec {
             model: "WN".into(),
@@ -577,22 +767,155 @@ mod tests {
             errors,
             sims.len(),
             Box::new(sim_of),
-            usize::MAX,
-        );
-        let terms: Vec<Term> = columns
+            held_samples,
+        )
+        .unwrap();
+        let cands: Vec<Candidate> = columns
             .iter()
-            .map(|(name, values)| {
-                let c = Candidate {
-                    name: (*name).into(),
-                    values: Regressor::Series(values),
-                    cause: Cause::ScaleFactor,
-                    axis: 0,
-                };
-                Term::new(&space, Channel::Gx, &c)
+            .map(|(name, values)| Candidate {
+                name: (*name).into(),
+                values: Regressor::Series(values),
+                cause: Cause::ScaleFactor,
+                axis: 0,
             })
             .collect();
-        let white_error = space.error(Channel::Gx).to_vec();
-        (gram_matrix(&terms), terms, white_error)
+        let terms = Term::batch(&space, Channel::Gx, &cands).unwrap().terms;
+        let white_error = space.error(Channel::Gx);
+        let spread = (white_error.len(), white_error.iter().sum());
+        (gram_matrix(&terms), terms, spread)
+    }
+
+    /// The measured spread of a fit on one channel of `epochs` whose filtered error sums to
+    /// `sum`, nothing fixed.
+    fn measured<'a, 't>((epochs, sum): (usize, f64)) -> Option<MeasuredSpread<'a, 't>> {
+        Some(MeasuredSpread {
+            epochs,
+            white_error_sum: sum,
+            fixed: None,
+        })
+    }
+
+    #[test]
+    fn the_spread_from_moments_is_the_batch_means_spread_of_the_residual_series() {
+        // A slow and a fast regressor, a step joined after them and fixed, on a wandering
+        // error: the spread each term's moments give is the one its filtered series give,
+        // held or banked in a temporary file.
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let n = 9_001;
+        let slow: Vec<f64> = (0..n).map(|k| (k as f64 * 3e-4).sin()).collect();
+        let fast: Vec<f64> = (0..n).map(|k| (k as f64 * 0.02).cos()).collect();
+        let sims: Vec<Vec<f64>> = (0..10).map(|_| white_series(&mut rng, n, 0.05)).collect();
+        let mut walk = 0.0;
+        let e: Vec<f64> = (0..n)
+            .map(|k| {
+                walk += 0.005 * Distribution::<f64>::sample(&StandardNormal, &mut rng);
+                walk + 0.1 * slow[k] + f64::from(k >= 4_000) * 0.03
+            })
+            .collect();
+        let spec = crate::gmwm::model::ModelSpec {
+            model: "WN".into(),
+            unit: "rad/s".into(),
+            sample_rate_hz: 100.0,
+            processes: vec![crate::gmwm::model::Process::WhiteNoise { sigma2: 0.0025 }],
+        };
+        for held_samples in [usize::MAX, 0] {
+            let mut whiteners: [Option<super::super::whiten::Whitener>; 6] =
+                std::array::from_fn(|_| None);
+            whiteners[0] = Some(super::super::whiten::Whitener::new(&spec, n));
+            let mut errors: [Option<&[f64]>; 6] = [None; 6];
+            errors[0] = Some(&e);
+            let sims = &sims;
+            let sim_of = move |r: usize, ch: usize| (ch == 0).then(|| sims[r].clone());
+            let space = WhiteSpace::new(
+                Absorber::Mean,
+                whiteners,
+                errors,
+                sims.len(),
+                Box::new(sim_of),
+                held_samples,
+            )
+            .unwrap();
+            fn candidate<'c>(name: &str, values: Regressor<'c>) -> Candidate<'c> {
+                Candidate {
+                    name: name.into(),
+                    values,
+                    cause: Cause::ScaleFactor,
+                    axis: 0,
+                }
+            }
+            let cands = [
+                candidate("slow", Regressor::Series(&slow)),
+                candidate("fast", Regressor::Series(&fast)),
+            ];
+            let mut batch = Term::batch(&space, Channel::Gx, &cands).unwrap();
+            let step = Regressor::Step { at: 4_000, n };
+            let mut step =
+                Term::join(&space, Channel::Gx, &candidate("step", step), &mut batch).unwrap();
+            step.fix(0.03, 0.001, 1e-9);
+            let whitener = space.whitener(0).unwrap();
+            let white = |t: &Term| whitener.apply(&t.own());
+            let white_error = space.error(Channel::Gx);
+            let spread_e: Vec<f64> = white_error
+                .iter()
+                .zip(white(&step))
+                .map(|(v, x)| v - step.coef * x)
+                .collect();
+            let active = [0, 1];
+            let beta = [0.08, -0.01];
+            let gram_inv = nalgebra::DMatrix::from_fn(2, 2, |a, b| 1.0 + (a + 2 * b) as f64);
+            // The spread as the residual's series give it.
+            let x: Vec<Vec<f64>> = batch.terms.iter().map(white).collect();
+            let mut u = spread_e.clone();
+            for (a, b) in beta.iter().enumerate() {
+                u.iter_mut().zip(&x[a]).for_each(|(v, x)| *v -= b * x);
+            }
+            let mean = u.iter().sum::<f64>() / n as f64;
+            let blocks = SpreadBlocks::of(n);
+            let scores: Vec<nalgebra::DVector<f64>> = (0..blocks.count)
+                .map(|b| {
+                    let r = b * blocks.len..(b + 1) * blocks.len;
+                    nalgebra::DVector::from_iterator(
+                        2,
+                        x.iter().map(|x| {
+                            x[r.clone()]
+                                .iter()
+                                .zip(&u[r.clone()])
+                                .map(|(x, v)| x * (v - mean))
+                                .sum::<f64>()
+                        }),
+                    )
+                })
+                .collect();
+            let count = scores.len() as f64;
+            let centre = scores
+                .iter()
+                .fold(nalgebra::DVector::zeros(2), |a, s| a + s)
+                / count;
+            let meat = scores
+                .iter()
+                .fold(nalgebra::DMatrix::zeros(2, 2), |acc, s| {
+                    let d = s - &centre;
+                    acc + &d * d.transpose()
+                })
+                * (count / (count - 1.0));
+            let cov = &gram_inv * meat * &gram_inv;
+            let spread = MeasuredSpread {
+                epochs: n,
+                white_error_sum: white_error.iter().sum(),
+                fixed: Some(&step),
+            };
+            let from_moments = measured_spread(spread, &batch.terms, &active, &beta, &gram_inv);
+            for (a, m) in from_moments.iter().enumerate() {
+                let series = cov[(a, a)].sqrt();
+                assert!((m - series).abs() <= 1e-8 * series, "{m} against {series}");
+            }
+            // The step's products with the batch, both ways, are its series'.
+            for (t, x) in batch.terms.iter().zip(&x) {
+                let g = dot(x, &white(&step));
+                assert!((gram(t, &step) - g).abs() <= 1e-9 * g.abs());
+                assert!((gram(&step, t) - g).abs() <= 1e-9 * g.abs());
+            }
+        }
     }
 
     fn white_series(rng: &mut ChaCha8Rng, n: usize, sigma: f64) -> Vec<f64> {
@@ -630,32 +953,19 @@ mod tests {
             .zip(&noise)
             .map(|(x, w)| 0.02 * x + w)
             .collect();
-        let (gram, terms, white_error) = moment_terms(&e, &sims, &columns);
-        let kept = eliminate_on_moments(
-            &gram,
-            &terms,
-            4.0,
-            &never_small,
-            Some(MeasuredSpread {
-                white_error: &white_error,
-            }),
-        );
-        assert_eq!(kept.len(), 1, "{kept:?}");
-        let (k, b, sd) = kept[0];
-        assert_eq!(terms[k].name, "truth");
-        assert!((b - 0.02).abs() < 3.0 * sd, "{b} +- {sd}");
+        // Held and banked in a temporary file alike.
+        for held_samples in [usize::MAX, 0] {
+            let (gram, terms, spread) = moment_terms(&e, &sims, &columns, held_samples);
+            let kept = eliminate_on_moments(&gram, &terms, 4.0, &never_small, measured(spread));
+            assert_eq!(kept.len(), 1, "{kept:?}");
+            let (k, b, sd) = kept[0];
+            assert_eq!(terms[k].name, "truth");
+            assert!((b - 0.02).abs() < 3.0 * sd, "{b} +- {sd}");
 
-        let (gram, terms, white_error) = moment_terms(&noise, &sims, &columns);
-        let kept = eliminate_on_moments(
-            &gram,
-            &terms,
-            4.0,
-            &never_small,
-            Some(MeasuredSpread {
-                white_error: &white_error,
-            }),
-        );
-        assert!(kept.is_empty(), "{kept:?}");
+            let (gram, terms, spread) = moment_terms(&noise, &sims, &columns, held_samples);
+            let kept = eliminate_on_moments(&gram, &terms, 4.0, &never_small, measured(spread));
+            assert!(kept.is_empty(), "{kept:?}");
+        }
     }
 
     #[test]
@@ -675,21 +985,14 @@ mod tests {
             })
             .collect();
         let columns = [("slow", slow)];
-        let (gram, terms, white_error) = moment_terms(&e, &sims, &columns);
+        let (gram, terms, spread) = moment_terms(&e, &sims, &columns, usize::MAX);
         let never_small = |_: usize, _: f64| false;
         assert_eq!(
             eliminate_on_moments(&gram, &terms, 4.0, &never_small, None).len(),
             1
         );
-        assert!(eliminate_on_moments(
-            &gram,
-            &terms,
-            4.0,
-            &never_small,
-            Some(MeasuredSpread {
-                white_error: &white_error
-            })
-        )
-        .is_empty());
+        assert!(
+            eliminate_on_moments(&gram, &terms, 4.0, &never_small, measured(spread)).is_empty()
+        );
     }
 }

@@ -11,7 +11,7 @@ use serde_json::json;
 
 use super::engine::{ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run};
 use super::moments::{
-    eliminate_on_moments, full_fit_residual, gram_matrix, MeasuredSpread, Regressor, Term,
+    eliminate_on_moments, full_fit_residual, gram_matrix, Batch, MeasuredSpread, Regressor, Term,
     WhiteSpace,
 };
 use super::null::{normal_p_value, scan_p_value};
@@ -125,14 +125,14 @@ fn white_space<'a>(run: &'a Run) -> Result<WhiteSpace<'a>, DiagnoseError> {
     } else {
         0
     };
-    Ok(WhiteSpace::new(
+    WhiteSpace::new(
         run.absorber(),
         whiteners,
         errors,
         replicates,
         Box::new(sim_of),
         run.opts.held_samples,
-    ))
+    )
 }
 
 /// The stepwise selection of one channel's terms, with what it needs of the channel: its
@@ -147,7 +147,7 @@ struct Selection<'s, 'a> {
 
 impl<'a> Selection<'_, 'a> {
     /// Every candidate as a term fitted with the calibration, coefficients not yet set.
-    fn terms(&self, cands: &[Candidate<'a>]) -> Vec<Term<'a>> {
+    fn terms(&self, cands: &[Candidate<'a>]) -> Result<Batch<'a>, DiagnoseError> {
         Term::batch(self.space, self.channel, cands)
     }
 
@@ -158,12 +158,13 @@ impl<'a> Selection<'_, 'a> {
     /// estimated locally) the candidates are fitted on what it leaves.
     fn select(&self, mut terms: Vec<Term<'a>>, fixed: Option<&Term<'a>>) -> Vec<Term<'a>> {
         let white_error = self.space.error(self.channel);
-        let spread_e = match fixed {
-            Some(f) => {
-                terms.iter_mut().for_each(|t| t.take_out(f));
-                f.taken_from(white_error)
-            }
-            None => white_error.to_vec(),
+        if let Some(f) = fixed {
+            terms.iter_mut().for_each(|t| t.take_out(f));
+        }
+        let spread = MeasuredSpread {
+            epochs: white_error.len(),
+            white_error_sum: white_error.iter().sum(),
+            fixed,
         };
         let gram = gram_matrix(&terms);
         let var_e = variance(self.e);
@@ -171,15 +172,7 @@ impl<'a> Selection<'_, 'a> {
             let explained = b.powi(2) * terms[k].own_variance / var_e;
             !explains_enough(explained, self.min_variance_explained)
         };
-        let kept = eliminate_on_moments(
-            &gram,
-            &terms,
-            self.z_strict,
-            &small,
-            Some(MeasuredSpread {
-                white_error: &spread_e,
-            }),
-        );
+        let kept = eliminate_on_moments(&gram, &terms, self.z_strict, &small, Some(spread));
         let mut terms: Vec<Option<Term>> = terms.into_iter().map(Some).collect();
         kept.into_iter()
             .map(|(k, b, sd)| {
@@ -319,11 +312,11 @@ fn channel_terms<'a>(
         z_strict: run.z_strict,
         min_variance_explained: run.opts.min_variance_explained,
     };
-    let candidate_terms = selection.terms(&cands);
-    let mut terms = selection.select(candidate_terms.clone(), None);
+    let mut batch = selection.terms(&cands)?;
+    let mut terms = selection.select(batch.terms.clone(), None);
     let mut discrepancies = Vec::new();
     let mut step_at_s = None;
-    let unexplained = full_fit_residual(e, &candidate_terms);
+    let unexplained = full_fit_residual(e, &batch.terms);
     if let Some(found) = find_bias_step(run, channel, unexplained, &sims, steps_elsewhere) {
         let FoundStep {
             index,
@@ -345,10 +338,10 @@ fn channel_terms<'a>(
                 cause: Cause::BiasShift,
                 axis: 0,
             };
-            let mut step_term = Term::new(space, channel, &candidate);
+            let mut step_term = Term::join(space, channel, &candidate, &mut batch)?;
             step_term.fix(size, se, p_value);
             step_at_s = Some(at_s);
-            terms = selection.select(candidate_terms, Some(&step_term));
+            terms = selection.select(batch.terms, Some(&step_term));
             terms.push(step_term);
         }
     }

@@ -12,6 +12,8 @@
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
+use super::bank::SeriesBank;
+use super::engine::DiagnoseError;
 use super::moments::Absorber;
 use super::whiten::Whitener;
 use crate::model::Channel;
@@ -45,6 +47,9 @@ pub(super) struct WhiteSpace<'a> {
     columns: [Option<Columns>; 6],
     /// Every replicate's filtered calibrated simulations, when they fit the budget.
     held: Option<Vec<PerChannel>>,
+    /// Whether the run is long (its simulations are not held): series a stage needs
+    /// together are then banked in a temporary file ([`SeriesBank`]).
+    long: bool,
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -62,13 +67,15 @@ impl<'a> WhiteSpace<'a> {
         replicates: usize,
         sim_of: SimOf<'a>,
         held_samples: usize,
-    ) -> Self {
+    ) -> Result<Self, DiagnoseError> {
         let n = errors.iter().flatten().map(|e| e.len()).max().unwrap_or(0);
-        let calibrated = absorber.calibrate(&errors);
+        let mut calibrated = absorber.calibrate(&errors);
+        // Each calibrated error goes once filtered: a long drive holds six series fewer.
         let errors = std::array::from_fn(|ch| {
-            let w = whiteners[ch].as_ref()?;
-            calibrated[ch].as_ref().map(|y| w.apply(y))
+            let y = calibrated[ch].take()?;
+            whiteners[ch].as_ref().map(|w| w.apply(&y))
         });
+        let hold = replicates.saturating_mul(n) <= held_samples;
         let mut space = WhiteSpace {
             absorber,
             whiteners,
@@ -78,12 +85,13 @@ impl<'a> WhiteSpace<'a> {
             theta: vec![None; replicates],
             columns: std::array::from_fn(|_| None),
             held: None,
+            long: !hold,
         };
-        let hold = replicates.saturating_mul(n) <= held_samples;
         space.draw_replicates(hold);
-        let columns = std::array::from_fn(|ch| space.columns_of(ch));
-        space.columns = columns;
-        space
+        for ch in 0..6 {
+            space.columns[ch] = space.columns_of(ch)?;
+        }
+        Ok(space)
     }
 
     /// One pass over the replicates: each one's calibration parameters, and its filtered
@@ -102,8 +110,19 @@ impl<'a> WhiteSpace<'a> {
         let drawn: Vec<(DVector<f64>, Option<PerChannel>)> = (0..self.replicates)
             .into_par_iter()
             .map(|r| {
-                let sims: [Option<Vec<f64>>; 6] =
-                    std::array::from_fn(|ch| self.whiteners[ch].as_ref().and((self.sim_of)(r, ch)));
+                let sim = |ch: usize| self.whiteners[ch].as_ref().and((self.sim_of)(r, ch));
+                if !hold {
+                    // Only the calibration's take is kept: one channel's simulation at a
+                    // time, not six.
+                    let mut moments = DVector::<f64>::zeros(design.parameters());
+                    for ch in (0..6).filter(|&ch| design.has_channel(ch)) {
+                        if let Some(y) = sim(ch) {
+                            moments += design.moments(ch, &y);
+                        }
+                    }
+                    return (design.bread() * moments, None);
+                }
+                let sims: [Option<Vec<f64>>; 6] = std::array::from_fn(sim);
                 let theta = design.bread()
                     * design.moments_all(&std::array::from_fn(|ch| sims[ch].as_deref()));
                 let white = hold.then(|| {
@@ -161,12 +180,6 @@ impl<'a> WhiteSpace<'a> {
         }
     }
 
-    /// The calibration's columns on channel `ch`, each filtered (None without a design
-    /// reaching the channel, or without the channel).
-    fn white_columns(&self, ch: usize) -> Option<Vec<Vec<f64>>> {
-        self.on_white_columns(ch, &|column| column.to_vec())
-    }
-
     /// `f` of each of the calibration's filtered columns on channel `ch`, in order (None
     /// without a design reaching the channel, or without the channel); a column at a time
     /// is held.
@@ -191,23 +204,62 @@ impl<'a> WhiteSpace<'a> {
         )
     }
 
-    fn columns_of(&self, ch: usize) -> Option<Columns> {
-        let x = self.white_columns(ch)?;
-        let p = x.len();
-        let moments = |y: &[f64]| DVector::from_iterator(p, x.iter().map(|c| dot(c, y)));
-        let error = self.errors[ch].as_deref()?;
+    /// The moments of channel `ch`'s filtered calibration columns (None without a design
+    /// reaching the channel, or without the channel). The columns are banked as they are
+    /// made, a core's worth at a time.
+    fn columns_of(&self, ch: usize) -> Result<Option<Columns>, DiagnoseError> {
+        let Absorber::Design(d) = self.absorber else {
+            return Ok(None);
+        };
+        let (Some(w), Some(error)) = (self.whiteners[ch].as_ref(), self.errors[ch].as_deref())
+        else {
+            return Ok(None);
+        };
+        if !d.has_channel(ch) {
+            return Ok(None);
+        }
+        let p = d.parameters();
+        let mut bank = SeriesBank::new(error.len(), self.long)?;
+        let indices: Vec<usize> = (0..p).collect();
+        for chunk in indices.chunks(rayon::current_num_threads().max(1)) {
+            let made: Vec<Vec<f64>> = chunk
+                .par_iter()
+                .map(|&k| {
+                    let unit = DVector::from_fn(p, |a, _| f64::from(a == k));
+                    w.apply(&d.fitted(ch, &unit))
+                })
+                .collect();
+            for column in made {
+                bank.push(column)?;
+            }
+        }
+        let mut gram = DMatrix::<f64>::zeros(p, p);
+        bank.for_each_block(&mut |_, x| {
+            for a in 0..p {
+                for b in 0..p {
+                    gram[(a, b)] += dot(x[a], x[b]);
+                }
+            }
+        })?;
+        let moments = |y: &[f64]| bank.dots(y).map(DVector::from_vec);
         let on_sims = (0..self.replicates)
             .into_par_iter()
             .map(|r| {
                 self.with_white_sim(r, ch, moments)
                     .expect("a channel of the run has its simulations")
             })
-            .collect();
-        Some(Columns {
-            gram: DMatrix::from_fn(p, p, |a, b| dot(&x[a], &x[b])),
-            on_error: moments(error),
+            .collect::<Result<Vec<_>, _>>()?;
+        Ok(Some(Columns {
+            gram,
+            on_error: moments(error)?,
             on_sims,
-        })
+        }))
+    }
+
+    /// Whether the run is long: series a stage needs together are then banked in a
+    /// temporary file rather than held.
+    pub fn is_long(&self) -> bool {
+        self.long
     }
 
     /// The filtered calibrated error of `channel`.

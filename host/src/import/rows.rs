@@ -97,7 +97,10 @@ impl Collect {
         self.layouts
             .into_iter()
             .zip(self.columns)
-            .map(|(layout, columns)| {
+            .map(|(layout, mut columns)| {
+                // Grown a row at a time, a column may hold up to twice its length; a long
+                // recording is held for the whole command, so the slack goes back.
+                columns.iter_mut().for_each(Vec::shrink_to_fit);
                 let table = Table {
                     path: path.clone(),
                     headers: layout.columns.iter().map(|c| c.to_string()).collect(),
