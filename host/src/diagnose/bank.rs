@@ -83,10 +83,7 @@ impl SeriesBank {
 
     /// Calls `visit` with each block of epochs in order (its range, and every series over
     /// it, in the order they were pushed).
-    pub fn for_each_block(
-        &self,
-        visit: &mut BlockVisit<'_>,
-    ) -> Result<(), DiagnoseError> {
+    pub fn for_each_block(&self, visit: &mut BlockVisit<'_>) -> Result<(), DiagnoseError> {
         match &self.store {
             Store::Held(held) => {
                 let all: Vec<&[f64]> = held.iter().map(Vec::as_slice).collect();

@@ -267,16 +267,15 @@ impl<'a> Term<'a> {
         cands: &[Candidate<'a>],
     ) -> Result<Batch<'a>, DiagnoseError> {
         let own_ch = channel.index();
-        let white_error = space.error(channel);
-        let blocks = SpreadBlocks::of(white_error.len());
-        let mut signatures = SeriesBank::new(white_error.len(), space.is_long())?;
+        let blocks = SpreadBlocks::of(space.epochs());
+        let mut signatures = SeriesBank::new(space.epochs(), space.is_long())?;
         let mut terms: Vec<Term> = Vec::with_capacity(cands.len());
         // A core's worth at a time, each signature banked as soon as it is made.
         for chunk in cands.chunks(rayon::current_num_threads().max(1)) {
             let made: Vec<(Term, Vec<f64>)> = chunk
                 .par_iter()
                 .map(|c| Self::made(space, channel, c, blocks))
-                .collect();
+                .collect::<Result<_, _>>()?;
             for (term, white_own) in made {
                 signatures.push(white_own)?;
                 terms.push(term);
@@ -342,11 +341,10 @@ impl<'a> Term<'a> {
         channel: Channel,
         c: &Candidate<'a>,
         blocks: SpreadBlocks,
-    ) -> (Self, Vec<f64>) {
+    ) -> Result<(Self, Vec<f64>), DiagnoseError> {
         let own_ch = channel.index();
         let absorber = space.absorber();
         let whitener = space.whitener(own_ch).expect("a channel of the run");
-        let white_error = space.error(channel);
         let values = c.values.values();
         let projection = absorber.project(channel, &values);
         let own = absorber.own(channel, &values, &projection);
@@ -357,10 +355,10 @@ impl<'a> Term<'a> {
         });
         let white_own = whitener.apply(&own);
         let mut block_sums = vec![0.0; blocks.count];
-        let mut block_on_error = vec![0.0; blocks.count];
-        let all = 0..white_own.len();
-        blocks.add_sums(all.clone(), &white_own, &mut block_sums);
-        blocks.add_products(all, &white_own, white_error, &mut block_on_error);
+        blocks.add_sums(0..white_own.len(), &white_own, &mut block_sums);
+        let (on_error, block_on_error) = products_with(space.error(channel), &white_own, blocks)?
+            .pop()
+            .expect("one error series");
         let mut term = Term {
             channel,
             name: c.name.clone(),
@@ -385,9 +383,8 @@ impl<'a> Term<'a> {
             sd_floor: 0.0,
             fixed: None,
         };
-        term.on_error =
-            dot(&white_own, white_error) + term.pulled_moments(|ch| space.columns_on_error(ch));
-        (term, white_own)
+        term.on_error = on_error + term.pulled_moments(|ch| space.columns_on_error(ch));
+        Ok((term, white_own))
     }
 
     /// `c` as a term beside a batch already made on `channel`: its products with each of
@@ -398,7 +395,7 @@ impl<'a> Term<'a> {
         c: &Candidate<'a>,
         batch: &mut Batch<'a>,
     ) -> Result<Self, DiagnoseError> {
-        let blocks = SpreadBlocks::of(space.error(channel).len());
+        let blocks = SpreadBlocks::of(space.epochs());
         let joined = Self::batch(space, channel, std::slice::from_ref(c))?;
         let mut term = joined
             .terms
@@ -780,8 +777,7 @@ mod tests {
             })
             .collect();
         let terms = Term::batch(&space, Channel::Gx, &cands).unwrap().terms;
-        let white_error = space.error(Channel::Gx);
-        let spread = (white_error.len(), white_error.iter().sum());
+        let spread = (space.epochs(), space.error_sum(Channel::Gx));
         (gram_matrix(&terms), terms, spread)
     }
 
@@ -854,7 +850,11 @@ mod tests {
             step.fix(0.03, 0.001, 1e-9);
             let whitener = space.whitener(0).unwrap();
             let white = |t: &Term| whitener.apply(&t.own());
-            let white_error = space.error(Channel::Gx);
+            let mut white_error = Vec::new();
+            space
+                .error(Channel::Gx)
+                .for_each_block(&mut |_, e| white_error.extend_from_slice(e[0]))
+                .unwrap();
             let spread_e: Vec<f64> = white_error
                 .iter()
                 .zip(white(&step))

@@ -157,13 +157,12 @@ impl<'a> Selection<'_, 'a> {
     /// HAC alone under-covers for such persistent noise. With a `fixed` term (a bias step
     /// estimated locally) the candidates are fitted on what it leaves.
     fn select(&self, mut terms: Vec<Term<'a>>, fixed: Option<&Term<'a>>) -> Vec<Term<'a>> {
-        let white_error = self.space.error(self.channel);
         if let Some(f) = fixed {
             terms.iter_mut().for_each(|t| t.take_out(f));
         }
         let spread = MeasuredSpread {
-            epochs: white_error.len(),
-            white_error_sum: white_error.iter().sum(),
+            epochs: self.space.epochs(),
+            white_error_sum: self.space.error_sum(self.channel),
             fixed,
         };
         let gram = gram_matrix(&terms);

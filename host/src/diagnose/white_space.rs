@@ -37,7 +37,9 @@ struct Columns {
 pub(super) struct WhiteSpace<'a> {
     absorber: Absorber<'a>,
     whiteners: [Option<Whitener>; 6],
-    errors: [Option<Vec<f64>>; 6],
+    /// Epochs of every channel.
+    n: usize,
+    errors: [Option<WhiteError>; 6],
     replicates: usize,
     sim_of: SimOf<'a>,
     /// Per replicate, the calibration parameters a fit of its simulations on every channel
@@ -50,6 +52,13 @@ pub(super) struct WhiteSpace<'a> {
     /// Whether the run is long (its simulations are not held): series a stage needs
     /// together are then banked in a temporary file ([`SeriesBank`]).
     long: bool,
+}
+
+/// A channel's filtered calibrated error, banked (held on a short run, in a temporary file
+/// on a long one), and its sum.
+struct WhiteError {
+    bank: SeriesBank,
+    sum: f64,
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
@@ -69,17 +78,26 @@ impl<'a> WhiteSpace<'a> {
         held_samples: usize,
     ) -> Result<Self, DiagnoseError> {
         let n = errors.iter().flatten().map(|e| e.len()).max().unwrap_or(0);
-        let mut calibrated = absorber.calibrate(&errors);
-        // Each calibrated error goes once filtered: a long drive holds six series fewer.
-        let errors = std::array::from_fn(|ch| {
-            let y = calibrated[ch].take()?;
-            whiteners[ch].as_ref().map(|w| w.apply(&y))
-        });
         let hold = replicates.saturating_mul(n) <= held_samples;
+        let mut calibrated = absorber.calibrate(&errors);
+        // Each calibrated error goes once filtered and banked: a long drive holds none.
+        let mut white_errors: [Option<WhiteError>; 6] = std::array::from_fn(|_| None);
+        for (ch, white) in white_errors.iter_mut().enumerate() {
+            let (Some(y), Some(w)) = (calibrated[ch].take(), whiteners[ch].as_ref()) else {
+                continue;
+            };
+            let filtered = w.apply(&y);
+            drop(y);
+            let sum = filtered.iter().sum();
+            let mut bank = SeriesBank::new(n, !hold)?;
+            bank.push(filtered)?;
+            *white = Some(WhiteError { bank, sum });
+        }
         let mut space = WhiteSpace {
             absorber,
             whiteners,
-            errors,
+            n,
+            errors: white_errors,
             replicates,
             sim_of,
             theta: vec![None; replicates],
@@ -211,15 +229,15 @@ impl<'a> WhiteSpace<'a> {
         let Absorber::Design(d) = self.absorber else {
             return Ok(None);
         };
-        let (Some(w), Some(error)) = (self.whiteners[ch].as_ref(), self.errors[ch].as_deref())
-        else {
+        let (Some(w), Some(error)) = (self.whiteners[ch].as_ref(), self.errors[ch].as_ref()) else {
             return Ok(None);
         };
         if !d.has_channel(ch) {
             return Ok(None);
         }
         let p = d.parameters();
-        let mut bank = SeriesBank::new(error.len(), self.long)?;
+        let mut bank = SeriesBank::new(self.n, self.long)?;
+        let mut on_error = DVector::<f64>::zeros(p);
         let indices: Vec<usize> = (0..p).collect();
         for chunk in indices.chunks(rayon::current_num_threads().max(1)) {
             let made: Vec<Vec<f64>> = chunk
@@ -229,7 +247,8 @@ impl<'a> WhiteSpace<'a> {
                     w.apply(&d.fitted(ch, &unit))
                 })
                 .collect();
-            for column in made {
+            for (&k, column) in chunk.iter().zip(made) {
+                on_error[k] = error.bank.dots(&column)?[0];
                 bank.push(column)?;
             }
         }
@@ -251,7 +270,7 @@ impl<'a> WhiteSpace<'a> {
             .collect::<Result<Vec<_>, _>>()?;
         Ok(Some(Columns {
             gram,
-            on_error: moments(error)?,
+            on_error,
             on_sims,
         }))
     }
@@ -262,10 +281,24 @@ impl<'a> WhiteSpace<'a> {
         self.long
     }
 
-    /// The filtered calibrated error of `channel`.
-    pub fn error(&self, channel: Channel) -> &[f64] {
+    /// Epochs of the run.
+    pub fn epochs(&self) -> usize {
+        self.n
+    }
+
+    /// The filtered calibrated error of `channel`, banked (one series).
+    pub fn error(&self, channel: Channel) -> &SeriesBank {
+        &self.white_error(channel).bank
+    }
+
+    /// The sum of [`WhiteSpace::error`] over the run.
+    pub fn error_sum(&self, channel: Channel) -> f64 {
+        self.white_error(channel).sum
+    }
+
+    fn white_error(&self, channel: Channel) -> &WhiteError {
         self.errors[channel.index()]
-            .as_deref()
+            .as_ref()
             .expect("a channel of the run")
     }
 
