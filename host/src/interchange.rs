@@ -923,6 +923,29 @@ impl ImuRecording {
     pub fn is_empty(&self) -> bool {
         self.t_s.is_empty()
     }
+    /// Samples `range` (by index), every column alike.
+    pub fn rows_in(&self, range: std::ops::Range<usize>) -> ImuRecording {
+        let column = |c: &Vec<f64>| c[range.clone()].to_vec();
+        let triplet = |t: &Option<Triplet>| t.as_ref().map(|t| t.each_ref().map(column));
+        ImuRecording {
+            t_s: column(&self.t_s),
+            gyro_rad_s: triplet(&self.gyro_rad_s),
+            accel_m_s2: triplet(&self.accel_m_s2),
+            attitude_rad: triplet(&self.attitude_rad),
+            position: triplet(&self.position),
+            velocity_ned_m_s: triplet(&self.velocity_ned_m_s),
+            single_axis: self
+                .single_axis
+                .iter()
+                .map(|s| SingleAxis {
+                    channel: s.channel,
+                    values: column(&s.values),
+                })
+                .collect(),
+            sample_rate_hz: self.sample_rate_hz,
+        }
+    }
+
     /// The samples with `from_s <= t < to_s`, every column alike.
     pub fn between(&self, from_s: f64, to_s: f64) -> ImuRecording {
         let keep: Vec<bool> = self.t_s.iter().map(|t| *t >= from_s && *t < to_s).collect();

@@ -60,9 +60,14 @@ impl Samples for ImuRecording {
         })
     }
 
-    /// The whole recording: held in memory, it is read in place.
-    fn rows(&self, _: Range<usize>) -> Result<(Cow<'_, ImuRecording>, usize), ErrorsError> {
-        Ok((Cow::Borrowed(self), 0))
+    /// The whole recording, read in place, when most of it is asked for (epochs formed
+    /// whole); otherwise a copy of the samples asked for, so a block's work (the reference's
+    /// derivatives) spans the block and not the recording.
+    fn rows(&self, range: Range<usize>) -> Result<(Cow<'_, ImuRecording>, usize), ErrorsError> {
+        if 2 * range.len() > self.len() {
+            return Ok((Cow::Borrowed(self), 0));
+        }
+        Ok((Cow::Owned(self.rows_in(range.clone())), range.start))
     }
 
     fn triplets(&self) -> [bool; 5] {
