@@ -530,10 +530,11 @@ fn diagnose_channel(
     let mut discrepancies = std::mem::take(&mut found.discrepancies);
     let terms = FittedTerms::new(run, channel, found, &e);
     let mut findings = terms.findings(run, channel);
-    let fitted = terms.deterministic(&terms.coefficients, 0..run.n);
-    let resid: Vec<f64> = (0..run.n)
-        .map(|t| e[t] - terms.intercept - fitted[t])
-        .collect();
+    let mut resid = terms.deterministic(&terms.coefficients, 0..run.n);
+    resid
+        .iter_mut()
+        .zip(&e)
+        .for_each(|(r, e)| *r = e - terms.intercept - *r);
     let stochastic = find_stochastic_effects(run, slot, channel, spec, &e, resid, &sims);
     stage(|| format!("channel {}: selecting what to keep", channel.name()));
     let selection = select(run, slot, spec, &e, &terms, &stochastic);
