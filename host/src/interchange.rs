@@ -925,41 +925,24 @@ impl ImuRecording {
     }
     /// Samples `range` (by index), every column alike.
     pub fn rows_in(&self, range: std::ops::Range<usize>) -> ImuRecording {
-        let column = |c: &Vec<f64>| c[range.clone()].to_vec();
-        let triplet = |t: &Option<Triplet>| t.as_ref().map(|t| t.each_ref().map(column));
-        ImuRecording {
-            t_s: column(&self.t_s),
-            gyro_rad_s: triplet(&self.gyro_rad_s),
-            accel_m_s2: triplet(&self.accel_m_s2),
-            attitude_rad: triplet(&self.attitude_rad),
-            position: triplet(&self.position),
-            velocity_ned_m_s: triplet(&self.velocity_ned_m_s),
-            single_axis: self
-                .single_axis
-                .iter()
-                .map(|s| SingleAxis {
-                    channel: s.channel,
-                    values: column(&s.values),
-                })
-                .collect(),
-            sample_rate_hz: self.sample_rate_hz,
-        }
+        self.each_column(|c| c[range.clone()].to_vec())
     }
 
     /// The samples with `from_s <= t < to_s`, every column alike.
     pub fn between(&self, from_s: f64, to_s: f64) -> ImuRecording {
         let keep: Vec<bool> = self.t_s.iter().map(|t| *t >= from_s && *t < to_s).collect();
-        let column = |c: &Vec<f64>| -> Vec<f64> {
+        self.each_column(|c| {
             c.iter()
                 .zip(&keep)
                 .filter(|(_, k)| **k)
                 .map(|(v, _)| *v)
                 .collect()
-        };
-        let triplet = |t: &Option<Triplet>| {
-            t.as_ref()
-                .map(|t| [column(&t[0]), column(&t[1]), column(&t[2])])
-        };
+        })
+    }
+
+    /// The recording with every column (time included) made by `column` of its own.
+    fn each_column(&self, column: impl Fn(&Vec<f64>) -> Vec<f64>) -> ImuRecording {
+        let triplet = |t: &Option<Triplet>| t.as_ref().map(|t| t.each_ref().map(&column));
         ImuRecording {
             t_s: column(&self.t_s),
             gyro_rad_s: triplet(&self.gyro_rad_s),

@@ -134,33 +134,34 @@ impl SpreadBlocks {
         }
     }
 
+    /// The pieces of epochs `range` within blocks: each block's index and the piece's
+    /// positions relative to `range.start`.
+    fn pieces(&self, range: Range<usize>) -> impl Iterator<Item = (usize, Range<usize>)> + '_ {
+        let mut t = range.start;
+        std::iter::from_fn(move || {
+            let b = t / self.len;
+            if t >= range.end || b >= self.count {
+                return None;
+            }
+            let end = ((b + 1) * self.len).min(range.end);
+            let piece = t - range.start..end - range.start;
+            t = end;
+            Some((b, piece))
+        })
+    }
+
     /// Adds to `per_block` the products of `x` and `y` (both over epochs `range`) within
     /// each block.
     fn add_products(&self, range: Range<usize>, x: &[f64], y: &[f64], per_block: &mut [f64]) {
-        let mut t = range.start;
-        while t < range.end {
-            let b = t / self.len;
-            if b >= self.count {
-                break;
-            }
-            let end = ((b + 1) * self.len).min(range.end);
-            let at = t - range.start..end - range.start;
+        for (b, at) in self.pieces(range) {
             per_block[b] += dot(&x[at.clone()], &y[at]);
-            t = end;
         }
     }
 
     /// Adds to `per_block` the sums of `x` (over epochs `range`) within each block.
     fn add_sums(&self, range: Range<usize>, x: &[f64], per_block: &mut [f64]) {
-        let mut t = range.start;
-        while t < range.end {
-            let b = t / self.len;
-            if b >= self.count {
-                break;
-            }
-            let end = ((b + 1) * self.len).min(range.end);
-            per_block[b] += x[t - range.start..end - range.start].iter().sum::<f64>();
-            t = end;
+        for (b, at) in self.pieces(range) {
+            per_block[b] += x[at].iter().sum::<f64>();
         }
     }
 }
