@@ -738,15 +738,14 @@ mod tests {
     /// Candidates on one channel without a calibration design, fitted with a white-noise
     /// baseline of sd 0.05 (so generalised least squares is ordinary least squares): the
     /// columns' terms, their Gram matrix and the channel's filtered error.
-    /// `held_samples` as [`WhiteSpace::new`] takes it: 0 banks the terms' signatures in a
-    /// temporary file.
-    fn moment_terms<'a>(
+    /// The white space of one channel (gx) with error `e`, simulations `sims` and a
+    /// white-noise baseline of sd 0.05, without a calibration design; `held_samples` as
+    /// [`WhiteSpace::new`] takes it (0 banks series in a temporary file).
+    fn one_channel_space<'a>(
         e: &[f64],
         sims: &'a [Vec<f64>],
-        columns: &'a [(&str, Vec<f64>)],
         held_samples: usize,
-    ) -> (nalgebra::DMatrix<f64>, Vec<Term<'a>>, (usize, f64)) {
-        let absorber = Absorber::Mean;
+    ) -> WhiteSpace<'a> {
         let spec = crate::gmwm::model::ModelSpec {
             model: "WN".into(),
             unit: "rad/s".into(),
@@ -759,15 +758,26 @@ mod tests {
         let mut errors: [Option<&[f64]>; 6] = [None; 6];
         errors[0] = Some(e);
         let sim_of = move |r: usize, ch: usize| (ch == 0).then(|| sims[r].clone());
-        let space = WhiteSpace::new(
-            absorber,
+        WhiteSpace::new(
+            Absorber::Mean,
             whiteners,
             errors,
             sims.len(),
             Box::new(sim_of),
             held_samples,
         )
-        .unwrap();
+        .unwrap()
+    }
+
+    /// `held_samples` as [`WhiteSpace::new`] takes it: 0 banks the terms' signatures in a
+    /// temporary file.
+    fn moment_terms<'a>(
+        e: &[f64],
+        sims: &'a [Vec<f64>],
+        columns: &'a [(&str, Vec<f64>)],
+        held_samples: usize,
+    ) -> (nalgebra::DMatrix<f64>, Vec<Term<'a>>, (usize, f64)) {
+        let space = one_channel_space(e, sims, held_samples);
         let cands: Vec<Candidate> = columns
             .iter()
             .map(|(name, values)| Candidate {
@@ -809,29 +819,8 @@ mod tests {
                 walk + 0.1 * slow[k] + f64::from(k >= 4_000) * 0.03
             })
             .collect();
-        let spec = crate::gmwm::model::ModelSpec {
-            model: "WN".into(),
-            unit: "rad/s".into(),
-            sample_rate_hz: 100.0,
-            processes: vec![crate::gmwm::model::Process::WhiteNoise { sigma2: 0.0025 }],
-        };
         for held_samples in [usize::MAX, 0] {
-            let mut whiteners: [Option<super::super::whiten::Whitener>; 6] =
-                std::array::from_fn(|_| None);
-            whiteners[0] = Some(super::super::whiten::Whitener::new(&spec, n));
-            let mut errors: [Option<&[f64]>; 6] = [None; 6];
-            errors[0] = Some(&e);
-            let sims = &sims;
-            let sim_of = move |r: usize, ch: usize| (ch == 0).then(|| sims[r].clone());
-            let space = WhiteSpace::new(
-                Absorber::Mean,
-                whiteners,
-                errors,
-                sims.len(),
-                Box::new(sim_of),
-                held_samples,
-            )
-            .unwrap();
+            let space = one_channel_space(&e, &sims, held_samples);
             fn candidate<'c>(name: &str, values: Regressor<'c>) -> Candidate<'c> {
                 Candidate {
                     name: name.into(),
