@@ -47,11 +47,10 @@ pub(super) struct WhiteSpace<'a> {
     theta: Vec<Option<DVector<f64>>>,
     /// Per channel the calibration reaches (with a design), its filtered columns' moments.
     columns: [Option<Columns>; 6],
-    /// Every replicate's filtered calibrated simulations, when they fit the budget.
+    /// Every replicate's filtered calibrated simulations, when they fit the budget (None:
+    /// the run is long, and series a stage needs together are banked in a temporary file,
+    /// [`SeriesBank`]).
     held: Option<Vec<PerChannel>>,
-    /// Whether the run is long (its simulations are not held): series a stage needs
-    /// together are then banked in a temporary file ([`SeriesBank`]).
-    long: bool,
 }
 
 /// A channel's filtered calibrated error, banked (held on a short run, in a temporary file
@@ -103,7 +102,6 @@ impl<'a> WhiteSpace<'a> {
             theta: vec![None; replicates],
             columns: std::array::from_fn(|_| None),
             held: None,
-            long: !hold,
         };
         space.draw_replicates(hold);
         for ch in 0..6 {
@@ -236,7 +234,7 @@ impl<'a> WhiteSpace<'a> {
             return Ok(None);
         }
         let p = d.parameters();
-        let mut bank = SeriesBank::new(self.n, self.long)?;
+        let mut bank = SeriesBank::new(self.n, self.is_long())?;
         let mut on_error = DVector::<f64>::zeros(p);
         let indices: Vec<usize> = (0..p).collect();
         for chunk in indices.chunks(rayon::current_num_threads().max(1)) {
@@ -278,7 +276,7 @@ impl<'a> WhiteSpace<'a> {
     /// Whether the run is long: series a stage needs together are then banked in a
     /// temporary file rather than held.
     pub fn is_long(&self) -> bool {
-        self.long
+        self.held.is_none()
     }
 
     /// Epochs of the run.
