@@ -114,20 +114,6 @@ impl ErrorSignals {
         &self.dynamics[12 + axis]
     }
 
-    /// Frees the jerks (angular and linear) and, when specific force is known, the linear
-    /// acceleration: a consumer that reads only the rates, the angular acceleration and the
-    /// specific force (the diagnosis) holds six to nine fewer series. Their accessors return
-    /// empty slices after this.
-    pub fn release_jerks_and_acceleration(&mut self) {
-        let mut unused = vec![6, 7, 8, 12, 13, 14];
-        if self.specific_force_b_m_s2.is_some() {
-            unused.extend([9, 10, 11]);
-        }
-        for k in unused {
-            self.dynamics[k] = Vec::new();
-        }
-    }
-
     /// The dynamics regressors as (name, values) pairs, ready for regression.
     pub fn regressors(&self) -> Vec<(&'static str, &[f64])> {
         DYNAMICS_REGRESSORS

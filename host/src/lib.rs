@@ -28,6 +28,7 @@ pub mod refit;
 pub mod regress;
 pub mod replay;
 pub mod report;
+pub mod series_bank;
 pub mod sim;
 pub mod wv;
 

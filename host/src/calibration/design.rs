@@ -2,11 +2,15 @@
 //! diagnosis strips candidate regressors with and corrects the calibration's estimates by;
 //! its rows are read over the error signals the calibration formed ([`DesignRows`]).
 
+use std::ops::Range;
+
 use nalgebra::{DMatrix, DVector, Vector3};
 
 use super::epochs::EpochData;
 use super::least_squares::{design_row, normal_matrix_inverse, Layout, MAX_PARAMETERS};
+use super::signal_bank::SignalBank;
 use crate::error_signal::ErrorSignals;
+use crate::series_bank::{SpillError, BANK_BLOCK_EPOCHS};
 
 /// The linear model the calibration fitted, at its solution: what it would have absorbed
 /// from any other error. The discrepancy engine uses it to estimate per-channel terms
@@ -29,20 +33,53 @@ pub struct CalibrationDesign {
     /// (X' W X)^-1.
     bread: DMatrix<f64>,
     layout: Layout,
-    /// Rate of change of specific force at the epochs, m/s^3, body (reference) frame.
+    /// Rate of change of specific force at the epochs, m/s^3, body (reference) frame; empty
+    /// where a [`SignalBank`] holds it.
     pub f_dot_b_m_s3: [Vec<f64>; 3],
 }
 
 /// A [`CalibrationDesign`] over the error signals the calibration formed with it: the
-/// design's rows, made when asked for from the signals' angular rate (rad/s), angular
-/// acceleration (rad/s^2) and specific force (m/s^2), body (reference) frame.
-#[derive(Debug, Clone, Copy)]
+/// design's rows, made a block of epochs at a time when asked for from the signals' angular
+/// rate (rad/s), angular acceleration (rad/s^2), specific force (m/s^2) and its rate
+/// (m/s^3), body (reference) frame, held or read back from a [`SignalBank`].
+#[derive(Clone, Copy)]
 pub struct DesignRows<'a> {
     design: &'a CalibrationDesign,
-    omega_ib_b_rad_s: [&'a [f64]; 3],
-    omega_dot_b_rad_s2: [&'a [f64]; 3],
-    f_b_m_s2: [&'a [f64]; 3],
+    dynamics: RowDynamics<'a>,
 }
+
+/// Where a design's rows read the dynamics: angular rate, angular acceleration, specific
+/// force and its rate, three axes each.
+#[derive(Clone, Copy)]
+enum RowDynamics<'a> {
+    Held([&'a [f64]; 12]),
+    Banked(&'a SignalBank),
+}
+
+impl std::fmt::Debug for DesignRows<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("DesignRows")
+            .field("design", self.design)
+            .field("banked", &matches!(self.dynamics, RowDynamics::Banked(_)))
+            .finish()
+    }
+}
+
+/// What visits a design's rows a block at a time: the block's epochs and a row per epoch.
+type RowsVisit<'v> = dyn FnMut(Range<usize>, &[[f64; MAX_PARAMETERS]]) + 'v;
+
+/// The bank's series a design's rows are made of, in [`RowDynamics::Held`]'s order.
+const BANKED_ROW_SERIES: [usize; 12] = {
+    let [w, d, f, j] = [
+        SignalBank::ANGULAR_RATE_RAD_S,
+        SignalBank::ANGULAR_ACCELERATION_RAD_S2,
+        SignalBank::SPECIFIC_FORCE_M_S2,
+        SignalBank::SPECIFIC_FORCE_RATE_M_S3,
+    ];
+    [
+        w[0], w[1], w[2], d[0], d[1], d[2], f[0], f[1], f[2], j[0], j[1], j[2],
+    ]
+};
 
 impl CalibrationDesign {
     /// The design's rows over `signals`, the error signals the calibration formed with it
@@ -56,22 +93,33 @@ impl CalibrationDesign {
             .specific_force_b_m_s2
             .as_ref()
             .expect("the calibration's error signals carry the specific force");
-        let rows = DesignRows {
-            design: self,
-            omega_ib_b_rad_s: std::array::from_fn(|i| signals.angular_rate_rad_s(i)),
-            omega_dot_b_rad_s2: std::array::from_fn(|i| signals.angular_acceleration_rad_s2(i)),
-            f_b_m_s2: std::array::from_fn(|i| &f[i][..]),
-        };
-        let lengths = rows
-            .omega_ib_b_rad_s
-            .iter()
-            .chain(&rows.omega_dot_b_rad_s2)
-            .chain(&rows.f_b_m_s2);
+        let series: [&[f64]; 12] = std::array::from_fn(|k| match k / 3 {
+            0 => signals.angular_rate_rad_s(k % 3),
+            1 => signals.angular_acceleration_rad_s2(k % 3),
+            2 => &f[k % 3][..],
+            _ => &self.f_dot_b_m_s3[k % 3][..],
+        });
         assert!(
-            lengths.map(|s| s.len()).all(|len| len == self.epochs),
+            series.iter().all(|s| s.len() == self.epochs),
             "error signals of another length than the calibration design's"
         );
-        rows
+        DesignRows {
+            design: self,
+            dynamics: RowDynamics::Held(series),
+        }
+    }
+
+    /// The design's rows over `bank`, the signals the calibration gathered with it
+    /// ([`super::build_signal_bank`]).
+    ///
+    /// # Panics
+    /// If the bank's length is not the design's.
+    pub fn over_bank<'a>(&'a self, bank: &'a SignalBank) -> DesignRows<'a> {
+        assert_eq!(bank.epochs(), self.epochs, "a bank of another run");
+        DesignRows {
+            design: self,
+            dynamics: RowDynamics::Banked(bank),
+        }
     }
 }
 
@@ -100,62 +148,109 @@ impl DesignRows<'_> {
     pub fn bread(&self) -> &DMatrix<f64> {
         &self.design.bread
     }
-    /// The rows of `channel` (0..6, gx..az) at every epoch, in order.
-    fn rows(&self, channel: usize) -> impl Iterator<Item = [f64; MAX_PARAMETERS]> + '_ {
-        let accel = channel >= 3;
-        let count = if self.has_channel(channel) {
-            self.epochs()
-        } else {
-            0
+
+    /// Calls `visit` with each block of the rows of `channel` (0..6, gx..az) over the epochs
+    /// `epochs`, in order: the block's epochs and a row per epoch.
+    fn for_each_rows(
+        &self,
+        channel: usize,
+        epochs: Range<usize>,
+        visit: &mut RowsVisit<'_>,
+    ) -> Result<(), SpillError> {
+        if !self.has_channel(channel) {
+            return Ok(());
+        }
+        let mut rows = Vec::new();
+        let mut block = |range: Range<usize>, series: &[&[f64]]| {
+            let at = |first: usize, k: usize| {
+                Vector3::new(series[first][k], series[first + 1][k], series[first + 2][k])
+            };
+            rows.clear();
+            rows.extend((0..range.len()).map(|k| {
+                design_row(
+                    &self.design.layout,
+                    &at(0, k),
+                    &at(6, k),
+                    &at(3, k),
+                    &at(9, k),
+                    channel >= 3,
+                    channel % 3,
+                )
+            }));
+            visit(range, &rows);
         };
-        let f_dot = &self.design.f_dot_b_m_s3;
-        (0..count).map(move |k| {
-            let at = |v: [&[f64]; 3]| Vector3::new(v[0][k], v[1][k], v[2][k]);
-            design_row(
-                &self.design.layout,
-                &at(self.omega_ib_b_rad_s),
-                &at(self.f_b_m_s2),
-                &at(self.omega_dot_b_rad_s2),
-                &Vector3::new(f_dot[0][k], f_dot[1][k], f_dot[2][k]),
-                accel,
-                channel % 3,
-            )
-        })
+        match self.dynamics {
+            RowDynamics::Held(series) => {
+                for start in epochs.clone().step_by(BANK_BLOCK_EPOCHS) {
+                    let range = start..(start + BANK_BLOCK_EPOCHS).min(epochs.end);
+                    let views: [&[f64]; 12] = std::array::from_fn(|k| &series[k][range.clone()]);
+                    block(range, &views);
+                }
+                Ok(())
+            }
+            RowDynamics::Banked(bank) => {
+                bank.for_each_block_in(&BANKED_ROW_SERIES, epochs, &mut block)
+            }
+        }
     }
+
     /// Moments X_c' W_c y of a series on `channel` with the calibration's columns.
-    pub fn moments(&self, channel: usize, y: &[f64]) -> DVector<f64> {
+    pub fn moments(&self, channel: usize, y: &[f64]) -> Result<DVector<f64>, SpillError> {
+        self.moments_in(channel, 0..y.len().min(self.epochs()), y)
+    }
+    /// Moments over the epochs `epochs` alone of a series `y` on `channel` given over them
+    /// (a series zero elsewhere).
+    pub fn moments_in(
+        &self,
+        channel: usize,
+        epochs: Range<usize>,
+        y: &[f64],
+    ) -> Result<DVector<f64>, SpillError> {
         let p = self.parameters();
         let w = self.weight(channel);
+        let first = epochs.start;
         // Summed in a fixed array, without a vector's checked indexing: the diagnosis takes
         // these moments of every simulated series.
         let mut xtwy = [0.0; MAX_PARAMETERS];
-        for (x, v) in self.rows(channel).zip(y) {
-            for (sum, x) in xtwy.iter_mut().zip(&x) {
-                *sum += w * x * v;
+        self.for_each_rows(channel, epochs, &mut |range, rows| {
+            for (x, v) in rows.iter().zip(&y[range.start - first..range.end - first]) {
+                for (sum, x) in xtwy.iter_mut().zip(x) {
+                    *sum += w * x * v;
+                }
             }
-        }
-        DVector::from_column_slice(&xtwy[..p])
+        })?;
+        Ok(DVector::from_column_slice(&xtwy[..p]))
     }
     /// Moments X' W y of series on all channels at once.
-    pub fn moments_all(&self, y: &[Option<&[f64]>; 6]) -> DVector<f64> {
+    pub fn moments_all(&self, y: &[Option<&[f64]>; 6]) -> Result<DVector<f64>, SpillError> {
         let mut total = DVector::<f64>::zeros(self.parameters());
         for (ch, series) in y.iter().enumerate() {
             if let Some(series) = series.filter(|_| self.has_channel(ch)) {
-                total += self.moments(ch, series);
+                total += self.moments(ch, series)?;
             }
         }
-        total
+        Ok(total)
     }
     /// The calibration parameters taken from errors on all channels at once.
-    pub fn absorbed_all(&self, y: &[Option<&[f64]>; 6]) -> DVector<f64> {
-        self.bread() * self.moments_all(y)
+    pub fn absorbed_all(&self, y: &[Option<&[f64]>; 6]) -> Result<DVector<f64>, SpillError> {
+        Ok(self.bread() * self.moments_all(y)?)
     }
-    /// The fitted error on `channel` of a parameter vector.
-    pub fn fitted(&self, channel: usize, theta: &DVector<f64>) -> Vec<f64> {
+    /// The fitted error on `channel` of a parameter vector (empty where the channel has no
+    /// rows).
+    pub fn fitted(&self, channel: usize, theta: &DVector<f64>) -> Result<Vec<f64>, SpillError> {
         let p = self.parameters();
-        self.rows(channel)
-            .map(|x| (0..p).map(|a| x[a] * theta[a]).sum())
-            .collect()
+        let mut fitted = Vec::with_capacity(if self.has_channel(channel) {
+            self.epochs()
+        } else {
+            0
+        });
+        self.for_each_rows(channel, 0..self.epochs(), &mut |_, rows| {
+            fitted.extend(
+                rows.iter()
+                    .map(|x| (0..p).map(|a| x[a] * theta[a]).sum::<f64>()),
+            );
+        })?;
+        Ok(fitted)
     }
 }
 
@@ -168,6 +263,8 @@ pub(super) struct DesignSums {
     /// X' W X over the epochs added.
     xtwx: DMatrix<f64>,
     epochs: usize,
+    /// Whether the specific force's rate is kept (see [`CalibrationDesign::f_dot_b_m_s3`]).
+    keep_f_dot: bool,
     f_dot_b_m_s3: [Vec<f64>; 3],
 }
 
@@ -180,6 +277,7 @@ impl DesignSums {
         weights: [f64; 2],
         present: [bool; 2],
         epochs: usize,
+        keep_f_dot: bool,
     ) -> Self {
         // The time offset is the one common to the consistent channels, which a
         // channel-specific term does not move: the design the engine strips candidates with
@@ -195,7 +293,10 @@ impl DesignSums {
             layout,
             xtwx: DMatrix::zeros(p, p),
             epochs: 0,
-            f_dot_b_m_s3: std::array::from_fn(|_| Vec::with_capacity(epochs)),
+            keep_f_dot,
+            f_dot_b_m_s3: std::array::from_fn(|_| {
+                Vec::with_capacity(if keep_f_dot { epochs } else { 0 })
+            }),
         }
     }
 
@@ -223,8 +324,10 @@ impl DesignSums {
                 }
             }
         }
-        for (i, column) in self.f_dot_b_m_s3.iter_mut().enumerate() {
-            column.extend(f_dot[own.clone()].iter().map(|v| v[i]));
+        if self.keep_f_dot {
+            for (i, column) in self.f_dot_b_m_s3.iter_mut().enumerate() {
+                column.extend(f_dot[own.clone()].iter().map(|v| v[i]));
+            }
         }
         self.epochs += own.len();
     }

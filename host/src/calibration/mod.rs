@@ -44,12 +44,14 @@ mod least_squares;
 pub(crate) mod motion;
 mod passes;
 mod recordings;
+mod signal_bank;
 mod signals;
 
 use design::DesignSums;
 pub use design::{CalibrationDesign, DesignRows};
 pub(crate) use recordings::Samples;
 pub use recordings::{SpillBuilder, SpilledRecording};
+pub use signal_bank::SignalBank;
 
 use std::path::Path;
 
@@ -57,7 +59,7 @@ use nalgebra::Rotation3;
 
 use crate::error_signal::{ErrorSignalWriter, ErrorSignals};
 use crate::interchange::ImuRecording;
-use epochs::{EpochGrid, EpochSource};
+use epochs::{EpochData, EpochGrid, EpochSource};
 use passes::{Epochs, View};
 
 /// Errors building error signals.
@@ -102,6 +104,15 @@ pub enum ErrorsError {
         #[source]
         source: std::io::Error,
     },
+}
+
+impl From<crate::series_bank::SpillError> for ErrorsError {
+    fn from(e: crate::series_bank::SpillError) -> Self {
+        ErrorsError::Spill {
+            dir: std::env::temp_dir(),
+            source: e.0,
+        }
+    }
 }
 
 /// A vector estimate with its 1-sigma uncertainty per component.
@@ -156,11 +167,6 @@ pub struct ErrorOptions {
     pub estimate_time_offset: bool,
     /// Largest time offset searched, s: also the margin trimmed off the overlap.
     pub max_time_offset_s: f64,
-    /// Form only the dynamics the diagnosis reads (angular rate and acceleration): the
-    /// angular jerk and the acceleration with its rate are left empty, as
-    /// [`ErrorSignals::release_jerks_and_acceleration`] leaves them, without ever holding
-    /// them (nine series of the drive's length).
-    pub rates_only: bool,
     /// Epochs a streamed calibration ([`write_error_signals_streamed`]) forms at a time
     /// (about 200 bytes each, a few blocks held at once); the result does not depend on it.
     pub block_epochs: usize,
@@ -176,7 +182,6 @@ impl Default for ErrorOptions {
             estimate_lever_arm: true,
             estimate_time_offset: true,
             max_time_offset_s: 0.2,
-            rates_only: false,
             block_epochs: passes::BLOCK_EPOCHS,
             held_epochs: usize::MAX,
         }
@@ -202,6 +207,96 @@ pub fn build_error_signals_with_design(
     reference: &ImuRecording,
     opts: &ErrorOptions,
 ) -> Result<(ErrorSignals, CalibrationSummary, CalibrationDesign), ErrorsError> {
+    let mut gather = Gather::Signals(None);
+    let (summary, design) = form_error_signals(sensor, reference, opts, &mut gather)?;
+    let Gather::Signals(Some(gathered)) = gather else {
+        unreachable!("the final pass gathers the signals")
+    };
+    Ok((gathered.finish(), summary, design))
+}
+
+/// The error signals a diagnosis reads ([`SignalBank`]: the time, the reference's rates,
+/// angular acceleration, specific force and its rate, and the errors) with the calibration
+/// and its linear model, gathered a block at a time into a bank held, or spilled to a
+/// temporary file when `spill`: then the recordings and a few blocks are all that is held.
+/// The calibration design reads its rows from the bank ([`CalibrationDesign::over_bank`]).
+pub fn build_signal_bank(
+    sensor: &ImuRecording,
+    reference: &ImuRecording,
+    opts: &ErrorOptions,
+    spill: bool,
+) -> Result<(SignalBank, CalibrationSummary, CalibrationDesign), ErrorsError> {
+    let mut gather = Gather::Bank(None, spill);
+    let (summary, design) = form_error_signals(sensor, reference, opts, &mut gather)?;
+    let Gather::Bank(Some(bank), _) = gather else {
+        unreachable!("the final pass gathers the signals")
+    };
+    Ok((bank, summary, design))
+}
+
+/// One block of the final pass, at the calibration's solution, for a gatherer: its times,
+/// epochs and errors (gx .. az), of which epochs `own` are the block's own.
+struct Block<'b> {
+    t_s: &'b [f64],
+    data: &'b EpochData,
+    errors: [Option<Vec<f64>>; 6],
+    own: std::ops::Range<usize>,
+}
+
+/// What the final pass's blocks are gathered into, made when the epochs' grid is known: the
+/// error signals whole, or a bank (spilled when its flag says so).
+enum Gather {
+    Signals(Option<Box<signals::Gathered>>),
+    Bank(Option<SignalBank>, bool),
+}
+
+impl Gather {
+    /// Makes room for the epochs of `grid`.
+    fn start(&mut self, grid: &EpochGrid) -> Result<(), ErrorsError> {
+        match self {
+            Gather::Signals(gathered) => {
+                *gathered = Some(Box::new(signals::Gathered::new(grid.epochs)));
+            }
+            Gather::Bank(bank, spill) => {
+                let present = std::array::from_fn(|ch| {
+                    if ch < 3 {
+                        grid.has_gyro()
+                    } else {
+                        grid.has_accel()
+                    }
+                });
+                *bank = Some(SignalBank::gathering(grid.epochs, present, *spill)?);
+            }
+        }
+        Ok(())
+    }
+
+    /// Takes a block; the signals also its dynamics.
+    fn add(&mut self, block: Block) -> Result<(), ErrorsError> {
+        match self {
+            Gather::Signals(gathered) => {
+                let dynamics = signals::dynamics_columns(block.t_s, block.data);
+                let gathered = gathered.as_mut().expect("started");
+                gathered.add(block.t_s, block.errors, dynamics, block.data, block.own);
+            }
+            Gather::Bank(bank, _) => {
+                let bank = bank.as_mut().expect("started");
+                bank.add(block.t_s, &block.errors, block.data, block.own)?;
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The calibration of `sensor` against `reference`, then a pass at its solution whose
+/// blocks' error signals `gather` takes; the design keeps the specific force's rate unless
+/// a bank does.
+fn form_error_signals(
+    sensor: &ImuRecording,
+    reference: &ImuRecording,
+    opts: &ErrorOptions,
+    gather: &mut Gather,
+) -> Result<(CalibrationSummary, CalibrationDesign), ErrorsError> {
     if sensor.gyro_rad_s.is_none() && sensor.accel_m_s2.is_none() {
         return Err(ErrorsError::SensorHasNoChannels);
     }
@@ -228,22 +323,30 @@ pub fn build_error_signals_with_design(
     let view = epochs.at(fit.shift_s, fit.r_sb)?;
     let lever_arm_b_m = fit.lever_arm_b_m();
     let present = [grid.has_gyro(), grid.has_accel()];
-    let mut design = DesignSums::new(&fit.layout, fit.weights, present, grid.epochs);
-    let mut gathered = signals::Gathered::new(grid.epochs);
+    let keep_f_dot = matches!(gather, Gather::Signals(_));
+    let mut design = DesignSums::new(&fit.layout, fit.weights, present, grid.epochs, keep_f_dot);
     let mut spread = signals::ErrorSpread::default();
+    // The epochs' times, for their median length (one series, not grown).
+    let mut t_s = Vec::with_capacity(grid.epochs);
+    gather.start(&grid)?;
     view.pass(&mut |block| {
         let errors = signals::error_columns(block.data, lever_arm_b_m);
-        let dynamics = signals::dynamics_columns(block.t_s, block.data, opts.rates_only);
         spread.add(&errors, block.own.clone());
         design.add(block.data, block.own.clone());
-        gathered.add(block.t_s, errors, dynamics, block.data, block.own.clone());
-        Ok(())
+        t_s.extend_from_slice(&block.t_s[block.own.clone()]);
+        let block = Block {
+            t_s: block.t_s,
+            data: block.data,
+            errors,
+            own: block.own.clone(),
+        };
+        gather.add(block)
     })?;
     drop(view);
-    let signals = gathered.finish();
-    let epoch_dt_s = crate::interchange::median_step_s(&signals.t_s).unwrap_or(0.0);
+    let epoch_dt_s = crate::interchange::median_step_s(&t_s).unwrap_or(0.0);
+    drop(t_s);
     let summary = signals::summary(fit, &grid, spread.std_dev(), epoch_dt_s);
-    Ok((signals, summary, design.finish()))
+    Ok((summary, design.finish()))
 }
 
 /// The motion check and the fit, over epochs held or streamed.
@@ -307,7 +410,7 @@ fn calibrate_streamed(
     let mut row = Vec::with_capacity(writer.columns().len());
     view.pass(&mut |block| {
         let errors = signals::error_columns(block.data, lever_arm_b_m);
-        let dynamics = signals::dynamics_columns(block.t_s, block.data, false);
+        let dynamics = signals::dynamics_columns(block.t_s, block.data);
         spread.add(&errors, block.own.clone());
         for k in block.own.clone() {
             signals::file_row(block.t_s, &errors, &dynamics, block.data, k, &mut row);
@@ -473,17 +576,6 @@ mod tests {
         let mean = gx.iter().sum::<f64>() / gx.len() as f64;
         assert!((mean - bg[0]).abs() < 2e-4, "{mean}");
         assert!(std_dev(gx) < 3e-3, "{}", std_dev(gx));
-        // What the diagnosis asks for: the same calibration and errors, only the rates among
-        // the dynamics, the jerks and the acceleration never formed.
-        let rates = ErrorOptions {
-            rates_only: true,
-            ..Default::default()
-        };
-        let (lean, lean_summary) = build_error_signals(&sensor, &reference, &rates).unwrap();
-        assert_eq!(lean_summary.boresight_rad.value, s.boresight_rad.value);
-        assert_eq!(lean.errors, sig.errors);
-        assert_eq!(lean.dynamics[..6], sig.dynamics[..6]);
-        assert!(lean.dynamics[6..].iter().all(Vec::is_empty));
         assert!(sig.dynamics.iter().all(|d| d.len() == sig.t_s.len()));
     }
 
@@ -529,16 +621,13 @@ mod tests {
     #[test]
     fn recordings_formed_in_blocks_give_the_signals_and_design_held_ones_give() {
         let (sensor, reference) = simulated_pair(20_000);
-        let rates = ErrorOptions {
-            rates_only: true,
-            ..Default::default()
-        };
+        let whole = ErrorOptions::default();
         let (held, held_summary, held_design) =
-            build_error_signals_with_design(&sensor, &reference, &rates).unwrap();
+            build_error_signals_with_design(&sensor, &reference, &whole).unwrap();
         let blocked_opts = ErrorOptions {
             held_epochs: 5_000,
             block_epochs: 997,
-            ..rates
+            ..whole
         };
         let (blocked, summary, design) =
             build_error_signals_with_design(&sensor, &reference, &blocked_opts).unwrap();
@@ -548,7 +637,6 @@ mod tests {
         assert_eq!(blocked.errors, held.errors);
         assert_eq!(blocked.dynamics, held.dynamics);
         assert_eq!(blocked.specific_force_b_m_s2, held.specific_force_b_m_s2);
-        assert!(blocked.dynamics[6..].iter().all(Vec::is_empty));
         assert_eq!(design.f_dot_b_m_s3, held_design.f_dot_b_m_s3);
         let (a, b) = (design.over(&blocked), held_design.over(&held));
         let scale = b.bread().amax();
@@ -560,6 +648,71 @@ mod tests {
             },
             held_summary
         );
+    }
+
+    #[test]
+    fn a_bank_held_or_spilled_holds_the_signals_and_gives_the_design_held_signals_give() {
+        let (sensor, reference) = simulated_pair(20_000);
+        let whole = ErrorOptions::default();
+        let (held, held_summary, held_design) =
+            build_error_signals_with_design(&sensor, &reference, &whole).unwrap();
+        let blocked = ErrorOptions {
+            held_epochs: 5_000,
+            block_epochs: 997,
+            ..whole
+        };
+        let f = held.specific_force_b_m_s2.as_ref().unwrap();
+        let y: Vec<f64> = (0..held.t_s.len())
+            .map(|k| (k as f64 * 0.01).sin())
+            .collect();
+        let theta =
+            nalgebra::DVector::from_fn(held_design.over(&held).parameters(), |a, _| 1.0 + a as f64);
+        for (opts, spill) in [(&whole, false), (&blocked, true)] {
+            let (bank, summary, design) =
+                build_signal_bank(&sensor, &reference, opts, spill).unwrap();
+            assert_eq!(bank.is_spilled(), spill);
+            assert_eq!(bank.epochs(), held.t_s.len());
+            assert_eq!(bank.series(SignalBank::TIME).unwrap()[..], held.t_s[..]);
+            for (axis, f) in f.iter().enumerate() {
+                let series = |k: usize| bank.series(k).unwrap().into_owned();
+                let rate = SignalBank::ANGULAR_RATE_RAD_S[axis];
+                let acceleration = SignalBank::ANGULAR_ACCELERATION_RAD_S2[axis];
+                assert_eq!(series(rate), held.angular_rate_rad_s(axis));
+                assert_eq!(series(acceleration), held.angular_acceleration_rad_s2(axis));
+                assert_eq!(&series(SignalBank::SPECIFIC_FORCE_M_S2[axis]), f);
+                let f_dot = SignalBank::SPECIFIC_FORCE_RATE_M_S3[axis];
+                assert_eq!(series(f_dot), held_design.f_dot_b_m_s3[axis]);
+            }
+            for channel in crate::model::Channel::ALL {
+                let k = bank.error_index(channel).unwrap();
+                assert_eq!(Some(&bank.series(k).unwrap()[..]), held.error_of(channel));
+            }
+            assert_eq!(
+                CalibrationSummary {
+                    error_std: held_summary.error_std,
+                    ..summary
+                },
+                held_summary
+            );
+            // The rows read from the bank are the rows made from the held signals.
+            let (a, b) = (design.over_bank(&bank), held_design.over(&held));
+            assert!((a.bread() - b.bread()).amax() <= 1e-9 * b.bread().amax());
+            for ch in 0..6 {
+                let (ma, mb) = (a.moments(ch, &y).unwrap(), b.moments(ch, &y).unwrap());
+                assert!((&ma - &mb).amax() <= 1e-9 * mb.amax(), "{ma} {mb}");
+                let part = a.moments_in(ch, 300..7_000, &y[300..7_000]).unwrap();
+                let mut masked = vec![0.0; y.len()];
+                masked[300..7_000].copy_from_slice(&y[300..7_000]);
+                let whole_masked = b.moments(ch, &masked).unwrap();
+                assert!((&part - &whole_masked).amax() <= 1e-9 * whole_masked.amax());
+                let (fa, fb) = (a.fitted(ch, &theta).unwrap(), b.fitted(ch, &theta).unwrap());
+                assert_eq!(fa.len(), fb.len());
+                assert!(fa
+                    .iter()
+                    .zip(&fb)
+                    .all(|(x, z)| (x - z).abs() <= 1e-9 * z.abs().max(1.0)));
+            }
+        }
     }
 
     #[test]

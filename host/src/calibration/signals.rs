@@ -53,16 +53,13 @@ pub(super) fn error_columns(
 /// The dynamics of Section III at the epochs `t_s`, in
 /// [`crate::regress::DYNAMICS_REGRESSORS`] order: angular rate, acceleration and jerk, linear
 /// acceleration (specific force plus gravity) and jerk, body frame.
-pub(super) fn dynamics_columns(t_s: &[f64], data: &EpochData, rates_only: bool) -> [Vec<f64>; 15] {
+pub(super) fn dynamics_columns(t_s: &[f64], data: &EpochData) -> [Vec<f64>; 15] {
     let reference = &data.reference;
     let column = |v: &[Vector3<f64>], axis: usize| v.iter().map(|x| x[axis]).collect::<Vec<_>>();
     let mut columns: [Vec<f64>; 15] = std::array::from_fn(|_| Vec::new());
     for axis in 0..3 {
         columns[axis] = column(&reference.omega_ib_b_rad_s, axis);
         columns[3 + axis] = column(&data.omega_dot_b_rad_s2, axis);
-    }
-    if rates_only {
-        return columns;
     }
     // Each temporary is dropped once its columns are made: a long drive holds fewer series.
     let omega_ddot = crate::numeric::central_difference_3(t_s, &data.omega_dot_b_rad_s2);
@@ -197,11 +194,8 @@ impl Gathered {
                 append(gathered.get_or_insert_with(Vec::new), e);
             }
         }
-        // A dynamics column left empty (rates only) stays empty.
         for (gathered, d) in self.dynamics.iter_mut().zip(dynamics) {
-            if !d.is_empty() {
-                append(gathered, d);
-            }
+            append(gathered, d);
         }
         for (i, f) in self.specific_force_b_m_s2.iter_mut().enumerate() {
             room(f);

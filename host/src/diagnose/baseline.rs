@@ -6,7 +6,7 @@
 use std::collections::BTreeMap;
 
 use super::engine::DiagnoseError;
-use crate::error_signal::ErrorSignals;
+use super::signals::RunSignals;
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
@@ -51,12 +51,12 @@ impl Baseline {
 
 /// Fits a baseline on the quietest stretch (lowest mean |omega|, a quarter of the run).
 pub(super) fn fit_quietest(
-    signals: &ErrorSignals,
+    signals: &RunSignals,
     channels: &[Channel],
     omega_norm: &[f64],
     dt_s: f64,
 ) -> Result<Baseline, DiagnoseError> {
-    let n = signals.t_s.len();
+    let n = signals.epochs();
     let w = (n / 4).max(256).min(n);
     let mut best = (0usize, f64::INFINITY);
     let step = (w / 8).max(1);
@@ -70,7 +70,7 @@ pub(super) fn fit_quietest(
     }
     let mut out = BTreeMap::new();
     for &channel in channels {
-        let e = &signals.error_of(channel).expect("channel")[best.0..best.0 + w];
+        let e = &signals.error_range(channel, best.0..best.0 + w)?;
         let err = |message: String| DiagnoseError::Channel { channel, message };
         let wv = haar_wv(e, dt_s, &WvOptions::default()).map_err(|x| err(x.to_string()))?;
         let input = FitInput::from_wv(&wv).map_err(|x| err(x.to_string()))?;
@@ -90,8 +90,8 @@ pub(super) fn fit_quietest(
         channels: out,
         source: format!(
             "fitted (model auto) on the quietest stretch t = {:.1}..{:.1} s (mean |omega| {:.4} rad/s)",
-            signals.t_s[best.0],
-            signals.t_s[best.0 + w - 1],
+            signals.time_at_s(best.0)?,
+            signals.time_at_s(best.0 + w - 1)?,
             best.1
         ),
     })

@@ -11,11 +11,10 @@ use serde_json::json;
 
 use super::engine::{ci, DiagnoseError, Finding, Run, LEVER_ARM_MODEL_SIGMA_M};
 use super::null::normal_p_value;
+use super::signals::RunSignals;
 use crate::calibration::{
-    build_error_signals_with_design, CalibrationDesign, CalibrationSummary, DesignRows,
-    ErrorOptions,
+    build_signal_bank, CalibrationDesign, CalibrationSummary, DesignRows, ErrorOptions, SignalBank,
 };
-use crate::error_signal::ErrorSignals;
 use crate::interchange::ImuRecording;
 use crate::model::{Cause, Channel};
 
@@ -26,33 +25,34 @@ const CALIBRATION_BLOCK_EPOCHS: usize = 1 << 14;
 
 /// The error signals of a run and, with a reference, the calibration that made them.
 pub(super) struct Calibrated {
-    pub signals: ErrorSignals,
+    pub signals: RunSignals,
     pub calibration: Option<(CalibrationSummary, CalibrationDesign)>,
 }
 
 /// Calibrates `sensor` against `reference` (forming more than `held_epochs` epochs a block
-/// at a time); without one, the data are taken as static (a note says so) and the error is
-/// each channel minus its mean.
+/// at a time, and gathering them into a temporary file); without one, the data are taken as
+/// static (a note says so) and the error is each channel minus its mean.
 pub(super) fn calibrate(
     sensor: &ImuRecording,
     reference: Option<&ImuRecording>,
     held_epochs: usize,
     notes: &mut Vec<String>,
 ) -> Result<Calibrated, DiagnoseError> {
+    let spill = sensor.len() > held_epochs;
     Ok(match reference {
         Some(r) => {
-            let (signals, summary, design) = build_error_signals_with_design(
+            let (signals, summary, design) = build_signal_bank(
                 sensor,
                 r,
                 &ErrorOptions {
-                    rates_only: true,
                     held_epochs,
                     block_epochs: CALIBRATION_BLOCK_EPOCHS,
                     ..Default::default()
                 },
+                spill,
             )?;
             Calibrated {
-                signals,
+                signals: RunSignals::new(signals),
                 calibration: Some((summary, design)),
             }
         }
@@ -62,16 +62,16 @@ pub(super) fn calibrate(
                     .into(),
             );
             Calibrated {
-                signals: static_signals(sensor),
+                signals: RunSignals::new(static_signals(sensor, spill)?),
                 calibration: None,
             }
         }
     })
 }
 
-/// Error signals of static data without a reference: each channel minus its mean, with the
-/// dynamics all zero.
-fn static_signals(sensor: &ImuRecording) -> ErrorSignals {
+/// Error signals of static data without a reference: each channel minus its mean, without
+/// dynamics.
+fn static_signals(sensor: &ImuRecording, spill: bool) -> Result<SignalBank, DiagnoseError> {
     let n = sensor.len();
     let errors = std::array::from_fn(|i| {
         sensor.channel(Channel::ALL[i].name()).map(|x| {
@@ -79,12 +79,7 @@ fn static_signals(sensor: &ImuRecording) -> ErrorSignals {
             x.iter().map(|v| v - m).collect()
         })
     });
-    ErrorSignals {
-        t_s: sensor.t_s.clone(),
-        errors,
-        dynamics: std::array::from_fn(|_| vec![0.0; n]),
-        specific_force_b_m_s2: None,
-    }
+    Ok(SignalBank::static_run(&sensor.t_s, errors, spill)?)
 }
 
 /// The sensor-wide calibration terms: the time offset and lever arm as the extended model
@@ -98,34 +93,29 @@ pub(super) struct SensorWideTerms {
 
 /// Standard deviation of each calibration parameter over baseline noise simulated for every
 /// channel: the Newey-West sigma alone under-covers when the noise wanders slowly.
-fn simulated_calibration_sd(run: &Run, design: DesignRows<'_>) -> Vec<f64> {
+fn simulated_calibration_sd(run: &Run, design: DesignRows<'_>) -> Result<Vec<f64>, DiagnoseError> {
     let reps = run.opts.replicates.max(8);
     let thetas: Vec<nalgebra::DVector<f64>> = (0..reps)
         .into_par_iter()
         .map(|r| {
-            let series: Vec<Option<Vec<f64>>> = Channel::ALL
-                .iter()
-                .map(|c| {
-                    let slot = run.channels.iter().position(|x| x == c)?;
-                    let i = c.index();
-                    design.has_channel(i).then(|| {
-                        let mut rng = ChaCha8Rng::seed_from_u64(
-                            run.opts.seed ^ 0x5eed_ca1b ^ ((r as u64) << 8) ^ i as u64,
-                        );
-                        run.null_model(slot, r).simulate(run.n, &mut rng)
-                    })
-                })
-                .collect();
-            absorbed_from(design, &series)
+            // A channel at a time: the calibration's moments add over channels.
+            let mut moments = nalgebra::DVector::zeros(design.parameters());
+            for c in &Channel::ALL {
+                let (Some(slot), i) = (run.channels.iter().position(|x| x == c), c.index()) else {
+                    continue;
+                };
+                if design.has_channel(i) {
+                    let mut rng = ChaCha8Rng::seed_from_u64(
+                        run.opts.seed ^ 0x5eed_ca1b ^ ((r as u64) << 8) ^ i as u64,
+                    );
+                    let sim = run.null_model(slot, r).simulate(run.n, &mut rng);
+                    moments += design.moments(i, &sim)?;
+                }
+            }
+            Ok(design.bread() * moments)
         })
-        .collect();
-    parameter_sd(&thetas, design.parameters())
-}
-
-/// What the calibration takes from one series per channel (in [`Channel::ALL`] order).
-fn absorbed_from(design: DesignRows<'_>, series: &[Option<Vec<f64>>]) -> nalgebra::DVector<f64> {
-    let refs: [Option<&[f64]>; 6] = std::array::from_fn(|i| series[i].as_deref());
-    design.absorbed_all(&refs)
+        .collect::<Result<_, DiagnoseError>>()?;
+    Ok(parameter_sd(&thetas, design.parameters()))
 }
 
 /// Sample standard deviation of each of the `parameters` components over `vectors`.
@@ -144,32 +134,30 @@ fn parameter_sd(vectors: &[nalgebra::DVector<f64>], parameters: usize) -> Vec<f6
 /// into them, and with blocks long against the noise's memory their spread is that error's.
 /// A spread no smaller than the measured residual's own: on ship motion with a baseline
 /// fitted on 300 s, the simulated spread fell short of the lever arm's scatter.
-fn batch_calibration_sd(run: &Run, design: DesignRows<'_>) -> Vec<f64> {
+fn batch_calibration_sd(run: &Run, design: DesignRows<'_>) -> Result<Vec<f64>, DiagnoseError> {
     const BLOCKS: usize = 20;
     let n = design.epochs();
     let edge = |b: usize| b * n / BLOCKS;
     let pushes: Vec<nalgebra::DVector<f64>> = (0..BLOCKS)
         .into_par_iter()
         .map(|b| {
-            let series: Vec<Option<Vec<f64>>> = Channel::ALL
-                .iter()
-                .map(|c| {
-                    let e = run.signals.error_of(*c)?;
-                    (design.has_channel(c.index()) && e.len() == n).then(|| {
-                        let mut masked = vec![0.0; n];
-                        masked[edge(b)..edge(b + 1)].copy_from_slice(&e[edge(b)..edge(b + 1)]);
-                        masked
-                    })
-                })
-                .collect();
-            absorbed_from(design, &series)
+            // What the block's residual alone (zero elsewhere) pushes into the parameters.
+            let block = edge(b)..edge(b + 1);
+            let mut moments = nalgebra::DVector::zeros(design.parameters());
+            for c in &run.channels {
+                if design.has_channel(c.index()) && run.signals.epochs() == n {
+                    let e = run.signals.error_range(*c, block.clone())?;
+                    moments += design.moments_in(c.index(), block.clone(), &e)?;
+                }
+            }
+            Ok(design.bread() * moments)
         })
-        .collect();
+        .collect::<Result<_, DiagnoseError>>()?;
     // The error is the sum of the blocks' pushes: its variance is BLOCKS times theirs.
-    parameter_sd(&pushes, design.parameters())
+    Ok(parameter_sd(&pushes, design.parameters())
         .into_iter()
         .map(|sd| sd * (BLOCKS as f64).sqrt())
-        .collect()
+        .collect())
 }
 
 /// Sensor-wide calibration terms, corrected for what the per-channel terms found had pushed
@@ -179,14 +167,14 @@ fn batch_calibration_sd(run: &Run, design: DesignRows<'_>) -> Vec<f64> {
 pub(super) fn sensor_wide_terms(
     run: &Run,
     absorbed: Option<nalgebra::DVector<f64>>,
-) -> SensorWideTerms {
+) -> Result<SensorWideTerms, DiagnoseError> {
     let mut out = SensorWideTerms::default();
     let (Some(cal), Some(design)) = (run.calibration, run.design) else {
-        return out;
+        return Ok(out);
     };
     let shift = absorbed.unwrap_or_else(|| nalgebra::DVector::zeros(design.parameters()));
-    let sim_sd = simulated_calibration_sd(run, design);
-    let batch_sd = batch_calibration_sd(run, design);
+    let sim_sd = simulated_calibration_sd(run, design)?;
+    let batch_sd = batch_calibration_sd(run, design)?;
     // The time offset is the one common to the channels that agree (see
     // `errors::common_time_offset`): a per-channel term does not move it, so it needs no
     // correction here.
@@ -245,5 +233,5 @@ pub(super) fn sensor_wide_terms(
             }
         }
     }
-    out
+    Ok(out)
 }

@@ -49,15 +49,14 @@ use super::extension::{channel_model, extended_model};
 use super::gain::{measure_gain, ChannelModelSims};
 use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, select};
 use super::moments::Absorber;
+use super::signals::RunSignals;
 use super::stats::SeriesSet;
 use super::stochastic::{find_stochastic_effects, lattice_step};
 use super::terms::{find_terms, ChannelTerms, FittedTerms};
 use crate::calibration::{CalibrationSummary, DesignRows};
-use crate::error_signal::ErrorSignals;
 use crate::gmwm::model::ModelSpec;
 use crate::interchange::ImuRecording;
 use crate::model::{Cause, Channel, ChannelModel, SimModel};
-use crate::numeric::central_difference;
 use crate::progress::{stage, Tally};
 
 /// Errors of the engine.
@@ -83,6 +82,15 @@ pub enum DiagnoseError {
         #[source]
         source: std::io::Error,
     },
+}
+
+impl From<crate::series_bank::SpillError> for DiagnoseError {
+    fn from(e: crate::series_bank::SpillError) -> Self {
+        DiagnoseError::Spill {
+            dir: std::env::temp_dir(),
+            source: e.0,
+        }
+    }
 }
 
 /// Options of [`diagnose`].
@@ -267,7 +275,7 @@ pub(super) struct Run<'a> {
     /// Per channel (gx..az) the lattice step of the raw sensor values and its standard
     /// error, where they lie on one (quantised output).
     pub raw_lattice: [Option<(f64, f64)>; 6],
-    pub signals: &'a ErrorSignals,
+    pub signals: &'a RunSignals,
     pub calibration: Option<&'a CalibrationSummary>,
     pub design: Option<DesignRows<'a>>,
     pub baseline: &'a Baseline,
@@ -283,10 +291,6 @@ pub(super) struct Run<'a> {
     pub has_dynamics: bool,
     /// |omega| per epoch, rad/s.
     pub omega_norm: Vec<f64>,
-    /// Specific force per body axis, m/s^2.
-    pub specific_force_m_s2: [Cow<'a, [f64]>; 3],
-    /// Its rate of change, m/s^3.
-    pub specific_force_rate_m_s3: [Cow<'a, [f64]>; 3],
     /// Two-sided normal quantile of one test at `alpha_test`.
     pub z_strict: f64,
     /// Number of tests of the run (Bonferroni's m).
@@ -301,11 +305,9 @@ pub(super) struct Run<'a> {
 }
 
 impl Run<'_> {
-    /// The error of a channel of the run.
-    pub fn error(&self, channel: Channel) -> &[f64] {
-        self.signals
-            .error_of(channel)
-            .expect("a channel of the run")
+    /// The error of a channel of the run (held, or read back whole from its temporary file).
+    pub fn error(&self, channel: Channel) -> Result<Cow<'_, [f64]>, DiagnoseError> {
+        self.signals.error(channel)
     }
 
     /// The position of a channel of the run in [`Run::channels`].
@@ -461,31 +463,17 @@ struct Grid {
     channels: Vec<Channel>,
 }
 
-fn grid_of(signals: &ErrorSignals) -> Grid {
-    let n = signals.t_s.len();
-    let dt_s = {
-        let mut d: Vec<f64> = signals.t_s.windows(2).map(|w| w[1] - w[0]).collect();
-        let m = d.len() / 2;
-        *d.select_nth_unstable_by(m, f64::total_cmp).1
-    };
-    let (wx, wy, wz) = (
-        signals.angular_rate_rad_s(0),
-        signals.angular_rate_rad_s(1),
-        signals.angular_rate_rad_s(2),
-    );
-    let omega_norm: Vec<f64> = (0..n)
-        .map(|k| (wx[k].powi(2) + wy[k].powi(2) + wz[k].powi(2)).sqrt())
-        .collect();
+fn grid_of(signals: &RunSignals) -> Result<Grid, DiagnoseError> {
     let channels: Vec<Channel> = Channel::ALL
         .into_iter()
-        .filter(|c| signals.error_of(*c).is_some())
+        .filter(|c| signals.has_error(*c))
         .collect();
-    Grid {
-        n,
-        dt_s,
-        omega_norm,
+    Ok(Grid {
+        n: signals.epochs(),
+        dt_s: signals.median_step_s()?,
+        omega_norm: signals.angular_rate_norm()?,
         channels,
-    }
+    })
 }
 
 /// What one channel contributes to the report.
@@ -511,33 +499,24 @@ fn diagnose_channel(
 ) -> Result<ChannelResult, DiagnoseError> {
     let spec = run.spec(channel)?;
     // The error as the joint calibration leaves it.
-    let spill = found
-        .calibration_spill
-        .as_ref()
-        .zip(run.design)
-        .map(|(pushed, design)| design.fitted(channel.index(), pushed));
-    let e: Vec<f64> = match spill {
-        Some(spill) => run
-            .error(channel)
-            .iter()
-            .zip(spill)
-            .map(|(v, s)| v - s)
-            .collect(),
-        None => run.error(channel).to_vec(),
-    };
+    let mut e: Vec<f64> = run.error(channel)?.into_owned();
+    if let (Some(pushed), Some(design)) = (found.calibration_spill.as_ref(), run.design) {
+        let spill = design.fitted(channel.index(), pushed)?;
+        e.iter_mut().zip(&spill).for_each(|(v, s)| *v -= s);
+    }
     stage(|| format!("channel {}: stochastic effects", channel.name()));
     let sims = run.baseline_sims(slot);
     let mut discrepancies = std::mem::take(&mut found.discrepancies);
-    let terms = FittedTerms::new(run, channel, found, &e);
+    let terms = FittedTerms::new(run, channel, found, &e)?;
     let mut findings = terms.findings(run, channel);
     let mut resid = terms.deterministic(&terms.coefficients, 0..run.n);
     resid
         .iter_mut()
         .zip(&e)
         .for_each(|(r, e)| *r = e - terms.intercept - *r);
-    let stochastic = find_stochastic_effects(run, slot, channel, spec, &e, resid, &sims);
+    let stochastic = find_stochastic_effects(run, slot, channel, spec, &e, resid, &sims)?;
     stage(|| format!("channel {}: selecting what to keep", channel.name()));
-    let selection = select(run, slot, spec, &e, &terms, &stochastic);
+    let selection = select(run, slot, spec, &e, &terms, &stochastic)?;
     let coefficients = kept_coefficients(&terms, &selection.kept);
     let effects = kept_effects(&stochastic, &selection.kept);
     let extended = ChannelModelSims {
@@ -548,7 +527,7 @@ fn diagnose_channel(
     };
     let model = channel_model(&terms, &stochastic, &selection.kept, spec);
     stage(|| format!("channel {}: measuring the gain", channel.name()));
-    let (gain, wv_curves) = measure_gain(run, slot, &e, &terms, &extended, selection);
+    let (gain, wv_curves) = measure_gain(run, slot, &e, &terms, &extended, selection)?;
     findings.extend(stochastic.findings);
     discrepancies.extend(stochastic.discrepancies);
     let notes = stochastic.notes;
@@ -577,7 +556,7 @@ pub fn diagnose(
     if has_dynamics {
         stage(|| "calibrating against the reference (boresight, lever arm, time offset)".into());
     }
-    let mut calibrated = calibrate(&sensor, reference.as_ref(), opts.held_epochs(), &mut notes)?;
+    let calibrated = calibrate(&sensor, reference.as_ref(), opts.held_epochs(), &mut notes)?;
     drop(reference);
     let sensor_start_s = sensor.t_s.first().copied().unwrap_or(0.0);
     let raw_lattice = std::array::from_fn(|ch| {
@@ -586,14 +565,13 @@ pub fn diagnose(
             .and_then(lattice_step)
     });
     drop(sensor);
-    calibrated.signals.release_jerks_and_acceleration();
     let signals = &calibrated.signals;
     let Grid {
         n,
         dt_s,
         omega_norm,
         channels,
-    } = grid_of(signals);
+    } = grid_of(signals)?;
     let baseline = match baseline {
         Some(b) => b,
         None => {
@@ -622,19 +600,6 @@ pub fn diagnose(
     let z_strict = Normal::new(0.0, 1.0)
         .expect("normal")
         .inverse_cdf(1.0 - alpha_test / 2.0);
-    // Borrowed where they exist: on a long drive each copy is three more series.
-    let specific_force_m_s2: [Cow<[f64]>; 3] =
-        std::array::from_fn(|i| match &signals.specific_force_b_m_s2 {
-            Some(f) => Cow::Borrowed(&f[i][..]),
-            None => Cow::Borrowed(signals.linear_acceleration_m_s2(i)),
-        });
-    // The calibration's derivatives (9-point stencils at the reference's native rate) when
-    // there is one: differences at the sensor rate lose much of a vibration's jerk.
-    let specific_force_rate_m_s3: [Cow<[f64]>; 3] =
-        std::array::from_fn(|i| match &calibrated.calibration {
-            Some((_, d)) => Cow::Borrowed(&d.f_dot_b_m_s3[i][..]),
-            None => Cow::Owned(central_difference(&signals.t_s, &specific_force_m_s2[i])),
-        });
     let run = Run {
         sensor_start_s,
         raw_lattice,
@@ -643,7 +608,7 @@ pub fn diagnose(
         design: calibrated
             .calibration
             .as_ref()
-            .map(|(_, d)| d.over(signals)),
+            .map(|(_, d)| d.over_bank(signals.bank())),
         baseline: &baseline,
         opts,
         channels,
@@ -651,8 +616,6 @@ pub fn diagnose(
         dt_s,
         has_dynamics,
         omega_norm,
-        specific_force_m_s2,
-        specific_force_rate_m_s3,
         z_strict,
         tests,
         alpha_test,
@@ -694,7 +657,7 @@ pub fn diagnose(
         channel_models.insert(channel, r.model);
     }
     stage(|| "terms common to the sensor and the extended model".into());
-    let sensor_wide = sensor_wide_terms(&run, absorbed_total);
+    let sensor_wide = sensor_wide_terms(&run, absorbed_total)?;
     let extended_model = extended_model(1.0 / dt_s, channel_models, run.calibration, &sensor_wide);
     let mut findings = sensor_wide.findings;
     findings.extend(channel_findings);

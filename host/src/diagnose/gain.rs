@@ -13,7 +13,7 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
-use super::engine::{variance, Gain, Run, WvCurves, Z_FLOOR};
+use super::engine::{variance, DiagnoseError, Gain, Run, WvCurves, Z_FLOOR};
 use super::generalise::Selection;
 use super::terms::{Coefficient, FittedTerms};
 use crate::gmwm::model::ModelSpec;
@@ -188,11 +188,15 @@ pub(super) fn simulate_model(
     model: &ChannelModelSims,
     range: std::ops::Range<usize>,
     salt: u64,
-) -> Vec<Vec<f64>> {
+) -> Result<Vec<Vec<f64>>, DiagnoseError> {
     let len = range.len();
     let channel = run.channels[slot];
-    let omega_rad_s: [&[f64]; 3] =
-        std::array::from_fn(|axis| &run.signals.angular_rate_rad_s(axis)[range.clone()]);
+    let omega: [std::borrow::Cow<[f64]>; 3] = [
+        run.signals.angular_rate_rad_s(0, range.clone())?,
+        run.signals.angular_rate_rad_s(1, range.clone())?,
+        run.signals.angular_rate_rad_s(2, range.clone())?,
+    ];
+    let omega_rad_s: [&[f64]; 3] = std::array::from_fn(|axis| &omega[axis][..]);
     let max_level = run
         .max_wv_level()
         .min(((len as f64).log2() as u32).saturating_sub(2));
@@ -232,7 +236,7 @@ pub(super) fn simulate_model(
             for (v, dv) in x.iter_mut().zip(&d) {
                 *v += dv + model.intercept;
             }
-            log_wv(&x, run.dt_s, max_level)
+            Ok(log_wv(&x, run.dt_s, max_level))
         })
         .collect()
 }
@@ -246,10 +250,13 @@ pub(super) fn misfit_over(
     model: &ChannelModelSims,
     range: std::ops::Range<usize>,
     salt: u64,
-) -> f64 {
-    let sims = simulate_model(run, slot, terms, model, range.clone(), salt);
+) -> Result<f64, DiagnoseError> {
+    let sims = simulate_model(run, slot, terms, model, range.clone(), salt)?;
     let max_level = sims.iter().map(Vec::len).min().unwrap_or(0) as u32;
-    wv_misfit(&log_wv(&e[range], run.dt_s, max_level.max(1)), &sims)
+    Ok(wv_misfit(
+        &log_wv(&e[range], run.dt_s, max_level.max(1)),
+        &sims,
+    ))
 }
 
 /// Share of the variance of `e` over `range` that `coefficients` explain there.
@@ -259,9 +266,9 @@ pub(super) fn variance_explained_over(
     e: &[f64],
     range: std::ops::Range<usize>,
 ) -> f64 {
-    let d = terms.deterministic(coefficients, range.clone());
+    let mut left = terms.deterministic(coefficients, range.clone());
     let part = &e[range];
-    let left: Vec<f64> = part.iter().zip(&d).map(|(a, b)| a - b).collect();
+    left.iter_mut().zip(part).for_each(|(d, a)| *d = a - *d);
     1.0 - variance(&left) / variance(part)
 }
 
@@ -276,7 +283,7 @@ pub(super) fn measure_gain(
     terms: &FittedTerms,
     extended: &ChannelModelSims,
     selection: Selection,
-) -> (Gain, WvCurves) {
+) -> Result<(Gain, WvCurves), DiagnoseError> {
     let n = run.n;
     let no_effects = ChannelModel::default();
     let zero: Vec<Coefficient> = vec![Coefficient::ZERO; terms.coefficients.len()];
@@ -289,8 +296,8 @@ pub(super) fn measure_gain(
     let e_wv = log_wv(e, run.dt_s, run.max_wv_level());
     // The same random numbers for both: an extended model that kept nothing is the
     // baseline, to the digit.
-    let base_sims = simulate_model(run, slot, terms, &baseline, 0..n, 11);
-    let ext_sims = simulate_model(run, slot, terms, extended, 0..n, 11);
+    let base_sims = simulate_model(run, slot, terms, &baseline, 0..n, 11)?;
+    let ext_sims = simulate_model(run, slot, terms, extended, 0..n, 11)?;
     let wv_curves = WvCurves::new(run.dt_s, &e_wv, &base_sims, &ext_sims);
     let gain = Gain {
         metric: "wv_misfit (mean squared z of log wavelet variance vs model simulations)".into(),
@@ -302,5 +309,5 @@ pub(super) fn measure_gain(
         held_out_variance_explained: selection.held_out_variance_explained,
         not_kept: selection.not_kept,
     };
-    (gain, wv_curves)
+    Ok((gain, wv_curves))
 }

@@ -15,7 +15,7 @@
 //! The sensor-wide terms (time offset, lever arm) belong to the calibration and are not
 //! selected here.
 
-use super::engine::{NotKept, Run};
+use super::engine::{DiagnoseError, NotKept, Run};
 use super::gain::{misfit_over, variance_explained_over, ChannelModelSims};
 use super::stochastic::StochasticFindings;
 use super::terms::{Coefficient, FittedTerms};
@@ -155,8 +155,9 @@ fn coefficients_on(
     let columns: Vec<(&str, Vec<f64>)> = terms
         .terms
         .iter()
-        .filter(|t| kept.contains(&Component::Terms(t.cause)))
-        .map(|t| (t.name.as_str(), gather(&t.own(), train)))
+        .zip(terms.own())
+        .filter(|(t, _)| kept.contains(&Component::Terms(t.cause)))
+        .map(|(t, own)| (t.name.as_str(), gather(own, train)))
         .collect();
     if columns.is_empty() {
         return all;
@@ -211,7 +212,7 @@ struct Scoring<'a> {
 impl Scoring<'_> {
     /// The cross-validated misfit of the model with `kept` (mean over the blocks), and the
     /// held-out share of variance its terms explain.
-    fn cross_validated(&self, kept: &[Component]) -> (f64, f64) {
+    fn cross_validated(&self, kept: &[Component]) -> Result<(f64, f64), DiagnoseError> {
         let Scoring {
             run,
             slot,
@@ -248,10 +249,10 @@ impl Scoring<'_> {
                 intercept: 0.0,
             };
             let salt = 23 + k as u64;
-            misfit += misfit_over(run, slot, terms, e, &model, test.clone(), salt);
+            misfit += misfit_over(run, slot, terms, e, &model, test.clone(), salt)?;
             explained += variance_explained_over(terms, &coefficients, e, test);
         }
-        (misfit / FOLDS as f64, explained / FOLDS as f64)
+        Ok((misfit / FOLDS as f64, explained / FOLDS as f64))
     }
 }
 
@@ -263,7 +264,7 @@ pub(super) fn select(
     e: &[f64],
     terms: &FittedTerms,
     found: &StochasticFindings,
-) -> Selection {
+) -> Result<Selection, DiagnoseError> {
     let scoring = Scoring {
         run,
         slot,
@@ -273,14 +274,14 @@ pub(super) fn select(
         found,
     };
     let score = |kept: &[Component]| scoring.cross_validated(kept);
-    let (held_out_baseline, _) = score(&[]);
+    let (held_out_baseline, _) = score(&[])?;
     let mut kept: Vec<Component> = Vec::new();
     let (mut current, mut explained) = (held_out_baseline, 0.0);
     let mut not_kept = Vec::new();
     for component in components(terms, found) {
         let mut trial = kept.clone();
         trial.push(component);
-        let (with, trial_explained) = score(&trial);
+        let (with, trial_explained) = score(&trial)?;
         if with < current * (1.0 - MIN_RELATIVE_IMPROVEMENT) {
             kept = trial;
             current = with;
@@ -293,11 +294,11 @@ pub(super) fn select(
             });
         }
     }
-    Selection {
+    Ok(Selection {
         kept,
         not_kept,
         held_out_baseline,
         held_out_extended: current,
         held_out_variance_explained: explained,
-    }
+    })
 }

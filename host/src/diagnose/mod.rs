@@ -2,7 +2,6 @@
 //! model and the measured gain (`dynacal diagnose`). [`engine::diagnose`] runs the stages
 //! of the sibling modules in order.
 
-mod bank;
 pub mod baseline;
 mod calibration;
 pub mod engine;
@@ -14,6 +13,7 @@ mod moments;
 mod null;
 pub mod readable;
 pub mod report;
+mod signals;
 pub mod stats;
 mod stochastic;
 mod terms;

@@ -14,12 +14,13 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use super::bank::SeriesBank;
 use super::engine::DiagnoseError;
+use super::signals::RunSignals;
 use super::terms::Candidate;
 pub(super) use super::white_space::WhiteSpace;
 use crate::calibration::DesignRows;
 use crate::model::{Cause, Channel};
+use crate::series_bank::SeriesBank;
 
 /// What a least-squares fit of per-channel terms jointly with the calibration needs of the
 /// calibration: with a reference, the calibration design (weighted least squares over every
@@ -31,27 +32,33 @@ pub(super) enum Absorber<'a> {
     Mean,
 }
 
-/// Where a term's regressor comes from: a series of the run (borrowed, so a term does not
-/// copy it), or a bias step made when asked for.
+/// Where a term's regressor comes from: a series held (borrowed, so a term does not copy
+/// it), a series of the run's signals (read when asked for: on a long run from their
+/// temporary file), or a bias step made when asked for.
 #[derive(Clone, Copy)]
 pub(super) enum Regressor<'a> {
+    #[cfg(test)]
     Series(&'a [f64]),
-    /// 0 before epoch `at`, 1 from it on, over `n` epochs.
-    Step {
-        at: usize,
-        n: usize,
+    /// Series `series` of the run's signals ([`RunSignals::dynamics_index`]).
+    Signal {
+        signals: &'a RunSignals,
+        series: usize,
     },
+    /// 0 before epoch `at`, 1 from it on, over `n` epochs.
+    Step { at: usize, n: usize },
 }
 
 impl<'a> Regressor<'a> {
     /// The regressor's values, one per epoch.
-    pub fn values(&self) -> Cow<'a, [f64]> {
-        match *self {
+    pub fn values(&self) -> Result<Cow<'a, [f64]>, DiagnoseError> {
+        Ok(match *self {
+            #[cfg(test)]
             Regressor::Series(x) => Cow::Borrowed(x),
+            Regressor::Signal { signals, series } => signals.series(series)?,
             Regressor::Step { at, n } => {
                 Cow::Owned((0..n).map(|t| if t >= at { 1.0 } else { 0.0 }).collect())
             }
-        }
+        })
     }
 }
 
@@ -63,10 +70,10 @@ pub(super) struct Projection {
 }
 
 impl Absorber<'_> {
-    pub fn project(&self, channel: Channel, x: &[f64]) -> Projection {
-        match self {
+    pub fn project(&self, channel: Channel, x: &[f64]) -> Result<Projection, DiagnoseError> {
+        Ok(match self {
             Absorber::Design(d) => Projection {
-                absorbed: d.bread() * d.moments(channel.index(), x),
+                absorbed: d.bread() * d.moments(channel.index(), x)?,
             },
             Absorber::Mean => Projection {
                 absorbed: nalgebra::DVector::from_element(
@@ -74,40 +81,17 @@ impl Absorber<'_> {
                     x.iter().sum::<f64>() / x.len().max(1) as f64,
                 ),
             },
-        }
+        })
     }
     /// `x` on `channel` minus what the calibration takes from it there.
-    fn own(&self, channel: Channel, x: &[f64], p: &Projection) -> Vec<f64> {
-        match self {
-            Absorber::Design(d) => x
-                .iter()
-                .zip(d.fitted(channel.index(), &p.absorbed))
-                .map(|(v, f)| v - f)
-                .collect(),
+    fn own(&self, channel: Channel, x: &[f64], p: &Projection) -> Result<Vec<f64>, DiagnoseError> {
+        Ok(match self {
+            Absorber::Design(d) => {
+                let mut own = d.fitted(channel.index(), &p.absorbed)?;
+                own.iter_mut().zip(x).for_each(|(f, v)| *f = v - *f);
+                own
+            }
             Absorber::Mean => x.iter().map(|v| v - p.absorbed[0]).collect(),
-        }
-    }
-    /// Every channel's series `y` (gx..az) less what the calibration fitted on all of them
-    /// together takes from it: what the engine sees of a series after the calibration.
-    pub fn calibrate(&self, y: &[Option<&[f64]>; 6]) -> [Option<Vec<f64>>; 6] {
-        let theta = match self {
-            Absorber::Design(d) => Some(d.bread() * d.moments_all(y)),
-            Absorber::Mean => None,
-        };
-        std::array::from_fn(|ch| {
-            let y = y[ch]?;
-            Some(match (self, &theta) {
-                (Absorber::Design(d), Some(theta)) if d.has_channel(ch) => y
-                    .iter()
-                    .zip(d.fitted(ch, theta))
-                    .map(|(v, f)| v - f)
-                    .collect(),
-                (Absorber::Design(_), _) => y.to_vec(),
-                (Absorber::Mean, _) => {
-                    let m = y.iter().sum::<f64>() / y.len().max(1) as f64;
-                    y.iter().map(|v| v - m).collect()
-                }
-            })
         })
     }
 }
@@ -313,18 +297,14 @@ impl<'a> Term<'a> {
                 }
             }
         }
-        if let Some(on_columns) = space.on_white_columns(own_ch, &|column| signatures.dots(column))
-        {
-            let on_columns = on_columns.into_iter().collect::<Result<Vec<_>, _>>()?;
+        let dots = |series: &[f64]| Ok(signatures.dots(series)?);
+        if let Some(on_columns) = space.on_white_columns(own_ch, &dots)? {
             for (k, t) in terms.iter_mut().enumerate() {
                 let m = on_columns.iter().map(|c| c[k]);
                 t.on_own_columns = Some(nalgebra::DVector::from_iterator(on_columns.len(), m));
             }
         }
-        let on_own = space
-            .map_white_sims(own_ch, &|sim| signatures.dots(sim))
-            .into_iter()
-            .collect::<Result<Vec<_>, _>>()?;
+        let on_own = space.map_white_sims(own_ch, &dots)?;
         for (k, t) in terms.iter_mut().enumerate() {
             t.on_sims = on_own
                 .iter()
@@ -346,9 +326,9 @@ impl<'a> Term<'a> {
         let own_ch = channel.index();
         let absorber = space.absorber();
         let whitener = space.whitener(own_ch).expect("a channel of the run");
-        let values = c.values.values();
-        let projection = absorber.project(channel, &values);
-        let own = absorber.own(channel, &values, &projection);
+        let values = c.values.values()?;
+        let projection = absorber.project(channel, &values)?;
+        let own = absorber.own(channel, &values, &projection)?;
         let own_mean = own.iter().sum::<f64>() / own.len().max(1) as f64;
         let pulled = std::array::from_fn(|ch| {
             let g = space.column_gram(ch).filter(|_| ch != own_ch)?;
@@ -444,8 +424,8 @@ impl<'a> Term<'a> {
 
     /// The regressor less what the calibration absorbs of it on its own channel, one value
     /// per epoch (made anew at each call).
-    pub fn own(&self) -> Vec<f64> {
-        let values = self.regressor.values();
+    pub fn own(&self) -> Result<Vec<f64>, DiagnoseError> {
+        let values = self.regressor.values()?;
         self.absorber.own(self.channel, &values, &self.projection)
     }
 
@@ -498,7 +478,7 @@ pub(super) fn gram_matrix(terms: &[Term]) -> nalgebra::DMatrix<f64> {
 /// candidate can explain, however weakly. Why: a term too weak to be named at the run's
 /// family-wise level still leaves its pattern in the error, and a bias step looked for on
 /// that pattern finds a turn's onset.
-pub(super) fn full_fit_residual(e: &[f64], terms: &[Term]) -> Vec<f64> {
+pub(super) fn full_fit_residual(e: &[f64], terms: &[Term]) -> Result<Vec<f64>, DiagnoseError> {
     let k = terms.len();
     let beta = if k == 0 {
         nalgebra::DVector::zeros(0)
@@ -512,11 +492,11 @@ pub(super) fn full_fit_residual(e: &[f64], terms: &[Term]) -> Vec<f64> {
     };
     let mut r = e.to_vec();
     for (t, b) in terms.iter().zip(beta.iter()) {
-        r.iter_mut().zip(t.own()).for_each(|(v, x)| *v -= b * x);
+        r.iter_mut().zip(t.own()?).for_each(|(v, x)| *v -= b * x);
     }
     let m = r.iter().sum::<f64>() / r.len().max(1) as f64;
     r.iter_mut().for_each(|v| *v -= m);
-    r
+    Ok(r)
 }
 
 /// Coefficients, null standard deviations and |z| of a least-squares fit on moments.
@@ -755,13 +735,12 @@ mod tests {
         let mut whiteners: [Option<super::super::whiten::Whitener>; 6] =
             std::array::from_fn(|_| None);
         whiteners[0] = Some(super::super::whiten::Whitener::new(&spec, e.len()));
-        let mut errors: [Option<&[f64]>; 6] = [None; 6];
-        errors[0] = Some(e);
+        let error_of = |ch: usize| Ok((ch == 0).then_some(Cow::Borrowed(e)));
         let sim_of = move |r: usize, ch: usize| (ch == 0).then(|| sims[r].clone());
         WhiteSpace::new(
             Absorber::Mean,
             whiteners,
-            errors,
+            (&error_of, e.len()),
             sims.len(),
             Box::new(sim_of),
             held_samples,
@@ -839,7 +818,7 @@ mod tests {
                 Term::join(&space, Channel::Gx, &candidate("step", step), &mut batch).unwrap();
             step.fix(0.03, 0.001, 1e-9);
             let whitener = space.whitener(0).unwrap();
-            let white = |t: &Term| whitener.apply(&t.own());
+            let white = |t: &Term| whitener.apply(&t.own().unwrap());
             let mut white_error = Vec::new();
             space
                 .error(Channel::Gx)

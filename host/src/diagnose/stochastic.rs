@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use serde_json::json;
 
 use super::engine::{
-    ci, simulated_range, variance, Discrepancy, Finding, Run, WV_MIN_LOG_DEVIATION,
+    ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run, WV_MIN_LOG_DEVIATION,
 };
 use super::gain::{log_wv, simulate_channel};
 use super::null::{normal_p_value, poisson_upper_tail, wv_level_test, LevelTest};
@@ -53,7 +53,7 @@ pub(super) fn find_stochastic_effects(
     e: &[f64],
     mut resid: Vec<f64>,
     sims: &impl SeriesSet,
-) -> StochasticFindings {
+) -> Result<StochasticFindings, DiagnoseError> {
     let mut found = StochasticFindings {
         findings: Vec::new(),
         discrepancies: Vec::new(),
@@ -72,8 +72,8 @@ pub(super) fn find_stochastic_effects(
     outliers(run, channel, e, &mut resid, noise_scale, sims, &mut found);
     vibration_lines(run, channel, e, &mut resid, sims, &mut found);
     quantization(run, channel, e, &mut found);
-    noise_change(run, slot, channel, spec, &resid, sims, &mut found);
-    found
+    noise_change(run, slot, channel, spec, &resid, sims, &mut found)?;
+    Ok(found)
 }
 
 /// Noise whose variance grows with |omega|^2. Returns the quiet variance and the slope of
@@ -409,7 +409,7 @@ fn noise_change(
     resid: &[f64],
     sims: &impl SeriesSet,
     found: &mut StochasticFindings,
-) {
+) -> Result<(), DiagnoseError> {
     let (dt_s, max_level) = (run.dt_s, run.max_wv_level());
     let measured_wv = log_wv(resid, dt_s, max_level);
     let sim_wv: Vec<Vec<f64>> = match found.effects.dynamic_noise {
@@ -419,8 +419,12 @@ fn noise_change(
                 dynamic_noise: found.effects.dynamic_noise,
                 ..Default::default()
             };
-            let omega_rad_s: [&[f64]; 3] =
-                std::array::from_fn(|axis| run.signals.angular_rate_rad_s(axis));
+            let omega = [
+                run.signals.angular_rate_rad_s(0, 0..run.n)?,
+                run.signals.angular_rate_rad_s(1, 0..run.n)?,
+                run.signals.angular_rate_rad_s(2, 0..run.n)?,
+            ];
+            let omega_rad_s: [&[f64]; 3] = std::array::from_fn(|axis| &omega[axis][..]);
             (0..run.opts.replicates)
                 .into_par_iter()
                 .map(|r| {
@@ -495,7 +499,7 @@ fn noise_change(
         })
         .collect();
     if bad.is_empty() {
-        return;
+        return Ok(());
     }
     for &j in &bad {
         found.discrepancies.push(Discrepancy {
@@ -521,6 +525,7 @@ fn noise_change(
     }
     let p = bad.iter().map(|&j| tests[j].p_value).fold(1.0, f64::min);
     refit_noise(channel, spec, resid, dt_s, &bad, run.family_p(p), found);
+    Ok(())
 }
 
 /// Refits the baseline's structure on what remains and names the changed parameters: the

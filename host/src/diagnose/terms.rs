@@ -15,6 +15,7 @@ use super::moments::{
     WhiteSpace,
 };
 use super::null::{normal_p_value, scan_p_value};
+use super::signals::Dynamics;
 use super::stats::{
     local_step_null_sd, local_step_robust_sd, local_step_scan, step_sharpness, SeriesSet,
 };
@@ -62,15 +63,19 @@ fn candidates<'a>(run: &'a Run, channel: Channel) -> Vec<Candidate<'a>> {
         return cands;
     }
     let gyro = channel.is_gyro();
+    let signal = |quantity: Dynamics, axis: usize| Regressor::Signal {
+        signals: run.signals,
+        series: run.signals.dynamics_index(quantity, axis),
+    };
     for (j, axis_name) in ["x", "y", "z"].into_iter().enumerate() {
         let (input, input_name) = if gyro {
-            (run.signals.angular_rate_rad_s(j), "omega")
+            (Dynamics::AngularRate, "omega")
         } else {
-            (&run.specific_force_m_s2[j][..], "f")
+            (Dynamics::SpecificForce, "f")
         };
         cands.push(Candidate {
             name: format!("{input_name}_{axis_name}"),
-            values: Regressor::Series(input),
+            values: signal(input, j),
             cause: if j == channel.axis() {
                 Cause::ScaleFactor
             } else {
@@ -81,20 +86,20 @@ fn candidates<'a>(run: &'a Run, channel: Channel) -> Vec<Candidate<'a>> {
         if gyro {
             cands.push(Candidate {
                 name: format!("f_{axis_name}"),
-                values: Regressor::Series(&run.specific_force_m_s2[j]),
+                values: signal(Dynamics::SpecificForce, j),
                 cause: Cause::GSensitivity,
                 axis: j,
             });
         }
         cands.push(Candidate {
             name: format!("omega_dot_{axis_name}"),
-            values: Regressor::Series(run.signals.angular_acceleration_rad_s2(j)),
+            values: signal(Dynamics::AngularAcceleration, j),
             cause: Cause::AngularAcceleration,
             axis: j,
         });
         cands.push(Candidate {
             name: format!("f_dot_{axis_name}"),
-            values: Regressor::Series(&run.specific_force_rate_m_s3[j]),
+            values: signal(Dynamics::SpecificForceRate, j),
             cause: Cause::Jerk,
             axis: j,
         });
@@ -110,8 +115,13 @@ fn white_space<'a>(run: &'a Run) -> Result<WhiteSpace<'a>, DiagnoseError> {
     for channel in &run.channels {
         whiteners[channel.index()] = Some(Whitener::new(run.spec(*channel)?, run.n));
     }
-    let errors: [Option<&[f64]>; 6] =
-        std::array::from_fn(|i| run.signals.error_of(Channel::ALL[i]));
+    let error_of = |ch: usize| {
+        let channel = Channel::ALL[ch];
+        run.signals
+            .has_error(channel)
+            .then(|| run.signals.error(channel))
+            .transpose()
+    };
     // A channel's baseline simulation of one replicate (the ones every stage draws).
     let sim_of = move |r: usize, i: usize| -> Option<Vec<f64>> {
         let channel = Channel::ALL[i];
@@ -128,7 +138,7 @@ fn white_space<'a>(run: &'a Run) -> Result<WhiteSpace<'a>, DiagnoseError> {
     WhiteSpace::new(
         run.absorber(),
         whiteners,
-        errors,
+        (&error_of, run.n),
         replicates,
         Box::new(sim_of),
         run.opts.held_samples,
@@ -221,7 +231,7 @@ fn find_bias_step(
     mut resid: Vec<f64>,
     sims: &impl SeriesSet,
     steps_elsewhere: Option<&[f64]>,
-) -> Option<FoundStep> {
+) -> Result<Option<FoundStep>, DiagnoseError> {
     let windows: Vec<usize> = (6..20)
         .map(|j| 1usize << j)
         .take_while(|&w| w <= run.n / 8)
@@ -245,19 +255,21 @@ fn find_bias_step(
         .zip(&own_sd)
         .map(|(a, b)| a.max(*b))
         .collect();
-    let step = local_step_scan(&resid, &windows, &scale_sd)?;
+    let Some(step) = local_step_scan(&resid, &windows, &scale_sd) else {
+        return Ok(None);
+    };
     // Without a step in any simulation (range -inf) the threshold is z_strict; a NaN z is
     // no step.
     let stands_out = step.z > (1.25 * range[1]).max(run.z_strict);
     if !stands_out {
-        return None;
+        return Ok(None);
     }
-    let t_s = &run.signals.t_s;
+    let step_time_s = run.signals.time_at_s(step.index)?;
     let blur = step_sharpness(&resid, step.index, step.window, sims);
     let sharp = !(blur > MAX_STEP_BLUR);
-    Some(FoundStep {
+    Ok(Some(FoundStep {
         index: step.index,
-        at_s: t_s[step.index] - run.sensor_start_s,
+        at_s: step_time_s - run.sensor_start_s,
         size: step.size,
         se: step.sd,
         p_value: scan_p_value(step.z, &sim_z),
@@ -269,7 +281,7 @@ fn find_bias_step(
             simulated_range: range,
             detail: format!(
                 "at t = {:.2} s, window {} samples, local size {:.4e}{}",
-                t_s[step.index],
+                step_time_s,
                 step.window,
                 step.size,
                 if sharp {
@@ -282,7 +294,7 @@ fn find_bias_step(
                 }
             ),
         },
-    })
+    }))
 }
 
 /// Stage 1 on one channel (`slot` in the run's channels): the stepwise selection over the
@@ -300,7 +312,7 @@ fn channel_terms<'a>(
     channel: Channel,
     steps_elsewhere: Option<&[f64]>,
 ) -> Result<ChannelTerms<'a>, DiagnoseError> {
-    let e = run.error(channel);
+    let e = &run.error(channel)?;
     let cands = candidates(run, channel);
     // Baseline simulations: the null distribution of the step scan.
     let sims = run.baseline_sims(slot);
@@ -315,8 +327,8 @@ fn channel_terms<'a>(
     let mut terms = selection.select(batch.terms.clone(), None);
     let mut discrepancies = Vec::new();
     let mut step_at_s = None;
-    let unexplained = full_fit_residual(e, &batch.terms);
-    if let Some(found) = find_bias_step(run, channel, unexplained, &sims, steps_elsewhere) {
+    let unexplained = full_fit_residual(e, &batch.terms)?;
+    if let Some(found) = find_bias_step(run, channel, unexplained, &sims, steps_elsewhere)? {
         let FoundStep {
             index,
             at_s,
@@ -357,8 +369,10 @@ fn channel_terms<'a>(
 /// are fitted jointly with the calibration and each other, so a term one channel shows only
 /// because another channel's term pulled the boresight or lever arm drops out.
 pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, DiagnoseError> {
-    let errors: [Option<&[f64]>; 6] =
-        std::array::from_fn(|i| run.signals.error_of(Channel::ALL[i]));
+    let mut error_variance = [f64::NAN; 6];
+    for channel in &run.channels {
+        error_variance[channel.index()] = variance(&run.error(*channel)?);
+    }
     let space = white_space(run)?;
     let stage1 = |slot: usize, channel: Channel, steps_elsewhere: Option<&[f64]>| {
         channel_terms(run, &space, slot, channel, steps_elsewhere)
@@ -377,12 +391,13 @@ pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, Diag
             .iter()
             .flat_map(|c| c.terms.iter().filter(|t| t.fixed.is_some()))
             .collect();
-        let again: Vec<Result<Option<ChannelTerms>, DiagnoseError>> =
-            run.per_channel(vec![(); run.channels.len()], |slot, channel, ()| {
-                step_spill(design, run, &steps, channel)
-                    .map(|s| stage1(slot, channel, Some(&s)))
-                    .transpose()
-            });
+        let again: Vec<Result<Option<ChannelTerms>, DiagnoseError>> = run.per_channel(
+            vec![(); run.channels.len()],
+            |slot, channel, ()| match step_spill(design, run, &steps, channel)? {
+                Some(s) => stage1(slot, channel, Some(&s)).map(Some),
+                None => Ok(None),
+            },
+        );
         for (slot, redone) in again.into_iter().enumerate() {
             if let Some(r) = redone? {
                 per_channel[slot] = r;
@@ -397,8 +412,7 @@ pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, Diag
         .flat_map(|c| std::mem::take(&mut c.terms))
         .collect();
     let joint = joint_terms(design, all, run.z_strict, &|t: &Term, b: f64| {
-        let explained =
-            b.powi(2) * t.own_variance / errors[t.channel.index()].map_or(f64::NAN, variance);
+        let explained = b.powi(2) * t.own_variance / error_variance[t.channel.index()];
         !explains_enough(explained, run.opts.min_variance_explained)
     });
     let mut joint_spill = joint.spill;
@@ -421,20 +435,20 @@ fn step_spill(
     run: &Run,
     steps: &[&Term],
     channel: Channel,
-) -> Option<Vec<f64>> {
+) -> Result<Option<Vec<f64>>, DiagnoseError> {
     let elsewhere: Vec<&&Term> = steps.iter().filter(|t| t.channel != channel).collect();
     if elsewhere.is_empty() {
-        return None;
+        return Ok(None);
     }
     let mut spill = vec![0.0; run.n];
     for t in elsewhere {
-        let fit = design.fitted(channel.index(), &t.projection.absorbed);
+        let fit = design.fitted(channel.index(), &t.projection.absorbed)?;
         spill
             .iter_mut()
             .zip(fit)
             .for_each(|(v, x)| *v += t.coef * x);
     }
-    Some(spill)
+    Ok(Some(spill))
 }
 
 /// The terms the joint fit keeps and, per channel, what the other channels' kept terms
@@ -548,7 +562,12 @@ impl<'a> FittedTerms<'a> {
     /// `e`. A term whose final interval (widened by the time offset's uncertainty where it
     /// rides on the channel's own derivative) no longer excludes zero at the run's per-test
     /// level is dropped: a finding means its effect is there.
-    pub fn new(run: &Run, channel: Channel, found: ChannelTerms<'a>, e: &[f64]) -> Self {
+    pub fn new(
+        run: &Run,
+        channel: Channel,
+        found: ChannelTerms<'a>,
+        e: &[f64],
+    ) -> Result<Self, DiagnoseError> {
         let n = run.n;
         let var_e = variance(e);
         let offset_sigma_s = run
@@ -584,13 +603,19 @@ impl<'a> FittedTerms<'a> {
         let intercept = e.iter().sum::<f64>() / n as f64
             - terms.iter().map(|t| t.coef * t.own_mean).sum::<f64>();
         let step_kept = terms.iter().any(|t| t.cause == Cause::BiasShift);
-        Self {
-            own: terms.iter().map(Term::own).collect(),
+        Ok(Self {
+            own: terms.iter().map(Term::own).collect::<Result<_, _>>()?,
             terms,
             coefficients,
             intercept,
             step_at_s: found.step_at_s.filter(|_| step_kept),
-        }
+        })
+    }
+
+    /// Each kept term's regressor less what the calibration absorbs of it on the channel
+    /// ([`Term::own`]), in [`FittedTerms::terms`] order.
+    pub fn own(&self) -> &[Vec<f64>] {
+        &self.own
     }
 
     /// The deterministic part of the error over `range` with these `coefficients` (one per

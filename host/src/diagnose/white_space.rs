@@ -9,14 +9,16 @@
 //! at a time, whenever a batch of terms needs them (same seeds, same series), and memory does
 //! not grow with the replicates; on a short one they are held, which is faster.
 
+use std::borrow::Cow;
+
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
-use super::bank::SeriesBank;
 use super::engine::DiagnoseError;
 use super::moments::Absorber;
 use super::whiten::Whitener;
 use crate::model::Channel;
+use crate::series_bank::SeriesBank;
 
 /// Baseline simulation `r` of channel index `ch` (0..6, gx..az), None where the run has no
 /// such channel.
@@ -64,27 +66,71 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
+/// Channel `ch`'s error (0..6, gx..az), None where the run has no such channel: held, or
+/// read back from a long run's temporary file.
+pub(super) type ErrorOf<'e> = dyn Fn(usize) -> Result<Option<Cow<'e, [f64]>>, DiagnoseError> + 'e;
+
+/// `y` on channel `ch` less what the calibration takes from it: the fit of parameters
+/// `theta` with a design, the mean without one.
+fn calibrated(
+    absorber: Absorber<'_>,
+    ch: usize,
+    mut y: Vec<f64>,
+    theta: Option<&DVector<f64>>,
+) -> Result<Vec<f64>, DiagnoseError> {
+    match (absorber, theta) {
+        (Absorber::Design(d), Some(theta)) if d.has_channel(ch) => {
+            y.iter_mut()
+                .zip(d.fitted(ch, theta)?)
+                .for_each(|(v, f)| *v -= f);
+        }
+        (Absorber::Design(_), _) => {}
+        (Absorber::Mean, _) => {
+            let m = y.iter().sum::<f64>() / y.len().max(1) as f64;
+            y.iter_mut().for_each(|v| *v -= m);
+        }
+    }
+    Ok(y)
+}
+
 impl<'a> WhiteSpace<'a> {
-    /// `errors`: every channel's error (None where absent); `sim_of(r, ch)`: channel `ch`'s
-    /// baseline simulation of replicate r, for r in 0..replicates. The filtered simulations
-    /// are held when replicates times epochs is at most `held_samples`.
+    /// `error_of(ch)`: every channel's error of `n` epochs (None where absent), read one at
+    /// a time; `sim_of(r, ch)`: channel `ch`'s baseline simulation of replicate r, for r in
+    /// 0..replicates. The filtered simulations are held when replicates times epochs is at
+    /// most `held_samples`.
     pub fn new(
         absorber: Absorber<'a>,
         whiteners: [Option<Whitener>; 6],
-        errors: [Option<&[f64]>; 6],
+        (error_of, n): (&ErrorOf<'_>, usize),
         replicates: usize,
         sim_of: SimOf<'a>,
         held_samples: usize,
     ) -> Result<Self, DiagnoseError> {
-        let n = errors.iter().flatten().map(|e| e.len()).max().unwrap_or(0);
         let hold = replicates.saturating_mul(n) <= held_samples;
-        let mut calibrated = absorber.calibrate(&errors);
-        // Each calibrated error goes once filtered and banked: a long drive holds none.
+        // The calibration of every channel's error together (its moments add over the
+        // channels), then each channel's error calibrated, filtered and banked, one at a
+        // time: a long drive holds none.
+        let theta = match absorber {
+            Absorber::Design(d) => {
+                let mut moments = DVector::<f64>::zeros(d.parameters());
+                for ch in (0..6).filter(|&ch| d.has_channel(ch)) {
+                    if let Some(e) = error_of(ch)? {
+                        moments += d.moments(ch, &e)?;
+                    }
+                }
+                Some(d.bread() * moments)
+            }
+            Absorber::Mean => None,
+        };
         let mut white_errors: [Option<WhiteError>; 6] = std::array::from_fn(|_| None);
         for (ch, white) in white_errors.iter_mut().enumerate() {
-            let (Some(y), Some(w)) = (calibrated[ch].take(), whiteners[ch].as_ref()) else {
+            let Some(w) = whiteners[ch].as_ref() else {
                 continue;
             };
+            let Some(e) = error_of(ch)? else {
+                continue;
+            };
+            let y = calibrated(absorber, ch, e.into_owned(), theta.as_ref())?;
             let filtered = w.apply(&y);
             drop(y);
             let sum = filtered.iter().sum();
@@ -103,7 +149,7 @@ impl<'a> WhiteSpace<'a> {
             columns: std::array::from_fn(|_| None),
             held: None,
         };
-        space.draw_replicates(hold);
+        space.draw_replicates(hold)?;
         for ch in 0..6 {
             space.columns[ch] = space.columns_of(ch)?;
         }
@@ -112,16 +158,22 @@ impl<'a> WhiteSpace<'a> {
 
     /// One pass over the replicates: each one's calibration parameters, and its filtered
     /// calibrated simulations when `hold`.
-    fn draw_replicates(&mut self, hold: bool) {
+    fn draw_replicates(&mut self, hold: bool) -> Result<(), DiagnoseError> {
         let Absorber::Design(design) = self.absorber else {
             if hold {
                 let held = (0..self.replicates)
                     .into_par_iter()
-                    .map(|r| std::array::from_fn(|ch| self.white_sim(r, ch)))
-                    .collect();
+                    .map(|r| {
+                        let mut sims: PerChannel = Default::default();
+                        for (ch, sim) in sims.iter_mut().enumerate() {
+                            *sim = self.white_sim(r, ch)?;
+                        }
+                        Ok(sims)
+                    })
+                    .collect::<Result<_, DiagnoseError>>()?;
                 self.held = Some(held);
             }
-            return;
+            return Ok(());
         };
         let drawn: Vec<(DVector<f64>, Option<PerChannel>)> = (0..self.replicates)
             .into_par_iter()
@@ -133,66 +185,69 @@ impl<'a> WhiteSpace<'a> {
                     let mut moments = DVector::<f64>::zeros(design.parameters());
                     for ch in (0..6).filter(|&ch| design.has_channel(ch)) {
                         if let Some(y) = sim(ch) {
-                            moments += design.moments(ch, &y);
+                            moments += design.moments(ch, &y)?;
                         }
                     }
-                    return (design.bread() * moments, None);
+                    return Ok((design.bread() * moments, None));
                 }
-                let sims: [Option<Vec<f64>>; 6] = std::array::from_fn(sim);
+                let mut sims: [Option<Vec<f64>>; 6] = std::array::from_fn(sim);
                 let theta = design.bread()
-                    * design.moments_all(&std::array::from_fn(|ch| sims[ch].as_deref()));
-                let white = hold.then(|| {
-                    let mut sims = sims;
-                    std::array::from_fn(|ch| {
-                        let y = sims[ch].take()?;
-                        Some(self.filter(ch, y, Some(&theta)))
-                    })
-                });
-                (theta, white)
+                    * design.moments_all(&std::array::from_fn(|ch| sims[ch].as_deref()))?;
+                let mut white: PerChannel = Default::default();
+                for (ch, out) in white.iter_mut().enumerate() {
+                    if let Some(y) = sims[ch].take() {
+                        *out = Some(self.filter(ch, y, Some(&theta))?);
+                    }
+                }
+                Ok((theta, Some(white)))
             })
-            .collect();
+            .collect::<Result<_, DiagnoseError>>()?;
         let (theta, held): (Vec<_>, Vec<_>) = drawn.into_iter().unzip();
         self.theta = theta.into_iter().map(Some).collect();
         self.held = held.into_iter().collect();
+        Ok(())
     }
 
     /// `y` on channel `ch` after the calibration (parameters `theta` with a design, the
     /// mean without one), filtered.
-    fn filter(&self, ch: usize, mut y: Vec<f64>, theta: Option<&DVector<f64>>) -> Vec<f64> {
-        match (self.absorber, theta) {
-            (Absorber::Design(d), Some(theta)) if d.has_channel(ch) => {
-                y.iter_mut()
-                    .zip(d.fitted(ch, theta))
-                    .for_each(|(v, f)| *v -= f);
-            }
-            (Absorber::Design(_), _) => {}
-            (Absorber::Mean, _) => {
-                let m = y.iter().sum::<f64>() / y.len().max(1) as f64;
-                y.iter_mut().for_each(|v| *v -= m);
-            }
-        }
-        self.whiteners[ch]
+    fn filter(
+        &self,
+        ch: usize,
+        y: Vec<f64>,
+        theta: Option<&DVector<f64>>,
+    ) -> Result<Vec<f64>, DiagnoseError> {
+        let y = calibrated(self.absorber, ch, y, theta)?;
+        Ok(self.whiteners[ch]
             .as_ref()
             .expect("a filtered channel has its whitener")
-            .apply(&y)
+            .apply(&y))
     }
 
     /// Replicate `r`'s filtered calibrated simulation of channel `ch`, drawn again unless
     /// held.
-    fn white_sim(&self, r: usize, ch: usize) -> Option<Vec<f64>> {
+    fn white_sim(&self, r: usize, ch: usize) -> Result<Option<Vec<f64>>, DiagnoseError> {
         if let Some(held) = &self.held {
-            return held[r][ch].clone();
+            return Ok(held[r][ch].clone());
         }
-        self.whiteners[ch].as_ref()?;
-        let y = (self.sim_of)(r, ch)?;
-        Some(self.filter(ch, y, self.theta[r].as_ref()))
+        if self.whiteners[ch].is_none() {
+            return Ok(None);
+        }
+        let Some(y) = (self.sim_of)(r, ch) else {
+            return Ok(None);
+        };
+        self.filter(ch, y, self.theta[r].as_ref()).map(Some)
     }
 
     /// `f` of replicate `r`'s filtered simulation of channel `ch` (None where absent).
-    fn with_white_sim<T>(&self, r: usize, ch: usize, f: impl FnOnce(&[f64]) -> T) -> Option<T> {
+    fn with_white_sim<T>(
+        &self,
+        r: usize,
+        ch: usize,
+        f: impl FnOnce(&[f64]) -> Result<T, DiagnoseError>,
+    ) -> Result<Option<T>, DiagnoseError> {
         match &self.held {
-            Some(held) => held[r][ch].as_deref().map(f),
-            None => self.white_sim(r, ch).map(|s| f(&s)),
+            Some(held) => held[r][ch].as_deref().map(f).transpose(),
+            None => self.white_sim(r, ch)?.map(|s| f(&s)).transpose(),
         }
     }
 
@@ -202,22 +257,23 @@ impl<'a> WhiteSpace<'a> {
     pub fn on_white_columns<T: Send>(
         &self,
         ch: usize,
-        f: &(dyn Fn(&[f64]) -> T + Sync),
-    ) -> Option<Vec<T>> {
+        f: &(dyn Fn(&[f64]) -> Result<T, DiagnoseError> + Sync),
+    ) -> Result<Option<Vec<T>>, DiagnoseError> {
         let Absorber::Design(d) = self.absorber else {
-            return None;
+            return Ok(None);
         };
-        let w = self.whiteners[ch].as_ref().filter(|_| d.has_channel(ch))?;
+        let Some(w) = self.whiteners[ch].as_ref().filter(|_| d.has_channel(ch)) else {
+            return Ok(None);
+        };
         let p = d.parameters();
-        Some(
-            (0..p)
-                .into_par_iter()
-                .map(|k| {
-                    let unit = DVector::from_fn(p, |a, _| f64::from(a == k));
-                    f(&w.apply(&d.fitted(ch, &unit)))
-                })
-                .collect(),
-        )
+        (0..p)
+            .into_par_iter()
+            .map(|k| {
+                let unit = DVector::from_fn(p, |a, _| f64::from(a == k));
+                f(&w.apply(&d.fitted(ch, &unit)?))
+            })
+            .collect::<Result<Vec<T>, DiagnoseError>>()
+            .map(Some)
     }
 
     /// The moments of channel `ch`'s filtered calibration columns (None without a design
@@ -242,9 +298,9 @@ impl<'a> WhiteSpace<'a> {
                 .par_iter()
                 .map(|&k| {
                     let unit = DVector::from_fn(p, |a, _| f64::from(a == k));
-                    w.apply(&d.fitted(ch, &unit))
+                    Ok(w.apply(&d.fitted(ch, &unit)?))
                 })
-                .collect();
+                .collect::<Result<_, DiagnoseError>>()?;
             for (&k, column) in chunk.iter().zip(made) {
                 on_error[k] = error.bank.dots(&column)?[0];
                 bank.push(column)?;
@@ -258,14 +314,15 @@ impl<'a> WhiteSpace<'a> {
                 }
             }
         })?;
-        let moments = |y: &[f64]| bank.dots(y).map(DVector::from_vec);
+        let moments = |y: &[f64]| Ok(DVector::from_vec(bank.dots(y)?));
         let on_sims = (0..self.replicates)
             .into_par_iter()
             .map(|r| {
-                self.with_white_sim(r, ch, moments)
-                    .expect("a channel of the run has its simulations")
+                Ok(self
+                    .with_white_sim(r, ch, moments)?
+                    .expect("a channel of the run has its simulations"))
             })
-            .collect::<Result<Vec<_>, _>>()?;
+            .collect::<Result<Vec<_>, DiagnoseError>>()?;
         Ok(Some(Columns {
             gram,
             on_error,
@@ -325,12 +382,17 @@ impl<'a> WhiteSpace<'a> {
     }
 
     /// For every replicate (in order), `f` of its filtered simulation of channel `ch`.
-    pub fn map_white_sims<T: Send>(&self, ch: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+    pub fn map_white_sims<T: Send>(
+        &self,
+        ch: usize,
+        f: &(dyn Fn(&[f64]) -> Result<T, DiagnoseError> + Sync),
+    ) -> Result<Vec<T>, DiagnoseError> {
         (0..self.replicates)
             .into_par_iter()
             .map(|r| {
-                self.with_white_sim(r, ch, f)
-                    .expect("a channel of the run has its simulations")
+                Ok(self
+                    .with_white_sim(r, ch, f)?
+                    .expect("a channel of the run has its simulations"))
             })
             .collect()
     }

@@ -1,0 +1,146 @@
+//! The error signals every stage of a diagnosis reads ([`RunSignals`]): the calibration's
+//! [`SignalBank`] (held on a short run, in a temporary file on a long one), read a series, a
+//! stretch or a block at a time, so a stage holds the few series it works on rather than
+//! every one of the run.
+
+use std::borrow::Cow;
+use std::ops::Range;
+
+use super::engine::DiagnoseError;
+use crate::calibration::SignalBank;
+use crate::model::Channel;
+
+/// See the module documentation.
+pub(super) struct RunSignals {
+    bank: SignalBank,
+}
+
+impl RunSignals {
+    pub fn new(bank: SignalBank) -> Self {
+        Self { bank }
+    }
+
+    /// The bank the signals are read from (what the calibration design's rows read).
+    pub fn bank(&self) -> &SignalBank {
+        &self.bank
+    }
+
+    /// Epochs.
+    pub fn epochs(&self) -> usize {
+        self.bank.epochs()
+    }
+
+    /// Whether the sensor has `channel`.
+    pub fn has_error(&self, channel: Channel) -> bool {
+        self.bank.error_index(channel).is_some()
+    }
+
+    fn error_index(&self, channel: Channel) -> usize {
+        self.bank
+            .error_index(channel)
+            .expect("a channel the sensor has")
+    }
+
+    /// The error of `channel` (rad/s or m/s^2), a channel the sensor has.
+    pub fn error(&self, channel: Channel) -> Result<Cow<'_, [f64]>, DiagnoseError> {
+        Ok(self.bank.series(self.error_index(channel))?)
+    }
+
+    /// The error of `channel` over the epochs `range`.
+    pub fn error_range(
+        &self,
+        channel: Channel,
+        range: Range<usize>,
+    ) -> Result<Cow<'_, [f64]>, DiagnoseError> {
+        Ok(self.bank.range(self.error_index(channel), range)?)
+    }
+
+    /// The epochs' times, s.
+    pub fn time_s(&self) -> Result<Cow<'_, [f64]>, DiagnoseError> {
+        Ok(self.bank.series(SignalBank::TIME)?)
+    }
+
+    /// The time of epoch `k`, s.
+    pub fn time_at_s(&self, k: usize) -> Result<f64, DiagnoseError> {
+        Ok(self.bank.range(SignalBank::TIME, k..k + 1)?[0])
+    }
+
+    /// Series `k` of the bank, or zeros on a run without dynamics (static data).
+    fn dynamics(&self, k: usize, range: Range<usize>) -> Result<Cow<'_, [f64]>, DiagnoseError> {
+        if self.bank.has_dynamics() {
+            Ok(self.bank.range(k, range)?)
+        } else {
+            Ok(Cow::Owned(vec![0.0; range.len()]))
+        }
+    }
+
+    /// The reference's angular rate about body axis `axis` over `range`, rad/s (zero on
+    /// static data).
+    pub fn angular_rate_rad_s(
+        &self,
+        axis: usize,
+        range: Range<usize>,
+    ) -> Result<Cow<'_, [f64]>, DiagnoseError> {
+        self.dynamics(SignalBank::ANGULAR_RATE_RAD_S[axis], range)
+    }
+
+    /// The bank's index of a dynamics series a candidate term reads: the reference's
+    /// angular rate, angular acceleration, specific force or its rate about `axis`.
+    pub fn dynamics_index(&self, quantity: Dynamics, axis: usize) -> usize {
+        assert!(self.bank.has_dynamics(), "a run with a reference");
+        match quantity {
+            Dynamics::AngularRate => SignalBank::ANGULAR_RATE_RAD_S[axis],
+            Dynamics::AngularAcceleration => SignalBank::ANGULAR_ACCELERATION_RAD_S2[axis],
+            Dynamics::SpecificForce => SignalBank::SPECIFIC_FORCE_M_S2[axis],
+            Dynamics::SpecificForceRate => SignalBank::SPECIFIC_FORCE_RATE_M_S3[axis],
+        }
+    }
+
+    /// Series `k` of the bank whole (a dynamics series, by [`RunSignals::dynamics_index`]).
+    pub fn series(&self, k: usize) -> Result<Cow<'_, [f64]>, DiagnoseError> {
+        Ok(self.bank.series(k)?)
+    }
+
+    /// |omega| per epoch, rad/s (zero on static data), read a block at a time.
+    pub fn angular_rate_norm(&self) -> Result<Vec<f64>, DiagnoseError> {
+        if !self.bank.has_dynamics() {
+            return Ok(vec![0.0; self.epochs()]);
+        }
+        let mut norm = Vec::with_capacity(self.epochs());
+        self.bank.for_each_block_in(
+            &SignalBank::ANGULAR_RATE_RAD_S,
+            0..self.epochs(),
+            &mut |_, w| {
+                norm.extend(
+                    (0..w[0].len())
+                        .map(|k| (w[0][k].powi(2) + w[1][k].powi(2) + w[2][k].powi(2)).sqrt()),
+                );
+            },
+        )?;
+        Ok(norm)
+    }
+
+    /// The median interval between epochs, s.
+    pub fn median_step_s(&self) -> Result<f64, DiagnoseError> {
+        let t = self.time_s()?;
+        let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
+        if d.is_empty() {
+            return Ok(0.0);
+        }
+        let m = d.len() / 2;
+        Ok(*d.select_nth_unstable_by(m, f64::total_cmp).1)
+    }
+}
+
+/// The dynamics a candidate term reads, about one body axis.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(super) enum Dynamics {
+    /// rad/s.
+    AngularRate,
+    /// rad/s^2.
+    AngularAcceleration,
+    /// m/s^2.
+    SpecificForce,
+    /// m/s^3.
+    SpecificForceRate,
+}
