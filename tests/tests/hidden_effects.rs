@@ -241,37 +241,45 @@ fn finds_a_bias_step_on_static_data() {
     let seconds = 300.0;
     let (model, _) = car::hide(&[("bias_shift", Some("ax"))], 41, seconds);
     let out = car::simulate_run(&model, Scenario::Static, seconds, 41);
-    let report = diagnose(
-        out.imus[0].recording.clone(),
-        None,
-        Some(fitted_baseline(41, seconds)),
-        &DiagnoseOptions {
-            seed: 41,
-            ..Default::default()
-        },
-    )
-    .unwrap();
     let step = model.imus[0]
         .model_of("ax".parse().unwrap())
         .bias_steps
         .first()
         .cloned()
         .expect("a hidden step");
-    let found = report
-        .findings
-        .iter()
-        .find(|f| f.cause == Cause::BiasShift)
-        .unwrap_or_else(|| panic!("no step named: {:?}", report.findings));
-    assert_eq!(found.channel.name(), "ax");
-    assert!(
-        contains(&found.ci95, step.size, None, WIDEN_95_TO_999),
-        "{found:?} vs {step:?}"
-    );
-    assert!(
-        report.findings.iter().all(|f| f.channel.name() == "ax"),
-        "{:?}",
-        report.findings
-    );
+    // Held, and as a long run holds it: the errors in a temporary file, the simulations
+    // drawn again.
+    let mut estimates = Vec::new();
+    for held_samples in [usize::MAX, 0] {
+        let report = diagnose(
+            out.imus[0].recording.clone(),
+            None,
+            Some(fitted_baseline(41, seconds)),
+            &DiagnoseOptions {
+                seed: 41,
+                held_samples,
+                ..Default::default()
+            },
+        )
+        .unwrap();
+        let found = report
+            .findings
+            .iter()
+            .find(|f| f.cause == Cause::BiasShift)
+            .unwrap_or_else(|| panic!("no step named: {:?}", report.findings));
+        assert_eq!(found.channel.name(), "ax");
+        assert!(
+            contains(&found.ci95, step.size, None, WIDEN_95_TO_999),
+            "{found:?} vs {step:?}"
+        );
+        assert!(
+            report.findings.iter().all(|f| f.channel.name() == "ax"),
+            "{:?}",
+            report.findings
+        );
+        estimates.push(found.estimate.as_f64().unwrap());
+    }
+    assert!((estimates[0] - estimates[1]).abs() <= 1e-9 * estimates[0].abs());
 }
 
 /// A long drive's simulations are drawn again at each use instead of held, one channel after

@@ -220,9 +220,9 @@ pub fn build_error_signals_with_design(
 /// and its linear model, gathered a block at a time into a bank held, or spilled to a
 /// temporary file when `spill`: then the recordings and a few blocks are all that is held.
 /// The calibration design reads its rows from the bank ([`CalibrationDesign::over_bank`]).
-pub fn build_signal_bank(
-    sensor: &ImuRecording,
-    reference: &ImuRecording,
+pub(crate) fn build_signal_bank(
+    sensor: &(dyn Samples + Sync),
+    reference: &(dyn Samples + Sync),
     opts: &ErrorOptions,
     spill: bool,
 ) -> Result<(SignalBank, CalibrationSummary, CalibrationDesign), ErrorsError> {
@@ -286,18 +286,31 @@ impl Gather {
         }
         Ok(())
     }
+
+    /// The median interval between the epochs gathered, s (0 with fewer than two).
+    fn median_step_s(&self) -> Result<f64, ErrorsError> {
+        Ok(match self {
+            Gather::Signals(gathered) => {
+                let gathered = gathered.as_ref().expect("started");
+                crate::interchange::median_step_s(gathered.t_s())
+            }
+            Gather::Bank(bank, _) => bank.as_ref().expect("started").median_step_s()?,
+        }
+        .unwrap_or(0.0))
+    }
 }
 
 /// The calibration of `sensor` against `reference`, then a pass at its solution whose
 /// blocks' error signals `gather` takes; the design keeps the specific force's rate unless
 /// a bank does.
 fn form_error_signals(
-    sensor: &ImuRecording,
-    reference: &ImuRecording,
+    sensor: &(dyn Samples + Sync),
+    reference: &(dyn Samples + Sync),
     opts: &ErrorOptions,
     gather: &mut Gather,
 ) -> Result<(CalibrationSummary, CalibrationDesign), ErrorsError> {
-    if sensor.gyro_rad_s.is_none() && sensor.accel_m_s2.is_none() {
+    let [gyro, accel, ..] = sensor.triplets();
+    if !gyro && !accel {
         return Err(ErrorsError::SensorHasNoChannels);
     }
     crate::progress::stage(|| "aligning the sensor's samples with the reference".into());
@@ -326,14 +339,11 @@ fn form_error_signals(
     let keep_f_dot = matches!(gather, Gather::Signals(_));
     let mut design = DesignSums::new(&fit.layout, fit.weights, present, grid.epochs, keep_f_dot);
     let mut spread = signals::ErrorSpread::default();
-    // The epochs' times, for their median length (one series, not grown).
-    let mut t_s = Vec::with_capacity(grid.epochs);
     gather.start(&grid)?;
     view.pass(&mut |block| {
         let errors = signals::error_columns(block.data, lever_arm_b_m);
         spread.add(&errors, block.own.clone());
         design.add(block.data, block.own.clone());
-        t_s.extend_from_slice(&block.t_s[block.own.clone()]);
         let block = Block {
             t_s: block.t_s,
             data: block.data,
@@ -343,8 +353,7 @@ fn form_error_signals(
         gather.add(block)
     })?;
     drop(view);
-    let epoch_dt_s = crate::interchange::median_step_s(&t_s).unwrap_or(0.0);
-    drop(t_s);
+    let epoch_dt_s = gather.median_step_s()?;
     let summary = signals::summary(fit, &grid, spread.std_dev(), epoch_dt_s);
     Ok((summary, design.finish()))
 }

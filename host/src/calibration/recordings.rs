@@ -252,6 +252,29 @@ impl SpilledRecording {
         Ok(recording)
     }
 
+    /// A recording held in memory written into a spill file (`source` names it in errors),
+    /// so it can be dropped: its time and triplets, not its single-axis columns.
+    pub fn from_recording(source: &Path, recording: &ImuRecording) -> Result<Self, ErrorsError> {
+        let triplets = [
+            &recording.gyro_rad_s,
+            &recording.accel_m_s2,
+            &recording.attitude_rad,
+            &recording.position,
+            &recording.velocity_ned_m_s,
+        ];
+        let mut spill = SpillBuilder::new(source, triplets.map(Option::is_some))?;
+        let mut row = Vec::with_capacity(16);
+        for (k, t_s) in recording.t_s.iter().enumerate() {
+            row.clear();
+            row.push(*t_s);
+            for triplet in triplets.iter().copied().flatten() {
+                row.extend(triplet.iter().map(|axis| axis[k]));
+            }
+            spill.push(&row)?;
+        }
+        spill.finish()
+    }
+
     /// The file it was read from.
     pub fn source(&self) -> &Path {
         &self.source

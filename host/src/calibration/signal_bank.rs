@@ -124,6 +124,24 @@ impl SignalBank {
         self.bank.epochs()
     }
 
+    /// The median interval between epochs, s (None with fewer than two), found in passes
+    /// over the times rather than from a copy of them.
+    pub fn median_step_s(&self) -> Result<Option<f64>, SpillError> {
+        let steps = self.epochs().saturating_sub(1) as u64;
+        crate::numeric::select_by_passes(steps / 2, |visit| {
+            let mut previous: Option<f64> = None;
+            self.bank
+                .for_each_block_in(&[Self::TIME], 0..self.epochs(), &mut |_, t| {
+                    for &t in t[0] {
+                        if let Some(p) = previous {
+                            visit(t - p);
+                        }
+                        previous = Some(t);
+                    }
+                })
+        })
+    }
+
     /// Whether the series are in a temporary file rather than held.
     pub fn is_spilled(&self) -> bool {
         self.bank.is_spilled()

@@ -205,6 +205,11 @@ impl Gathered {
         self.t_s.extend_from_slice(&t_s[own]);
     }
 
+    /// The epochs' times gathered so far, s.
+    pub(super) fn t_s(&self) -> &[f64] {
+        &self.t_s
+    }
+
     /// The error signals gathered.
     pub(super) fn finish(self) -> ErrorSignals {
         ErrorSignals {

@@ -14,13 +14,14 @@ use super::null::normal_p_value;
 use super::signals::RunSignals;
 use crate::calibration::{
     build_signal_bank, CalibrationDesign, CalibrationSummary, DesignRows, ErrorOptions, SignalBank,
+    SpilledRecording,
 };
 use crate::interchange::ImuRecording;
 use crate::model::{Cause, Channel};
 
 /// Epochs a long run's calibration forms at a time: a quarter of the calibration's own
-/// default, as the diagnosis holds the error signals beside the blocks (about 3 MiB a block,
-/// one per core).
+/// default, so that the blocks it holds (about 3 MiB each, one per core) stay below what the
+/// later stages hold.
 const CALIBRATION_BLOCK_EPOCHS: usize = 1 << 14;
 
 /// The error signals of a run and, with a reference, the calibration that made them.
@@ -30,42 +31,44 @@ pub(super) struct Calibrated {
 }
 
 /// Calibrates `sensor` against `reference` (forming more than `held_epochs` epochs a block
-/// at a time, and gathering them into a temporary file); without one, the data are taken as
-/// static (a note says so) and the error is each channel minus its mean.
+/// at a time); without one, the data are taken as static (a note says so) and the error is
+/// each channel minus its mean. On a run of more than `held_epochs` epochs the recordings
+/// are written to spill files and dropped, and the error signals gathered into a temporary
+/// file: what is held is a few blocks of epochs.
 pub(super) fn calibrate(
-    sensor: &ImuRecording,
-    reference: Option<&ImuRecording>,
+    sensor: ImuRecording,
+    reference: Option<ImuRecording>,
     held_epochs: usize,
     notes: &mut Vec<String>,
 ) -> Result<Calibrated, DiagnoseError> {
     let spill = sensor.len() > held_epochs;
-    Ok(match reference {
-        Some(r) => {
-            let (signals, summary, design) = build_signal_bank(
-                sensor,
-                r,
-                &ErrorOptions {
-                    held_epochs,
-                    block_epochs: CALIBRATION_BLOCK_EPOCHS,
-                    ..Default::default()
-                },
-                spill,
-            )?;
-            Calibrated {
-                signals: RunSignals::new(signals),
-                calibration: Some((summary, design)),
-            }
-        }
-        None => {
-            notes.push(
-                "no reference: static data assumed, the error is each channel minus its mean"
-                    .into(),
-            );
-            Calibrated {
-                signals: RunSignals::new(static_signals(sensor, spill)?),
-                calibration: None,
-            }
-        }
+    let Some(reference) = reference else {
+        notes.push(
+            "no reference: static data assumed, the error is each channel minus its mean".into(),
+        );
+        return Ok(Calibrated {
+            signals: RunSignals::new(static_signals(&sensor, spill)?),
+            calibration: None,
+        });
+    };
+    let opts = ErrorOptions {
+        held_epochs,
+        block_epochs: CALIBRATION_BLOCK_EPOCHS,
+        ..Default::default()
+    };
+    let (signals, summary, design) = if spill {
+        let spilled = |name: &str, recording: ImuRecording| {
+            SpilledRecording::from_recording(std::path::Path::new(name), &recording)
+        };
+        let sensor = spilled("the sensor recording", sensor)?;
+        let reference = spilled("the reference recording", reference)?;
+        build_signal_bank(&sensor, &reference, &opts, true)?
+    } else {
+        build_signal_bank(&sensor, &reference, &opts, false)?
+    };
+    Ok(Calibrated {
+        signals: RunSignals::new(signals),
+        calibration: Some((summary, design)),
     })
 }
 

@@ -556,15 +556,13 @@ pub fn diagnose(
     if has_dynamics {
         stage(|| "calibrating against the reference (boresight, lever arm, time offset)".into());
     }
-    let calibrated = calibrate(&sensor, reference.as_ref(), opts.held_epochs(), &mut notes)?;
-    drop(reference);
     let sensor_start_s = sensor.t_s.first().copied().unwrap_or(0.0);
     let raw_lattice = std::array::from_fn(|ch| {
         sensor
             .channel(Channel::ALL[ch].name())
             .and_then(lattice_step)
     });
-    drop(sensor);
+    let calibrated = calibrate(sensor, reference, opts.held_epochs(), &mut notes)?;
     let signals = &calibrated.signals;
     let Grid {
         n,
