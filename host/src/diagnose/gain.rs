@@ -107,7 +107,8 @@ fn kinematics_at(omega_rad_s: [&[f64]; 3], k: usize) -> SensorKinematics {
 /// uniform phase per vibration line (the phase of a found line is not estimated), and per
 /// epoch an outlier draw. (The simulator draws its per-sample effects inline, sample by
 /// sample, in `sim::sensors`; the engine keeps its series-by-series order, which its seeded
-/// results depend on.)
+/// results depend on.) `omega_rad_s` (rad/s, each body axis, every epoch) is read only when
+/// the effects hold a noise that grows with the dynamics.
 pub(super) fn simulate_channel(
     spec: &ModelSpec,
     effects: &ChannelModel,
@@ -191,11 +192,14 @@ pub(super) fn simulate_model(
 ) -> Result<Vec<Vec<f64>>, DiagnoseError> {
     let len = range.len();
     let channel = run.channels[slot];
-    let omega: [std::borrow::Cow<[f64]>; 3] = [
-        run.signals.angular_rate_rad_s(0, range.clone())?,
-        run.signals.angular_rate_rad_s(1, range.clone())?,
-        run.signals.angular_rate_rad_s(2, range.clone())?,
-    ];
+    // The rates only where a noise grows with them: on a long run each is read back whole.
+    let omega: Vec<std::borrow::Cow<[f64]>> = if model.effects.dynamic_noise.is_some() {
+        (0..3)
+            .map(|axis| run.signals.angular_rate_rad_s(axis, range.clone()))
+            .collect::<Result<_, _>>()?
+    } else {
+        vec![std::borrow::Cow::Borrowed(&[][..]); 3]
+    };
     let omega_rad_s: [&[f64]; 3] = std::array::from_fn(|axis| &omega[axis][..]);
     let max_level = run
         .max_wv_level()

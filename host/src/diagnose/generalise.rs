@@ -15,6 +15,8 @@
 //! The sensor-wide terms (time offset, lever arm) belong to the calibration and are not
 //! selected here.
 
+use nalgebra::{DMatrix, DVector};
+
 use super::engine::{DiagnoseError, NotKept, Run};
 use super::gain::{misfit_over, variance_explained_over, ChannelModelSims};
 use super::stochastic::StochasticFindings;
@@ -23,7 +25,7 @@ use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
 use crate::model::{Cause, ChannelModel};
-use crate::regress::{backward_elimination, RegressionOptions};
+use crate::regress::{column_scale, solve_scaled};
 use crate::wv::{haar_wv, WvOptions};
 
 /// Smallest relative decrease of the cross-validated misfit that lets an effect in: below
@@ -135,52 +137,81 @@ pub(super) fn kept_coefficients(terms: &FittedTerms, kept: &[Component]) -> Vec<
         .collect()
 }
 
-/// `x` over the epochs of `ranges`, joined.
-fn gather(x: &[f64], ranges: &[std::ops::Range<usize>]) -> Vec<f64> {
-    ranges
-        .iter()
-        .flat_map(|r| x[r.clone()].iter().copied())
-        .collect()
-}
-
-/// The kept terms' coefficients refitted on `e` over the epochs of `train` alone (ordinary
-/// least squares with an intercept); intervals and shares stay those of the whole run.
+/// The kept terms' coefficients refitted on `e` over the epochs of `train` alone
+/// ([`slopes_over`]); intervals and shares stay those of the whole run. A term constant over
+/// `train` (collinear with the intercept), or too few epochs, keeps its whole-run
+/// coefficient.
 fn coefficients_on(
     terms: &FittedTerms,
     kept: &[Component],
     e: &[f64],
     train: &[std::ops::Range<usize>],
 ) -> Vec<Coefficient> {
-    let all = kept_coefficients(terms, kept);
-    let columns: Vec<(&str, Vec<f64>)> = terms
+    let mut all = kept_coefficients(terms, kept);
+    let Some(first) = train.iter().flat_map(|r| r.clone()).next() else {
+        return all;
+    };
+    let fitted: Vec<(usize, &[f64])> = terms
         .terms
         .iter()
         .zip(terms.own())
-        .filter(|(t, _)| kept.contains(&Component::Terms(t.cause)))
-        .map(|(t, own)| (t.name.as_str(), gather(own, train)))
+        .enumerate()
+        .filter(|(_, (t, _))| kept.contains(&Component::Terms(t.cause)))
+        .map(|(i, (_, own))| (i, &own[..]))
+        .filter(|(_, own)| {
+            train
+                .iter()
+                .flat_map(|r| &own[r.clone()])
+                .any(|v| *v != own[first])
+        })
         .collect();
-    if columns.is_empty() {
-        return all;
+    let columns: Vec<&[f64]> = fitted.iter().map(|(_, own)| *own).collect();
+    if let Some(slopes) = slopes_over(e, &columns, train) {
+        for ((i, _), value) in fitted.iter().zip(slopes) {
+            if value.is_finite() {
+                all[*i].value = value;
+            }
+        }
     }
-    let regressors: Vec<(&str, &[f64])> = columns.iter().map(|(n, v)| (*n, &v[..])).collect();
-    let opts = RegressionOptions {
-        alpha: 1.0,
-        ..Default::default()
-    };
-    match backward_elimination(&gather(e, train), &regressors, &opts) {
-        Ok(rep) => all
-            .iter()
-            .zip(&terms.terms)
-            .map(|(c, t)| match rep.coefficient(&t.name) {
-                Some(x) if kept.contains(&Component::Terms(t.cause)) => Coefficient {
-                    value: x.estimate,
-                    ..*c
-                },
-                _ => *c,
-            })
-            .collect(),
-        Err(_) => all,
+    all
+}
+
+/// The slopes of an ordinary least-squares fit of `y` on an intercept and `columns` over
+/// the epochs `ranges`, from the column-scaled normal equations as
+/// [`crate::regress::backward_elimination`] solves them, summed over the epochs rather than
+/// made from a design matrix of them (memory in the columns, not the epochs). None without
+/// a column, or with no more epochs than parameters plus one.
+fn slopes_over(
+    y: &[f64],
+    columns: &[&[f64]],
+    ranges: &[std::ops::Range<usize>],
+) -> Option<Vec<f64>> {
+    let p = 1 + columns.len();
+    let n = ranges.iter().map(|r| r.len()).sum::<usize>();
+    if columns.is_empty() || n <= p + 1 {
+        return None;
     }
+    let mut xtx = DMatrix::<f64>::zeros(p, p);
+    let mut xty = DVector::<f64>::zeros(p);
+    let mut row = vec![1.0; p];
+    for k in ranges.iter().flat_map(|r| r.clone()) {
+        for (slot, x) in row[1..].iter_mut().zip(columns) {
+            *slot = x[k];
+        }
+        for a in 0..p {
+            xty[a] += row[a] * y[k];
+            for b in a..p {
+                xtx[(a, b)] += row[a] * row[b];
+            }
+        }
+    }
+    let scale: Vec<f64> = (0..p).map(|a| column_scale(xtx[(a, a)].sqrt())).collect();
+    let scaled = DMatrix::from_fn(p, p, |a, b| {
+        let (lo, hi) = (a.min(b), a.max(b));
+        xtx[(lo, hi)] / (scale[a] * scale[b])
+    });
+    let (_, beta_s) = solve_scaled(&scaled, &DVector::from_fn(p, |a, _| xty[a] / scale[a]));
+    Some((1..p).map(|j| beta_s[j] / scale[j]).collect())
 }
 
 /// The baseline's structure refitted on `residual`: the noise model of a training set.
@@ -230,15 +261,11 @@ impl Scoring<'_> {
             let train = [0..edge(k), edge(k + 1)..n];
             let coefficients = coefficients_on(terms, kept, e, &train);
             let noise = keeps_noise_model(kept).then(|| {
-                let d: Vec<f64> = train
-                    .iter()
-                    .flat_map(|r| terms.deterministic(&coefficients, r.clone()))
-                    .collect();
-                let residual: Vec<f64> = gather(e, &train)
-                    .iter()
-                    .zip(&d)
-                    .map(|(a, b)| a - b)
-                    .collect();
+                let mut residual = Vec::with_capacity(n - test.len());
+                for r in &train {
+                    let d = terms.deterministic(&coefficients, r.clone());
+                    residual.extend(e[r.clone()].iter().zip(&d).map(|(a, b)| a - b));
+                }
                 noise_model_on(spec, &residual, run.dt_s)
                     .unwrap_or_else(|| found.stochastic.clone())
             });
@@ -301,4 +328,56 @@ pub(super) fn select(
         held_out_extended: current,
         held_out_variance_explained: explained,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::regress::{backward_elimination, RegressionOptions};
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    #[test]
+    fn slopes_summed_over_the_epochs_are_the_regression_of_the_epochs_gathered() {
+        let mut rng = ChaCha8Rng::seed_from_u64(17);
+        let n = 5_000;
+        let columns: Vec<Vec<f64>> = (0..3)
+            .map(|k| {
+                (0..n)
+                    .map(|t| (t as f64 * 0.01 * (k + 1) as f64).sin() + rng.random::<f64>())
+                    .collect()
+            })
+            .collect();
+        let y: Vec<f64> = (0..n)
+            .map(|t| 0.3 + 2.0 * columns[0][t] - 0.5 * columns[2][t] + rng.random::<f64>() - 0.5)
+            .collect();
+        let ranges = [0..1_200, 2_500..n];
+        let gather =
+            |x: &[f64]| -> Vec<f64> { ranges.iter().flat_map(|r| x[r.clone()].to_vec()).collect() };
+        let refs: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
+        let slopes = slopes_over(&y, &refs, &ranges).unwrap();
+        let gathered: Vec<Vec<f64>> = columns.iter().map(|c| gather(c)).collect();
+        let names = ["a", "b", "c"];
+        let regressors: Vec<(&str, &[f64])> = names
+            .iter()
+            .zip(&gathered)
+            .map(|(n, c)| (*n, &c[..]))
+            .collect();
+        let opts = RegressionOptions {
+            alpha: 1.0,
+            ..Default::default()
+        };
+        let report = backward_elimination(&gather(&y), &regressors, &opts).unwrap();
+        for (name, slope) in names.iter().zip(&slopes) {
+            let want = report.coefficient(name).unwrap().estimate;
+            assert!(
+                (slope - want).abs() <= 1e-10 * want.abs().max(1.0),
+                "{name}: {slope} {want}"
+            );
+        }
+        assert!((slopes[0] - 2.0).abs() < 0.05 && (slopes[2] + 0.5).abs() < 0.05);
+        assert_eq!(slopes_over(&y, &[], &ranges), None);
+        let four = [0..2, 2..4];
+        assert_eq!(slopes_over(&y, &refs, &four), None);
+    }
 }

@@ -54,19 +54,6 @@ impl SeriesSet for [Vec<f64>] {
     }
 }
 
-/// Sum of squares and count of the values `of(series)` over every series of `set`.
-fn pooled_square_sum<S: SeriesSet + ?Sized>(
-    set: &S,
-    of: &(dyn Fn(&[f64]) -> Vec<f64> + Sync),
-) -> (f64, usize) {
-    set.map_each(&|s| {
-        let d = of(s);
-        (d.iter().map(|v| v * v).sum::<f64>(), d.len())
-    })
-    .into_iter()
-    .fold((0.0, 0), |(ss, n), (a, b)| (ss + a, n + b))
-}
-
 /// Welch PSD of `x` sampled every `dt_s`, with segments of `segment_len` samples (a power of
 /// two is fastest). The mean of each segment is removed.
 pub fn welch_psd(x: &[f64], dt_s: f64, segment_len: usize) -> Psd {
@@ -346,6 +333,30 @@ impl PrefixSums {
         Self(prefix)
     }
 
+    /// [`sharpness_series`] at `window`, from these sums alone.
+    fn sharpness(&self, window: usize) -> impl Iterator<Item = f64> + '_ {
+        let short = sharp_window(window);
+        let prefix = &self.0;
+        let step_at = move |k: usize, w: usize| {
+            ((prefix[k + w] - prefix[k]) - (prefix[k] - prefix[k - w])) / w as f64
+        };
+        // The long window's steps sit at k in window..=n - window; the short one's reach
+        // every such k, as it is shorter.
+        self.steps_at(window)
+            .map(move |k| step_at(k, short) - step_at(k, window))
+    }
+
+    /// The indices [`PrefixSums::local_steps`] gives a step at, at `window`.
+    fn steps_at(&self, window: usize) -> std::ops::Range<usize> {
+        let n = self.0.len() - 1;
+        let last = if window == 0 {
+            0
+        } else {
+            (n + 1).saturating_sub(window)
+        };
+        window..last.max(window)
+    }
+
     /// [`local_steps`] at `window`: none when the window is empty or longer than half the
     /// series.
     fn local_steps(&self, window: usize) -> impl Iterator<Item = f64> + '_ {
@@ -484,14 +495,7 @@ fn sharp_window(window: usize) -> usize {
 /// At every index k, the local step at [`sharp_window`] minus the one at `window` (aligned
 /// on the same k); empty when the series is too short.
 fn sharpness_series(x: &[f64], window: usize) -> Vec<f64> {
-    let short = sharp_window(window);
-    let long = local_steps(x, window);
-    let near = local_steps(x, short);
-    // local_steps(x, w)[j] sits at index j + w.
-    long.iter()
-        .enumerate()
-        .map(|(j, d)| near[j + window - short] - d)
-        .collect()
+    PrefixSums::of(x).sharpness(window).collect()
 }
 
 /// How far a change of the mean found at `index` (at `window`) is from a step: the local
@@ -510,7 +514,15 @@ pub fn step_sharpness<S: SeriesSet + ?Sized>(
     let Some(&at) = index.checked_sub(window).and_then(|j| observed.get(j)) else {
         return f64::NAN;
     };
-    let pooled = pooled_square_sum(sims, &|s| sharpness_series(s, window));
+    // Each simulation's sharpness summed as it is made, not held.
+    let pooled = sims
+        .map_each(&|s| {
+            PrefixSums::of(s)
+                .sharpness(window)
+                .fold((0.0, 0usize), |(ss, count), d| (ss + d * d, count + 1))
+        })
+        .into_iter()
+        .fold((0.0, 0), |(ss, n), (a, b)| (ss + a, n + b));
     let simulated = (pooled.0 / pooled.1.max(1) as f64).sqrt();
     let mut abs: Vec<f64> = observed.iter().map(|d| d.abs()).collect();
     let mid = abs.len() / 2;
