@@ -20,10 +20,11 @@ use crate::series_bank::{SpillError, BANK_BLOCK_EPOCHS};
 /// used (9-point stencils at the reference's native rate), which is better than differences
 /// at the sensor rate.
 ///
-/// Its rows are computed when asked for ([`CalibrationDesign::over`]), from the reference's
-/// rates, angular acceleration and specific force, which the error signals formed with it
-/// hold: held whole the rows would take 18 numbers per channel and epoch (864 bytes an
-/// epoch), and a copy of those series 72 bytes an epoch.
+/// Its rows are computed a block of epochs at a time when asked for
+/// ([`CalibrationDesign::over`], [`CalibrationDesign::over_bank`]), from the reference's
+/// rates, angular acceleration, specific force and its rate, which the error signals formed
+/// with it hold: held whole the rows would take 18 numbers per channel and epoch (864 bytes
+/// an epoch).
 #[derive(Debug, Clone)]
 pub struct CalibrationDesign {
     epochs: usize,

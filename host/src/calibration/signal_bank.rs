@@ -61,19 +61,21 @@ impl SignalBank {
     }
 
     /// The error signals of a run without dynamics (static data): its times and each
-    /// channel's error, spilled to a temporary file when `spill`.
+    /// channel's error, `error_of(ch)` (gx .. az, None where absent, made one at a time),
+    /// spilled to a temporary file when `spill`.
     pub fn static_run(
         t_s: &[f64],
-        errors: [Option<Vec<f64>>; 6],
+        present: [bool; 6],
+        error_of: impl Fn(usize) -> Option<Vec<f64>>,
         spill: bool,
     ) -> Result<Self, SpillError> {
-        let slots = error_slots(std::array::from_fn(|ch| errors[ch].is_some()), 1);
+        let slots = error_slots(present, 1);
         let count = 1 + slots.iter().flatten().count();
         let mut bank = SeriesBank::columns(t_s.len(), count, spill)?;
         bank.write(Self::TIME, 0, t_s)?;
-        for (slot, e) in slots.iter().zip(&errors) {
-            if let (Some(k), Some(e)) = (slot, e) {
-                bank.write(*k, 0, e)?;
+        for (ch, slot) in slots.iter().enumerate() {
+            if let (Some(k), Some(e)) = (slot, error_of(ch)) {
+                bank.write(*k, 0, &e)?;
             }
         }
         Ok(Self {

@@ -1,6 +1,7 @@
 //! The calibration against the reference (boresight, lever arm, time offset, biases; see
-//! [`crate::calibration::build_error_signals_with_design`]) that turns the sensor into error
-//! signals, or, without a reference, the error of static data; and after the per-channel
+//! [`crate::calibration::build_signal_bank`]) that turns the sensor into error signals (a
+//! [`SignalBank`], in a temporary file on a long run), or, without a reference, the error of
+//! static data; and after the per-channel
 //! stages, the sensor-wide terms of that calibration named as findings (time offset, lever
 //! arm), corrected for what the per-channel terms had pushed into them.
 
@@ -76,13 +77,20 @@ pub(super) fn calibrate(
 /// dynamics.
 fn static_signals(sensor: &ImuRecording, spill: bool) -> Result<SignalBank, DiagnoseError> {
     let n = sensor.len();
-    let errors = std::array::from_fn(|i| {
-        sensor.channel(Channel::ALL[i].name()).map(|x| {
+    let channel = |ch: usize| sensor.channel(Channel::ALL[ch].name());
+    let error_of = |ch: usize| {
+        channel(ch).map(|x| {
             let m = x.iter().sum::<f64>() / n as f64;
             x.iter().map(|v| v - m).collect()
         })
-    });
-    Ok(SignalBank::static_run(&sensor.t_s, errors, spill)?)
+    };
+    let present = std::array::from_fn(|ch| channel(ch).is_some());
+    Ok(SignalBank::static_run(
+        &sensor.t_s,
+        present,
+        error_of,
+        spill,
+    )?)
 }
 
 /// The sensor-wide calibration terms: the time offset and lever arm as the extended model
