@@ -24,6 +24,7 @@ use std::path::{Path, PathBuf};
 
 pub mod stream;
 
+use crate::calibration::SpilledRecording;
 use crate::decode::BoardChannelWv;
 use crate::error_signal::ERROR_COLUMNS;
 use crate::import::ImportError;
@@ -291,6 +292,61 @@ pub fn load_recording(path: &Path, evenly_sampled: bool) -> Result<ImuRecording,
         sample_interval_at(path, &recording.t_s, recording.sample_rate_hz, lines)?;
     }
     Ok(recording)
+}
+
+/// Interchange files above this size on disk are read by [`spill_if_long`] into a spill
+/// file rather than held: about the rows of a diagnosis's long run (280 000 at its default
+/// 30 replicates, 14-20 MB of CSV).
+pub const SPILL_ABOVE_BYTES: u64 = 16 << 20;
+
+/// An interchange file of more than [`SPILL_ABOVE_BYTES`] whose gyro and accelerometer come
+/// as whole triplets, read into a spill file a block at a time (never held whole), with the
+/// checks [`load_recording`] makes (a gap's error names the sample, not the line); None for
+/// any other file, which [`load_recording`] reads.
+pub fn spill_if_long(
+    path: &Path,
+    evenly_sampled: bool,
+) -> Result<Option<SpilledRecording>, InputError> {
+    spill_above(path, evenly_sampled, SPILL_ABOVE_BYTES)
+}
+
+/// [`spill_if_long`] with the size above which a file is spilled.
+fn spill_above(
+    path: &Path,
+    evenly_sampled: bool,
+    above_bytes: u64,
+) -> Result<Option<SpilledRecording>, InputError> {
+    let size = std::fs::metadata(path).map_or(0, |m| m.len());
+    if size <= above_bytes
+        || crate::import::detect(path)? != Some(crate::import::Dataset::Interchange)
+        || !crate::interchange::summary::interchange_columns(path)?
+            .lone_axes
+            .is_empty()
+    {
+        return Ok(None);
+    }
+    // A read error names the file and line already; other failures are the spill file's.
+    let failed = |e: crate::calibration::ErrorsError| match e {
+        crate::calibration::ErrorsError::Read(e) => InputError::Table(e),
+        other => format_error(path, other.to_string()),
+    };
+    let spilled = SpilledRecording::read(path).map_err(failed)?;
+    if evenly_sampled {
+        let median = spilled.median_step_s().map_err(failed)?.ok_or_else(|| {
+            format_error(path, "fewer than two samples: no sample interval".into())
+        })?;
+        if let Some((i, step)) = spilled.first_uneven_step(median).map_err(failed)? {
+            return Err(format_error(
+                path,
+                format!(
+                    "sample {} (1-based), column `t_s`: step {step} s differs from the median \
+                     interval {median} s (the wavelet variance needs evenly spaced samples)",
+                    i + 1
+                ),
+            ));
+        }
+    }
+    Ok(Some(spilled))
 }
 
 /// Every wanted channel of a series file (not a WV JSON), in file order or the order of
@@ -738,6 +794,63 @@ fn stored_wvs(path: &Path, value: &serde_json::Value) -> Result<Vec<ChannelWv>, 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A long interchange file is read into a spill file holding what the held read holds;
+    /// a gap is refused naming the sample; a short file, or one with an axis alone, is
+    /// left to the held read.
+    #[test]
+    fn a_long_interchange_file_spills_with_the_checks_the_held_read_makes() {
+        use crate::calibration::Samples;
+        let dir = tempfile::tempdir().unwrap();
+        let write = |name: &str, header: &str, gap_at: Option<usize>| {
+            let path = dir.path().join(name);
+            let mut text = format!("# sample_rate_hz: 100\n{header}\n");
+            let fields = header.split(',').count() - 1;
+            for k in 0..600 {
+                let t = k as f64 * 0.01
+                    + if gap_at.is_some_and(|g| k >= g) {
+                        0.5
+                    } else {
+                        0.0
+                    };
+                text.push_str(&format!("{t}"));
+                for f in 0..fields {
+                    text.push_str(&format!(",{}", (k * (f + 3)) as f64 * 1e-3));
+                }
+                text.push('\n');
+            }
+            std::fs::write(&path, text).unwrap();
+            path
+        };
+        let whole = "t_s,gx_rad_s,gy_rad_s,gz_rad_s,ax_m_s2,ay_m_s2,az_m_s2";
+        let even = write("even.csv", whole, None);
+        let spilled = spill_above(&even, true, 0).unwrap().expect("spilled");
+        let held = load_recording(&even, true).unwrap();
+        assert_eq!(spilled.len(), held.len());
+        assert_eq!(spilled.times_s().unwrap(), held.t_s);
+        for ch in 0..6 {
+            let name = crate::model::Channel::ALL[ch].name();
+            assert_eq!(
+                spilled.channel_values(ch).unwrap().as_deref(),
+                held.channel(name)
+            );
+        }
+        assert!(spill_above(&even, true, SPILL_ABOVE_BYTES)
+            .unwrap()
+            .is_none());
+        let gap = write("gap.csv", whole, Some(300));
+        let Err(error) = spill_above(&gap, true, 0) else {
+            panic!("a gap is refused");
+        };
+        let message = error.to_string();
+        assert!(
+            message.contains("gap.csv") && message.contains("sample 301"),
+            "{message}"
+        );
+        assert!(spill_above(&gap, false, 0).unwrap().is_some());
+        let lone = write("lone.csv", "t_s,gx_rad_s", None);
+        assert!(spill_above(&lone, true, 0).unwrap().is_none());
+    }
 
     /// An interchange recording keeps its channel names (gx..az) and SI units: `dynacal
     /// diagnose` looks its baseline models up by those names.

@@ -9,7 +9,8 @@
 mod car;
 
 use car::{causes_under_test, contains, fitted_baseline, run, SECONDS, WIDEN_95_TO_999};
-use dynacal::diagnose::engine::{diagnose, DiagnoseOptions};
+use dynacal::calibration::SpilledRecording;
+use dynacal::diagnose::engine::{diagnose, diagnose_recordings, DiagnoseOptions, Recording};
 use dynacal::model::Cause;
 use dynacal::sim::SimOptions;
 use dynacal::sim::{simulate, Scenario, SimModel};
@@ -307,6 +308,27 @@ fn simulations_drawn_again_give_the_report_held_ones_give() {
     };
     let held = diagnose_holding(usize::MAX);
     let drawn = diagnose_holding(0);
+    // The same run read from spill files (as a long interchange file is read).
+    let spilled = |r: &dynacal::interchange::ImuRecording| {
+        Recording::Spilled(
+            SpilledRecording::from_recording(std::path::Path::new("recording"), r).unwrap(),
+        )
+    };
+    let from_spills = diagnose_recordings(
+        spilled(&out.imus[0].recording),
+        Some(spilled(&out.reference.recording)),
+        Some(baseline.clone()),
+        &DiagnoseOptions {
+            seed: 5,
+            held_samples: 0,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(
+        serde_json::to_string(&from_spills).unwrap(),
+        serde_json::to_string(&drawn).unwrap()
+    );
     let h = &hidden[0];
     assert!(
         held.findings

@@ -307,6 +307,52 @@ impl SpilledRecording {
         Ok(())
     }
 
+    /// Column `k` of the spill's rows (0: the time; then three per triplet present), read a
+    /// block at a time.
+    fn column(&self, k: usize) -> Result<Vec<f64>, ErrorsError> {
+        let mut column = Vec::with_capacity(self.len);
+        let mut start = 0;
+        while start < self.len {
+            let end = (start + 16 * INDEX_STRIDE).min(self.len);
+            let values = self.values(start..end)?;
+            column.extend(values.chunks_exact(self.width).map(|row| row[k]));
+            start = end;
+        }
+        Ok(column)
+    }
+
+    /// The times of every sample, s.
+    pub fn times_s(&self) -> Result<Vec<f64>, ErrorsError> {
+        self.column(0)
+    }
+
+    /// The values of channel `channel` (0..6, gx..az: rad/s or m/s^2), None where its
+    /// triplet is absent.
+    pub fn channel_values(&self, channel: usize) -> Result<Option<Vec<f64>>, ErrorsError> {
+        let triplet = channel / 3;
+        if !self.present[triplet] {
+            return Ok(None);
+        }
+        let before = self.present[..triplet].iter().filter(|p| **p).count();
+        self.column(1 + 3 * before + channel % 3).map(Some)
+    }
+
+    /// The first step between consecutive times more than half of `median_s` away from it:
+    /// the 0-based index of the sample after it and the step, s.
+    pub fn first_uneven_step(&self, median_s: f64) -> Result<Option<(usize, f64)>, ErrorsError> {
+        let (mut previous, mut index, mut found) = (None::<f64>, 0usize, None);
+        self.for_each_time(|t| {
+            if let (Some(p), None) = (previous, found) {
+                if (t - p - median_s).abs() > 0.5 * median_s {
+                    found = Some((index, t - p));
+                }
+            }
+            previous = Some(t);
+            index += 1;
+        })?;
+        Ok(found)
+    }
+
     /// Median step between consecutive times, s (as [`crate::interchange::median_step_s`]).
     pub fn median_step_s(&self) -> Result<Option<f64>, ErrorsError> {
         let steps = self.len.saturating_sub(1) as u64;

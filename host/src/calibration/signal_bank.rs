@@ -60,30 +60,26 @@ impl SignalBank {
         })
     }
 
-    /// The error signals of a run without dynamics (static data): its times and each
-    /// channel's error, `error_of(ch)` (gx .. az, None where absent, made one at a time),
-    /// spilled to a temporary file when `spill`.
-    pub fn static_run(
-        t_s: &[f64],
-        present: [bool; 6],
-        error_of: impl Fn(usize) -> Option<Vec<f64>>,
-        spill: bool,
-    ) -> Result<Self, SpillError> {
+    /// The error signals of a run without dynamics (static data): its times, and room for
+    /// the errors of the channels `present` (gx .. az), each written whole
+    /// ([`SignalBank::write_error`]); spilled to a temporary file when `spill`.
+    pub fn static_run(t_s: &[f64], present: [bool; 6], spill: bool) -> Result<Self, SpillError> {
         let slots = error_slots(present, 1);
         let count = 1 + slots.iter().flatten().count();
         let mut bank = SeriesBank::columns(t_s.len(), count, spill)?;
         bank.write(Self::TIME, 0, t_s)?;
-        for (ch, slot) in slots.iter().enumerate() {
-            if let (Some(k), Some(e)) = (slot, error_of(ch)) {
-                bank.write(*k, 0, &e)?;
-            }
-        }
         Ok(Self {
             bank,
             errors: slots,
             dynamics: false,
             written: t_s.len(),
         })
+    }
+
+    /// Writes the error of channel `channel` (0..6, gx .. az) of a static run whole.
+    pub fn write_error(&mut self, channel: usize, values: &[f64]) -> Result<(), SpillError> {
+        let k = self.errors[channel].expect("a channel the run has");
+        self.bank.write(k, 0, values)
     }
 
     /// Appends epochs `own` of a block: its times `t_s`, its `errors` (as

@@ -4,9 +4,9 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
-use dynacal::diagnose::engine::{diagnose, Baseline, DiagnoseOptions};
+use dynacal::diagnose::engine::{diagnose_recordings, Baseline, DiagnoseOptions, Recording};
 use dynacal::diagnose::report;
-use dynacal::input::load_recording;
+use dynacal::input::{load_recording, spill_if_long};
 
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -54,11 +54,18 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.alpha
     );
     super::map_long_series_alone();
-    let sensor = load_recording(&args.sensor, true)?;
+    // A long interchange file is read into a spill file, never held whole.
+    let read = |path: &std::path::Path, evenly_sampled: bool| -> anyhow::Result<Recording> {
+        Ok(match spill_if_long(path, evenly_sampled)? {
+            Some(spilled) => Recording::Spilled(spilled),
+            None => Recording::Held(load_recording(path, evenly_sampled)?),
+        })
+    };
+    let sensor = read(&args.sensor, true)?;
     let reference = args
         .reference
         .as_deref()
-        .map(|r| load_recording(r, false))
+        .map(|r| read(r, false))
         .transpose()?;
     let baseline = args.baseline.as_deref().map(Baseline::load).transpose()?;
     let opts = DiagnoseOptions {
@@ -72,7 +79,7 @@ pub fn run(args: Args) -> anyhow::Result<()> {
         args.sensor.display(),
         args.replicates
     ));
-    let report = diagnose(sensor, reference, baseline, &opts)
+    let report = diagnose_recordings(sensor, reference, baseline, &opts)
         .with_context(|| format!("diagnosing {}", args.sensor.display()));
     bar.finish_and_clear();
     let report = report?;

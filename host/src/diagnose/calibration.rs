@@ -5,6 +5,9 @@
 //! stages, the sensor-wide terms of that calibration named as findings (time offset, lever
 //! arm), corrected for what the per-channel terms had pushed into them.
 
+use std::borrow::Cow;
+use std::path::Path;
+
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -13,6 +16,7 @@ use serde_json::json;
 use super::engine::{ci, DiagnoseError, Finding, Run, LEVER_ARM_MODEL_SIGMA_M};
 use super::null::normal_p_value;
 use super::signals::RunSignals;
+use crate::calibration::Samples;
 use crate::calibration::{
     build_signal_bank, CalibrationDesign, CalibrationSummary, DesignRows, ErrorOptions, SignalBank,
     SpilledRecording,
@@ -31,14 +35,76 @@ pub(super) struct Calibrated {
     pub calibration: Option<(CalibrationSummary, CalibrationDesign)>,
 }
 
+/// A recording the diagnosis reads: held whole, or in a spill file (a long interchange file
+/// read without being held, [`SpilledRecording::read`]).
+// One or two per run: boxing the held one would gain nothing.
+#[allow(clippy::large_enum_variant)]
+pub enum Recording {
+    Held(ImuRecording),
+    Spilled(SpilledRecording),
+}
+
+impl From<ImuRecording> for Recording {
+    fn from(recording: ImuRecording) -> Self {
+        Recording::Held(recording)
+    }
+}
+
+impl Recording {
+    fn samples(&self) -> &(dyn Samples + Sync) {
+        match self {
+            Recording::Held(r) => r,
+            Recording::Spilled(r) => r,
+        }
+    }
+
+    /// Number of samples.
+    pub(super) fn len(&self) -> usize {
+        self.samples().len()
+    }
+
+    /// The time of the first sample, s (0 without samples).
+    pub(super) fn first_time_s(&self) -> Result<f64, DiagnoseError> {
+        Ok(if self.len() == 0 {
+            0.0
+        } else {
+            self.samples().time_s(0)?
+        })
+    }
+
+    /// The values of channel `ch` (0..6, gx..az), None where the recording lacks it.
+    pub(super) fn channel(&self, ch: usize) -> Result<Option<Cow<'_, [f64]>>, DiagnoseError> {
+        Ok(match self {
+            Recording::Held(r) => r.channel(Channel::ALL[ch].name()).map(Cow::Borrowed),
+            Recording::Spilled(r) => r.channel_values(ch)?.map(Cow::Owned),
+        })
+    }
+
+    /// Every sample's time, s.
+    fn times_s(&self) -> Result<Cow<'_, [f64]>, DiagnoseError> {
+        Ok(match self {
+            Recording::Held(r) => Cow::Borrowed(&r.t_s[..]),
+            Recording::Spilled(r) => Cow::Owned(r.times_s()?),
+        })
+    }
+
+    /// The recording in a spill file: written there and dropped if held.
+    fn spilled(self, name: &str) -> Result<SpilledRecording, DiagnoseError> {
+        Ok(match self {
+            Recording::Held(r) => SpilledRecording::from_recording(Path::new(name), &r)?,
+            Recording::Spilled(r) => r,
+        })
+    }
+}
+
 /// Calibrates `sensor` against `reference` (forming more than `held_epochs` epochs a block
 /// at a time); without one, the data are taken as static (a note says so) and the error is
 /// each channel minus its mean. On a run of more than `held_epochs` epochs the recordings
-/// are written to spill files and dropped, and the error signals gathered into a temporary
-/// file: what is held is a few blocks of epochs.
+/// are in spill files (written there and dropped if held), and the error signals gathered
+/// into a temporary file: what is held is a few blocks of epochs.
 pub(super) fn calibrate(
-    sensor: ImuRecording,
-    reference: Option<ImuRecording>,
+    sensor: Recording,
+    reference: Option<Recording>,
     held_epochs: usize,
     notes: &mut Vec<String>,
 ) -> Result<Calibrated, DiagnoseError> {
@@ -58,14 +124,11 @@ pub(super) fn calibrate(
         ..Default::default()
     };
     let (signals, summary, design) = if spill {
-        let spilled = |name: &str, recording: ImuRecording| {
-            SpilledRecording::from_recording(std::path::Path::new(name), &recording)
-        };
-        let sensor = spilled("the sensor recording", sensor)?;
-        let reference = spilled("the reference recording", reference)?;
+        let sensor = sensor.spilled("the sensor recording")?;
+        let reference = reference.spilled("the reference recording")?;
         build_signal_bank(&sensor, &reference, &opts, true)?
     } else {
-        build_signal_bank(&sensor, &reference, &opts, false)?
+        build_signal_bank(sensor.samples(), reference.samples(), &opts, false)?
     };
     Ok(Calibrated {
         signals: RunSignals::new(signals),
@@ -75,22 +138,20 @@ pub(super) fn calibrate(
 
 /// Error signals of static data without a reference: each channel minus its mean, without
 /// dynamics.
-fn static_signals(sensor: &ImuRecording, spill: bool) -> Result<SignalBank, DiagnoseError> {
-    let n = sensor.len();
-    let channel = |ch: usize| sensor.channel(Channel::ALL[ch].name());
-    let error_of = |ch: usize| {
-        channel(ch).map(|x| {
-            let m = x.iter().sum::<f64>() / n as f64;
-            x.iter().map(|v| v - m).collect()
-        })
-    };
-    let present = std::array::from_fn(|ch| channel(ch).is_some());
-    Ok(SignalBank::static_run(
-        &sensor.t_s,
-        present,
-        error_of,
-        spill,
-    )?)
+fn static_signals(sensor: &Recording, spill: bool) -> Result<SignalBank, DiagnoseError> {
+    let mut present = [false; 6];
+    for (ch, present) in present.iter_mut().enumerate() {
+        *present = sensor.channel(ch)?.is_some();
+    }
+    let mut bank = SignalBank::static_run(&sensor.times_s()?, present, spill)?;
+    // A channel at a time: a long run holds one.
+    for ch in (0..6).filter(|&ch| present[ch]) {
+        let x = sensor.channel(ch)?.expect("present");
+        let m = x.iter().sum::<f64>() / x.len() as f64;
+        let e: Vec<f64> = x.iter().map(|v| v - m).collect();
+        bank.write_error(ch, &e)?;
+    }
+    Ok(bank)
 }
 
 /// The sensor-wide calibration terms: the time offset and lever arm as the extended model

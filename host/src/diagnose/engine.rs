@@ -44,6 +44,7 @@ use serde_json::Value;
 use statrs::distribution::{ContinuousCDF, Normal};
 
 pub use super::baseline::Baseline;
+pub use super::calibration::Recording;
 use super::calibration::{calibrate, sensor_wide_terms};
 use super::extension::{channel_model, extended_model};
 use super::gain::{measure_gain, ChannelModelSims};
@@ -551,17 +552,27 @@ pub fn diagnose(
     baseline: Option<Baseline>,
     opts: &DiagnoseOptions,
 ) -> Result<DiagnoseReport, DiagnoseError> {
+    diagnose_recordings(sensor.into(), reference.map(Into::into), baseline, opts)
+}
+
+/// [`diagnose`] of recordings held or in spill files (a long interchange file read without
+/// being held: [`crate::input::spill_if_long`]).
+pub fn diagnose_recordings(
+    sensor: Recording,
+    reference: Option<Recording>,
+    baseline: Option<Baseline>,
+    opts: &DiagnoseOptions,
+) -> Result<DiagnoseReport, DiagnoseError> {
     let mut notes = Vec::new();
     let has_dynamics = reference.is_some();
     if has_dynamics {
         stage(|| "calibrating against the reference (boresight, lever arm, time offset)".into());
     }
-    let sensor_start_s = sensor.t_s.first().copied().unwrap_or(0.0);
-    let raw_lattice = std::array::from_fn(|ch| {
-        sensor
-            .channel(Channel::ALL[ch].name())
-            .and_then(lattice_step)
-    });
+    let sensor_start_s = sensor.first_time_s()?;
+    let mut raw_lattice = [None; 6];
+    for (ch, lattice) in raw_lattice.iter_mut().enumerate() {
+        *lattice = sensor.channel(ch)?.and_then(|x| lattice_step(&x));
+    }
     let calibrated = calibrate(sensor, reference, opts.held_epochs(), &mut notes)?;
     let signals = &calibrated.signals;
     let Grid {

@@ -273,11 +273,10 @@ fn running_median(x: &[f64], window: usize) -> Vec<f64> {
 /// by the running median, so only isolated spikes stand out.
 pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
     let n = x.len();
-    let dev: Vec<f64> = x
-        .iter()
-        .zip(running_median(x, (window | 1).max(3)))
-        .map(|(v, med)| v - med)
-        .collect();
+    // The deviations made in the running median's place, and z from them when needed:
+    // a long series is held twice (deviations and their magnitudes), not four times.
+    let mut dev = running_median(x, (window | 1).max(3));
+    dev.iter_mut().zip(x).for_each(|(med, v)| *med = v - *med);
     let mut abs: Vec<f64> = dev.iter().map(|d| d.abs()).collect();
     let mid = abs.len() / 2;
     let mad = if abs.is_empty() {
@@ -285,12 +284,10 @@ pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
     } else {
         *abs.select_nth_unstable_by(mid, f64::total_cmp).1
     };
+    drop(abs);
     let sigma = 1.4826 * mad;
-    let z: Vec<f64> = dev
-        .iter()
-        .map(|d| if sigma > 0.0 { d / sigma } else { 0.0 })
-        .collect();
-    let indices: Vec<usize> = (0..n).filter(|&i| z[i].abs() > threshold).collect();
+    let z = |d: f64| if sigma > 0.0 { d / sigma } else { 0.0 };
+    let indices: Vec<usize> = (0..n).filter(|&i| z(dev[i]).abs() > threshold).collect();
     let mut sizes: Vec<f64> = indices.iter().map(|&i| dev[i].abs()).collect();
     let median_size = if sizes.is_empty() {
         0.0
@@ -300,11 +297,11 @@ pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
     };
     Outliers {
         rate: indices.len() as f64 / n.max(1) as f64,
-        scaled_deviations: indices.iter().map(|&i| z[i] * sigma).collect(),
+        scaled_deviations: indices.iter().map(|&i| z(dev[i]) * sigma).collect(),
         indices,
         median_size,
         robust_sigma: sigma,
-        max_abs_z: z.iter().fold(0.0f64, |a, b| a.max(b.abs())),
+        max_abs_z: dev.iter().fold(0.0f64, |a, d| a.max(z(*d).abs())),
     }
 }
 
