@@ -293,31 +293,30 @@ impl SpilledRecording {
             .collect())
     }
 
-    /// Calls `visit` with the time of every sample, in order.
-    fn for_each_time(&self, mut visit: impl FnMut(f64)) -> Result<(), ErrorsError> {
+    /// Calls `visit` with column `k` of every row (0: the time; then three per triplet
+    /// present), in order, read a block at a time.
+    fn for_each_in_column(&self, k: usize, mut visit: impl FnMut(f64)) -> Result<(), ErrorsError> {
         let mut start = 0;
         while start < self.len {
             let end = (start + 16 * INDEX_STRIDE).min(self.len);
             let values = self.values(start..end)?;
             values
                 .chunks_exact(self.width)
-                .for_each(|row| visit(row[0]));
+                .for_each(|row| visit(row[k]));
             start = end;
         }
         Ok(())
     }
 
-    /// Column `k` of the spill's rows (0: the time; then three per triplet present), read a
-    /// block at a time.
+    /// Calls `visit` with the time of every sample, in order.
+    fn for_each_time(&self, visit: impl FnMut(f64)) -> Result<(), ErrorsError> {
+        self.for_each_in_column(0, visit)
+    }
+
+    /// Column `k` of the spill's rows whole.
     fn column(&self, k: usize) -> Result<Vec<f64>, ErrorsError> {
         let mut column = Vec::with_capacity(self.len);
-        let mut start = 0;
-        while start < self.len {
-            let end = (start + 16 * INDEX_STRIDE).min(self.len);
-            let values = self.values(start..end)?;
-            column.extend(values.chunks_exact(self.width).map(|row| row[k]));
-            start = end;
-        }
+        self.for_each_in_column(k, |v| column.push(v))?;
         Ok(column)
     }
 
