@@ -53,10 +53,10 @@ impl Baseline {
 pub(super) fn fit_quietest(
     signals: &RunSignals,
     channels: &[Channel],
-    omega_norm: &[f64],
     dt_s: f64,
 ) -> Result<Baseline, DiagnoseError> {
     let n = signals.epochs();
+    let omega_norm = signals.angular_rate_norm()?;
     let w = (n / 4).max(256).min(n);
     let mut best = (0usize, f64::INFINITY);
     let step = (w / 8).max(1);

@@ -51,7 +51,7 @@ use super::gain::{measure_gain, ChannelModelSims};
 use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, select};
 use super::moments::Absorber;
 use super::signals::RunSignals;
-use super::stats::SeriesSet;
+use super::stats::{SeriesSet, WindowMeanSquares};
 use super::stochastic::{find_stochastic_effects, lattice_step};
 use super::terms::{find_terms, ChannelTerms, FittedTerms};
 use crate::calibration::{CalibrationSummary, DesignRows};
@@ -290,8 +290,12 @@ pub(super) struct Run<'a> {
     pub dt_s: f64,
     /// True with a reference: the dynamics are measured (without one they are zero).
     pub has_dynamics: bool,
-    /// |omega| per epoch, rad/s.
-    pub omega_norm: Vec<f64>,
+    /// The mean of |omega|^2 over each window of a channel's noise-growth regression
+    /// ([`super::stochastic::noise_window`], [`super::stats::WindowMeanSquares`]),
+    /// (rad/s)^2: what that test needs of the dynamics, without |omega| per epoch.
+    pub omega2_windows: Vec<f64>,
+    /// The mean of |omega|^2 over the run, (rad/s)^2.
+    pub mean_omega2: f64,
     /// Two-sided normal quantile of one test at `alpha_test`.
     pub z_strict: f64,
     /// Number of tests of the run (Bonferroni's m).
@@ -458,8 +462,10 @@ struct Grid {
     n: usize,
     /// Median sample interval, s.
     dt_s: f64,
-    /// |omega| per epoch, rad/s.
-    omega_norm: Vec<f64>,
+    /// See [`Run::omega2_windows`].
+    omega2_windows: Vec<f64>,
+    /// See [`Run::mean_omega2`].
+    mean_omega2: f64,
     /// The channels present, in [`Channel::ALL`] order.
     channels: Vec<Channel>,
 }
@@ -469,10 +475,19 @@ fn grid_of(signals: &RunSignals) -> Result<Grid, DiagnoseError> {
         .into_iter()
         .filter(|c| signals.has_error(*c))
         .collect();
+    let n = signals.epochs();
+    let dt_s = signals.median_step_s()?;
+    let mut windows = WindowMeanSquares::new(n, super::stochastic::noise_window(dt_s));
+    let mut sum_omega2 = 0.0;
+    signals.for_each_angular_rate_norm(0..n, &mut |_, norm| {
+        windows.add(norm);
+        norm.iter().for_each(|w| sum_omega2 += w * w);
+    })?;
     Ok(Grid {
-        n: signals.epochs(),
-        dt_s: signals.median_step_s()?,
-        omega_norm: signals.angular_rate_norm()?,
+        n,
+        dt_s,
+        omega2_windows: windows.finish(),
+        mean_omega2: sum_omega2 / n as f64,
         channels,
     })
 }
@@ -510,7 +525,7 @@ fn diagnose_channel(
     let mut discrepancies = std::mem::take(&mut found.discrepancies);
     let terms = FittedTerms::new(run, channel, found, &e)?;
     let mut findings = terms.findings(run, channel);
-    let mut resid = terms.deterministic(&terms.coefficients, 0..run.n);
+    let mut resid = terms.deterministic(&terms.coefficients, 0..run.n)?;
     resid
         .iter_mut()
         .zip(&e)
@@ -578,14 +593,15 @@ pub fn diagnose_recordings(
     let Grid {
         n,
         dt_s,
-        omega_norm,
+        omega2_windows,
+        mean_omega2,
         channels,
     } = grid_of(signals)?;
     let baseline = match baseline {
         Some(b) => b,
         None => {
             stage(|| "fitting the baseline model on the quietest stretch".into());
-            let b = super::baseline::fit_quietest(signals, &channels, &omega_norm, dt_s)?;
+            let b = super::baseline::fit_quietest(signals, &channels, dt_s)?;
             notes.push(format!("no baseline model given: {}", b.source));
             b
         }
@@ -624,7 +640,8 @@ pub fn diagnose_recordings(
         n,
         dt_s,
         has_dynamics,
-        omega_norm,
+        omega2_windows,
+        mean_omega2,
         z_strict,
         tests,
         alpha_test,

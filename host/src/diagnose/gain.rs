@@ -226,7 +226,6 @@ pub(super) fn simulate_model(
                     }
                 })
                 .collect();
-            let d = terms.deterministic(&drawn, range.clone());
             let stochastic = model.stochastic.unwrap_or_else(|| run.null_model(slot, r));
             let mut x = simulate_channel(
                 stochastic,
@@ -237,9 +236,7 @@ pub(super) fn simulate_model(
                 len,
                 &mut rng,
             );
-            for (v, dv) in x.iter_mut().zip(&d) {
-                *v += dv + model.intercept;
-            }
+            terms.add_deterministic(&drawn, range.clone(), model.intercept, &mut x)?;
             Ok(log_wv(&x, run.dt_s, max_level))
         })
         .collect()
@@ -269,11 +266,11 @@ pub(super) fn variance_explained_over(
     coefficients: &[Coefficient],
     e: &[f64],
     range: std::ops::Range<usize>,
-) -> f64 {
-    let mut left = terms.deterministic(coefficients, range.clone());
+) -> Result<f64, DiagnoseError> {
+    let mut left = terms.deterministic(coefficients, range.clone())?;
     let part = &e[range];
     left.iter_mut().zip(part).for_each(|(d, a)| *d = a - *d);
-    1.0 - variance(&left) / variance(part)
+    Ok(1.0 - variance(&left) / variance(part))
 }
 
 /// The gain of the extended model (`terms` kept as `coefficients`, zero for a term left
@@ -309,7 +306,7 @@ pub(super) fn measure_gain(
         extended: wv_misfit(&e_wv, &ext_sims),
         held_out_baseline: selection.held_out_baseline,
         held_out_extended: selection.held_out_extended,
-        variance_explained: variance_explained_over(terms, extended.coefficients, e, 0..n),
+        variance_explained: variance_explained_over(terms, extended.coefficients, e, 0..n)?,
         held_out_variance_explained: selection.held_out_variance_explained,
         not_kept: selection.not_kept,
     };

@@ -26,6 +26,7 @@ use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
 use crate::model::{Cause, ChannelModel};
 use crate::regress::{column_scale, solve_scaled};
+use crate::series_bank::BlockVisit;
 use crate::wv::{haar_wv, WvOptions};
 
 /// Smallest relative decrease of the cross-validated misfit that lets an effect in: below
@@ -146,64 +147,76 @@ fn coefficients_on(
     kept: &[Component],
     e: &[f64],
     train: &[std::ops::Range<usize>],
-) -> Vec<Coefficient> {
+) -> Result<Vec<Coefficient>, DiagnoseError> {
     let mut all = kept_coefficients(terms, kept);
-    let Some(first) = train.iter().flat_map(|r| r.clone()).next() else {
-        return all;
-    };
-    let fitted: Vec<(usize, &[f64])> = terms
-        .terms
-        .iter()
-        .zip(terms.own())
-        .enumerate()
-        .filter(|(_, (t, _))| kept.contains(&Component::Terms(t.cause)))
-        .map(|(i, (_, own))| (i, &own[..]))
-        .filter(|(_, own)| {
-            train
-                .iter()
-                .flat_map(|r| &own[r.clone()])
-                .any(|v| *v != own[first])
-        })
+    let chosen: Vec<usize> = (0..terms.terms.len())
+        .filter(|&i| kept.contains(&Component::Terms(terms.terms[i].cause)))
         .collect();
-    let columns: Vec<&[f64]> = fitted.iter().map(|(_, own)| *own).collect();
-    if let Some(slopes) = slopes_over(e, &columns, train) {
-        for ((i, _), value) in fitted.iter().zip(slopes) {
+    // Each chosen term's value at the first training epoch, and whether it moves from it.
+    let mut first: Vec<Option<f64>> = vec![None; terms.terms.len()];
+    let mut varies = vec![false; terms.terms.len()];
+    for r in train {
+        terms.for_each_own_block(r.clone(), &mut |_, own| {
+            for &i in &chosen {
+                let Some(&start) = own[i].first() else {
+                    continue;
+                };
+                let at_first = *first[i].get_or_insert(start);
+                varies[i] = varies[i] || own[i].iter().any(|v| *v != at_first);
+            }
+        })?;
+    }
+    let fitted: Vec<usize> = chosen.into_iter().filter(|&i| varies[i]).collect();
+    let blocks = |range: std::ops::Range<usize>, visit: &mut BlockVisit<'_>| {
+        terms.for_each_own_block(range, visit)
+    };
+    if let Some(slopes) = slopes_over(e, &fitted, train, &blocks)? {
+        for (&i, value) in fitted.iter().zip(slopes) {
             if value.is_finite() {
-                all[*i].value = value;
+                all[i].value = value;
             }
         }
     }
-    all
+    Ok(all)
 }
 
-/// The slopes of an ordinary least-squares fit of `y` on an intercept and `columns` over
-/// the epochs `ranges`, from the column-scaled normal equations as
-/// [`crate::regress::backward_elimination`] solves them, summed over the epochs rather than
-/// made from a design matrix of them (memory in the columns, not the epochs). None without
-/// a column, or with no more epochs than parameters plus one.
+/// Columns read over a range of epochs a block at a time, each block's series in order.
+type ColumnBlocks<'c> =
+    dyn Fn(std::ops::Range<usize>, &mut BlockVisit<'_>) -> Result<(), DiagnoseError> + 'c;
+
+/// The slopes of an ordinary least-squares fit of `y` on an intercept and the series
+/// `columns` of `blocks` over the epochs `ranges`, from the column-scaled normal equations
+/// as [`crate::regress::backward_elimination`] solves them, summed over the epochs rather
+/// than made from a design matrix of them (memory in the columns, not the epochs). None
+/// without a column, or with no more epochs than parameters plus one.
 fn slopes_over(
     y: &[f64],
-    columns: &[&[f64]],
+    columns: &[usize],
     ranges: &[std::ops::Range<usize>],
-) -> Option<Vec<f64>> {
+    blocks: &ColumnBlocks<'_>,
+) -> Result<Option<Vec<f64>>, DiagnoseError> {
     let p = 1 + columns.len();
     let n = ranges.iter().map(|r| r.len()).sum::<usize>();
     if columns.is_empty() || n <= p + 1 {
-        return None;
+        return Ok(None);
     }
     let mut xtx = DMatrix::<f64>::zeros(p, p);
     let mut xty = DVector::<f64>::zeros(p);
     let mut row = vec![1.0; p];
-    for k in ranges.iter().flat_map(|r| r.clone()) {
-        for (slot, x) in row[1..].iter_mut().zip(columns) {
-            *slot = x[k];
-        }
-        for a in 0..p {
-            xty[a] += row[a] * y[k];
-            for b in a..p {
-                xtx[(a, b)] += row[a] * row[b];
+    for range in ranges {
+        blocks(range.clone(), &mut |block, series| {
+            for (t, k) in block.enumerate() {
+                for (slot, &c) in row[1..].iter_mut().zip(columns) {
+                    *slot = series[c][t];
+                }
+                for a in 0..p {
+                    xty[a] += row[a] * y[k];
+                    for b in a..p {
+                        xtx[(a, b)] += row[a] * row[b];
+                    }
+                }
             }
-        }
+        })?;
     }
     let scale: Vec<f64> = (0..p).map(|a| column_scale(xtx[(a, a)].sqrt())).collect();
     let scaled = DMatrix::from_fn(p, p, |a, b| {
@@ -211,7 +224,7 @@ fn slopes_over(
         xtx[(lo, hi)] / (scale[a] * scale[b])
     });
     let (_, beta_s) = solve_scaled(&scaled, &DVector::from_fn(p, |a, _| xty[a] / scale[a]));
-    Some((1..p).map(|j| beta_s[j] / scale[j]).collect())
+    Ok(Some((1..p).map(|j| beta_s[j] / scale[j]).collect()))
 }
 
 /// The baseline's structure refitted on `residual`: the noise model of a training set.
@@ -259,16 +272,19 @@ impl Scoring<'_> {
         for k in 0..FOLDS {
             let test = edge(k)..edge(k + 1);
             let train = [0..edge(k), edge(k + 1)..n];
-            let coefficients = coefficients_on(terms, kept, e, &train);
+            let coefficients = coefficients_on(terms, kept, e, &train)?;
             let noise = keeps_noise_model(kept).then(|| {
                 let mut residual = Vec::with_capacity(n - test.len());
                 for r in &train {
-                    let d = terms.deterministic(&coefficients, r.clone());
+                    let d = terms.deterministic(&coefficients, r.clone())?;
                     residual.extend(e[r.clone()].iter().zip(&d).map(|(a, b)| a - b));
                 }
-                noise_model_on(spec, &residual, run.dt_s)
-                    .unwrap_or_else(|| found.stochastic.clone())
+                Ok::<_, DiagnoseError>(
+                    noise_model_on(spec, &residual, run.dt_s)
+                        .unwrap_or_else(|| found.stochastic.clone()),
+                )
             });
+            let noise = noise.transpose()?;
             let model = ChannelModelSims {
                 coefficients: &coefficients,
                 stochastic: noise.as_ref(),
@@ -277,7 +293,7 @@ impl Scoring<'_> {
             };
             let salt = 23 + k as u64;
             misfit += misfit_over(run, slot, terms, e, &model, test.clone(), salt)?;
-            explained += variance_explained_over(terms, &coefficients, e, test);
+            explained += variance_explained_over(terms, &coefficients, e, test)?;
         }
         Ok((misfit / FOLDS as f64, explained / FOLDS as f64))
     }
@@ -354,8 +370,18 @@ mod tests {
         let ranges = [0..1_200, 2_500..n];
         let gather =
             |x: &[f64]| -> Vec<f64> { ranges.iter().flat_map(|r| x[r.clone()].to_vec()).collect() };
-        let refs: Vec<&[f64]> = columns.iter().map(Vec::as_slice).collect();
-        let slopes = slopes_over(&y, &refs, &ranges).unwrap();
+        let blocks = |range: std::ops::Range<usize>, visit: &mut BlockVisit<'_>| {
+            // Blocks of 333 epochs, as a spilled bank reads them.
+            for start in range.clone().step_by(333) {
+                let block = start..(start + 333).min(range.end);
+                let views: Vec<&[f64]> = columns.iter().map(|c| &c[block.clone()]).collect();
+                visit(block, &views);
+            }
+            Ok(())
+        };
+        let slopes = slopes_over(&y, &[0, 1, 2], &ranges, &blocks)
+            .unwrap()
+            .unwrap();
         let gathered: Vec<Vec<f64>> = columns.iter().map(|c| gather(c)).collect();
         let names = ["a", "b", "c"];
         let regressors: Vec<(&str, &[f64])> = names
@@ -376,8 +402,8 @@ mod tests {
             );
         }
         assert!((slopes[0] - 2.0).abs() < 0.05 && (slopes[2] + 0.5).abs() < 0.05);
-        assert_eq!(slopes_over(&y, &[], &ranges), None);
+        assert_eq!(slopes_over(&y, &[], &ranges, &blocks).unwrap(), None);
         let four = [0..2, 2..4];
-        assert_eq!(slopes_over(&y, &refs, &four), None);
+        assert_eq!(slopes_over(&y, &[0, 1, 2], &four, &blocks).unwrap(), None);
     }
 }

@@ -11,6 +11,7 @@ mod generalise;
 pub mod html;
 mod moments;
 mod null;
+mod order;
 pub mod readable;
 pub mod report;
 mod signals;

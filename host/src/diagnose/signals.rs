@@ -103,21 +103,39 @@ impl RunSignals {
 
     /// |omega| per epoch, rad/s (zero on static data), read a block at a time.
     pub fn angular_rate_norm(&self) -> Result<Vec<f64>, DiagnoseError> {
-        if !self.bank.has_dynamics() {
-            return Ok(vec![0.0; self.epochs()]);
-        }
         let mut norm = Vec::with_capacity(self.epochs());
-        self.bank.for_each_block_in(
-            &SignalBank::ANGULAR_RATE_RAD_S,
-            0..self.epochs(),
-            &mut |_, w| {
+        self.for_each_angular_rate_norm(0..self.epochs(), &mut |_, block| {
+            norm.extend_from_slice(block)
+        })?;
+        Ok(norm)
+    }
+
+    /// `visit(epochs, |omega| over them)` for each block of `range` in order, rad/s (zero on
+    /// static data).
+    pub fn for_each_angular_rate_norm(
+        &self,
+        range: Range<usize>,
+        visit: &mut dyn FnMut(Range<usize>, &[f64]),
+    ) -> Result<(), DiagnoseError> {
+        if !self.bank.has_dynamics() {
+            let zeros = vec![0.0; range.len().min(crate::series_bank::BANK_BLOCK_EPOCHS)];
+            for start in range.clone().step_by(zeros.len().max(1)) {
+                let block = start..(start + zeros.len()).min(range.end);
+                visit(block.clone(), &zeros[..block.len()]);
+            }
+            return Ok(());
+        }
+        let mut norm = Vec::new();
+        self.bank
+            .for_each_block_in(&SignalBank::ANGULAR_RATE_RAD_S, range, &mut |block, w| {
+                norm.clear();
                 norm.extend(
                     (0..w[0].len())
                         .map(|k| (w[0][k].powi(2) + w[1][k].powi(2) + w[2][k].powi(2)).sqrt()),
                 );
-            },
-        )?;
-        Ok(norm)
+                visit(block, &norm);
+            })?;
+        Ok(())
     }
 
     /// The median interval between epochs, s.

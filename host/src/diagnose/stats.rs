@@ -4,6 +4,7 @@
 //! estimate in physical units plus a test statistic that the discrepancy engine compares
 //! with the same statistic on series simulated from the baseline model.
 
+use super::order::{median_magnitude, RunningMedian};
 use rayon::prelude::*;
 use realfft::RealFftPlanner;
 use serde::{Deserialize, Serialize};
@@ -227,82 +228,73 @@ pub struct Outliers {
     pub scaled_deviations: Vec<f64>,
 }
 
-/// The median of `x` over a centred window of `window` samples (odd) at every index, the
-/// window shortened at the ends (the upper median where it holds an even count). A sorted
-/// copy of the window is kept and moved one sample at a time, instead of a selection over
-/// a fresh copy at every index (which took a seventh of a diagnosis). Written here: it is a
-/// dozen lines, and it must order as `f64::total_cmp` does, so that its medians are exactly
-/// the selection's.
-fn running_median(x: &[f64], window: usize) -> Vec<f64> {
-    let h = window / 2;
-    let mut sorted: Vec<f64> = x[..h.min(x.len())].to_vec();
-    sorted.sort_unstable_by(f64::total_cmp);
-    let position = |sorted: &[f64], v: f64| sorted.partition_point(|s| s.total_cmp(&v).is_lt());
-    (0..x.len())
-        .map(|i| {
-            let entering = x.get(i + h).copied();
-            let leaving = i.checked_sub(h + 1).map(|j| x[j]);
-            match (entering, leaving) {
-                // Inside the series: the entering sample takes the leaving one's place and
-                // moves to its own (an insertion sort's step, a few swaps on a short window).
-                (Some(entering), Some(leaving)) => {
-                    let mut at = position(&sorted, leaving);
-                    sorted[at] = entering;
-                    while at > 0 && sorted[at - 1].total_cmp(&entering).is_gt() {
-                        sorted.swap(at - 1, at);
-                        at -= 1;
-                    }
-                    while at + 1 < sorted.len() && sorted[at + 1].total_cmp(&entering).is_lt() {
-                        sorted.swap(at, at + 1);
-                        at += 1;
-                    }
-                }
-                (Some(entering), None) => sorted.insert(position(&sorted, entering), entering),
-                (None, Some(leaving)) => {
-                    sorted.remove(position(&sorted, leaving));
-                }
-                (None, None) => {}
-            }
-            sorted[sorted.len() / 2]
-        })
-        .collect()
-}
-
 /// Flags samples more than `threshold` robust standard deviations from the running median of
 /// the series over `window` samples (odd). Slow wander (Gauss-Markov, random walk) is absorbed
 /// by the running median, so only isolated spikes stand out.
 pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
-    let n = x.len();
-    // The deviations made in the running median's place, and z from them when needed:
-    // a long series is held twice (deviations and their magnitudes), not four times.
-    let mut dev = running_median(x, (window | 1).max(3));
-    dev.iter_mut().zip(x).for_each(|(med, v)| *med = v - *med);
-    let mut abs: Vec<f64> = dev.iter().map(|d| d.abs()).collect();
-    let mid = abs.len() / 2;
-    let mad = if abs.is_empty() {
-        0.0
-    } else {
-        *abs.select_nth_unstable_by(mid, f64::total_cmp).1
+    let whole = |visit: &mut dyn FnMut(&[f64])| -> Result<(), std::convert::Infallible> {
+        visit(x);
+        Ok(())
     };
-    drop(abs);
+    match find_outliers_in(x.len(), window, threshold, &whole) {
+        Ok(found) => found,
+        Err(never) => match never {},
+    }
+}
+
+/// A series read again in full, block by block: each call visits every block once, in order.
+pub type SeriesBlocks<'b, E> = dyn Fn(&mut dyn FnMut(&[f64])) -> Result<(), E> + Sync + 'b;
+
+/// [`find_outliers`] of a series of `n` samples that `blocks` visits in order, block by
+/// block, each time it is called (three to six times): the deviations from the running
+/// median are made again at each pass instead of held, so a series of any length is scanned
+/// in a few MiB, with the figures of a scan of the series held.
+pub fn find_outliers_in<E>(
+    n: usize,
+    window: usize,
+    threshold: f64,
+    blocks: &SeriesBlocks<'_, E>,
+) -> Result<Outliers, E> {
+    let window = (window | 1).max(3);
+    // Calls `visit(i, deviation_i)` for every index, in order.
+    let deviations = |visit: &mut dyn FnMut(usize, f64)| -> Result<(), E> {
+        let mut running = RunningMedian::new(window);
+        let mut emit = |i: usize, v: f64, median: f64| visit(i, v - median);
+        blocks(&mut |block: &[f64]| {
+            for &v in block {
+                running.push(v, &mut emit);
+            }
+        })?;
+        running.finish(&mut emit);
+        Ok(())
+    };
+    let mad = median_magnitude(n, &mut |visit| deviations(&mut |_, d| visit(d)))?;
     let sigma = 1.4826 * mad;
     let z = |d: f64| if sigma > 0.0 { d / sigma } else { 0.0 };
-    let indices: Vec<usize> = (0..n).filter(|&i| z(dev[i]).abs() > threshold).collect();
-    let mut sizes: Vec<f64> = indices.iter().map(|&i| dev[i].abs()).collect();
+    let (mut indices, mut scaled_deviations, mut sizes) = (Vec::new(), Vec::new(), Vec::new());
+    let mut max_abs_z = 0.0f64;
+    deviations(&mut |i, d| {
+        max_abs_z = max_abs_z.max(z(d).abs());
+        if z(d).abs() > threshold {
+            indices.push(i);
+            scaled_deviations.push(z(d) * sigma);
+            sizes.push(d.abs());
+        }
+    })?;
     let median_size = if sizes.is_empty() {
         0.0
     } else {
         let m = sizes.len() / 2;
         *sizes.select_nth_unstable_by(m, f64::total_cmp).1
     };
-    Outliers {
+    Ok(Outliers {
         rate: indices.len() as f64 / n.max(1) as f64,
-        scaled_deviations: indices.iter().map(|&i| z(dev[i]) * sigma).collect(),
+        scaled_deviations,
         indices,
         median_size,
         robust_sigma: sigma,
-        max_abs_z: dev.iter().fold(0.0f64, |a, d| a.max(z(*d).abs())),
-    }
+        max_abs_z,
+    })
 }
 
 /// Difference of the means of the `window` samples after and before each index k
@@ -596,9 +588,54 @@ pub struct NoiseVsDynamics {
 /// |omega| in rad/s). A stationary baseline gives a slope of zero. Windows are treated as
 /// independent, which holds for the white-noise-dominated differences.
 pub fn noise_vs_dynamics(x: &[f64], magnitude: &[f64], window: usize) -> NoiseVsDynamics {
+    let mut mean_squares = WindowMeanSquares::new(magnitude.len(), window);
+    mean_squares.add(magnitude);
+    noise_vs_window_dynamics(x, &mean_squares.finish(), window)
+}
+
+/// The window mean of a magnitude's square over the windows [`noise_vs_dynamics`] reads (`w`
+/// = `window`, at least 4, samples from 0, w, 2 w, ... while a whole window and one more
+/// sample fit), summed from blocks fed in order: what the regression needs of the dynamics,
+/// a value a window, without holding them.
+pub struct WindowMeanSquares {
+    w: usize,
+    fed: usize,
+    sums: Vec<f64>,
+}
+
+impl WindowMeanSquares {
+    /// For a series of `n` samples.
+    pub fn new(n: usize, window: usize) -> Self {
+        let w = window.max(4);
+        Self {
+            w,
+            fed: 0,
+            sums: vec![0.0; n.saturating_sub(w).div_ceil(w)],
+        }
+    }
+
+    /// The next block of the magnitude.
+    pub fn add(&mut self, block: &[f64]) {
+        for m in block {
+            if let Some(sum) = self.sums.get_mut(self.fed / self.w) {
+                *sum += m * m;
+            }
+            self.fed += 1;
+        }
+    }
+
+    /// Each window's mean square.
+    pub fn finish(self) -> Vec<f64> {
+        let w = self.w as f64;
+        self.sums.into_iter().map(|s| s / w).collect()
+    }
+}
+
+/// [`noise_vs_dynamics`] given each window's mean of the magnitude's square
+/// ([`WindowMeanSquares`]).
+pub fn noise_vs_window_dynamics(x: &[f64], mag2: &[f64], window: usize) -> NoiseVsDynamics {
     let w = window.max(4);
     let mut var = Vec::new();
-    let mut mag2 = Vec::new();
     for start in (0..x.len().saturating_sub(w)).step_by(w) {
         let seg = &x[start..start + w];
         let diffs: Vec<f64> = seg.windows(2).map(|p| p[1] - p[0]).collect();
@@ -606,14 +643,8 @@ pub fn noise_vs_dynamics(x: &[f64], magnitude: &[f64], window: usize) -> NoiseVs
         let v = diffs.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (diffs.len() - 1) as f64;
         // A difference of white noise has twice its variance.
         var.push(v / 2.0);
-        mag2.push(
-            magnitude[start..start + w]
-                .iter()
-                .map(|m| m * m)
-                .sum::<f64>()
-                / w as f64,
-        );
     }
+    let mag2 = &mag2[..var.len()];
     let none = |intercept: f64| NoiseVsDynamics {
         slope: 0.0,
         slope_std_error: f64::INFINITY,
@@ -864,6 +895,29 @@ mod tests {
         let o = find_outliers(&x, 11, 6.0);
         assert_eq!(o.indices.len(), 50);
         assert!((o.median_size - 0.2).abs() < 0.02, "{o:?}");
+        // Read in blocks (one not dividing the series, the scan's passes each reading
+        // again), the scan finds the same, to the bit.
+        let blocks = |visit: &mut dyn FnMut(&[f64])| -> Result<(), ()> {
+            x.chunks(4_099).for_each(&mut *visit);
+            Ok(())
+        };
+        assert_eq!(find_outliers_in(n, 11, 6.0, &blocks).unwrap(), o);
+    }
+
+    #[test]
+    fn window_mean_squares_from_blocks_are_those_of_the_series_held() {
+        let mut rng = ChaCha8Rng::seed_from_u64(5);
+        let m: Vec<f64> = (0..10_007).map(|_| rng.random::<f64>()).collect();
+        let mut whole = WindowMeanSquares::new(m.len(), 100);
+        whole.add(&m);
+        let whole = whole.finish();
+        let mut blocks = WindowMeanSquares::new(m.len(), 100);
+        m.chunks(37).for_each(|b| blocks.add(b));
+        assert_eq!(blocks.finish(), whole);
+        // The windows that fit with a sample to spare: starts 0, 100, ..., 9 900.
+        assert_eq!(whole.len(), 100);
+        let first = m[..100].iter().map(|v| v * v).sum::<f64>() / 100.0;
+        assert!((whole[0] - first).abs() < 1e-15);
     }
 
     /// Deviations of the flagged samples from their local median (the engine's measure).
@@ -933,32 +987,6 @@ mod tests {
             o.rate
         );
         assert!((p.sigma - sigma_true).abs() < 0.3 * sigma_true, "{p:?}");
-    }
-
-    #[test]
-    fn the_running_median_is_the_windows_selected_median() {
-        // Rounded values, so windows hold ties; short series, shorter than the window too.
-        let mut rng = ChaCha8Rng::seed_from_u64(31);
-        for n in [0usize, 1, 4, 11, 12, 500] {
-            let x: Vec<f64> = (0..n)
-                .map(|_| (rng.sample::<f64, _>(StandardNormal) * 3.0).round())
-                .collect();
-            for window in [3usize, 11, 31] {
-                let h = window / 2;
-                let selected: Vec<f64> = (0..n)
-                    .map(|i| {
-                        let mut w = x[i.saturating_sub(h)..(i + h + 1).min(n)].to_vec();
-                        let mid = w.len() / 2;
-                        *w.select_nth_unstable_by(mid, f64::total_cmp).1
-                    })
-                    .collect();
-                assert_eq!(
-                    running_median(&x, window),
-                    selected,
-                    "n {n}, window {window}"
-                );
-            }
-        }
     }
 
     /// Every z at every window and index, the first largest kept: what the scan's shortcut

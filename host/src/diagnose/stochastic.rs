@@ -17,8 +17,8 @@ use super::gain::{log_wv, simulate_channel};
 use super::null::{normal_p_value, poisson_upper_tail, wv_level_test, LevelTest};
 use super::readable::significant;
 use super::stats::{
-    find_outliers, noise_vs_dynamics, outlier_process, spectral_lines, welch_psd, SeriesSet,
-    SpectralLine,
+    find_outliers, find_outliers_in, noise_vs_window_dynamics, outlier_process, spectral_lines,
+    welch_psd, SeriesSet, SpectralLine,
 };
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, parameter_values, ModelChoice};
@@ -69,11 +69,17 @@ pub(super) fn find_stochastic_effects(
     } else {
         None
     };
-    outliers(run, channel, e, &mut resid, noise_scale, sims, &mut found);
+    outliers(run, channel, e, &mut resid, noise_scale, sims, &mut found)?;
     vibration_lines(run, channel, e, &mut resid, sims, &mut found);
     quantization(run, channel, e, &mut found);
     noise_change(run, slot, channel, spec, &resid, sims, &mut found)?;
     Ok(found)
+}
+
+/// The window of the noise-growth regression ([`super::stats::noise_vs_dynamics`]) on a run
+/// sampled every `dt_s`: a second, at least 16 epochs.
+pub(super) fn noise_window(dt_s: f64) -> usize {
+    ((1.0 / dt_s) as usize).max(16)
 }
 
 /// Noise whose variance grows with |omega|^2. Returns the quiet variance and the slope of
@@ -86,9 +92,10 @@ fn noise_growth(
     sims: &impl SeriesSet,
     found: &mut StochasticFindings,
 ) -> Option<(f64, f64)> {
-    let window = ((1.0 / run.dt_s) as usize).max(16);
-    let nd = noise_vs_dynamics(resid, &run.omega_norm, window);
-    let sim_t: Vec<f64> = sims.map_each(&|s| noise_vs_dynamics(s, &run.omega_norm, window).t);
+    let window = noise_window(run.dt_s);
+    let nd = noise_vs_window_dynamics(resid, &run.omega2_windows, window);
+    let sim_t: Vec<f64> =
+        sims.map_each(&|s| noise_vs_window_dynamics(s, &run.omega2_windows, window).t);
     let range = simulated_range(&sim_t);
     if !(nd.t > run.z_strict.max(range[1] * 1.5)
         && nd.sigma_per_unit > 0.0
@@ -103,14 +110,13 @@ fn noise_growth(
         simulated_range: range,
         detail: String::new(),
     });
-    let mean_omega2 = run.omega_norm.iter().map(|w| w * w).sum::<f64>() / run.n as f64;
     found.findings.push(Finding {
         channel,
         cause: Cause::NoiseScalesWithDynamics,
         regressors: vec!["|omega| (rad/s)".into()],
         estimate: json!(nd.sigma_per_unit),
         ci95: json!(nd.sigma_per_unit_ci95),
-        variance_explained: nd.sigma_per_unit.powi(2) * mean_omega2 / variance(e),
+        variance_explained: nd.sigma_per_unit.powi(2) * run.mean_omega2 / variance(e),
         p_value: Some(run.family_p(normal_p_value(nd.t))),
     });
     found.effects.dynamic_noise = Some(DynamicNoise {
@@ -122,7 +128,9 @@ fn noise_growth(
 
 /// Outliers beyond 6 robust sigma, more than the baseline simulations show. Named only when
 /// they stand out of the noise as a population of their own; then each is replaced in
-/// `resid` by the local median.
+/// `resid` by the local median. The residual is scanned scaled back to the quiet noise
+/// level when the noise grows with |omega| (`noise_scale`: the quiet variance and the slope
+/// on |omega|^2), a block at a time.
 fn outliers(
     run: &Run,
     channel: Channel,
@@ -131,21 +139,36 @@ fn outliers(
     noise_scale: Option<(f64, f64)>,
     sims: &impl SeriesSet,
     found: &mut StochasticFindings,
-) {
+) -> Result<(), DiagnoseError> {
     let n = run.n;
-    let input: Vec<f64> = match noise_scale {
-        Some((var0, slope)) if var0 > 0.0 => resid
-            .iter()
-            .zip(&run.omega_norm)
-            .map(|(r, w)| r * (var0 / (var0 + slope * w * w)).sqrt())
-            .collect(),
-        _ => resid.to_vec(),
+    let held: &[f64] = resid;
+    let scaled = |visit: &mut dyn FnMut(&[f64])| -> Result<(), DiagnoseError> {
+        match noise_scale {
+            Some((var0, slope)) if var0 > 0.0 => {
+                let mut block = Vec::new();
+                run.signals
+                    .for_each_angular_rate_norm(0..n, &mut |epochs, omega| {
+                        block.clear();
+                        block.extend(
+                            held[epochs]
+                                .iter()
+                                .zip(omega)
+                                .map(|(r, w)| r * (var0 / (var0 + slope * w * w)).sqrt()),
+                        );
+                        visit(&block);
+                    })
+            }
+            _ => {
+                visit(held);
+                Ok(())
+            }
+        }
     };
-    let out = find_outliers(&input, 11, 6.0);
+    let out = find_outliers_in(n, 11, 6.0, &scaled)?;
     let sim_counts: Vec<f64> = sims.map_each(&|s| find_outliers(s, 11, 6.0).indices.len() as f64);
     let range = simulated_range(&sim_counts);
     if !(out.indices.len() >= 5 && out.indices.len() as f64 > range[1] + 3.0) {
-        return;
+        return Ok(());
     }
     let half_window = 5usize;
     let local_median: Vec<f64> = out
@@ -195,7 +218,7 @@ fn outliers(
     let null_mean = (sim_counts.iter().sum::<f64>() + 1.0) / sim_counts.len() as f64;
     let p = poisson_upper_tail(out.indices.len(), null_mean);
     if !(op.separated && op.probability_ci95[0] > 0.0 && p < run.alpha_test) {
-        return;
+        return Ok(());
     }
     let ve = devs.iter().map(|d| d * d).sum::<f64>() / n as f64 / variance(e);
     found.findings.push(Finding {
@@ -217,6 +240,7 @@ fn outliers(
     for (&i, m) in out.indices.iter().zip(&local_median) {
         resid[i] = *m;
     }
+    Ok(())
 }
 
 /// Least-squares sinusoid a sin(w t) + b cos(w t) at `f_hz` in `y` sampled every `dt_s`.

@@ -22,6 +22,7 @@ use super::stats::{
 use super::whiten::Whitener;
 use crate::calibration::DesignRows;
 use crate::model::{Cause, Channel};
+use crate::series_bank::{BlockVisit, SeriesBank};
 
 /// True when a term's share of the error variance reaches `min`; a NaN share (an error
 /// without variance) never does.
@@ -537,9 +538,9 @@ impl Coefficient {
 /// (`coefficients[k]` belongs to `terms[k]`) and the bias left beside them.
 pub(super) struct FittedTerms<'a> {
     pub terms: Vec<Term<'a>>,
-    /// Each term's [`Term::own`], held: a channel keeps few terms, and the gain's
-    /// simulations read them over and over.
-    own: Vec<Vec<f64>>,
+    /// Each term's [`Term::own`], made once (the gain's simulations read them over and
+    /// over): held on a short run, in a temporary file on a long one.
+    own: SeriesBank,
     pub coefficients: Vec<Coefficient>,
     /// Mean error the terms leave, channel unit.
     pub intercept: f64,
@@ -603,8 +604,12 @@ impl<'a> FittedTerms<'a> {
         let intercept = e.iter().sum::<f64>() / n as f64
             - terms.iter().map(|t| t.coef * t.own_mean).sum::<f64>();
         let step_kept = terms.iter().any(|t| t.cause == Cause::BiasShift);
+        let mut own = SeriesBank::new(n, run.is_long())?;
+        for t in &terms {
+            own.push(t.own()?)?;
+        }
         Ok(Self {
-            own: terms.iter().map(Term::own).collect::<Result<_, _>>()?,
+            own,
             terms,
             coefficients,
             intercept,
@@ -612,10 +617,16 @@ impl<'a> FittedTerms<'a> {
         })
     }
 
-    /// Each kept term's regressor less what the calibration absorbs of it on the channel
-    /// ([`Term::own`]), in [`FittedTerms::terms`] order.
-    pub fn own(&self) -> &[Vec<f64>] {
-        &self.own
+    /// `visit(epochs, owns)` for each block of `range` in order, `owns` being each kept
+    /// term's regressor less what the calibration absorbs of it on the channel
+    /// ([`Term::own`]) over the block, in [`FittedTerms::terms`] order.
+    pub fn for_each_own_block(
+        &self,
+        range: std::ops::Range<usize>,
+        visit: &mut BlockVisit<'_>,
+    ) -> Result<(), DiagnoseError> {
+        let all: Vec<usize> = (0..self.own.len()).collect();
+        Ok(self.own.for_each_block_in(&all, range, visit)?)
     }
 
     /// The deterministic part of the error over `range` with these `coefficients` (one per
@@ -624,16 +635,43 @@ impl<'a> FittedTerms<'a> {
         &self,
         coefficients: &[Coefficient],
         range: std::ops::Range<usize>,
-    ) -> Vec<f64> {
-        range
-            .map(|t| {
-                coefficients
+    ) -> Result<Vec<f64>, DiagnoseError> {
+        let mut out = vec![0.0; range.len()];
+        self.each_deterministic(coefficients, range, &mut |k, d| out[k] = d)?;
+        Ok(out)
+    }
+
+    /// Adds the deterministic part over `range` (see [`FittedTerms::deterministic`]) and
+    /// `intercept` to `x`, a series over `range`, a block at a time.
+    pub fn add_deterministic(
+        &self,
+        coefficients: &[Coefficient],
+        range: std::ops::Range<usize>,
+        intercept: f64,
+        x: &mut [f64],
+    ) -> Result<(), DiagnoseError> {
+        self.each_deterministic(coefficients, range, &mut |k, d| x[k] += d + intercept)
+    }
+
+    /// `visit(k, d)` with the deterministic part `d` at each epoch of `range`, `k` counted
+    /// from its start.
+    fn each_deterministic(
+        &self,
+        coefficients: &[Coefficient],
+        range: std::ops::Range<usize>,
+        visit: &mut dyn FnMut(usize, f64),
+    ) -> Result<(), DiagnoseError> {
+        let first = range.start;
+        self.for_each_own_block(range, &mut |block, own| {
+            for t in 0..block.len() {
+                let d = coefficients
                     .iter()
-                    .zip(&self.own)
+                    .zip(own)
                     .map(|(c, own)| c.value * own[t])
-                    .sum::<f64>()
-            })
-            .collect()
+                    .sum::<f64>();
+                visit(block.start - first + t, d);
+            }
+        })
     }
 
     /// One finding per cause with kept terms on `channel`, its p-value the largest of its
