@@ -90,6 +90,47 @@ impl SeriesBank {
         Ok(())
     }
 
+    /// Adds every series of `other` (of the bank's length) after this bank's, a block at a
+    /// time: a series made a block at a time in a bank of its own (a task of a parallel
+    /// batch each) joins the batch's bank without being held whole.
+    pub fn append(&mut self, other: SeriesBank) -> Result<(), SpillError> {
+        assert_eq!(other.n, self.n, "a bank's series share one length");
+        match (&mut self.store, other.store) {
+            (Store::Held(held), Store::Held(series)) => held.extend(series),
+            (Store::Spilled { file, count }, store) => {
+                let other = SeriesBank { n: other.n, store };
+                let mut bytes = Vec::with_capacity(8 * BANK_BLOCK_EPOCHS);
+                for k in 0..other.len() {
+                    let mut failed = None;
+                    other.for_each_block_of(&[k], &mut |_, series| {
+                        if failed.is_some() {
+                            return;
+                        }
+                        for chunk in series[0].chunks(BANK_BLOCK_EPOCHS) {
+                            bytes.clear();
+                            chunk.iter().for_each(|v| bytes.extend(v.to_le_bytes()));
+                            if let Err(e) = file.write_all(&bytes) {
+                                failed = Some(e);
+                                return;
+                            }
+                        }
+                    })?;
+                    if let Some(e) = failed {
+                        return Err(spill_error(e));
+                    }
+                    *count += 1;
+                }
+            }
+            (Store::Held(held), store) => {
+                let other = SeriesBank { n: other.n, store };
+                for k in 0..other.len() {
+                    held.push(other.series(k)?.into_owned());
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Writes `values` as epochs `start..` of series `k` of a bank made by
     /// [`SeriesBank::columns`]: each series is written in order, from its first epoch on.
     pub fn write(&mut self, k: usize, start: usize, values: &[f64]) -> Result<(), SpillError> {
@@ -281,6 +322,34 @@ fn read_exact_at(file: &File, mut buf: &mut [u8], mut offset: u64) -> std::io::R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_bank_appended_to_another_follows_its_series_held_or_spilled() {
+        let n = BANK_BLOCK_EPOCHS + 77;
+        let series = |k: usize| -> Vec<f64> { (0..n).map(|t| (t * (k + 2)) as f64).collect() };
+        for spill in [false, true] {
+            let mut bank = SeriesBank::new(n, spill).unwrap();
+            bank.push(series(0)).unwrap();
+            let mut other = SeriesBank::columns(n, 1, spill).unwrap();
+            // Written a block at a time, as a term's signature is made.
+            for start in (0..n).step_by(1000) {
+                let end = (start + 1000).min(n);
+                other.write(0, start, &series(1)[start..end]).unwrap();
+            }
+            bank.append(other).unwrap();
+            assert_eq!(bank.len(), 2);
+            assert_eq!(
+                bank.series(0).unwrap().as_ref(),
+                &series(0)[..],
+                "spill {spill}"
+            );
+            assert_eq!(
+                bank.series(1).unwrap().as_ref(),
+                &series(1)[..],
+                "spill {spill}"
+            );
+        }
+    }
 
     #[test]
     fn a_spilled_bank_reads_back_what_a_held_one_holds_block_by_block() {

@@ -69,6 +69,9 @@ impl std::fmt::Debug for DesignRows<'_> {
 /// What visits a design's rows a block at a time: the block's epochs and a row per epoch.
 type RowsVisit<'v> = dyn FnMut(Range<usize>, &[[f64; MAX_PARAMETERS]]) + 'v;
 
+/// Appends a series over the epochs given to the vector given.
+pub type ReadInto<'r, E> = dyn FnMut(Range<usize>, &mut Vec<f64>) -> Result<(), E> + 'r;
+
 /// The bank's series a design's rows are made of, in [`RowDynamics::Held`]'s order.
 const BANKED_ROW_SERIES: [usize; 12] = {
     let [w, d, f, j] = [
@@ -222,6 +225,37 @@ impl DesignRows<'_> {
         })?;
         Ok(DVector::from_column_slice(&xtwy[..p]))
     }
+    /// [`DesignRows::moments`] of a series over all epochs read a block at a time:
+    /// `read(epochs, values)` appends the series over `epochs` to `values`.
+    pub fn moments_of_blocks<E: From<SpillError>>(
+        &self,
+        channel: usize,
+        read: &mut ReadInto<'_, E>,
+    ) -> Result<DVector<f64>, E> {
+        let p = self.parameters();
+        let w = self.weight(channel);
+        let mut xtwy = [0.0; MAX_PARAMETERS];
+        let (mut y, mut failed) = (Vec::new(), None);
+        self.for_each_rows(channel, 0..self.epochs(), &mut |range, rows| {
+            y.clear();
+            if failed.is_some() {
+                return;
+            }
+            if let Err(e) = read(range, &mut y) {
+                failed = Some(e);
+                return;
+            }
+            for (x, v) in rows.iter().zip(&y) {
+                for (sum, x) in xtwy.iter_mut().zip(x) {
+                    *sum += w * x * v;
+                }
+            }
+        })?;
+        match failed {
+            Some(e) => Err(e),
+            None => Ok(DVector::from_column_slice(&xtwy[..p])),
+        }
+    }
     /// Moments X' W y of series on all channels at once.
     pub fn moments_all(&self, y: &[Option<&[f64]>; 6]) -> Result<DVector<f64>, SpillError> {
         let mut total = DVector::<f64>::zeros(self.parameters());
@@ -239,13 +273,20 @@ impl DesignRows<'_> {
     /// The fitted error on `channel` of a parameter vector (empty where the channel has no
     /// rows).
     pub fn fitted(&self, channel: usize, theta: &DVector<f64>) -> Result<Vec<f64>, SpillError> {
+        self.fitted_in(channel, theta, 0..self.epochs())
+    }
+
+    /// [`DesignRows::fitted`] over the epochs `epochs` alone (empty where the channel has
+    /// no rows).
+    pub fn fitted_in(
+        &self,
+        channel: usize,
+        theta: &DVector<f64>,
+        epochs: Range<usize>,
+    ) -> Result<Vec<f64>, SpillError> {
         let p = self.parameters();
-        let mut fitted = Vec::with_capacity(if self.has_channel(channel) {
-            self.epochs()
-        } else {
-            0
-        });
-        self.for_each_rows(channel, 0..self.epochs(), &mut |_, rows| {
+        let mut fitted = Vec::new();
+        self.for_each_rows(channel, epochs, &mut |_, rows| {
             fitted.extend(
                 rows.iter()
                     .map(|x| (0..p).map(|a| x[a] * theta[a]).sum::<f64>()),

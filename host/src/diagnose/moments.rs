@@ -20,7 +20,7 @@ use super::terms::Candidate;
 pub(super) use super::white_space::WhiteSpace;
 use crate::calibration::DesignRows;
 use crate::model::{Cause, Channel};
-use crate::series_bank::SeriesBank;
+use crate::series_bank::{SeriesBank, BANK_BLOCK_EPOCHS};
 
 /// What a least-squares fit of per-channel terms jointly with the calibration needs of the
 /// calibration: with a reference, the calibration design (weighted least squares over every
@@ -51,14 +51,29 @@ pub(super) enum Regressor<'a> {
 impl<'a> Regressor<'a> {
     /// The regressor's values, one per epoch.
     pub fn values(&self) -> Result<Cow<'a, [f64]>, DiagnoseError> {
+        self.values_in(0..self.epochs())
+    }
+
+    /// The regressor's values over the epochs `range`.
+    pub fn values_in(&self, range: Range<usize>) -> Result<Cow<'a, [f64]>, DiagnoseError> {
         Ok(match *self {
             #[cfg(test)]
-            Regressor::Series(x) => Cow::Borrowed(x),
-            Regressor::Signal { signals, series } => signals.series(series)?,
-            Regressor::Step { at, n } => {
-                Cow::Owned((0..n).map(|t| if t >= at { 1.0 } else { 0.0 }).collect())
+            Regressor::Series(x) => Cow::Borrowed(&x[range]),
+            Regressor::Signal { signals, series } => signals.series_in(series, range)?,
+            Regressor::Step { at, .. } => {
+                Cow::Owned(range.map(|t| if t >= at { 1.0 } else { 0.0 }).collect())
             }
         })
+    }
+
+    /// Epochs.
+    fn epochs(&self) -> usize {
+        match *self {
+            #[cfg(test)]
+            Regressor::Series(x) => x.len(),
+            Regressor::Signal { signals, .. } => signals.epochs(),
+            Regressor::Step { n, .. } => n,
+        }
     }
 }
 
@@ -70,19 +85,54 @@ pub(super) struct Projection {
 }
 
 impl Absorber<'_> {
-    pub fn project(&self, channel: Channel, x: &[f64]) -> Result<Projection, DiagnoseError> {
+    /// What the calibration takes from a regressor on `channel` (read a block at a time).
+    fn project_blocks(
+        &self,
+        channel: Channel,
+        x: &Regressor<'_>,
+    ) -> Result<Projection, DiagnoseError> {
         Ok(match self {
             Absorber::Design(d) => Projection {
-                absorbed: d.bread() * d.moments(channel.index(), x)?,
+                absorbed: d.bread()
+                    * d.moments_of_blocks(channel.index(), &mut |range, values| {
+                        values.extend_from_slice(&x.values_in(range)?);
+                        Ok::<_, DiagnoseError>(())
+                    })?,
             },
-            Absorber::Mean => Projection {
-                absorbed: nalgebra::DVector::from_element(
-                    1,
-                    x.iter().sum::<f64>() / x.len().max(1) as f64,
-                ),
-            },
+            Absorber::Mean => {
+                let mut sum = 0.0;
+                for_each_range(x.epochs(), &mut |range| {
+                    x.values_in(range)?.iter().for_each(|v| sum += v);
+                    Ok(())
+                })?;
+                Projection {
+                    absorbed: nalgebra::DVector::from_element(1, sum / x.epochs().max(1) as f64),
+                }
+            }
         })
     }
+
+    /// [`Absorber::own`] of a regressor over the epochs `range`.
+    fn own_in(
+        &self,
+        channel: Channel,
+        x: &Regressor<'_>,
+        p: &Projection,
+        range: Range<usize>,
+    ) -> Result<Vec<f64>, DiagnoseError> {
+        let values = x.values_in(range.clone())?;
+        Ok(match self {
+            Absorber::Design(d) => {
+                let mut own = d.fitted_in(channel.index(), &p.absorbed, range)?;
+                own.iter_mut()
+                    .zip(&values[..])
+                    .for_each(|(f, v)| *f = v - *f);
+                own
+            }
+            Absorber::Mean => values.iter().map(|v| v - p.absorbed[0]).collect(),
+        })
+    }
+
     /// `x` on `channel` minus what the calibration takes from it there.
     fn own(&self, channel: Channel, x: &[f64], p: &Projection) -> Result<Vec<f64>, DiagnoseError> {
         Ok(match self {
@@ -98,6 +148,17 @@ impl Absorber<'_> {
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+/// `visit(epochs)` for consecutive blocks of [`BANK_BLOCK_EPOCHS`] epochs covering `0..n`.
+fn for_each_range(
+    n: usize,
+    visit: &mut dyn FnMut(Range<usize>) -> Result<(), DiagnoseError>,
+) -> Result<(), DiagnoseError> {
+    for start in (0..n).step_by(BANK_BLOCK_EPOCHS) {
+        visit(start..(start + BANK_BLOCK_EPOCHS).min(n))?;
+    }
+    Ok(())
 }
 
 /// The consecutive blocks of a run's epochs the batch-means spread sums scores over
@@ -141,31 +202,34 @@ impl SpreadBlocks {
             per_block[b] += dot(&x[at.clone()], &y[at]);
         }
     }
-
-    /// Adds to `per_block` the sums of `x` (over epochs `range`) within each block.
-    fn add_sums(&self, range: Range<usize>, x: &[f64], per_block: &mut [f64]) {
-        for (b, at) in self.pieces(range) {
-            per_block[b] += x[at].iter().sum::<f64>();
-        }
-    }
 }
 
-/// A series' inner products with every series of `bank`: over all epochs, and within each
-/// spread block.
+/// The inner products of the one series of `y` (a bank of its own) with every series of
+/// `bank`: over all epochs, and within each spread block.
 fn products_with(
     bank: &SeriesBank,
-    y: &[f64],
+    y: &SeriesBank,
     blocks: SpreadBlocks,
 ) -> Result<Vec<(f64, Vec<f64>)>, DiagnoseError> {
     let mut out = vec![(0.0, vec![0.0; blocks.count]); bank.len()];
+    let mut failed = None;
     bank.for_each_block(&mut |range, series| {
-        let y = &y[range.clone()];
+        let y = match y.range(0, range.clone()) {
+            Ok(y) => y,
+            Err(e) => {
+                failed.get_or_insert(e);
+                return;
+            }
+        };
         for ((total, per_block), x) in out.iter_mut().zip(series) {
-            *total += dot(x, y);
-            blocks.add_products(range.clone(), x, y, per_block);
+            *total += dot(x, &y);
+            blocks.add_products(range.clone(), x, &y, per_block);
         }
     })?;
-    Ok(out)
+    match failed {
+        Some(e) => Err(e.into()),
+        None => Ok(out),
+    }
 }
 
 /// Where another term's filtered signature on the same channel meets this one's: its
@@ -243,6 +307,76 @@ pub(super) struct Batch<'a> {
     pub signatures: SeriesBank,
 }
 
+/// A term's filtered signature on its own channel, made a block of the filtered error's
+/// epochs at a time ([`WhiteSignature::of`]), with what the term needs of it.
+struct WhiteSignature {
+    /// The signature, in a bank of its own.
+    bank: SeriesBank,
+    /// The unfiltered signature's sum, the filtered one's, and the filtered one's within
+    /// each spread block.
+    own_sum: f64,
+    white_sum: f64,
+    block_sums: Vec<f64>,
+    /// Its inner product with the channel's filtered error, over all epochs and within
+    /// each spread block.
+    on_error: f64,
+    block_on_error: Vec<f64>,
+}
+
+impl WhiteSignature {
+    /// The signature of the unfiltered one `own_in` gives over any epochs. Summed element
+    /// by element in order (within the spread blocks too), and multiplied with the error
+    /// over the error bank's own blocks: the figures of the signature held whole.
+    fn of(
+        space: &WhiteSpace<'_>,
+        channel: Channel,
+        blocks: SpreadBlocks,
+        own_in: &dyn Fn(Range<usize>) -> Result<Vec<f64>, DiagnoseError>,
+    ) -> Result<Self, DiagnoseError> {
+        let whitener = space
+            .whitener(channel.index())
+            .expect("a channel of the run");
+        let mut out = Self {
+            bank: SeriesBank::columns(space.epochs(), 1, space.is_long())?,
+            own_sum: 0.0,
+            white_sum: 0.0,
+            block_sums: vec![0.0; blocks.count],
+            on_error: 0.0,
+            block_on_error: vec![0.0; blocks.count],
+        };
+        let mut stream = whitener.stream();
+        let (mut white, mut failed) = (Vec::new(), None);
+        space.error(channel).for_each_block(&mut |range, error| {
+            if failed.is_some() {
+                return;
+            }
+            let own = match own_in(range.clone()) {
+                Ok(own) => own,
+                Err(e) => {
+                    failed = Some(e);
+                    return;
+                }
+            };
+            own.iter().for_each(|v| out.own_sum += v);
+            white.clear();
+            stream.apply(&own, &mut white);
+            white.iter().for_each(|v| out.white_sum += v);
+            for (b, at) in blocks.pieces(range.clone()) {
+                white[at].iter().for_each(|v| out.block_sums[b] += v);
+            }
+            out.on_error += dot(error[0], &white);
+            blocks.add_products(range.clone(), error[0], &white, &mut out.block_on_error);
+            if let Err(e) = out.bank.write(0, range.start, &white) {
+                failed = Some(e.into());
+            }
+        })?;
+        match failed {
+            Some(e) => Err(e),
+            None => Ok(out),
+        }
+    }
+}
+
 impl<'a> Term<'a> {
     /// Every candidate on `channel` as a term, coefficients not yet set; the simulations
     /// are visited once for all of them.
@@ -257,12 +391,12 @@ impl<'a> Term<'a> {
         let mut terms: Vec<Term> = Vec::with_capacity(cands.len());
         // A core's worth at a time, each signature banked as soon as it is made.
         for chunk in cands.chunks(rayon::current_num_threads().max(1)) {
-            let made: Vec<(Term, Vec<f64>)> = chunk
+            let made: Vec<(Term, SeriesBank)> = chunk
                 .par_iter()
                 .map(|c| Self::made(space, channel, c, blocks))
                 .collect::<Result<_, _>>()?;
             for (term, white_own) in made {
-                signatures.push(white_own)?;
+                signatures.append(white_own)?;
                 terms.push(term);
             }
         }
@@ -316,30 +450,34 @@ impl<'a> Term<'a> {
     }
 
     /// A candidate as a term with what its filtered signature gives alone (its sums and its
-    /// products with the error), and the signature.
+    /// products with the error), and the signature (in a bank of its own). Made a block of
+    /// epochs at a time, in three passes over the regressor (what the calibration takes
+    /// from it, the filtered signature with its sums, the unfiltered one's spread), so a
+    /// long run's candidate is never held whole.
     fn made(
         space: &WhiteSpace<'a>,
         channel: Channel,
         c: &Candidate<'a>,
         blocks: SpreadBlocks,
-    ) -> Result<(Self, Vec<f64>), DiagnoseError> {
+    ) -> Result<(Self, SeriesBank), DiagnoseError> {
         let own_ch = channel.index();
+        let n = space.epochs();
         let absorber = space.absorber();
-        let whitener = space.whitener(own_ch).expect("a channel of the run");
-        let values = c.values.values()?;
-        let projection = absorber.project(channel, &values)?;
-        let own = absorber.own(channel, &values, &projection)?;
-        let own_mean = own.iter().sum::<f64>() / own.len().max(1) as f64;
+        let projection = absorber.project_blocks(channel, &c.values)?;
+        let own_in = |range| absorber.own_in(channel, &c.values, &projection, range);
+        let signature = WhiteSignature::of(space, channel, blocks, &own_in)?;
+        let own_mean = signature.own_sum / n.max(1) as f64;
+        let mut squares = 0.0;
+        for_each_range(n, &mut |range| {
+            own_in(range)?
+                .iter()
+                .for_each(|v| squares += (v - own_mean).powi(2));
+            Ok(())
+        })?;
         let pulled = std::array::from_fn(|ch| {
             let g = space.column_gram(ch).filter(|_| ch != own_ch)?;
             Some(g * &projection.absorbed)
         });
-        let white_own = whitener.apply(&own);
-        let mut block_sums = vec![0.0; blocks.count];
-        blocks.add_sums(0..white_own.len(), &white_own, &mut block_sums);
-        let (on_error, block_on_error) = products_with(space.error(channel), &white_own, blocks)?
-            .pop()
-            .expect("one error series");
         let mut term = Term {
             channel,
             name: c.name.clone(),
@@ -348,12 +486,12 @@ impl<'a> Term<'a> {
             regressor: c.values,
             absorber,
             own_mean,
-            own_variance: super::engine::variance(&own),
+            own_variance: squares / (n as f64 - 1.0).max(1.0),
             projection,
             id: next_term_id(),
-            white_sum: white_own.iter().sum(),
-            block_sums,
-            block_on_error,
+            white_sum: signature.white_sum,
+            block_sums: signature.block_sums,
+            block_on_error: signature.block_on_error,
             partners: Vec::new(),
             on_own_columns: None,
             pulled,
@@ -364,8 +502,8 @@ impl<'a> Term<'a> {
             sd_floor: 0.0,
             fixed: None,
         };
-        term.on_error = on_error + term.pulled_moments(|ch| space.columns_on_error(ch));
-        Ok((term, white_own))
+        term.on_error = signature.on_error + term.pulled_moments(|ch| space.columns_on_error(ch));
+        Ok((term, signature.bank))
     }
 
     /// `c` as a term beside a batch already made on `channel`: its products with each of
@@ -383,12 +521,7 @@ impl<'a> Term<'a> {
             .into_iter()
             .next()
             .expect("one term per candidate");
-        // The joined signature read back whole (one series), against the batch's bank.
-        let mut white_own = Vec::new();
-        joined.signatures.for_each_block(&mut |_, series| {
-            white_own.extend_from_slice(series[0]);
-        })?;
-        let products = products_with(&batch.signatures, &white_own, blocks)?;
+        let products = products_with(&batch.signatures, &joined.signatures, blocks)?;
         for (other, (product, block_products)) in batch.terms.iter_mut().zip(products) {
             other.partners.push(Partner {
                 id: term.id,

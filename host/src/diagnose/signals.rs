@@ -96,9 +96,14 @@ impl RunSignals {
         }
     }
 
-    /// Series `k` of the bank whole (a dynamics series, by [`RunSignals::dynamics_index`]).
-    pub fn series(&self, k: usize) -> Result<Cow<'_, [f64]>, DiagnoseError> {
-        Ok(self.bank.series(k)?)
+    /// Series `k` of the bank (a dynamics series, by [`RunSignals::dynamics_index`]) over
+    /// the epochs `range`.
+    pub fn series_in(
+        &self,
+        k: usize,
+        range: Range<usize>,
+    ) -> Result<Cow<'_, [f64]>, DiagnoseError> {
+        Ok(self.bank.range(k, range)?)
     }
 
     /// |omega| per epoch, rad/s (zero on static data), read a block at a time.

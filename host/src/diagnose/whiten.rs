@@ -95,20 +95,44 @@ impl Whitener {
     /// The standardised innovations of `y` under the model: white with unit variance when
     /// `y` is the model's noise.
     pub fn apply(&self, y: &[f64]) -> Vec<f64> {
-        let k = self.phi.len();
-        let mut state = vec![0.0; k];
-        let settled = self.gains.len() - 1;
-        y.iter()
-            .enumerate()
-            .map(|(t, &v)| {
-                let e = t.min(settled);
-                let nu = v - state.iter().sum::<f64>();
-                for ((x, g), phi) in state.iter_mut().zip(&self.gains[e]).zip(&self.phi) {
-                    *x = phi * (*x + g * nu);
-                }
-                nu * self.inverse_sd[e]
-            })
-            .collect()
+        let mut out = Vec::with_capacity(y.len());
+        self.stream().apply(y, &mut out);
+        out
+    }
+
+    /// The filter run over a series fed a block at a time, its state carried between blocks.
+    pub fn stream(&self) -> WhitenerStream<'_> {
+        WhitenerStream {
+            whitener: self,
+            state: vec![0.0; self.phi.len()],
+            t: 0,
+        }
+    }
+}
+
+/// A [`Whitener`] run over a series a block at a time ([`Whitener::stream`]): the same
+/// innovations as [`Whitener::apply`] on the series whole.
+pub(super) struct WhitenerStream<'w> {
+    whitener: &'w Whitener,
+    state: Vec<f64>,
+    /// Epochs filtered so far.
+    t: usize,
+}
+
+impl WhitenerStream<'_> {
+    /// Appends the innovations of the next block `y` to `out`.
+    pub fn apply(&mut self, y: &[f64], out: &mut Vec<f64>) {
+        let w = self.whitener;
+        let settled = w.gains.len() - 1;
+        for &v in y {
+            let e = self.t.min(settled);
+            let nu = v - self.state.iter().sum::<f64>();
+            for ((x, g), phi) in self.state.iter_mut().zip(&w.gains[e]).zip(&w.phi) {
+                *x = phi * (*x + g * nu);
+            }
+            out.push(nu * w.inverse_sd[e]);
+            self.t += 1;
+        }
     }
 }
 
@@ -158,7 +182,13 @@ mod tests {
         let model = spec(processes);
         let n = 200_000;
         let y = model.simulate(n, &mut ChaCha8Rng::seed_from_u64(4));
-        let w = Whitener::new(&model, n).apply(&y);
+        let whitener = Whitener::new(&model, n);
+        let w = whitener.apply(&y);
+        // Fed in blocks (the first shorter than the gains' settling), the same innovations.
+        let mut stream = whitener.stream();
+        let mut blocks = Vec::new();
+        y.chunks(777).for_each(|b| stream.apply(b, &mut blocks));
+        assert_eq!(blocks, w);
         let tail = &w[1000..];
         let var = tail.iter().map(|v| v * v).sum::<f64>() / tail.len() as f64;
         assert!((var - 1.0).abs() < 0.02, "variance {var}");
