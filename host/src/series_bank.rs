@@ -240,6 +240,29 @@ impl SeriesBank {
         }
     }
 
+    /// Each series' inner product with the one series of `other` (a bank of the same
+    /// length), read a block at a time: the figures of [`SeriesBank::dots`] of it held.
+    pub fn dots_with(&self, other: &SeriesBank) -> Result<Vec<f64>, SpillError> {
+        let mut sums = vec![0.0; self.len()];
+        let mut failed = None;
+        self.for_each_block(&mut |range, series| {
+            let y = match other.range(0, range) {
+                Ok(y) => y,
+                Err(e) => {
+                    failed.get_or_insert(e);
+                    return;
+                }
+            };
+            for (sum, x) in sums.iter_mut().zip(series) {
+                *sum += x.iter().zip(y.iter()).map(|(a, b)| a * b).sum::<f64>();
+            }
+        })?;
+        match failed {
+            Some(e) => Err(e),
+            None => Ok(sums),
+        }
+    }
+
     /// Each series' inner product with `y` (of the bank's length).
     pub fn dots(&self, y: &[f64]) -> Result<Vec<f64>, SpillError> {
         let mut sums = vec![0.0; self.len()];
@@ -336,6 +359,10 @@ mod tests {
                 let end = (start + 1000).min(n);
                 other.write(0, start, &series(1)[start..end]).unwrap();
             }
+            let y = series(2);
+            let mut held_y = SeriesBank::new(n, spill).unwrap();
+            held_y.push(y.clone()).unwrap();
+            assert_eq!(other.dots_with(&held_y).unwrap(), other.dots(&y).unwrap());
             bank.append(other).unwrap();
             assert_eq!(bank.len(), 2);
             assert_eq!(

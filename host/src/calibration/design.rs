@@ -284,15 +284,37 @@ impl DesignRows<'_> {
         theta: &DVector<f64>,
         epochs: Range<usize>,
     ) -> Result<Vec<f64>, SpillError> {
+        let mut fitted = Vec::with_capacity(if self.has_channel(channel) {
+            epochs.len()
+        } else {
+            0
+        });
+        self.for_each_fitted(channel, theta, epochs, &mut |_, block| {
+            fitted.extend_from_slice(block)
+        })?;
+        Ok(fitted)
+    }
+
+    /// `visit(epochs, fitted)` for each block of `epochs` in order: the fitted error on
+    /// `channel` of a parameter vector over the block (nothing where the channel has no
+    /// rows).
+    pub fn for_each_fitted(
+        &self,
+        channel: usize,
+        theta: &DVector<f64>,
+        epochs: Range<usize>,
+        visit: &mut dyn FnMut(Range<usize>, &[f64]),
+    ) -> Result<(), SpillError> {
         let p = self.parameters();
         let mut fitted = Vec::new();
-        self.for_each_rows(channel, epochs, &mut |_, rows| {
+        self.for_each_rows(channel, epochs, &mut |range, rows| {
+            fitted.clear();
             fitted.extend(
                 rows.iter()
                     .map(|x| (0..p).map(|a| x[a] * theta[a]).sum::<f64>()),
             );
-        })?;
-        Ok(fitted)
+            visit(range, &fitted);
+        })
     }
 }
 

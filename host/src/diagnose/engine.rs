@@ -517,8 +517,9 @@ fn diagnose_channel(
     // The error as the joint calibration leaves it.
     let mut e: Vec<f64> = run.error(channel)?.into_owned();
     if let (Some(pushed), Some(design)) = (found.calibration_spill.as_ref(), run.design) {
-        let spill = design.fitted(channel.index(), pushed)?;
-        e.iter_mut().zip(&spill).for_each(|(v, s)| *v -= s);
+        design.for_each_fitted(channel.index(), pushed, 0..run.n, &mut |range, spill| {
+            e[range].iter_mut().zip(spill).for_each(|(v, s)| *v -= s);
+        })?;
     }
     stage(|| format!("channel {}: stochastic effects", channel.name()));
     let sims = run.baseline_sims(slot);

@@ -432,7 +432,8 @@ impl<'a> Term<'a> {
             }
         }
         let dots = |series: &[f64]| Ok(signatures.dots(series)?);
-        if let Some(on_columns) = space.on_white_columns(own_ch, &dots)? {
+        let dots_with = |column: &SeriesBank| Ok(signatures.dots_with(column)?);
+        if let Some(on_columns) = space.on_white_columns(own_ch, &dots_with)? {
             for (k, t) in terms.iter_mut().enumerate() {
                 let m = on_columns.iter().map(|c| c[k]);
                 t.on_own_columns = Some(nalgebra::DVector::from_iterator(on_columns.len(), m));

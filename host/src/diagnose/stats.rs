@@ -303,63 +303,61 @@ pub fn find_outliers_in<E>(
 /// correlation time much longer than the window barely moves it, so at short windows steps
 /// stand out from slow noise that a whole-run CUSUM cannot tell them from.
 pub fn local_steps(x: &[f64], window: usize) -> Vec<f64> {
-    PrefixSums::of(x).local_steps(window).collect()
+    let mut steps = Vec::new();
+    for_each_running_sum(x, 2 * window + 1, &mut |p, sums| {
+        if let Some(k) = step_index(p, window) {
+            steps.push(sums.step(k, window));
+        }
+    });
+    steps
 }
 
-/// The running sums of a series (the sum of its first k samples at k), from which
-/// [`local_steps`] at any window are two subtractions each: one pass serves every window.
-struct PrefixSums(Vec<f64>);
+/// The running sums of a series (the sum of its first q samples at q) over the last
+/// positions fed ([`for_each_running_sum`]), from which a local step at any window within
+/// reach is two subtractions: one pass serves every window, and no series of the input's
+/// length is held.
+struct RunningSumRing {
+    sums: Vec<f64>,
+}
 
-impl PrefixSums {
-    fn of(x: &[f64]) -> Self {
-        let mut prefix = Vec::with_capacity(x.len() + 1);
-        prefix.push(0.0);
-        let mut acc = 0.0;
-        for v in x {
-            acc += v;
-            prefix.push(acc);
-        }
-        Self(prefix)
+impl RunningSumRing {
+    /// The running sum at position `q`, one of the last `reach` positions fed.
+    fn at(&self, q: usize) -> f64 {
+        self.sums[q % self.sums.len()]
     }
 
-    /// [`sharpness_series`] at `window`, from these sums alone.
-    fn sharpness(&self, window: usize) -> impl Iterator<Item = f64> + '_ {
-        let short = sharp_window(window);
-        let prefix = &self.0;
-        let step_at = move |k: usize, w: usize| {
-            ((prefix[k + w] - prefix[k]) - (prefix[k] - prefix[k - w])) / w as f64
-        };
-        // The long window's steps sit at k in window..=n - window; the short one's reach
-        // every such k, as it is shorter.
-        self.steps_at(window)
-            .map(move |k| step_at(k, short) - step_at(k, window))
+    /// The local step at `window` placed at `k` (its after-window ends at the last position
+    /// fed, or later ones within reach).
+    fn step(&self, k: usize, window: usize) -> f64 {
+        ((self.at(k + window) - self.at(k)) - (self.at(k) - self.at(k - window))) / window as f64
     }
 
-    /// The indices [`PrefixSums::local_steps`] gives a step at, at `window`.
-    fn steps_at(&self, window: usize) -> std::ops::Range<usize> {
-        let n = self.0.len() - 1;
-        let last = if window == 0 {
-            0
-        } else {
-            (n + 1).saturating_sub(window)
-        };
-        window..last.max(window)
+    /// The local step at [`sharp_window`] minus the one at `window`, both at `k`.
+    fn sharpness(&self, k: usize, window: usize) -> f64 {
+        self.step(k, sharp_window(window)) - self.step(k, window)
     }
+}
 
-    /// [`local_steps`] at `window`: none when the window is empty or longer than half the
-    /// series.
-    fn local_steps(&self, window: usize) -> impl Iterator<Item = f64> + '_ {
-        let prefix = &self.0;
-        let n = prefix.len() - 1;
-        let l = window as f64;
-        let last = if window == 0 {
-            0
-        } else {
-            (n + 1).saturating_sub(window)
-        };
-        (window..last)
-            .map(move |k| ((prefix[k + window] - prefix[k]) - (prefix[k] - prefix[k - window])) / l)
+/// `visit(p, sums)` at each position p = 0..=n of `x` in order, `sums` holding the running
+/// sums of the last `reach` positions (p included).
+fn for_each_running_sum(x: &[f64], reach: usize, visit: &mut dyn FnMut(usize, &RunningSumRing)) {
+    let mut ring = RunningSumRing {
+        sums: vec![0.0; reach.clamp(1, x.len() + 1)],
+    };
+    let mut acc = 0.0;
+    visit(0, &ring);
+    for (p, v) in (1..).zip(x) {
+        acc += v;
+        let len = ring.sums.len();
+        ring.sums[p % len] = acc;
+        visit(p, &ring);
     }
+}
+
+/// The index a local step at `window` is placed at when its after-window ends at position
+/// `p`: k = p - window, for k in window..=n - window (none for an empty window).
+fn step_index(p: usize, window: usize) -> Option<usize> {
+    (window > 0 && p >= 2 * window).then(|| p - window)
 }
 
 /// The most significant step of a series over several window lengths.
@@ -481,58 +479,78 @@ fn sharp_window(window: usize) -> usize {
     (window / 4).max(16).min(window)
 }
 
-/// At every index k, the local step at [`sharp_window`] minus the one at `window` (aligned
-/// on the same k); empty when the series is too short.
-fn sharpness_series(x: &[f64], window: usize) -> Vec<f64> {
-    PrefixSums::of(x).sharpness(window).collect()
-}
-
 /// How far a change of the mean found at `index` (at `window`) is from a step: the local
 /// step at a quarter of the window minus the one at the window, over its standard deviation
 /// (the larger of its spread over `sims`, the baseline's simulations, and its robust spread
 /// over `x` itself). A step is as large at the shorter window, so this is small (standard
 /// normal); a change spread over the window (a ramp, slow wander) is smaller at the shorter
-/// window and this is large. NaN when it cannot be computed.
+/// window and this is large. NaN when it cannot be computed. Every series is read through
+/// a ring of its running sums; `x`'s robust spread by passes ([`median_magnitude`]).
 pub fn step_sharpness<S: SeriesSet + ?Sized>(
     x: &[f64],
     index: usize,
     window: usize,
     sims: &S,
 ) -> f64 {
-    let observed = sharpness_series(x, window);
-    let Some(&at) = index.checked_sub(window).and_then(|j| observed.get(j)) else {
+    let reach = 2 * window + 1;
+    let mut at = None;
+    let mut count = 0usize;
+    for_each_running_sum(x, reach, &mut |p, sums| {
+        if let Some(k) = step_index(p, window) {
+            count += 1;
+            if k == index {
+                at = Some(sums.sharpness(k, window));
+            }
+        }
+    });
+    let Some(at) = at else {
         return f64::NAN;
     };
     // Each simulation's sharpness summed as it is made, not held.
     let pooled = sims
         .map_each(&|s| {
-            PrefixSums::of(s)
-                .sharpness(window)
-                .fold((0.0, 0usize), |(ss, count), d| (ss + d * d, count + 1))
+            let (mut ss, mut count) = (0.0, 0usize);
+            for_each_running_sum(s, reach, &mut |p, sums| {
+                if let Some(k) = step_index(p, window) {
+                    let d = sums.sharpness(k, window);
+                    ss += d * d;
+                    count += 1;
+                }
+            });
+            (ss, count)
         })
         .into_iter()
         .fold((0.0, 0), |(ss, n), (a, b)| (ss + a, n + b));
     let simulated = (pooled.0 / pooled.1.max(1) as f64).sqrt();
-    let mut abs: Vec<f64> = observed.iter().map(|d| d.abs()).collect();
-    let mid = abs.len() / 2;
-    let own = 1.4826 * *abs.select_nth_unstable_by(mid, f64::total_cmp).1;
+    let median = median_magnitude::<std::convert::Infallible>(count, &mut |visit| {
+        for_each_running_sum(x, reach, &mut |p, sums| {
+            if let Some(k) = step_index(p, window) {
+                visit(sums.sharpness(k, window));
+            }
+        });
+        Ok(())
+    });
+    let own = 1.4826 * median.unwrap_or_else(|never| match never {});
     at.abs() / simulated.max(own)
 }
 
 /// Standard deviation of [`local_steps`] at each window over a set of series (simulations of
 /// the baseline), pooled over indices.
 pub fn local_step_null_sd<S: SeriesSet + ?Sized>(series: &S, windows: &[usize]) -> Vec<f64> {
+    let reach = 2 * windows.iter().copied().max().unwrap_or(0) + 1;
     // One visit of each series for every window: a drawn series is drawn once.
     let per_series = series.map_each(&|s| {
-        let prefix = PrefixSums::of(s);
-        windows
-            .iter()
-            .map(|&w| {
-                prefix
-                    .local_steps(w)
-                    .fold((0.0, 0usize), |(ss, count), d| (ss + d * d, count + 1))
-            })
-            .collect::<Vec<_>>()
+        let mut sums = vec![(0.0, 0usize); windows.len()];
+        for_each_running_sum(s, reach, &mut |p, ring| {
+            for (&w, (ss, count)) in windows.iter().zip(sums.iter_mut()) {
+                if let Some(k) = step_index(p, w) {
+                    let d = ring.step(k, w);
+                    *ss += d * d;
+                    *count += 1;
+                }
+            }
+        });
+        sums
     });
     (0..windows.len())
         .map(|k| {
@@ -555,12 +573,17 @@ pub fn local_step_robust_sd(x: &[f64], windows: &[usize]) -> Vec<f64> {
     windows
         .iter()
         .map(|&w| {
-            let mut d: Vec<f64> = local_steps(x, w).into_iter().map(f64::abs).collect();
-            if d.is_empty() {
-                return 0.0;
-            }
-            let m = d.len() / 2;
-            1.482_602_218_505_602 * *d.select_nth_unstable_by(m, f64::total_cmp).1
+            // By passes over a ring of running sums: no series of the steps is held.
+            let count = (x.len() + 1).saturating_sub(2 * w) * usize::from(w > 0);
+            let median = median_magnitude::<std::convert::Infallible>(count, &mut |visit| {
+                for_each_running_sum(x, 2 * w + 1, &mut |p, sums| {
+                    if let Some(k) = step_index(p, w) {
+                        visit(sums.step(k, w));
+                    }
+                });
+                Ok(())
+            });
+            1.482_602_218_505_602 * median.unwrap_or_else(|never| match never {})
         })
         .collect()
 }

@@ -443,11 +443,17 @@ fn step_spill(
     }
     let mut spill = vec![0.0; run.n];
     for t in elsewhere {
-        let fit = design.fitted(channel.index(), &t.projection.absorbed)?;
-        spill
-            .iter_mut()
-            .zip(fit)
-            .for_each(|(v, x)| *v += t.coef * x);
+        design.for_each_fitted(
+            channel.index(),
+            &t.projection.absorbed,
+            0..run.n,
+            &mut |range, fit| {
+                spill[range]
+                    .iter_mut()
+                    .zip(fit)
+                    .for_each(|(v, x)| *v += t.coef * x);
+            },
+        )?;
     }
     Ok(Some(spill))
 }

@@ -80,9 +80,9 @@ fn calibrated(
 ) -> Result<Vec<f64>, DiagnoseError> {
     match (absorber, theta) {
         (Absorber::Design(d), Some(theta)) if d.has_channel(ch) => {
-            y.iter_mut()
-                .zip(d.fitted(ch, theta)?)
-                .for_each(|(v, f)| *v -= f);
+            d.for_each_fitted(ch, theta, 0..y.len(), &mut |range, fitted| {
+                y[range].iter_mut().zip(fitted).for_each(|(v, f)| *v -= f);
+            })?;
         }
         (Absorber::Design(_), _) => {}
         (Absorber::Mean, _) => {
@@ -130,9 +130,8 @@ impl<'a> WhiteSpace<'a> {
             let Some(e) = error_of(ch)? else {
                 continue;
             };
-            let y = calibrated(absorber, ch, e.into_owned(), theta.as_ref())?;
-            let filtered = w.apply(&y);
-            drop(y);
+            let mut filtered = calibrated(absorber, ch, e.into_owned(), theta.as_ref())?;
+            w.stream().apply_in_place(&mut filtered);
             let sum = filtered.iter().sum();
             let mut bank = SeriesBank::new(n, !hold)?;
             bank.push(filtered)?;
@@ -216,11 +215,13 @@ impl<'a> WhiteSpace<'a> {
         y: Vec<f64>,
         theta: Option<&DVector<f64>>,
     ) -> Result<Vec<f64>, DiagnoseError> {
-        let y = calibrated(self.absorber, ch, y, theta)?;
-        Ok(self.whiteners[ch]
+        let mut y = calibrated(self.absorber, ch, y, theta)?;
+        self.whiteners[ch]
             .as_ref()
             .expect("a filtered channel has its whitener")
-            .apply(&y))
+            .stream()
+            .apply_in_place(&mut y);
+        Ok(y)
     }
 
     /// Replicate `r`'s filtered calibrated simulation of channel `ch`, drawn again unless
@@ -252,12 +253,12 @@ impl<'a> WhiteSpace<'a> {
     }
 
     /// `f` of each of the calibration's filtered columns on channel `ch`, in order (None
-    /// without a design reaching the channel, or without the channel); a column at a time
-    /// is held.
+    /// without a design reaching the channel, or without the channel), each made a block at
+    /// a time into a bank of its own (a temporary file on a long run).
     pub fn on_white_columns<T: Send>(
         &self,
         ch: usize,
-        f: &(dyn Fn(&[f64]) -> Result<T, DiagnoseError> + Sync),
+        f: &(dyn Fn(&SeriesBank) -> Result<T, DiagnoseError> + Sync),
     ) -> Result<Option<Vec<T>>, DiagnoseError> {
         let Absorber::Design(d) = self.absorber else {
             return Ok(None);
@@ -265,15 +266,38 @@ impl<'a> WhiteSpace<'a> {
         let Some(w) = self.whiteners[ch].as_ref().filter(|_| d.has_channel(ch)) else {
             return Ok(None);
         };
-        let p = d.parameters();
-        (0..p)
+        (0..d.parameters())
             .into_par_iter()
-            .map(|k| {
-                let unit = DVector::from_fn(p, |a, _| f64::from(a == k));
-                f(&w.apply(&d.fitted(ch, &unit)?))
-            })
+            .map(|k| f(&self.white_column(d, w, ch, k)?))
             .collect::<Result<Vec<T>, DiagnoseError>>()
             .map(Some)
+    }
+
+    /// The calibration's column `k` on channel `ch` (the fit of a unit parameter), filtered
+    /// by `w`, made a block at a time into a bank of its own.
+    fn white_column(
+        &self,
+        d: crate::calibration::DesignRows<'_>,
+        w: &Whitener,
+        ch: usize,
+        k: usize,
+    ) -> Result<SeriesBank, DiagnoseError> {
+        let p = d.parameters();
+        let unit = DVector::from_fn(p, |a, _| f64::from(a == k));
+        let mut column = SeriesBank::columns(self.n, 1, self.is_long())?;
+        let mut stream = w.stream();
+        let (mut white, mut failed) = (Vec::new(), None);
+        d.for_each_fitted(ch, &unit, 0..self.n, &mut |range, fitted| {
+            white.clear();
+            stream.apply(fitted, &mut white);
+            if let Err(e) = column.write(0, range.start, &white) {
+                failed.get_or_insert(e);
+            }
+        })?;
+        match failed {
+            Some(e) => Err(e.into()),
+            None => Ok(column),
+        }
     }
 
     /// The moments of channel `ch`'s filtered calibration columns (None without a design
@@ -294,16 +318,13 @@ impl<'a> WhiteSpace<'a> {
         let mut on_error = DVector::<f64>::zeros(p);
         let indices: Vec<usize> = (0..p).collect();
         for chunk in indices.chunks(rayon::current_num_threads().max(1)) {
-            let made: Vec<Vec<f64>> = chunk
+            let made: Vec<SeriesBank> = chunk
                 .par_iter()
-                .map(|&k| {
-                    let unit = DVector::from_fn(p, |a, _| f64::from(a == k));
-                    Ok(w.apply(&d.fitted(ch, &unit)?))
-                })
+                .map(|&k| self.white_column(d, w, ch, k))
                 .collect::<Result<_, DiagnoseError>>()?;
             for (&k, column) in chunk.iter().zip(made) {
-                on_error[k] = error.bank.dots(&column)?[0];
-                bank.push(column)?;
+                on_error[k] = error.bank.dots_with(&column)?[0];
+                bank.append(column)?;
             }
         }
         let mut gram = DMatrix::<f64>::zeros(p, p);

@@ -94,6 +94,7 @@ impl Whitener {
 
     /// The standardised innovations of `y` under the model: white with unit variance when
     /// `y` is the model's noise.
+    #[cfg(test)]
     pub fn apply(&self, y: &[f64]) -> Vec<f64> {
         let mut out = Vec::with_capacity(y.len());
         self.stream().apply(y, &mut out);
@@ -122,17 +123,24 @@ pub(super) struct WhitenerStream<'w> {
 impl WhitenerStream<'_> {
     /// Appends the innovations of the next block `y` to `out`.
     pub fn apply(&mut self, y: &[f64], out: &mut Vec<f64>) {
+        out.extend(y.iter().map(|&v| self.innovation(v)));
+    }
+
+    /// Replaces the next block `y` by its innovations.
+    pub fn apply_in_place(&mut self, y: &mut [f64]) {
+        y.iter_mut().for_each(|v| *v = self.innovation(*v));
+    }
+
+    /// The standardised innovation of the next sample `v`.
+    fn innovation(&mut self, v: f64) -> f64 {
         let w = self.whitener;
-        let settled = w.gains.len() - 1;
-        for &v in y {
-            let e = self.t.min(settled);
-            let nu = v - self.state.iter().sum::<f64>();
-            for ((x, g), phi) in self.state.iter_mut().zip(&w.gains[e]).zip(&w.phi) {
-                *x = phi * (*x + g * nu);
-            }
-            out.push(nu * w.inverse_sd[e]);
-            self.t += 1;
+        let e = self.t.min(w.gains.len() - 1);
+        let nu = v - self.state.iter().sum::<f64>();
+        for ((x, g), phi) in self.state.iter_mut().zip(&w.gains[e]).zip(&w.phi) {
+            *x = phi * (*x + g * nu);
         }
+        self.t += 1;
+        nu * w.inverse_sd[e]
     }
 }
 
@@ -189,6 +197,12 @@ mod tests {
         let mut blocks = Vec::new();
         y.chunks(777).for_each(|b| stream.apply(b, &mut blocks));
         assert_eq!(blocks, w);
+        let mut in_place = y.clone();
+        let mut stream = whitener.stream();
+        in_place
+            .chunks_mut(1000)
+            .for_each(|b| stream.apply_in_place(b));
+        assert_eq!(in_place, w);
         let tail = &w[1000..];
         let var = tail.iter().map(|v| v * v).sum::<f64>() / tail.len() as f64;
         assert!((var - 1.0).abs() < 0.02, "variance {var}");
