@@ -97,7 +97,8 @@ const HELD_CANDIDATES: usize = 1 << 18;
 /// values each call of `pass` visits, in `f64::total_cmp`'s order: the value a selection over
 /// a held copy of the magnitudes gives, bit for bit. A non-negative float's bits order as
 /// the float, so each pass counts the candidates' next 16 bits until few enough are left
-/// to hold; `pass` is called two to five times. Zero when `count` is zero.
+/// to hold; `pass` is called once (up to 2^18 values) to five times. Zero when `count` is
+/// zero.
 pub(super) fn median_magnitude<E>(count: usize, pass: &mut ValuePass<'_, E>) -> Result<f64, E> {
     if count == 0 {
         return Ok(0.0);

@@ -246,7 +246,7 @@ pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
 pub type SeriesBlocks<'b, E> = dyn Fn(&mut dyn FnMut(&[f64])) -> Result<(), E> + Sync + 'b;
 
 /// [`find_outliers`] of a series of `n` samples that `blocks` visits in order, block by
-/// block, each time it is called (three to six times): the deviations from the running
+/// block, each time it is called (two to six times): the deviations from the running
 /// median are made again at each pass instead of held, so a series of any length is scanned
 /// in a few MiB, with the figures of a scan of the series held.
 pub fn find_outliers_in<E>(
