@@ -17,6 +17,16 @@ use std::borrow::Cow;
 /// Epochs of each series read at a time from a spilled bank (128 KiB of each).
 pub const BANK_BLOCK_EPOCHS: usize = 1 << 14;
 
+/// The consecutive blocks of [`BANK_BLOCK_EPOCHS`] epochs (the last shorter) that cover
+/// `epochs`, in order: how a spilled bank, and any loop over a run's epochs that keeps a
+/// block at a time, cuts them.
+pub fn block_ranges(epochs: Range<usize>) -> impl Iterator<Item = Range<usize>> {
+    let end = epochs.end;
+    epochs
+        .step_by(BANK_BLOCK_EPOCHS)
+        .map(move |start| start..(start + BANK_BLOCK_EPOCHS).min(end))
+}
+
 /// What visits a bank's blocks: the block's epochs, and every series over them.
 pub type BlockVisit<'v> = dyn FnMut(Range<usize>, &[&[f64]]) + 'v;
 
@@ -226,14 +236,14 @@ impl SeriesBank {
             }
             Store::Spilled { file, .. } => {
                 let mut blocks = vec![Vec::with_capacity(BANK_BLOCK_EPOCHS); which.len()];
-                for start in epochs.clone().step_by(BANK_BLOCK_EPOCHS) {
-                    let end = (start + BANK_BLOCK_EPOCHS).min(epochs.end);
+                for range in block_ranges(epochs) {
                     for (&k, block) in which.iter().zip(blocks.iter_mut()) {
                         block.clear();
-                        read_values(file, 8 * (k * self.n + start) as u64, end - start, block)?;
+                        let offset = 8 * (k * self.n + range.start) as u64;
+                        read_values(file, offset, range.len(), block)?;
                     }
                     let views: Vec<&[f64]> = blocks.iter().map(Vec::as_slice).collect();
-                    visit(start..end, &views);
+                    visit(range, &views);
                 }
                 Ok(())
             }

@@ -20,7 +20,7 @@ use super::terms::Candidate;
 pub(super) use super::white_space::WhiteSpace;
 use crate::calibration::DesignRows;
 use crate::model::{Cause, Channel};
-use crate::series_bank::{SeriesBank, BANK_BLOCK_EPOCHS};
+use crate::series_bank::{block_ranges, SeriesBank};
 
 /// What a least-squares fit of per-channel terms jointly with the calibration needs of the
 /// calibration: with a reference, the calibration design (weighted least squares over every
@@ -49,11 +49,6 @@ pub(super) enum Regressor<'a> {
 }
 
 impl<'a> Regressor<'a> {
-    /// The regressor's values, one per epoch.
-    pub fn values(&self) -> Result<Cow<'a, [f64]>, DiagnoseError> {
-        self.values_in(0..self.epochs())
-    }
-
     /// The regressor's values over the epochs `range`.
     pub fn values_in(&self, range: Range<usize>) -> Result<Cow<'a, [f64]>, DiagnoseError> {
         Ok(match *self {
@@ -101,10 +96,9 @@ impl Absorber<'_> {
             },
             Absorber::Mean => {
                 let mut sum = 0.0;
-                for_each_range(x.epochs(), &mut |range| {
+                for range in block_ranges(0..x.epochs()) {
                     x.values_in(range)?.iter().for_each(|v| sum += v);
-                    Ok(())
-                })?;
+                }
                 Projection {
                     absorbed: nalgebra::DVector::from_element(1, sum / x.epochs().max(1) as f64),
                 }
@@ -132,33 +126,10 @@ impl Absorber<'_> {
             Absorber::Mean => values.iter().map(|v| v - p.absorbed[0]).collect(),
         })
     }
-
-    /// `x` on `channel` minus what the calibration takes from it there.
-    fn own(&self, channel: Channel, x: &[f64], p: &Projection) -> Result<Vec<f64>, DiagnoseError> {
-        Ok(match self {
-            Absorber::Design(d) => {
-                let mut own = d.fitted(channel.index(), &p.absorbed)?;
-                own.iter_mut().zip(x).for_each(|(f, v)| *f = v - *f);
-                own
-            }
-            Absorber::Mean => x.iter().map(|v| v - p.absorbed[0]).collect(),
-        })
-    }
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-/// `visit(epochs)` for consecutive blocks of [`BANK_BLOCK_EPOCHS`] epochs covering `0..n`.
-fn for_each_range(
-    n: usize,
-    visit: &mut dyn FnMut(Range<usize>) -> Result<(), DiagnoseError>,
-) -> Result<(), DiagnoseError> {
-    for start in (0..n).step_by(BANK_BLOCK_EPOCHS) {
-        visit(start..(start + BANK_BLOCK_EPOCHS).min(n))?;
-    }
-    Ok(())
 }
 
 /// The consecutive blocks of a run's epochs the batch-means spread sums scores over
@@ -469,12 +440,11 @@ impl<'a> Term<'a> {
         let signature = WhiteSignature::of(space, channel, blocks, &own_in)?;
         let own_mean = signature.own_sum / n.max(1) as f64;
         let mut squares = 0.0;
-        for_each_range(n, &mut |range| {
+        for range in block_ranges(0..n) {
             own_in(range)?
                 .iter()
                 .for_each(|v| squares += (v - own_mean).powi(2));
-            Ok(())
-        })?;
+        }
         let pulled = std::array::from_fn(|ch| {
             let g = space.column_gram(ch).filter(|_| ch != own_ch)?;
             Some(g * &projection.absorbed)
@@ -559,8 +529,9 @@ impl<'a> Term<'a> {
     /// The regressor less what the calibration absorbs of it on its own channel, one value
     /// per epoch (made anew at each call).
     pub fn own(&self) -> Result<Vec<f64>, DiagnoseError> {
-        let values = self.regressor.values()?;
-        self.absorber.own(self.channel, &values, &self.projection)
+        let epochs = 0..self.regressor.epochs();
+        self.absorber
+            .own_in(self.channel, &self.regressor, &self.projection, epochs)
     }
 
     /// A term whose coefficient `coef` (standard error `se`, two-sided p-value `p_value`

@@ -124,9 +124,9 @@ impl RunSignals {
     ) -> Result<(), DiagnoseError> {
         if !self.bank.has_dynamics() {
             let zeros = vec![0.0; range.len().min(crate::series_bank::BANK_BLOCK_EPOCHS)];
-            for start in range.clone().step_by(zeros.len().max(1)) {
-                let block = start..(start + zeros.len()).min(range.end);
-                visit(block.clone(), &zeros[..block.len()]);
+            for block in crate::series_bank::block_ranges(range) {
+                let len = block.len();
+                visit(block, &zeros[..len]);
             }
             return Ok(());
         }
