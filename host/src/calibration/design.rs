@@ -10,7 +10,7 @@ use super::epochs::EpochData;
 use super::least_squares::{design_row, normal_matrix_inverse, Layout, MAX_PARAMETERS};
 use super::signal_bank::SignalBank;
 use crate::error_signal::ErrorSignals;
-use crate::series_bank::{SpillError, BANK_BLOCK_EPOCHS};
+use crate::series_bank::{block_ranges, SpillError};
 
 /// The linear model the calibration fitted, at its solution: what it would have absorbed
 /// from any other error. The discrepancy engine uses it to estimate per-channel terms
@@ -185,8 +185,7 @@ impl DesignRows<'_> {
         };
         match self.dynamics {
             RowDynamics::Held(series) => {
-                for start in epochs.clone().step_by(BANK_BLOCK_EPOCHS) {
-                    let range = start..(start + BANK_BLOCK_EPOCHS).min(epochs.end);
+                for range in block_ranges(epochs) {
                     let views: [&[f64]; 12] = std::array::from_fn(|k| &series[k][range.clone()]);
                     block(range, &views);
                 }

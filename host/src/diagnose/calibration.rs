@@ -13,6 +13,7 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde_json::json;
 
+use super::draws::ChannelSimulation;
 use super::engine::{ci, DiagnoseError, Finding, Run, LEVER_ARM_MODEL_SIGMA_M};
 use super::null::normal_p_value;
 use super::signals::RunSignals;
@@ -177,11 +178,17 @@ fn simulated_calibration_sd(run: &Run, design: DesignRows<'_>) -> Result<Vec<f64
                     continue;
                 };
                 if design.has_channel(i) {
-                    let mut rng = ChaCha8Rng::seed_from_u64(
+                    let rng = ChaCha8Rng::seed_from_u64(
                         run.opts.seed ^ 0x5eed_ca1b ^ ((r as u64) << 8) ^ i as u64,
                     );
-                    let sim = run.null_model(slot, r).simulate(run.n, &mut rng);
-                    moments += design.moments(i, &sim)?;
+                    let mut simulation =
+                        ChannelSimulation::of_processes(run, run.null_model(slot, r), rng);
+                    moments += design.moments_of_blocks(i, &mut |epochs, values| {
+                        let mut block = Vec::new();
+                        simulation.next_block(epochs, &mut block)?;
+                        values.extend_from_slice(&block);
+                        Ok::<_, DiagnoseError>(())
+                    })?;
                 }
             }
             Ok(design.bread() * moments)

@@ -46,6 +46,7 @@ use statrs::distribution::{ContinuousCDF, Normal};
 pub use super::baseline::Baseline;
 pub use super::calibration::Recording;
 use super::calibration::{calibrate, sensor_wide_terms};
+use super::draws::ChannelSimulation;
 use super::extension::{channel_model, extended_model};
 use super::gain::{measure_gain, ChannelModelSims};
 use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, select};
@@ -347,11 +348,25 @@ impl Run<'_> {
     /// Baseline simulation `r` of the channel at `slot`: the null distribution of every
     /// statistic. Seeded by slot and replicate, so every stage draws the same ones.
     pub fn baseline_sim(&self, slot: usize, r: usize) -> Vec<f64> {
+        let mut series = Vec::with_capacity(self.n);
+        self.for_each_baseline_block(slot, r, &mut |block| series.extend_from_slice(block));
+        series
+    }
+
+    /// [`Run::baseline_sim`] a block at a time: `visit(block)` for each block of the run's
+    /// epochs, in order, none of them held after its visit.
+    pub fn for_each_baseline_block(&self, slot: usize, r: usize, visit: &mut dyn FnMut(&[f64])) {
         use rand::SeedableRng;
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+        let rng = rand_chacha::ChaCha8Rng::seed_from_u64(
             self.opts.seed ^ ((slot as u64) << 32) ^ r as u64,
         );
-        self.null_model(slot, r).simulate(self.n, &mut rng)
+        let simulation = ChannelSimulation::of_processes(self, self.null_model(slot, r), rng);
+        simulation
+            .for_each_block(0..self.n, &mut |_, block| {
+                visit(block);
+                Ok(())
+            })
+            .expect("a simulation of processes alone reads no signal");
     }
 
     /// Whether the run is long: one channel's simulations exceed

@@ -5,35 +5,69 @@
 //! found effects enter the extended model, and their held-out figures, are
 //! [`super::generalise`]'s.
 
-use std::collections::BTreeSet;
-
-use nalgebra::Vector3;
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
+use super::draws::ChannelSimulation;
 use super::engine::{variance, DiagnoseError, Gain, Run, WvCurves, Z_FLOOR};
 use super::generalise::Selection;
 use super::terms::{Coefficient, FittedTerms};
 use crate::gmwm::model::ModelSpec;
-use crate::model::{Channel, ChannelModel, VibrationLine};
-use crate::sim::effects::{ChannelEffects, SensorKinematics};
-use crate::wv::{haar_wv, WvOptions};
+use crate::model::ChannelModel;
+use crate::wv::stream::HaarWvStream;
 
-/// Log wavelet variance per level of a series (levels 1..=max).
-pub(super) fn log_wv(x: &[f64], dt_s: f64, max_level: u32) -> Vec<f64> {
-    match haar_wv(
-        x,
-        dt_s,
-        &WvOptions {
-            max_level: Some(max_level),
-            ..Default::default()
-        },
-    ) {
-        Ok(w) => w.variance.iter().map(|v| v.max(1e-300).ln()).collect(),
-        Err(_) => Vec::new(),
+/// The log wavelet variance per level (1..=max) the engine compares, of a series fed a block
+/// at a time: the overlapping Haar estimator up to level [`LogWv::FULL_LEVELS`], above it
+/// coefficients every h/16 samples ([`HaarWvStream::oversampled`]), so a level of a long run
+/// takes a ring of 0.5 KiB rather than 2^level samples. The measured error and every
+/// simulation go through the same estimator.
+pub(super) struct LogWv {
+    stream: HaarWvStream,
+    dt_s: f64,
+    max_level: u32,
+}
+
+impl LogWv {
+    /// Overlapping levels: 2^16 samples back, a ring of 2 MiB.
+    const FULL_LEVELS: u32 = 16;
+    /// A coefficient every h / 2^4 samples above them.
+    const OVERSAMPLING: u32 = 4;
+
+    pub fn new(dt_s: f64, max_level: u32) -> Self {
+        Self {
+            stream: HaarWvStream::oversampled(
+                max_level.clamp(1, Self::FULL_LEVELS),
+                Self::OVERSAMPLING,
+            ),
+            dt_s,
+            max_level,
+        }
     }
+
+    /// The next samples of the series, in order.
+    pub fn push(&mut self, block: &[f64]) {
+        self.stream.push_block(block);
+    }
+
+    /// The log variances (empty when the series is too short for `max_level`).
+    pub fn finish(self) -> Vec<f64> {
+        match self
+            .stream
+            .wavelet_variance(Some(self.max_level), 1.0, self.dt_s)
+        {
+            Ok(w) => w.variance.iter().map(|v| v.max(1e-300).ln()).collect(),
+            Err(_) => Vec::new(),
+        }
+    }
+}
+
+/// [`LogWv`] of a series held.
+pub(super) fn log_wv(x: &[f64], dt_s: f64, max_level: u32) -> Vec<f64> {
+    let mut wv = LogWv::new(dt_s, max_level);
+    wv.push(x);
+    wv.finish()
 }
 
 /// Mean and standard deviation per level of simulated log-WVs.
@@ -87,89 +121,6 @@ impl WvCurves {
     }
 }
 
-/// The kinematics the engine knows at epoch `k` for the simulator's effects: the measured
-/// angular rate (`omega_rad_s`, per body axis, rad/s); the rest is not measured here and zero.
-fn kinematics_at(omega_rad_s: [&[f64]; 3], k: usize) -> SensorKinematics {
-    SensorKinematics {
-        omega_rad_s: Vector3::new(omega_rad_s[0][k], omega_rad_s[1][k], omega_rad_s[2][k]),
-        omega_dot_rad_s2: Vector3::zeros(),
-        f_m_s2: Vector3::zeros(),
-        f_dot_m_s3: Vector3::zeros(),
-        speed_m_s: 0.0,
-    }
-}
-
-/// One simulation of `channel`'s stochastic error over `n` epochs: the `spec` processes plus
-/// the stochastic effects of `effects` (dynamic noise, vibration lines, outliers), along the
-/// measured angular rate. Each effect's level and waveform are the simulator's
-/// ([`ChannelEffects::dynamic_sigma`], [`ChannelEffects::deterministic`]); the draws are the
-/// engine's, in this order: the processes, one normal per epoch for the dynamic noise, a
-/// uniform phase per vibration line (the phase of a found line is not estimated), and per
-/// epoch an outlier draw. (The simulator draws its per-sample effects inline, sample by
-/// sample, in `sim::sensors`; the engine keeps its series-by-series order, which its seeded
-/// results depend on.) `omega_rad_s` (rad/s, each body axis, every epoch) is read only when
-/// the effects hold a noise that grows with the dynamics.
-pub(super) fn simulate_channel(
-    spec: &ModelSpec,
-    effects: &ChannelModel,
-    channel: Channel,
-    omega_rad_s: [&[f64]; 3],
-    dt_s: f64,
-    n: usize,
-    rng: &mut ChaCha8Rng,
-) -> Vec<f64> {
-    let no_switches = BTreeSet::new();
-    let rate_hz = 1.0 / dt_s;
-    let mut x = spec.simulate(n, rng);
-    if effects.dynamic_noise.is_some() {
-        let growth = ChannelModel {
-            dynamic_noise: effects.dynamic_noise,
-            ..Default::default()
-        };
-        let fx = ChannelEffects::resolve(&growth, channel.index(), rate_hz, &no_switches);
-        for (k, v) in x.iter_mut().enumerate() {
-            let z: f64 = StandardNormal.sample(rng);
-            *v += fx.dynamic_sigma(&kinematics_at(omega_rad_s, k)) * z;
-        }
-    }
-    if !effects.vibration_lines.is_empty() {
-        let lines: Vec<VibrationLine> = effects
-            .vibration_lines
-            .iter()
-            .map(|line| VibrationLine {
-                phase_rad: rand::Rng::random_range(rng, 0.0..std::f64::consts::TAU),
-                ..*line
-            })
-            .collect();
-        let vibration = ChannelModel {
-            vibration_lines: lines,
-            ..Default::default()
-        };
-        let fx = ChannelEffects::resolve(&vibration, channel.index(), rate_hz, &no_switches);
-        // The lines are the only deterministic effect resolved here: the kinematics do not
-        // enter them.
-        let at_rest = SensorKinematics {
-            omega_rad_s: Vector3::zeros(),
-            omega_dot_rad_s2: Vector3::zeros(),
-            f_m_s2: Vector3::zeros(),
-            f_dot_m_s3: Vector3::zeros(),
-            speed_m_s: 0.0,
-        };
-        for (i, v) in x.iter_mut().enumerate() {
-            *v += fx.deterministic(&at_rest, i as f64 * dt_s);
-        }
-    }
-    if let Some(o) = effects.outliers {
-        for v in x.iter_mut() {
-            if rand::Rng::random_bool(rng, o.probability.clamp(0.0, 1.0)) {
-                let z: f64 = StandardNormal.sample(rng);
-                *v += o.sigma * z;
-            }
-        }
-    }
-    x
-}
-
 /// A model of one channel to simulate: deterministic coefficients (one per term of the
 /// channel; zero for a term left out), the stochastic processes (None: the baseline, drawn
 /// per simulation as the tests' null draws it), the effects beyond them, and the bias.
@@ -192,15 +143,6 @@ pub(super) fn simulate_model(
 ) -> Result<Vec<Vec<f64>>, DiagnoseError> {
     let len = range.len();
     let channel = run.channels[slot];
-    // The rates only where a noise grows with them: on a long run each is read back whole.
-    let omega: Vec<std::borrow::Cow<[f64]>> = if model.effects.dynamic_noise.is_some() {
-        (0..3)
-            .map(|axis| run.signals.angular_rate_rad_s(axis, range.clone()))
-            .collect::<Result<_, _>>()?
-    } else {
-        vec![std::borrow::Cow::Borrowed(&[][..]); 3]
-    };
-    let omega_rad_s: [&[f64]; 3] = std::array::from_fn(|axis| &omega[axis][..]);
     let max_level = run
         .max_wv_level()
         .min(((len as f64).log2() as u32).saturating_sub(2));
@@ -227,17 +169,14 @@ pub(super) fn simulate_model(
                 })
                 .collect();
             let stochastic = model.stochastic.unwrap_or_else(|| run.null_model(slot, r));
-            let mut x = simulate_channel(
-                stochastic,
-                model.effects,
-                channel,
-                omega_rad_s,
-                run.dt_s,
-                len,
-                &mut rng,
-            );
-            terms.add_deterministic(&drawn, range.clone(), model.intercept, &mut x)?;
-            Ok(log_wv(&x, run.dt_s, max_level))
+            let simulation = ChannelSimulation::new(run, stochastic, model.effects, channel, rng);
+            let mut wv = LogWv::new(run.dt_s, max_level);
+            simulation.for_each_block(range.clone(), &mut |epochs, x| {
+                terms.add_deterministic(&drawn, epochs, model.intercept, x)?;
+                wv.push(x);
+                Ok(())
+            })?;
+            Ok(wv.finish())
         })
         .collect()
 }

@@ -4,6 +4,7 @@
 
 pub mod baseline;
 mod calibration;
+mod draws;
 pub mod engine;
 mod extension;
 mod gain;

@@ -10,10 +10,11 @@ use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde_json::json;
 
+use super::draws::ChannelSimulation;
 use super::engine::{
     ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run, WV_MIN_LOG_DEVIATION,
 };
-use super::gain::{log_wv, simulate_channel};
+use super::gain::{log_wv, LogWv};
 use super::null::{normal_p_value, poisson_upper_tail, wv_level_test, LevelTest};
 use super::readable::significant;
 use super::stats::{
@@ -443,30 +444,22 @@ fn noise_change(
                 dynamic_noise: found.effects.dynamic_noise,
                 ..Default::default()
             };
-            let omega = [
-                run.signals.angular_rate_rad_s(0, 0..run.n)?,
-                run.signals.angular_rate_rad_s(1, 0..run.n)?,
-                run.signals.angular_rate_rad_s(2, 0..run.n)?,
-            ];
-            let omega_rad_s: [&[f64]; 3] = std::array::from_fn(|axis| &omega[axis][..]);
             (0..run.opts.replicates)
                 .into_par_iter()
                 .map(|r| {
-                    let mut rng = ChaCha8Rng::seed_from_u64(
+                    let rng = ChaCha8Rng::seed_from_u64(
                         run.opts.seed ^ 0xd1_0153 ^ ((slot as u64) << 32) ^ r as u64,
                     );
-                    let x = simulate_channel(
-                        run.null_model(slot, r),
-                        &growth,
-                        channel,
-                        omega_rad_s,
-                        dt_s,
-                        run.n,
-                        &mut rng,
-                    );
-                    log_wv(&x, dt_s, max_level)
+                    let simulation =
+                        ChannelSimulation::new(run, run.null_model(slot, r), &growth, channel, rng);
+                    let mut wv = LogWv::new(dt_s, max_level);
+                    simulation.for_each_block(0..run.n, &mut |_, x| {
+                        wv.push(x);
+                        Ok(())
+                    })?;
+                    Ok(wv.finish())
                 })
-                .collect()
+                .collect::<Result<_, DiagnoseError>>()?
         }
     };
     let levels = measured_wv

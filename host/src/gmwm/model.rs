@@ -674,8 +674,15 @@ impl<'a> ModelSimulation<'a> {
 
     /// The next `n` samples.
     pub fn next_block<R: Rng + ?Sized>(&mut self, n: usize, rng: &mut R) -> Vec<f64> {
-        let dt = self.spec.dt_s();
         let mut x = vec![0.0; n];
+        self.add_next(&mut x, rng);
+        x
+    }
+
+    /// Adds the next `x.len()` samples to `x`: [`Self::next_block`] into a buffer reused.
+    pub fn add_next<R: Rng + ?Sized>(&mut self, x: &mut [f64], rng: &mut R) {
+        let dt = self.spec.dt_s();
+        let n = x.len();
         for (p, state) in self.spec.processes.iter().zip(self.states.iter_mut()) {
             match *p {
                 Process::WhiteNoise { sigma2 } => {
@@ -728,7 +735,6 @@ impl<'a> ModelSimulation<'a> {
             }
         }
         self.t += n;
-        x
     }
 }
 
