@@ -52,7 +52,7 @@ use super::gain::{measure_gain, ChannelModelSims};
 use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, select};
 use super::moments::Absorber;
 use super::signals::RunSignals;
-use super::stats::{SeriesSet, WindowMeanSquares};
+use super::stats::{Series, SeriesSet, WindowMeanSquares};
 use super::stochastic::{find_stochastic_effects, lattice_step};
 use super::terms::{find_terms, ChannelTerms, FittedTerms};
 use crate::calibration::{CalibrationSummary, DesignRows};
@@ -450,12 +450,20 @@ pub(super) struct BaselineSims<'r> {
 }
 
 impl SeriesSet for BaselineSims<'_> {
-    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&Series) -> T + Sync)) -> Vec<T> {
         match &self.held {
             Some(held) => held.map_first(count, f),
             None => (0..count.min(self.run.opts.replicates))
                 .into_par_iter()
-                .map(|r| f(&self.run.baseline_sim(self.slot, r)))
+                .map(|r| {
+                    let draw = |visit: &mut dyn FnMut(&[f64])| {
+                        self.run.for_each_baseline_block(self.slot, r, visit)
+                    };
+                    f(&Series::Drawn {
+                        len: self.run.n,
+                        draw: &draw,
+                    })
+                })
                 .collect(),
         }
     }

@@ -13,6 +13,7 @@ use rayon::prelude::*;
 use super::draws::ChannelSimulation;
 use super::engine::{variance, DiagnoseError, Gain, Run, WvCurves, Z_FLOOR};
 use super::generalise::Selection;
+use super::stats::Series;
 use super::terms::{Coefficient, FittedTerms};
 use crate::gmwm::model::ModelSpec;
 use crate::model::ChannelModel;
@@ -63,10 +64,10 @@ impl LogWv {
     }
 }
 
-/// [`LogWv`] of a series held.
-pub(super) fn log_wv(x: &[f64], dt_s: f64, max_level: u32) -> Vec<f64> {
+/// [`LogWv`] of a series.
+pub(super) fn log_wv(x: &Series, dt_s: f64, max_level: u32) -> Vec<f64> {
     let mut wv = LogWv::new(dt_s, max_level);
-    wv.push(x);
+    x.for_each_block(&mut |block| wv.push(block));
     wv.finish()
 }
 
@@ -194,7 +195,7 @@ pub(super) fn misfit_over(
     let sims = simulate_model(run, slot, terms, model, range.clone(), salt)?;
     let max_level = sims.iter().map(Vec::len).min().unwrap_or(0) as u32;
     Ok(wv_misfit(
-        &log_wv(&e[range], run.dt_s, max_level.max(1)),
+        &log_wv(&Series::Held(&e[range]), run.dt_s, max_level.max(1)),
         &sims,
     ))
 }
@@ -233,7 +234,7 @@ pub(super) fn measure_gain(
         effects: &no_effects,
         intercept: 0.0,
     };
-    let e_wv = log_wv(e, run.dt_s, run.max_wv_level());
+    let e_wv = log_wv(&Series::Held(e), run.dt_s, run.max_wv_level());
     // The same random numbers for both: an extended model that kept nothing is the
     // baseline, to the digit.
     let base_sims = simulate_model(run, slot, terms, &baseline, 0..n, 11)?;

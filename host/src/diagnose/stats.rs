@@ -28,36 +28,85 @@ pub struct Psd {
     pub df_hz: f64,
 }
 
+/// Draws a series again, visiting its blocks in order.
+pub type DrawBlocks<'a> = dyn Fn(&mut dyn FnMut(&[f64])) + Sync + 'a;
+
+/// A series a statistic reads in full, block by block, as often as it needs: held in memory,
+/// or drawn again at each reading (a simulation of a long run). Either way in the blocks of
+/// [`crate::series_bank::block_ranges`], so a statistic sees the same blocks of a series
+/// held or drawn.
+#[derive(Clone, Copy)]
+pub enum Series<'a> {
+    Held(&'a [f64]),
+    Drawn {
+        len: usize,
+        draw: &'a DrawBlocks<'a>,
+    },
+}
+
+impl Series<'_> {
+    /// Samples in the series.
+    pub fn len(&self) -> usize {
+        match self {
+            Series::Held(x) => x.len(),
+            Series::Drawn { len, .. } => *len,
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// `visit(block)` for each block of the series, in order.
+    pub fn for_each_block(&self, visit: &mut dyn FnMut(&[f64])) {
+        match self {
+            Series::Held(x) => {
+                for range in crate::series_bank::block_ranges(0..x.len()) {
+                    visit(&x[range]);
+                }
+            }
+            Series::Drawn { draw, .. } => draw(visit),
+        }
+    }
+
+    /// The sum of the samples, added in order.
+    pub fn sum(&self) -> f64 {
+        let mut sum = 0.0;
+        self.for_each_block(&mut |block| block.iter().for_each(|v| sum += v));
+        sum
+    }
+}
+
 /// A set of series visited one at a time, such as a channel's baseline simulations: held in
 /// memory, or drawn again at each visit (a long drive's thirty simulations would not fit).
 pub trait SeriesSet: Sync {
     /// `f` of each of the first `count` series (all of them when there are fewer), in order.
-    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T>;
+    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&Series) -> T + Sync)) -> Vec<T>;
 
     /// `f` of every series, in order.
-    fn map_each<T: Send>(&self, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+    fn map_each<T: Send>(&self, f: &(dyn Fn(&Series) -> T + Sync)) -> Vec<T> {
         self.map_first(usize::MAX, f)
     }
 }
 
 impl SeriesSet for Vec<Vec<f64>> {
-    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&Series) -> T + Sync)) -> Vec<T> {
         self[..].map_first(count, f)
     }
 }
 
 impl SeriesSet for [Vec<f64>] {
-    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&[f64]) -> T + Sync)) -> Vec<T> {
+    fn map_first<T: Send>(&self, count: usize, f: &(dyn Fn(&Series) -> T + Sync)) -> Vec<T> {
         self[..count.min(self.len())]
             .par_iter()
-            .map(|s| f(s))
+            .map(|s| f(&Series::Held(s)))
             .collect()
     }
 }
 
 /// Welch PSD of `x` sampled every `dt_s`, with segments of `segment_len` samples (a power of
 /// two is fastest). The mean of each segment is removed.
-pub fn welch_psd(x: &[f64], dt_s: f64, segment_len: usize) -> Psd {
+pub fn welch_psd(x: &Series, dt_s: f64, segment_len: usize) -> Psd {
     let m = segment_len.min(x.len()).max(8);
     let step = m / 2;
     let window: Vec<f64> = (0..m)
@@ -71,23 +120,29 @@ pub fn welch_psd(x: &[f64], dt_s: f64, segment_len: usize) -> Psd {
     let mut acc = vec![0.0; m / 2 + 1];
     let mut segments = 0;
     let mut segment_powers: Vec<f64> = Vec::new();
-    let mut start = 0;
-    while start + m <= x.len() {
-        let seg = &x[start..start + m];
-        let mean = seg.iter().sum::<f64>() / m as f64;
-        for i in 0..m {
-            input[i] = (seg[i] - mean) * window[i];
-        }
-        let power: f64 = input.iter().map(|v| v * v).sum();
-        if fft.process(&mut input, &mut spectrum).is_ok() {
-            for (a, c) in acc.iter_mut().zip(&spectrum) {
-                *a += c.norm_sqr();
+    // The samples of the segment being filled: segments start every `step` samples.
+    let mut seg: Vec<f64> = Vec::with_capacity(m);
+    x.for_each_block(&mut |block| {
+        for &v in block {
+            seg.push(v);
+            if seg.len() < m {
+                continue;
             }
-            segments += 1;
-            segment_powers.push(power);
+            let mean = seg.iter().sum::<f64>() / m as f64;
+            for i in 0..m {
+                input[i] = (seg[i] - mean) * window[i];
+            }
+            let power: f64 = input.iter().map(|v| v * v).sum();
+            if fft.process(&mut input, &mut spectrum).is_ok() {
+                for (a, c) in acc.iter_mut().zip(&spectrum) {
+                    *a += c.norm_sqr();
+                }
+                segments += 1;
+                segment_powers.push(power);
+            }
+            seg.drain(..step);
         }
-        start += step;
-    }
+    });
     let fs = 1.0 / dt_s;
     let scale = 1.0 / (fs * window_power * segments.max(1) as f64);
     let density = acc
@@ -231,12 +286,12 @@ pub struct Outliers {
 /// Flags samples more than `threshold` robust standard deviations from the running median of
 /// the series over `window` samples (odd). Slow wander (Gauss-Markov, random walk) is absorbed
 /// by the running median, so only isolated spikes stand out.
-pub fn find_outliers(x: &[f64], window: usize, threshold: f64) -> Outliers {
-    let whole = |visit: &mut dyn FnMut(&[f64])| -> Result<(), std::convert::Infallible> {
-        visit(x);
+pub fn find_outliers(x: &Series, window: usize, threshold: f64) -> Outliers {
+    let blocks = |visit: &mut dyn FnMut(&[f64])| -> Result<(), std::convert::Infallible> {
+        x.for_each_block(visit);
         Ok(())
     };
-    match find_outliers_in(x.len(), window, threshold, &whole) {
+    match find_outliers_in(x.len(), window, threshold, &blocks) {
         Ok(found) => found,
         Err(never) => match never {},
     }
@@ -304,7 +359,7 @@ pub fn find_outliers_in<E>(
 /// stand out from slow noise that a whole-run CUSUM cannot tell them from.
 pub fn local_steps(x: &[f64], window: usize) -> Vec<f64> {
     let mut steps = Vec::new();
-    for_each_running_sum(x, 2 * window + 1, &mut |p, sums| {
+    for_each_running_sum(&Series::Held(x), 2 * window + 1, &mut |p, sums| {
         if let Some(k) = step_index(p, window) {
             steps.push(sums.step(k, window));
         }
@@ -340,18 +395,21 @@ impl RunningSumRing {
 
 /// `visit(p, sums)` at each position p = 0..=n of `x` in order, `sums` holding the running
 /// sums of the last `reach` positions (p included).
-fn for_each_running_sum(x: &[f64], reach: usize, visit: &mut dyn FnMut(usize, &RunningSumRing)) {
+fn for_each_running_sum(x: &Series, reach: usize, visit: &mut dyn FnMut(usize, &RunningSumRing)) {
     let mut ring = RunningSumRing {
         sums: vec![0.0; reach.clamp(1, x.len() + 1)],
     };
-    let mut acc = 0.0;
+    let len = ring.sums.len();
+    let (mut acc, mut p) = (0.0, 0);
     visit(0, &ring);
-    for (p, v) in (1..).zip(x) {
-        acc += v;
-        let len = ring.sums.len();
-        ring.sums[p % len] = acc;
-        visit(p, &ring);
-    }
+    x.for_each_block(&mut |block| {
+        for v in block {
+            acc += v;
+            p += 1;
+            ring.sums[p % len] = acc;
+            visit(p, &ring);
+        }
+    });
 }
 
 /// The index a local step at `window` is placed at when its after-window ends at position
@@ -387,7 +445,7 @@ pub struct LocalStep {
 ///
 /// The running sums are kept for the last `2 w + 1` positions only (w the longest window
 /// scanned), so the scan holds no series of `x`'s length.
-pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<LocalStep> {
+pub fn local_step_scan(x: &Series, windows: &[usize], null_sd: &[f64]) -> Option<LocalStep> {
     let n = x.len();
     let scanned: Vec<(usize, f64)> = windows
         .iter()
@@ -397,18 +455,14 @@ pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<
         .collect();
     let reach = 2 * scanned.iter().map(|&(w, _)| w).max()? + 1;
     // Centred on the series' mean, so the sums of squares lose no precision to a bias.
-    let centre = x.iter().sum::<f64>() / n.max(1) as f64;
+    let centre = x.sum() / n.max(1) as f64;
     let mut ring = vec![RunningSums::default(); reach.min(n + 1)];
+    let len = ring.len();
     let mut running = RunningSums::default();
     // Each window's best in index order; across windows the first best in window order,
     // as one scan window after window would choose.
     let mut best: Vec<Option<LocalStep>> = vec![None; scanned.len()];
-    for p in 0..=n {
-        if p > 0 {
-            running = running.after(x[p - 1], centre);
-        }
-        let len = ring.len();
-        ring[p % len] = running;
+    let mut at_position = |p: usize, ring: &[RunningSums]| {
         for (&(w, sd), best) in scanned.iter().zip(best.iter_mut()) {
             let Some(i) = p.checked_sub(2 * w) else {
                 continue;
@@ -437,7 +491,18 @@ pub fn local_step_scan(x: &[f64], windows: &[usize], null_sd: &[f64]) -> Option<
                 });
             }
         }
-    }
+    };
+    ring[0] = running;
+    at_position(0, &ring);
+    let mut p = 0;
+    x.for_each_block(&mut |block| {
+        for &v in block {
+            p += 1;
+            running = running.after(v, centre);
+            ring[p % len] = running;
+            at_position(p, &ring);
+        }
+    });
     best.into_iter()
         .flatten()
         .fold(None, |acc: Option<LocalStep>, s| match acc {
@@ -487,7 +552,7 @@ fn sharp_window(window: usize) -> usize {
 /// window and this is large. NaN when it cannot be computed. Every series is read through
 /// a ring of its running sums; `x`'s robust spread by passes ([`median_magnitude`]).
 pub fn step_sharpness<S: SeriesSet + ?Sized>(
-    x: &[f64],
+    x: &Series,
     index: usize,
     window: usize,
     sims: &S,
@@ -569,7 +634,7 @@ pub fn local_step_null_sd<S: SeriesSet + ?Sized>(series: &S, windows: &[usize]) 
 /// Robust standard deviation of [`local_steps`] of `x` itself at each window (1.4826 times
 /// the median absolute local step): a step touches only the 2 w positions around it, so
 /// this measures the series' own noise at that window even when it holds a step.
-pub fn local_step_robust_sd(x: &[f64], windows: &[usize]) -> Vec<f64> {
+pub fn local_step_robust_sd(x: &Series, windows: &[usize]) -> Vec<f64> {
     windows
         .iter()
         .map(|&w| {
@@ -613,7 +678,7 @@ pub struct NoiseVsDynamics {
 pub fn noise_vs_dynamics(x: &[f64], magnitude: &[f64], window: usize) -> NoiseVsDynamics {
     let mut mean_squares = WindowMeanSquares::new(magnitude.len(), window);
     mean_squares.add(magnitude);
-    noise_vs_window_dynamics(x, &mean_squares.finish(), window)
+    noise_vs_window_dynamics(&Series::Held(x), &mean_squares.finish(), window)
 }
 
 /// The window mean of a magnitude's square over the windows [`noise_vs_dynamics`] reads (`w`
@@ -656,17 +721,28 @@ impl WindowMeanSquares {
 
 /// [`noise_vs_dynamics`] given each window's mean of the magnitude's square
 /// ([`WindowMeanSquares`]).
-pub fn noise_vs_window_dynamics(x: &[f64], mag2: &[f64], window: usize) -> NoiseVsDynamics {
+pub fn noise_vs_window_dynamics(x: &Series, mag2: &[f64], window: usize) -> NoiseVsDynamics {
     let w = window.max(4);
-    let mut var = Vec::new();
-    for start in (0..x.len().saturating_sub(w)).step_by(w) {
-        let seg = &x[start..start + w];
-        let diffs: Vec<f64> = seg.windows(2).map(|p| p[1] - p[0]).collect();
-        let mean = diffs.iter().sum::<f64>() / diffs.len() as f64;
-        let v = diffs.iter().map(|d| (d - mean).powi(2)).sum::<f64>() / (diffs.len() - 1) as f64;
-        // A difference of white noise has twice its variance.
-        var.push(v / 2.0);
-    }
+    // Windows start at 0, w, 2w, ... below n - w: their samples end here.
+    let covered = x.len().saturating_sub(w).div_ceil(w) * w;
+    let (mut var, mut seg, mut fed) = (Vec::new(), Vec::with_capacity(w), 0usize);
+    let mut diffs = Vec::with_capacity(w);
+    x.for_each_block(&mut |block| {
+        for &v in &block[..block.len().min(covered.saturating_sub(fed))] {
+            seg.push(v);
+            if seg.len() == w {
+                diffs.clear();
+                diffs.extend(seg.windows(2).map(|p| p[1] - p[0]));
+                let mean = diffs.iter().sum::<f64>() / diffs.len() as f64;
+                let v = diffs.iter().map(|d| (d - mean).powi(2)).sum::<f64>()
+                    / (diffs.len() - 1) as f64;
+                // A difference of white noise has twice its variance.
+                var.push(v / 2.0);
+                seg.clear();
+            }
+        }
+        fed += block.len();
+    });
     let mag2 = &mag2[..var.len()];
     let none = |intercept: f64| NoiseVsDynamics {
         slope: 0.0,
@@ -847,15 +923,56 @@ mod tests {
     }
 
     #[test]
+    fn a_series_drawn_in_blocks_of_any_size_gives_the_statistics_of_the_series_held() {
+        let mut rng = ChaCha8Rng::seed_from_u64(31);
+        let mut x = white(&mut rng, 50_000, 1.0);
+        x[20_000..].iter_mut().for_each(|v| *v += 0.3);
+        x[7_777] += 12.0;
+        let magnitude: Vec<f64> = (0..x.len()).map(|k| (k as f64 * 1e-3).sin()).collect();
+        let mut squares = WindowMeanSquares::new(x.len(), 250);
+        squares.add(&magnitude);
+        let mag2 = squares.finish();
+        let held = Series::Held(&x);
+        for block in [1, 999, 1 << 14, 60_000] {
+            let draw = |visit: &mut dyn FnMut(&[f64])| x.chunks(block).for_each(&mut *visit);
+            let drawn = Series::Drawn {
+                len: x.len(),
+                draw: &draw,
+            };
+            assert_eq!(welch_psd(&drawn, 0.01, 1024), welch_psd(&held, 0.01, 1024));
+            assert_eq!(
+                find_outliers(&drawn, 11, 6.0),
+                find_outliers(&held, 11, 6.0)
+            );
+            assert_eq!(
+                noise_vs_window_dynamics(&drawn, &mag2, 250),
+                noise_vs_window_dynamics(&held, &mag2, 250)
+            );
+            let windows = [50, 400, 3_000];
+            assert_eq!(
+                local_step_scan(&drawn, &windows, &[0.1; 3]),
+                local_step_scan(&held, &windows, &[0.1; 3])
+            );
+            assert_eq!(
+                local_step_robust_sd(&drawn, &windows),
+                local_step_robust_sd(&held, &windows)
+            );
+        }
+        assert_eq!(find_outliers(&held, 11, 6.0).indices, vec![7_777]);
+        let step = local_step_scan(&held, &[50, 400, 3_000], &[0.1; 3]).unwrap();
+        assert!((step.index as i64 - 20_000).abs() < 50, "{step:?}");
+    }
+
+    #[test]
     fn finds_a_vibration_line_with_its_amplitude_and_nothing_in_pure_noise() {
         let mut rng = ChaCha8Rng::seed_from_u64(1);
         let dt = 0.01;
         let mut x = white(&mut rng, 60_000, 0.05);
-        assert!(spectral_lines(&welch_psd(&x, dt, 1024), 0.01).is_empty());
+        assert!(spectral_lines(&welch_psd(&Series::Held(&x), dt, 1024), 0.01).is_empty());
         for (i, v) in x.iter_mut().enumerate() {
             *v += 0.02 * (2.0 * std::f64::consts::PI * 17.3 * i as f64 * dt).sin();
         }
-        let lines = spectral_lines(&welch_psd(&x, dt, 1024), 0.01);
+        let lines = spectral_lines(&welch_psd(&Series::Held(&x), dt, 1024), 0.01);
         assert_eq!(lines.len(), 1, "{lines:?}");
         assert!((lines[0].freq_hz - 17.3).abs() < 0.15, "{lines:?}");
         assert!((lines[0].amplitude - 0.02).abs() < 0.004, "{lines:?}");
@@ -869,7 +986,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(33);
         let alarms = (0..200)
             .filter(|_| {
-                let psd = welch_psd(&white(&mut rng, 30_000, 1.0), 0.01, 1024);
+                let psd = welch_psd(&Series::Held(&white(&mut rng, 30_000, 1.0)), 0.01, 1024);
                 !spectral_lines(&psd, 0.1).is_empty()
             })
             .count();
@@ -891,12 +1008,12 @@ mod tests {
                 .enumerate()
                 .map(|(i, v)| if (i / 2000) % 5 == 0 { 4.0 * v } else { v })
                 .collect();
-            let psd = welch_psd(&x, 0.01, 1024);
+            let psd = welch_psd(&Series::Held(&x), 0.01, 1024);
             assert!(psd.effective_segments < 0.6 * psd.segments as f64);
             alarms += !spectral_lines(&psd, 0.01).is_empty() as usize;
         }
         assert!(alarms <= 1, "{alarms} of 20 series showed a line");
-        let steady = welch_psd(&white(&mut rng, 30_000, 1.0), 0.01, 1024);
+        let steady = welch_psd(&Series::Held(&white(&mut rng, 30_000, 1.0)), 0.01, 1024);
         assert!(steady.effective_segments > 0.95 * steady.segments as f64);
     }
 
@@ -911,11 +1028,11 @@ mod tests {
                 gm + 0.01 * rng.sample::<f64, _>(StandardNormal)
             })
             .collect();
-        assert!(find_outliers(&x, 11, 6.0).indices.is_empty());
+        assert!(find_outliers(&Series::Held(&x), 11, 6.0).indices.is_empty());
         for k in 0..50 {
             x[k * 997 + 13] += 0.2;
         }
-        let o = find_outliers(&x, 11, 6.0);
+        let o = find_outliers(&Series::Held(&x), 11, 6.0);
         assert_eq!(o.indices.len(), 50);
         assert!((o.median_size - 0.2).abs() < 0.02, "{o:?}");
         // Read in blocks (one not dividing the series, the scan's passes each reading
@@ -969,7 +1086,7 @@ mod tests {
                 -b * u.signum() * (1.0 - 2.0 * u.abs()).ln()
             })
             .collect();
-        let o = find_outliers(&x, 11, 6.0);
+        let o = find_outliers(&Series::Held(&x), 11, 6.0);
         assert!(o.indices.len() > 50, "{} exceedances", o.indices.len());
         let devs = flagged_deviations(&x, &o);
         let p = outlier_process(&devs, 6.0 * o.robust_sigma, o.robust_sigma, n);
@@ -996,7 +1113,7 @@ mod tests {
                 *v += sigma_true * rng.sample::<f64, _>(StandardNormal);
             }
         }
-        let o = find_outliers(&x, 11, 6.0);
+        let o = find_outliers(&Series::Held(&x), 11, 6.0);
         let devs = flagged_deviations(&x, &o);
         let p = outlier_process(&devs, 6.0 * o.robust_sigma, o.robust_sigma, n);
         assert!(p.separated, "{p:?}");
@@ -1054,7 +1171,7 @@ mod tests {
             x[3_000..3_200].iter_mut().for_each(|v| *v *= 4.0);
             let null_sd = [0.035, 0.018, 0.009];
             let (fast, slow) = (
-                local_step_scan(&x, &windows, &null_sd).unwrap(),
+                local_step_scan(&Series::Held(&x), &windows, &null_sd).unwrap(),
                 full_scan(&x, &windows, &null_sd).unwrap(),
             );
             assert_eq!(
@@ -1096,7 +1213,7 @@ mod tests {
                 })
                 .collect();
             let (ring, full) = (
-                local_step_scan(&x, &windows, &sd),
+                local_step_scan(&Series::Held(&x), &windows, &sd),
                 full_scan(&x, &windows, &sd),
             );
             let case = format!("case {case}: n {n}, windows {windows:?}, sd {sd:?}");
@@ -1137,13 +1254,13 @@ mod tests {
         let sd = local_step_null_sd(&sims, &windows);
         let null_max = sims
             .iter()
-            .map(|s| local_step_scan(s, &windows, &sd).unwrap().z)
+            .map(|s| local_step_scan(&Series::Held(s), &windows, &sd).unwrap().z)
             .fold(0.0f64, f64::max);
         let mut x = noise(&mut rng);
         for v in &mut x[12_000..] {
             *v += 0.08;
         }
-        let s = local_step_scan(&x, &windows, &sd).unwrap();
+        let s = local_step_scan(&Series::Held(&x), &windows, &sd).unwrap();
         assert!((s.index as i64 - 12_000).abs() < 64, "{s:?}");
         assert!((s.size - 0.08).abs() < 0.03, "{s:?}");
         assert!(s.z > 1.5 * null_max, "{s:?} vs null max {null_max}");
@@ -1158,22 +1275,26 @@ mod tests {
         let sd = local_step_null_sd(&sims, &windows);
         let null_max = sims
             .iter()
-            .map(|s| local_step_scan(s, &windows, &sd).unwrap().z)
+            .map(|s| local_step_scan(&Series::Held(s), &windows, &sd).unwrap().z)
             .fold(0.0f64, f64::max);
         // One 2 m/s^2 outlier (100 sigma): its window's mean moves 5 null sds at 64 samples.
         let mut outlier = white(&mut rng, n, 0.02);
         outlier[7_000] += 2.0;
-        let z = local_step_scan(&outlier, &windows, &sd).unwrap().z;
+        let z = local_step_scan(&Series::Held(&outlier), &windows, &sd)
+            .unwrap()
+            .z;
         assert!(z < 1.25 * null_max, "outlier z {z} vs null max {null_max}");
         // Ten seconds of noise eight times stronger.
         let mut burst = white(&mut rng, n, 0.02);
         burst[9_000..10_000].iter_mut().for_each(|v| *v *= 8.0);
-        let z = local_step_scan(&burst, &windows, &sd).unwrap().z;
+        let z = local_step_scan(&Series::Held(&burst), &windows, &sd)
+            .unwrap()
+            .z;
         assert!(z < 1.25 * null_max, "burst z {z} vs null max {null_max}");
         // A step of 0.02 m/s^2 (one noise sigma) still stands out.
         let mut stepped = white(&mut rng, n, 0.02);
         stepped[12_000..].iter_mut().for_each(|v| *v += 0.02);
-        let s = local_step_scan(&stepped, &windows, &sd).unwrap();
+        let s = local_step_scan(&Series::Held(&stepped), &windows, &sd).unwrap();
         assert!(
             s.z > 1.25 * null_max && (s.index as i64 - 12_000).abs() < 100,
             "{s:?}"
@@ -1193,8 +1314,8 @@ mod tests {
         for (k, v) in ramp.iter_mut().enumerate().skip(18_500) {
             *v += 0.03 * ((k - 18_500) as f64 / 3000.0).min(1.0);
         }
-        let step_z = step_sharpness(&stepped, 20_000, window, &sims);
-        let ramp_z = step_sharpness(&ramp, 20_000, window, &sims);
+        let step_z = step_sharpness(&Series::Held(&stepped), 20_000, window, &sims);
+        let ramp_z = step_sharpness(&Series::Held(&ramp), 20_000, window, &sims);
         assert!(step_z < 3.0, "step {step_z}");
         assert!(ramp_z > 3.0, "ramp {ramp_z}");
     }
@@ -1204,7 +1325,7 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(8);
         let windows = [64, 256, 1024];
         let x = white(&mut rng, 200_000, 0.01);
-        let base = local_step_robust_sd(&x, &windows);
+        let base = local_step_robust_sd(&Series::Held(&x), &windows);
         let mut stepped = x.clone();
         stepped[100_000..].iter_mut().for_each(|v| *v += 0.05);
         let tripled: Vec<f64> = x.iter().map(|v| 3.0 * v).collect();
@@ -1217,8 +1338,14 @@ mod tests {
                 "window {w}: {} vs {expected}",
                 base[j]
             );
-            assert!((local_step_robust_sd(&stepped, &windows)[j] / base[j] - 1.0).abs() < 0.05);
-            assert!((local_step_robust_sd(&tripled, &windows)[j] / base[j] - 3.0).abs() < 1e-9);
+            assert!(
+                (local_step_robust_sd(&Series::Held(&stepped), &windows)[j] / base[j] - 1.0).abs()
+                    < 0.05
+            );
+            assert!(
+                (local_step_robust_sd(&Series::Held(&tripled), &windows)[j] / base[j] - 3.0).abs()
+                    < 1e-9
+            );
         }
     }
 

@@ -19,7 +19,7 @@ use super::null::{normal_p_value, poisson_upper_tail, wv_level_test, LevelTest};
 use super::readable::significant;
 use super::stats::{
     find_outliers, find_outliers_in, noise_vs_window_dynamics, outlier_process, spectral_lines,
-    welch_psd, SeriesSet, SpectralLine,
+    welch_psd, Series, SeriesSet, SpectralLine,
 };
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, parameter_values, ModelChoice};
@@ -94,7 +94,7 @@ fn noise_growth(
     found: &mut StochasticFindings,
 ) -> Option<(f64, f64)> {
     let window = noise_window(run.dt_s);
-    let nd = noise_vs_window_dynamics(resid, &run.omega2_windows, window);
+    let nd = noise_vs_window_dynamics(&Series::Held(resid), &run.omega2_windows, window);
     let sim_t: Vec<f64> =
         sims.map_each(&|s| noise_vs_window_dynamics(s, &run.omega2_windows, window).t);
     let range = simulated_range(&sim_t);
@@ -304,7 +304,7 @@ fn vibration_lines(
     let (n, dt_s) = (run.n, run.dt_s);
     let seg = 1usize << ((n as f64 / 16.0).log2().floor() as u32).clamp(6, 12);
     let min_line_hz = (1.0f64).max(16.0 / (seg as f64 * dt_s));
-    let lines = spectral_lines(&welch_psd(resid, dt_s, seg), run.alpha_test);
+    let lines = spectral_lines(&welch_psd(&Series::Held(resid), dt_s, seg), run.alpha_test);
     let sim_lines: Vec<f64> = sims.map_first(8, &|s| {
         spectral_lines(&welch_psd(s, dt_s, seg), run.alpha_test)
             .iter()
@@ -436,7 +436,7 @@ fn noise_change(
     found: &mut StochasticFindings,
 ) -> Result<(), DiagnoseError> {
     let (dt_s, max_level) = (run.dt_s, run.max_wv_level());
-    let measured_wv = log_wv(resid, dt_s, max_level);
+    let measured_wv = log_wv(&Series::Held(resid), dt_s, max_level);
     let sim_wv: Vec<Vec<f64>> = match found.effects.dynamic_noise {
         None => sims.map_each(&|s| log_wv(s, dt_s, max_level)),
         Some(_) => {

@@ -17,7 +17,7 @@ use super::moments::{
 use super::null::{normal_p_value, scan_p_value};
 use super::signals::Dynamics;
 use super::stats::{
-    local_step_null_sd, local_step_robust_sd, local_step_scan, step_sharpness, SeriesSet,
+    local_step_null_sd, local_step_robust_sd, local_step_scan, step_sharpness, Series, SeriesSet,
 };
 use super::whiten::Whitener;
 use crate::calibration::DesignRows;
@@ -250,13 +250,13 @@ fn find_bias_step(
     // The residual is scaled by its own noise where that is larger than the baseline's (a
     // stronger correlated noise wanders in steps the baseline's would not); the threshold on
     // the largest z still comes from the simulations.
-    let own_sd = local_step_robust_sd(&resid, &windows);
+    let own_sd = local_step_robust_sd(&Series::Held(&resid), &windows);
     let scale_sd: Vec<f64> = null_sd
         .iter()
         .zip(&own_sd)
         .map(|(a, b)| a.max(*b))
         .collect();
-    let Some(step) = local_step_scan(&resid, &windows, &scale_sd) else {
+    let Some(step) = local_step_scan(&Series::Held(&resid), &windows, &scale_sd) else {
         return Ok(None);
     };
     // Without a step in any simulation (range -inf) the threshold is z_strict; a NaN z is
@@ -266,7 +266,7 @@ fn find_bias_step(
         return Ok(None);
     }
     let step_time_s = run.signals.time_at_s(step.index)?;
-    let blur = step_sharpness(&resid, step.index, step.window, sims);
+    let blur = step_sharpness(&Series::Held(&resid), step.index, step.window, sims);
     let sharp = !(blur > MAX_STEP_BLUR);
     Ok(Some(FoundStep {
         index: step.index,
