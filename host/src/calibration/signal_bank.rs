@@ -160,6 +160,11 @@ impl SignalBank {
         self.bank.series(k)
     }
 
+    /// The bank of every series.
+    pub fn series_bank(&self) -> &SeriesBank {
+        &self.bank
+    }
+
     /// Epochs `range` of series `k`.
     pub fn range(&self, k: usize, range: Range<usize>) -> Result<Cow<'_, [f64]>, SpillError> {
         self.bank.range(k, range)

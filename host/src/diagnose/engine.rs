@@ -251,9 +251,7 @@ pub(super) const Z_FLOOR: f64 = 1.959_963_984_540_054;
 
 /// Sample variance (n - 1).
 pub(super) fn variance(x: &[f64]) -> f64 {
-    let n = x.len() as f64;
-    let m = x.iter().sum::<f64>() / n;
-    x.iter().map(|v| (v - m).powi(2)).sum::<f64>() / (n - 1.0).max(1.0)
+    super::stats::series_variance(&Series::Held(x))
 }
 
 /// The 95% interval of an estimate with standard error `se`.

@@ -14,7 +14,7 @@ use std::ops::Range;
 
 use rayon::prelude::*;
 
-use super::engine::DiagnoseError;
+use super::engine::{DiagnoseError, Run};
 use super::signals::RunSignals;
 use super::terms::Candidate;
 pub(super) use super::white_space::WhiteSpace;
@@ -529,7 +529,11 @@ impl<'a> Term<'a> {
     /// The regressor less what the calibration absorbs of it on its own channel, one value
     /// per epoch (made anew at each call).
     pub fn own(&self) -> Result<Vec<f64>, DiagnoseError> {
-        let epochs = 0..self.regressor.epochs();
+        self.own_in(0..self.regressor.epochs())
+    }
+
+    /// [`Term::own`] over the epochs `epochs`.
+    pub fn own_in(&self, epochs: Range<usize>) -> Result<Vec<f64>, DiagnoseError> {
         self.absorber
             .own_in(self.channel, &self.regressor, &self.projection, epochs)
     }
@@ -578,12 +582,19 @@ pub(super) fn gram_matrix(terms: &[Term]) -> nalgebra::DMatrix<f64> {
     nalgebra::DMatrix::from_fn(terms.len(), terms.len(), |a, b| gram(&terms[a], &terms[b]))
 }
 
-/// The error left after a least-squares fit of every one of `terms` (named or not, jointly
-/// with the calibration; exactly collinear directions get no coefficient): what no
-/// candidate can explain, however weakly. Why: a term too weak to be named at the run's
-/// family-wise level still leaves its pattern in the error, and a bias step looked for on
-/// that pattern finds a turn's onset.
-pub(super) fn full_fit_residual(e: &[f64], terms: &[Term]) -> Result<Vec<f64>, DiagnoseError> {
+/// The error of `channel` left after a least-squares fit of every one of `terms` (named or
+/// not, jointly with the calibration; exactly collinear directions get no coefficient),
+/// centred: what no candidate can explain, however weakly. Why: a term too weak to be named
+/// at the run's family-wise level still leaves its pattern in the error, and a bias step
+/// looked for on that pattern finds a turn's onset. `steps_elsewhere` (what other channels'
+/// steps took from it through the calibration) is given back. Made a block at a time, twice
+/// (for its mean, then to keep), into a bank of its own, spilled on a long run.
+pub(super) fn full_fit_residual(
+    run: &Run,
+    channel: Channel,
+    terms: &[Term],
+    steps_elsewhere: Option<&[f64]>,
+) -> Result<SeriesBank, DiagnoseError> {
     let k = terms.len();
     let beta = if k == 0 {
         nalgebra::DVector::zeros(0)
@@ -595,13 +606,35 @@ pub(super) fn full_fit_residual(e: &[f64], terms: &[Term]) -> Result<Vec<f64>, D
             .solve(&rhs, 1e-10 * scale)
             .unwrap_or_else(|_| nalgebra::DVector::zeros(k))
     };
-    let mut r = e.to_vec();
-    for (t, b) in terms.iter().zip(beta.iter()) {
-        r.iter_mut().zip(t.own()?).for_each(|(v, x)| *v -= b * x);
+    let uncentred = |epochs: Range<usize>| -> Result<Vec<f64>, DiagnoseError> {
+        let mut r = run
+            .signals
+            .error_range(channel, epochs.clone())?
+            .into_owned();
+        for (t, b) in terms.iter().zip(beta.iter()) {
+            r.iter_mut()
+                .zip(t.own_in(epochs.clone())?)
+                .for_each(|(v, x)| *v -= b * x);
+        }
+        Ok(r)
+    };
+    let mut sum = 0.0;
+    for epochs in block_ranges(0..run.n) {
+        uncentred(epochs)?.iter().for_each(|v| sum += v);
     }
-    let m = r.iter().sum::<f64>() / r.len().max(1) as f64;
-    r.iter_mut().for_each(|v| *v -= m);
-    Ok(r)
+    let m = sum / run.n.max(1) as f64;
+    let mut bank = SeriesBank::columns(run.n, 1, run.is_long())?;
+    for epochs in block_ranges(0..run.n) {
+        let mut r = uncentred(epochs.clone())?;
+        r.iter_mut().for_each(|v| *v -= m);
+        if let Some(spill) = steps_elsewhere {
+            r.iter_mut()
+                .zip(&spill[epochs.clone()])
+                .for_each(|(v, s)| *v += s);
+        }
+        bank.write(0, epochs.start, &r)?;
+    }
+    Ok(bank)
 }
 
 /// Coefficients, null standard deviations and |z| of a least-squares fit on moments.

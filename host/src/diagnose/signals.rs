@@ -7,6 +7,7 @@ use std::borrow::Cow;
 use std::ops::Range;
 
 use super::engine::DiagnoseError;
+use super::stats::{with_bank_series, Series};
 use crate::calibration::SignalBank;
 use crate::model::Channel;
 
@@ -44,6 +45,19 @@ impl RunSignals {
     /// The error of `channel` (rad/s or m/s^2), a channel the sensor has.
     pub fn error(&self, channel: Channel) -> Result<Cow<'_, [f64]>, DiagnoseError> {
         Ok(self.bank.series(self.error_index(channel))?)
+    }
+
+    /// `f` of the error of `channel` as a [`Series`]: held, or read a block at a time.
+    pub fn with_error<T>(
+        &self,
+        channel: Channel,
+        f: impl FnOnce(&Series) -> T,
+    ) -> Result<T, DiagnoseError> {
+        Ok(with_bank_series(
+            self.bank.series_bank(),
+            self.error_index(channel),
+            f,
+        )?)
     }
 
     /// The error of `channel` over the epochs `range`.

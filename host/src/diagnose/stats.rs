@@ -5,6 +5,7 @@
 //! with the same statistic on series simulated from the baseline model.
 
 use super::order::{median_magnitude, RunningMedian};
+use crate::series_bank::{SeriesBank, SpillError};
 use rayon::prelude::*;
 use realfft::RealFftPlanner;
 use serde::{Deserialize, Serialize};
@@ -75,6 +76,45 @@ impl Series<'_> {
         self.for_each_block(&mut |block| block.iter().for_each(|v| sum += v));
         sum
     }
+}
+
+/// `f` of series `k` of `bank` as a [`Series`]: held where the bank holds it, read back a
+/// block at a time at each reading where the bank is spilled (a read that fails is the
+/// error returned, after `f`).
+pub fn with_bank_series<T>(
+    bank: &SeriesBank,
+    k: usize,
+    f: impl FnOnce(&Series) -> T,
+) -> Result<T, SpillError> {
+    if !bank.is_spilled() {
+        return Ok(f(&Series::Held(&bank.series(k)?)));
+    }
+    let failed = std::sync::Mutex::new(None);
+    let draw = |visit: &mut dyn FnMut(&[f64])| {
+        if let Err(e) = bank.for_each_block_of(&[k], &mut |_, series| visit(series[0])) {
+            failed
+                .lock()
+                .unwrap_or_else(|poisoned| poisoned.into_inner())
+                .get_or_insert(e);
+        }
+    };
+    let out = f(&Series::Drawn {
+        len: bank.epochs(),
+        draw: &draw,
+    });
+    match failed.into_inner().unwrap_or_else(|p| p.into_inner()) {
+        Some(e) => Err(e),
+        None => Ok(out),
+    }
+}
+
+/// The sample variance of a series (n - 1 in the denominator), by its mean first.
+pub fn series_variance(x: &Series) -> f64 {
+    let n = x.len() as f64;
+    let m = x.sum() / n;
+    let mut squares = 0.0;
+    x.for_each_block(&mut |block| block.iter().for_each(|v| squares += (v - m).powi(2)));
+    squares / (n - 1.0).max(1.0)
 }
 
 /// A set of series visited one at a time, such as a channel's baseline simulations: held in
@@ -961,6 +1001,34 @@ mod tests {
         assert_eq!(find_outliers(&held, 11, 6.0).indices, vec![7_777]);
         let step = local_step_scan(&held, &[50, 400, 3_000], &[0.1; 3]).unwrap();
         assert!((step.index as i64 - 20_000).abs() < 50, "{step:?}");
+    }
+
+    #[test]
+    fn a_series_of_a_spilled_bank_is_read_back_a_block_at_a_time_to_the_same_statistics() {
+        let mut rng = ChaCha8Rng::seed_from_u64(32);
+        let x = white(&mut rng, 40_000, 2.0);
+        let scan = |s: &Series| {
+            (
+                s.len(),
+                series_variance(s),
+                find_outliers(s, 11, 6.0),
+                local_step_robust_sd(s, &[64, 1024]),
+            )
+        };
+        let mut figures = Vec::new();
+        for spill in [false, true] {
+            let mut bank = SeriesBank::columns(x.len(), 2, spill).unwrap();
+            for (k, values) in [vec![0.0; x.len()], x.clone()].iter().enumerate() {
+                for range in crate::series_bank::block_ranges(0..x.len()) {
+                    bank.write(k, range.start, &values[range]).unwrap();
+                }
+            }
+            assert_eq!(bank.is_spilled(), spill);
+            figures.push(with_bank_series(&bank, 1, scan).unwrap());
+        }
+        assert_eq!(figures[0], figures[1]);
+        assert_eq!(figures[0], scan(&Series::Held(&x)));
+        assert!((figures[0].1 / 4.0 - 1.0).abs() < 0.03, "{}", figures[0].1);
     }
 
     #[test]

@@ -17,7 +17,8 @@ use super::moments::{
 use super::null::{normal_p_value, scan_p_value};
 use super::signals::Dynamics;
 use super::stats::{
-    local_step_null_sd, local_step_robust_sd, local_step_scan, step_sharpness, Series, SeriesSet,
+    local_step_null_sd, local_step_robust_sd, local_step_scan, series_variance, step_sharpness,
+    with_bank_series, Series, SeriesSet,
 };
 use super::whiten::Whitener;
 use crate::calibration::DesignRows;
@@ -150,7 +151,8 @@ fn white_space<'a>(run: &'a Run) -> Result<WhiteSpace<'a>, DiagnoseError> {
 /// error and the run in the metric of generalised least squares.
 struct Selection<'s, 'a> {
     channel: Channel,
-    e: &'s [f64],
+    /// The variance of the channel's error.
+    var_e: f64,
     space: &'s WhiteSpace<'a>,
     z_strict: f64,
     min_variance_explained: f64,
@@ -177,7 +179,7 @@ impl<'a> Selection<'_, 'a> {
             fixed,
         };
         let gram = gram_matrix(&terms);
-        let var_e = variance(self.e);
+        let var_e = self.var_e;
         let small = |k: usize, b: f64| {
             let explained = b.powi(2) * terms[k].own_variance / var_e;
             !explains_enough(explained, self.min_variance_explained)
@@ -229,18 +231,14 @@ const MAX_STEP_BLUR: f64 = 3.0;
 fn find_bias_step(
     run: &Run,
     channel: Channel,
-    mut resid: Vec<f64>,
+    resid: &Series,
     sims: &impl SeriesSet,
-    steps_elsewhere: Option<&[f64]>,
 ) -> Result<Option<FoundStep>, DiagnoseError> {
     let windows: Vec<usize> = (6..20)
         .map(|j| 1usize << j)
         .take_while(|&w| w <= run.n / 8)
         .collect();
     let null_sd = local_step_null_sd(sims, &windows);
-    if let Some(spill) = steps_elsewhere {
-        resid.iter_mut().zip(spill).for_each(|(r, s)| *r += s);
-    }
     let sim_z: Vec<f64> = sims
         .map_each(&|s| local_step_scan(s, &windows, &null_sd).map(|m| m.z))
         .into_iter()
@@ -250,13 +248,13 @@ fn find_bias_step(
     // The residual is scaled by its own noise where that is larger than the baseline's (a
     // stronger correlated noise wanders in steps the baseline's would not); the threshold on
     // the largest z still comes from the simulations.
-    let own_sd = local_step_robust_sd(&Series::Held(&resid), &windows);
+    let own_sd = local_step_robust_sd(resid, &windows);
     let scale_sd: Vec<f64> = null_sd
         .iter()
         .zip(&own_sd)
         .map(|(a, b)| a.max(*b))
         .collect();
-    let Some(step) = local_step_scan(&Series::Held(&resid), &windows, &scale_sd) else {
+    let Some(step) = local_step_scan(resid, &windows, &scale_sd) else {
         return Ok(None);
     };
     // Without a step in any simulation (range -inf) the threshold is z_strict; a NaN z is
@@ -266,7 +264,7 @@ fn find_bias_step(
         return Ok(None);
     }
     let step_time_s = run.signals.time_at_s(step.index)?;
-    let blur = step_sharpness(&Series::Held(&resid), step.index, step.window, sims);
+    let blur = step_sharpness(resid, step.index, step.window, sims);
     let sharp = !(blur > MAX_STEP_BLUR);
     Ok(Some(FoundStep {
         index: step.index,
@@ -313,13 +311,12 @@ fn channel_terms<'a>(
     channel: Channel,
     steps_elsewhere: Option<&[f64]>,
 ) -> Result<ChannelTerms<'a>, DiagnoseError> {
-    let e = &run.error(channel)?;
     let cands = candidates(run, channel);
     // Baseline simulations: the null distribution of the step scan.
     let sims = run.baseline_sims(slot);
     let selection = Selection {
         channel,
-        e,
+        var_e: run.signals.with_error(channel, series_variance)?,
         space,
         z_strict: run.z_strict,
         min_variance_explained: run.opts.min_variance_explained,
@@ -328,8 +325,11 @@ fn channel_terms<'a>(
     let mut terms = selection.select(batch.terms.clone(), None);
     let mut discrepancies = Vec::new();
     let mut step_at_s = None;
-    let unexplained = full_fit_residual(e, &batch.terms)?;
-    if let Some(found) = find_bias_step(run, channel, unexplained, &sims, steps_elsewhere)? {
+    let unexplained = full_fit_residual(run, channel, &batch.terms, steps_elsewhere)?;
+    let found = with_bank_series(&unexplained, 0, |resid| {
+        find_bias_step(run, channel, resid, &sims)
+    })??;
+    if let Some(found) = found {
         let FoundStep {
             index,
             at_s,
