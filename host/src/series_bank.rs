@@ -276,13 +276,27 @@ impl SeriesBank {
     /// Each series' inner product with `y` (of the bank's length).
     pub fn dots(&self, y: &[f64]) -> Result<Vec<f64>, SpillError> {
         let mut sums = vec![0.0; self.len()];
-        self.for_each_block(&mut |range, series| {
-            let y = &y[range];
+        self.add_dots_in(0..self.n, y, &mut sums)?;
+        Ok(sums)
+    }
+
+    /// Adds each series' inner product with `y` over the epochs `epochs` (`y` given over
+    /// them) to `sums`: [`SeriesBank::dots`] of a series fed a block at a time, with its
+    /// figures when the blocks are the bank's.
+    pub fn add_dots_in(
+        &self,
+        epochs: Range<usize>,
+        y: &[f64],
+        sums: &mut [f64],
+    ) -> Result<(), SpillError> {
+        let all: Vec<usize> = (0..self.len()).collect();
+        let first = epochs.start;
+        self.for_each_block_in(&all, epochs, &mut |range, series| {
+            let y = &y[range.start - first..range.end - first];
             for (sum, x) in sums.iter_mut().zip(series) {
                 *sum += x.iter().zip(y).map(|(a, b)| a * b).sum::<f64>();
             }
-        })?;
-        Ok(sums)
+        })
     }
 }
 

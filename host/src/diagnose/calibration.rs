@@ -184,10 +184,7 @@ fn simulated_calibration_sd(run: &Run, design: DesignRows<'_>) -> Result<Vec<f64
                     let mut simulation =
                         ChannelSimulation::of_processes(run, run.null_model(slot, r), rng);
                     moments += design.moments_of_blocks(i, &mut |epochs, values| {
-                        let mut block = Vec::new();
-                        simulation.next_block(epochs, &mut block)?;
-                        values.extend_from_slice(&block);
-                        Ok::<_, DiagnoseError>(())
+                        simulation.next_block(epochs, values)
                     })?;
                 }
             }

@@ -95,9 +95,8 @@ impl<'a> ChannelSimulation<'a> {
         Self::new(run, spec, &ChannelModel::default(), Channel::Gx, rng)
     }
 
-    /// The simulation over `epochs` into `x` (replacing what it held): the block of
-    /// [`block_ranges`] that follows the last one drawn, so that a simulation cut the same
-    /// way is the same draw.
+    /// Appends the simulation over `epochs` to `x`: the block of [`block_ranges`] that
+    /// follows the last one drawn, so that a simulation cut the same way is the same draw.
     pub fn next_block(
         &mut self,
         epochs: Range<usize>,
@@ -108,8 +107,9 @@ impl<'a> ChannelSimulation<'a> {
             debug_assert_eq!(epochs.start, expected, "blocks drawn in order");
         }
         self.next_epoch = Some(epochs.end);
-        x.clear();
-        x.resize(epochs.len(), 0.0);
+        let start = x.len();
+        x.resize(start + epochs.len(), 0.0);
+        let x = &mut x[start..];
         self.processes.add_next(x, &mut self.rng);
         if let Some(growth) = &self.growth {
             let omega: Vec<_> = (0..3)
@@ -148,6 +148,7 @@ impl<'a> ChannelSimulation<'a> {
     ) -> Result<(), DiagnoseError> {
         let mut x = Vec::new();
         for block in block_ranges(epochs) {
+            x.clear();
             self.next_block(block.clone(), &mut x)?;
             visit(block, &mut x)?;
         }

@@ -46,7 +46,7 @@ use statrs::distribution::{ContinuousCDF, Normal};
 pub use super::baseline::Baseline;
 pub use super::calibration::Recording;
 use super::calibration::{calibrate, sensor_wide_terms};
-use super::draws::ChannelSimulation;
+pub(super) use super::draws::ChannelSimulation;
 use super::extension::{channel_model, extended_model};
 use super::gain::{measure_gain, ChannelModelSims};
 use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, select};
@@ -354,17 +354,21 @@ impl Run<'_> {
     /// [`Run::baseline_sim`] a block at a time: `visit(block)` for each block of the run's
     /// epochs, in order, none of them held after its visit.
     pub fn for_each_baseline_block(&self, slot: usize, r: usize, visit: &mut dyn FnMut(&[f64])) {
-        use rand::SeedableRng;
-        let rng = rand_chacha::ChaCha8Rng::seed_from_u64(
-            self.opts.seed ^ ((slot as u64) << 32) ^ r as u64,
-        );
-        let simulation = ChannelSimulation::of_processes(self, self.null_model(slot, r), rng);
-        simulation
+        self.baseline_simulation(slot, r)
             .for_each_block(0..self.n, &mut |_, block| {
                 visit(block);
                 Ok(())
             })
             .expect("a simulation of processes alone reads no signal");
+    }
+
+    /// [`Run::baseline_sim`] to draw a block at a time.
+    pub fn baseline_simulation(&self, slot: usize, r: usize) -> ChannelSimulation<'_> {
+        use rand::SeedableRng;
+        let rng = rand_chacha::ChaCha8Rng::seed_from_u64(
+            self.opts.seed ^ ((slot as u64) << 32) ^ r as u64,
+        );
+        ChannelSimulation::of_processes(self, self.null_model(slot, r), rng)
     }
 
     /// Whether the run is long: one channel's simulations exceed

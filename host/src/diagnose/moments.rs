@@ -402,7 +402,6 @@ impl<'a> Term<'a> {
                 }
             }
         }
-        let dots = |series: &[f64]| Ok(signatures.dots(series)?);
         let dots_with = |column: &SeriesBank| Ok(signatures.dots_with(column)?);
         if let Some(on_columns) = space.on_white_columns(own_ch, &dots_with)? {
             for (k, t) in terms.iter_mut().enumerate() {
@@ -410,7 +409,7 @@ impl<'a> Term<'a> {
                 t.on_own_columns = Some(nalgebra::DVector::from_iterator(on_columns.len(), m));
             }
         }
-        let on_own = space.map_white_sims(own_ch, &dots)?;
+        let on_own = space.white_sim_dots(own_ch, &signatures)?;
         for (k, t) in terms.iter_mut().enumerate() {
             t.on_sims = on_own
                 .iter()
@@ -874,7 +873,14 @@ mod tests {
             std::array::from_fn(|_| None);
         whiteners[0] = Some(super::super::whiten::Whitener::new(&spec, e.len()));
         let error_of = |ch: usize| Ok((ch == 0).then_some(Cow::Borrowed(e)));
-        let sim_of = move |r: usize, ch: usize| (ch == 0).then(|| sims[r].clone());
+        let sim_of = move |r: usize, ch: usize| {
+            (ch == 0).then(|| -> super::super::white_space::SimReader<'a> {
+                Box::new(move |epochs, values| {
+                    values.extend_from_slice(&sims[r][epochs]);
+                    Ok(())
+                })
+            })
+        };
         WhiteSpace::new(
             Absorber::Mean,
             whiteners,

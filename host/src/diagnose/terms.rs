@@ -20,6 +20,7 @@ use super::stats::{
     local_step_null_sd, local_step_robust_sd, local_step_scan, series_variance, step_sharpness,
     with_bank_series, Series, SeriesSet,
 };
+use super::white_space::SimReader;
 use super::whiten::Whitener;
 use crate::calibration::DesignRows;
 use crate::model::{Cause, Channel};
@@ -125,10 +126,13 @@ fn white_space<'a>(run: &'a Run) -> Result<WhiteSpace<'a>, DiagnoseError> {
             .transpose()
     };
     // A channel's baseline simulation of one replicate (the ones every stage draws).
-    let sim_of = move |r: usize, i: usize| -> Option<Vec<f64>> {
+    let sim_of = move |r: usize, i: usize| -> Option<SimReader> {
         let channel = Channel::ALL[i];
         let slot = run.channels.iter().position(|c| *c == channel)?;
-        Some(run.baseline_sim(slot, r))
+        let mut simulation = run.baseline_simulation(slot, r);
+        Some(Box::new(move |epochs, values| {
+            simulation.next_block(epochs, values)
+        }))
     };
     // Static data has no candidate terms and a step's coefficient is its own estimate, so
     // nothing is fitted against the simulations there: none are filtered.

@@ -5,24 +5,32 @@
 //! pull leaves there, minus the calibration's columns times what it absorbed, so its inner
 //! products there reduce to small moments of the filtered columns (their Gram matrix, their
 //! products with the error and with each simulation); only the term's own channel needs a
-//! simulation whole. On a long drive the simulations are therefore drawn again, one channel
-//! at a time, whenever a batch of terms needs them (same seeds, same series), and memory does
-//! not grow with the replicates; on a short one they are held, which is faster.
+//! simulation, and only its inner products with the terms' signatures. On a long drive the
+//! simulations are therefore drawn again a block at a time, one channel at a time, whenever a
+//! batch of terms needs them (same seeds, same series), and none is held whole; on a short
+//! one they are held, which is faster.
 
 use std::borrow::Cow;
+use std::ops::Range;
 
 use nalgebra::{DMatrix, DVector};
 use rayon::prelude::*;
 
+use super::draws::DrawnBlockVisit;
 use super::engine::DiagnoseError;
 use super::moments::Absorber;
 use super::whiten::Whitener;
 use crate::model::Channel;
-use crate::series_bank::SeriesBank;
+use crate::series_bank::{block_ranges, SeriesBank};
 
-/// Baseline simulation `r` of channel index `ch` (0..6, gx..az), None where the run has no
-/// such channel.
-pub(super) type SimOf<'a> = Box<dyn Fn(usize, usize) -> Option<Vec<f64>> + Sync + 'a>;
+/// A simulation read a block at a time, in order: `read(epochs, values)` appends it over
+/// the next epochs (the blocks of [`block_ranges`]).
+pub(super) type SimReader<'s> =
+    Box<dyn FnMut(Range<usize>, &mut Vec<f64>) -> Result<(), DiagnoseError> + 's>;
+
+/// Baseline simulation `r` of channel index `ch` (0..6, gx..az) to read, None where the run
+/// has no such channel.
+pub(super) type SimOf<'a> = Box<dyn Fn(usize, usize) -> Option<SimReader<'a>> + Sync + 'a>;
 
 /// A series per channel (gx..az), None where the run has none.
 type PerChannel = [Option<Vec<f64>>; 6];
@@ -78,19 +86,35 @@ fn calibrated(
     mut y: Vec<f64>,
     theta: Option<&DVector<f64>>,
 ) -> Result<Vec<f64>, DiagnoseError> {
+    let mean = y.iter().sum::<f64>() / y.len().max(1) as f64;
+    subtract_calibration(absorber, ch, 0..y.len(), &mut y, theta, mean)?;
+    Ok(y)
+}
+
+/// [`calibrated`] over the epochs `epochs` of a series `y` given over them, whose mean (what
+/// is taken without a design) is `mean`.
+fn subtract_calibration(
+    absorber: Absorber<'_>,
+    ch: usize,
+    epochs: Range<usize>,
+    y: &mut [f64],
+    theta: Option<&DVector<f64>>,
+    mean: f64,
+) -> Result<(), DiagnoseError> {
     match (absorber, theta) {
         (Absorber::Design(d), Some(theta)) if d.has_channel(ch) => {
-            d.for_each_fitted(ch, theta, 0..y.len(), &mut |range, fitted| {
-                y[range].iter_mut().zip(fitted).for_each(|(v, f)| *v -= f);
+            let first = epochs.start;
+            d.for_each_fitted(ch, theta, epochs, &mut |range, fitted| {
+                y[range.start - first..range.end - first]
+                    .iter_mut()
+                    .zip(fitted)
+                    .for_each(|(v, f)| *v -= f);
             })?;
         }
         (Absorber::Design(_), _) => {}
-        (Absorber::Mean, _) => {
-            let m = y.iter().sum::<f64>() / y.len().max(1) as f64;
-            y.iter_mut().for_each(|v| *v -= m);
-        }
+        (Absorber::Mean, _) => y.iter_mut().for_each(|v| *v -= mean),
     }
-    Ok(y)
+    Ok(())
 }
 
 impl<'a> WhiteSpace<'a> {
@@ -177,19 +201,20 @@ impl<'a> WhiteSpace<'a> {
         let drawn: Vec<(DVector<f64>, Option<PerChannel>)> = (0..self.replicates)
             .into_par_iter()
             .map(|r| {
-                let sim = |ch: usize| self.whiteners[ch].as_ref().and((self.sim_of)(r, ch));
                 if !hold {
-                    // Only the calibration's take is kept: one channel's simulation at a
-                    // time, not six.
+                    // Only the calibration's take is kept: read a block at a time.
                     let mut moments = DVector::<f64>::zeros(design.parameters());
                     for ch in (0..6).filter(|&ch| design.has_channel(ch)) {
-                        if let Some(y) = sim(ch) {
-                            moments += design.moments(ch, &y)?;
+                        if let Some(mut read) = self.read_sim(r, ch) {
+                            moments += design.moments_of_blocks(ch, &mut *read)?;
                         }
                     }
                     return Ok((design.bread() * moments, None));
                 }
-                let mut sims: [Option<Vec<f64>>; 6] = std::array::from_fn(sim);
+                let mut sims: [Option<Vec<f64>>; 6] = Default::default();
+                for (ch, sim) in sims.iter_mut().enumerate() {
+                    *sim = self.sim_whole(r, ch)?;
+                }
                 let theta = design.bread()
                     * design.moments_all(&std::array::from_fn(|ch| sims[ch].as_deref()))?;
                 let mut white: PerChannel = Default::default();
@@ -224,32 +249,90 @@ impl<'a> WhiteSpace<'a> {
         Ok(y)
     }
 
-    /// Replicate `r`'s filtered calibrated simulation of channel `ch`, drawn again unless
-    /// held.
-    fn white_sim(&self, r: usize, ch: usize) -> Result<Option<Vec<f64>>, DiagnoseError> {
-        if let Some(held) = &self.held {
-            return Ok(held[r][ch].clone());
-        }
-        if self.whiteners[ch].is_none() {
-            return Ok(None);
-        }
-        let Some(y) = (self.sim_of)(r, ch) else {
-            return Ok(None);
-        };
-        self.filter(ch, y, self.theta[r].as_ref()).map(Some)
+    /// Replicate `r`'s simulation of channel `ch` to read, where the channel is filtered.
+    fn read_sim(&self, r: usize, ch: usize) -> Option<SimReader<'a>> {
+        self.whiteners[ch].as_ref().and((self.sim_of)(r, ch))
     }
 
-    /// `f` of replicate `r`'s filtered simulation of channel `ch` (None where absent).
-    fn with_white_sim<T>(
+    /// Replicate `r`'s simulation of channel `ch` whole, where the channel is filtered.
+    fn sim_whole(&self, r: usize, ch: usize) -> Result<Option<Vec<f64>>, DiagnoseError> {
+        let Some(mut read) = self.read_sim(r, ch) else {
+            return Ok(None);
+        };
+        let mut y = Vec::with_capacity(self.n);
+        for epochs in block_ranges(0..self.n) {
+            read(epochs, &mut y)?;
+        }
+        Ok(Some(y))
+    }
+
+    /// Replicate `r`'s filtered calibrated simulation of channel `ch`, whole.
+    fn white_sim(&self, r: usize, ch: usize) -> Result<Option<Vec<f64>>, DiagnoseError> {
+        match self.sim_whole(r, ch)? {
+            Some(y) => self.filter(ch, y, self.theta[r].as_ref()).map(Some),
+            None => Ok(None),
+        }
+    }
+
+    /// `visit(epochs, values)` with each block of replicate `r`'s filtered calibrated
+    /// simulation of channel `ch`, drawn again and never held whole (false where the
+    /// channel has none).
+    fn for_each_white_sim_block(
         &self,
         r: usize,
         ch: usize,
-        f: impl FnOnce(&[f64]) -> Result<T, DiagnoseError>,
-    ) -> Result<Option<T>, DiagnoseError> {
-        match &self.held {
-            Some(held) => held[r][ch].as_deref().map(f).transpose(),
-            None => self.white_sim(r, ch)?.map(|s| f(&s)).transpose(),
+        visit: &mut DrawnBlockVisit<'_>,
+    ) -> Result<bool, DiagnoseError> {
+        let (Some(mut read), Some(w)) = (self.read_sim(r, ch), self.whiteners[ch].as_ref()) else {
+            return Ok(false);
+        };
+        let mut mean = 0.0;
+        if let (Absorber::Mean, Some(mut first_pass)) = (self.absorber, self.read_sim(r, ch)) {
+            let (mut sum, mut y) = (0.0, Vec::new());
+            for epochs in block_ranges(0..self.n) {
+                y.clear();
+                first_pass(epochs, &mut y)?;
+                y.iter().for_each(|v| sum += v);
+            }
+            mean = sum / self.n.max(1) as f64;
         }
+        let (mut stream, mut y) = (w.stream(), Vec::new());
+        for epochs in block_ranges(0..self.n) {
+            y.clear();
+            read(epochs.clone(), &mut y)?;
+            let theta = self.theta[r].as_ref();
+            subtract_calibration(self.absorber, ch, epochs.clone(), &mut y, theta, mean)?;
+            stream.apply_in_place(&mut y);
+            visit(epochs, &mut y)?;
+        }
+        Ok(true)
+    }
+
+    /// For every replicate (in order), the inner products of each series of `bank` with its
+    /// filtered simulation of channel `ch`: from the simulation held, or drawn again a
+    /// block at a time.
+    pub fn white_sim_dots(
+        &self,
+        ch: usize,
+        bank: &SeriesBank,
+    ) -> Result<Vec<Vec<f64>>, DiagnoseError> {
+        (0..self.replicates)
+            .into_par_iter()
+            .map(|r| {
+                if let Some(held) = &self.held {
+                    let sim = held[r][ch]
+                        .as_deref()
+                        .expect("a channel of the run has its simulations");
+                    return Ok(bank.dots(sim)?);
+                }
+                let mut sums = vec![0.0; bank.len()];
+                let drawn = self.for_each_white_sim_block(r, ch, &mut |epochs, y| {
+                    Ok(bank.add_dots_in(epochs, y, &mut sums)?)
+                })?;
+                assert!(drawn, "a channel of the run has its simulations");
+                Ok(sums)
+            })
+            .collect()
     }
 
     /// `f` of each of the calibration's filtered columns on channel `ch`, in order (None
@@ -335,15 +418,11 @@ impl<'a> WhiteSpace<'a> {
                 }
             }
         })?;
-        let moments = |y: &[f64]| Ok(DVector::from_vec(bank.dots(y)?));
-        let on_sims = (0..self.replicates)
-            .into_par_iter()
-            .map(|r| {
-                Ok(self
-                    .with_white_sim(r, ch, moments)?
-                    .expect("a channel of the run has its simulations"))
-            })
-            .collect::<Result<Vec<_>, DiagnoseError>>()?;
+        let on_sims = self
+            .white_sim_dots(ch, &bank)?
+            .into_iter()
+            .map(DVector::from_vec)
+            .collect();
         Ok(Some(Columns {
             gram,
             on_error,
@@ -400,21 +479,5 @@ impl<'a> WhiteSpace<'a> {
     /// The same with replicate `r`'s filtered simulation.
     pub fn columns_on_sim(&self, ch: usize, r: usize) -> Option<&DVector<f64>> {
         self.columns[ch].as_ref().map(|c| &c.on_sims[r])
-    }
-
-    /// For every replicate (in order), `f` of its filtered simulation of channel `ch`.
-    pub fn map_white_sims<T: Send>(
-        &self,
-        ch: usize,
-        f: &(dyn Fn(&[f64]) -> Result<T, DiagnoseError> + Sync),
-    ) -> Result<Vec<T>, DiagnoseError> {
-        (0..self.replicates)
-            .into_par_iter()
-            .map(|r| {
-                Ok(self
-                    .with_white_sim(r, ch, f)?
-                    .expect("a channel of the run has its simulations"))
-            })
-            .collect()
     }
 }
