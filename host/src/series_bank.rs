@@ -177,6 +177,37 @@ impl SeriesBank {
     }
 
     /// Whether the series are in a temporary file rather than held.
+    /// Changes series `k` of a bank whose series are all written, a block of
+    /// [`block_ranges`] at a time in order: `change(epochs, values)` over each (read back and
+    /// written again when spilled).
+    pub fn update(
+        &mut self,
+        k: usize,
+        change: &mut dyn FnMut(Range<usize>, &mut [f64]),
+    ) -> Result<(), SpillError> {
+        match &mut self.store {
+            Store::Held(held) => {
+                let series = &mut held[k];
+                assert_eq!(series.len(), self.n, "a series written whole");
+                for range in block_ranges(0..self.n) {
+                    change(range.clone(), &mut series[range]);
+                }
+            }
+            Store::Spilled { file, .. } => {
+                let mut values = Vec::with_capacity(BANK_BLOCK_EPOCHS);
+                for range in block_ranges(0..self.n) {
+                    let offset = 8 * (k * self.n + range.start) as u64;
+                    values.clear();
+                    read_values(file, offset, range.len(), &mut values)?;
+                    change(range, &mut values);
+                    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+                    write_all_at(file, &bytes, offset).map_err(spill_error)?;
+                }
+            }
+        }
+        Ok(())
+    }
+
     pub fn is_spilled(&self) -> bool {
         matches!(self.store, Store::Spilled { .. })
     }
@@ -369,6 +400,30 @@ fn read_exact_at(file: &File, mut buf: &mut [u8], mut offset: u64) -> std::io::R
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_series_updated_block_by_block_is_changed_there_alone_held_or_spilled() {
+        let n = 2 * BANK_BLOCK_EPOCHS + 5;
+        let series = |k: usize| -> Vec<f64> { (0..n).map(|t| (t + 10 * k) as f64).collect() };
+        for spill in [false, true] {
+            let mut bank = SeriesBank::new(n, spill).unwrap();
+            (0..3).for_each(|k| bank.push(series(k)).unwrap());
+            let mut seen = Vec::new();
+            bank.update(1, &mut |epochs, values| {
+                seen.push(epochs.clone());
+                values
+                    .iter_mut()
+                    .zip(epochs)
+                    .for_each(|(v, t)| *v -= 2.0 * t as f64);
+            })
+            .unwrap();
+            assert_eq!(seen, block_ranges(0..n).collect::<Vec<_>>());
+            let changed: Vec<f64> = (0..n).map(|t| 10.0 - t as f64).collect();
+            assert_eq!(bank.series(0).unwrap(), series(0));
+            assert_eq!(bank.series(1).unwrap(), changed);
+            assert_eq!(bank.series(2).unwrap(), series(2));
+        }
+    }
 
     #[test]
     fn a_bank_appended_to_another_follows_its_series_held_or_spilled() {

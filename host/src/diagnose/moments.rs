@@ -586,8 +586,8 @@ pub(super) fn gram_matrix(terms: &[Term]) -> nalgebra::DMatrix<f64> {
 /// centred: what no candidate can explain, however weakly. Why: a term too weak to be named
 /// at the run's family-wise level still leaves its pattern in the error, and a bias step
 /// looked for on that pattern finds a turn's onset. `steps_elsewhere` (what other channels'
-/// steps took from it through the calibration) is given back. Made a block at a time, twice
-/// (for its mean, then to keep), into a bank of its own, spilled on a long run.
+/// steps took from it through the calibration) is given back. Made a block at a time into a
+/// bank of its own (spilled on a long run), then centred there.
 pub(super) fn full_fit_residual(
     run: &Run,
     channel: Channel,
@@ -605,7 +605,9 @@ pub(super) fn full_fit_residual(
             .solve(&rhs, 1e-10 * scale)
             .unwrap_or_else(|_| nalgebra::DVector::zeros(k))
     };
-    let uncentred = |epochs: Range<usize>| -> Result<Vec<f64>, DiagnoseError> {
+    let mut bank = SeriesBank::columns(run.n, 1, run.is_long())?;
+    let mut sum = 0.0;
+    for epochs in block_ranges(0..run.n) {
         let mut r = run
             .signals
             .error_range(channel, epochs.clone())?
@@ -615,24 +617,16 @@ pub(super) fn full_fit_residual(
                 .zip(t.own_in(epochs.clone())?)
                 .for_each(|(v, x)| *v -= b * x);
         }
-        Ok(r)
-    };
-    let mut sum = 0.0;
-    for epochs in block_ranges(0..run.n) {
-        uncentred(epochs)?.iter().for_each(|v| sum += v);
-    }
-    let m = sum / run.n.max(1) as f64;
-    let mut bank = SeriesBank::columns(run.n, 1, run.is_long())?;
-    for epochs in block_ranges(0..run.n) {
-        let mut r = uncentred(epochs.clone())?;
-        r.iter_mut().for_each(|v| *v -= m);
-        if let Some(spill) = steps_elsewhere {
-            r.iter_mut()
-                .zip(&spill[epochs.clone()])
-                .for_each(|(v, s)| *v += s);
-        }
+        r.iter().for_each(|v| sum += v);
         bank.write(0, epochs.start, &r)?;
     }
+    let m = sum / run.n.max(1) as f64;
+    bank.update(0, &mut |epochs, r| {
+        r.iter_mut().for_each(|v| *v -= m);
+        if let Some(spill) = steps_elsewhere {
+            r.iter_mut().zip(&spill[epochs]).for_each(|(v, s)| *v += s);
+        }
+    })?;
     Ok(bank)
 }
 
