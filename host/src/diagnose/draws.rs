@@ -90,7 +90,8 @@ impl<'a> ChannelSimulation<'a> {
         }
     }
 
-    /// A simulation of `spec`'s processes alone: a baseline simulation.
+    /// A simulation of `spec`'s processes alone: a baseline simulation (the channel enters
+    /// only the effects, of which there are none).
     pub fn of_processes(run: &'a Run<'a>, spec: &'a ModelSpec, rng: ChaCha8Rng) -> Self {
         Self::new(run, spec, &ChannelModel::default(), Channel::Gx, rng)
     }

@@ -376,7 +376,7 @@ fn channel_terms<'a>(
 pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, DiagnoseError> {
     let mut error_variance = [f64::NAN; 6];
     for channel in &run.channels {
-        error_variance[channel.index()] = variance(&run.error(*channel)?);
+        error_variance[channel.index()] = run.signals.with_error(*channel, series_variance)?;
     }
     let space = white_space(run)?;
     let stage1 = |slot: usize, channel: Channel, steps_elsewhere: Option<&[f64]>| {

@@ -86,7 +86,11 @@ fn calibrated(
     mut y: Vec<f64>,
     theta: Option<&DVector<f64>>,
 ) -> Result<Vec<f64>, DiagnoseError> {
-    let mean = y.iter().sum::<f64>() / y.len().max(1) as f64;
+    // Only what is taken without a design needs the mean.
+    let mean = match absorber {
+        Absorber::Mean => y.iter().sum::<f64>() / y.len().max(1) as f64,
+        Absorber::Design(_) => 0.0,
+    };
     subtract_calibration(absorber, ch, 0..y.len(), &mut y, theta, mean)?;
     Ok(y)
 }
@@ -251,7 +255,9 @@ impl<'a> WhiteSpace<'a> {
 
     /// Replicate `r`'s simulation of channel `ch` to read, where the channel is filtered.
     fn read_sim(&self, r: usize, ch: usize) -> Option<SimReader<'a>> {
-        self.whiteners[ch].as_ref().and((self.sim_of)(r, ch))
+        self.whiteners[ch]
+            .as_ref()
+            .and_then(|_| (self.sim_of)(r, ch))
     }
 
     /// Replicate `r`'s simulation of channel `ch` whole, where the channel is filtered.
