@@ -35,7 +35,6 @@
 //! coefficient spreads no smaller than the measured residual's own (so a noise stronger than
 //! the baseline's is not read as terms).
 
-use std::borrow::Cow;
 use std::collections::BTreeMap;
 
 use rayon::prelude::*;
@@ -60,6 +59,7 @@ use crate::gmwm::model::ModelSpec;
 use crate::interchange::ImuRecording;
 use crate::model::{Cause, Channel, ChannelModel, SimModel};
 use crate::progress::{stage, Tally};
+use crate::series_bank::{block_ranges, SeriesBank};
 
 /// Errors of the engine.
 #[derive(Debug, thiserror::Error)]
@@ -309,11 +309,6 @@ pub(super) struct Run<'a> {
 }
 
 impl Run<'_> {
-    /// The error of a channel of the run (held, or read back whole from its temporary file).
-    pub fn error(&self, channel: Channel) -> Result<Cow<'_, [f64]>, DiagnoseError> {
-        self.signals.error(channel)
-    }
-
     /// The position of a channel of the run in [`Run::channels`].
     pub fn slot(&self, channel: Channel) -> usize {
         self.channels
@@ -539,24 +534,16 @@ fn diagnose_channel(
     mut found: ChannelTerms,
 ) -> Result<ChannelResult, DiagnoseError> {
     let spec = run.spec(channel)?;
-    // The error as the joint calibration leaves it.
-    let mut e: Vec<f64> = run.error(channel)?.into_owned();
-    if let (Some(pushed), Some(design)) = (found.calibration_spill.as_ref(), run.design) {
-        design.for_each_fitted(channel.index(), pushed, 0..run.n, &mut |range, spill| {
-            e[range].iter_mut().zip(spill).for_each(|(v, s)| *v -= s);
-        })?;
-    }
+    let e = channel_error(run, channel, found.calibration_spill.as_ref())?;
     stage(|| format!("channel {}: stochastic effects", channel.name()));
     let sims = run.baseline_sims(slot);
     let mut discrepancies = std::mem::take(&mut found.discrepancies);
     let terms = FittedTerms::new(run, channel, found, &e)?;
     let mut findings = terms.findings(run, channel);
-    let mut resid = terms.deterministic(&terms.coefficients, 0..run.n)?;
-    resid
-        .iter_mut()
-        .zip(&e)
-        .for_each(|(r, e)| *r = e - terms.intercept - *r);
-    let stochastic = find_stochastic_effects(run, slot, channel, spec, &e, resid, &sims)?;
+    let mut resid = terms.residual(&e, run.is_long())?;
+    let stochastic =
+        find_stochastic_effects(run, slot, channel, spec, terms.var_e, &mut resid, &sims)?;
+    drop(resid);
     stage(|| format!("channel {}: selecting what to keep", channel.name()));
     let selection = select(run, slot, spec, &e, &terms, &stochastic)?;
     let coefficients = kept_coefficients(&terms, &selection.kept);
@@ -582,6 +569,39 @@ fn diagnose_channel(
         model,
         absorbed: run.design.map(|d| terms.absorbed_by(d)),
     })
+}
+
+/// The error on `channel` as the joint calibration leaves it (less the fitted error of the
+/// calibration parameters `pushed` a later stage moved, where it did), in a bank of one
+/// series: held on a short run, spilled on a long one.
+fn channel_error(
+    run: &Run,
+    channel: Channel,
+    pushed: Option<&nalgebra::DVector<f64>>,
+) -> Result<SeriesBank, DiagnoseError> {
+    let mut bank = SeriesBank::columns(run.n, 1, run.is_long())?;
+    for epochs in block_ranges(0..run.n) {
+        let mut e = run
+            .signals
+            .error_range(channel, epochs.clone())?
+            .into_owned();
+        if let (Some(pushed), Some(design)) = (pushed, run.design) {
+            let first = epochs.start;
+            design.for_each_fitted(
+                channel.index(),
+                pushed,
+                epochs.clone(),
+                &mut |range, fitted| {
+                    e[range.start - first..range.end - first]
+                        .iter_mut()
+                        .zip(fitted)
+                        .for_each(|(v, s)| *v -= s);
+                },
+            )?;
+        }
+        bank.write(0, epochs.start, &e)?;
+    }
+    Ok(bank)
 }
 
 /// Runs the engine on a sensor recording against a reference (or, without one, on static

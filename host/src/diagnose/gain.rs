@@ -11,13 +11,15 @@ use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 
 use super::draws::ChannelSimulation;
-use super::engine::{variance, DiagnoseError, Gain, Run, WvCurves, Z_FLOOR};
+use super::engine::{DiagnoseError, Gain, Run, WvCurves, Z_FLOOR};
 use super::generalise::Selection;
-use super::stats::Series;
+use super::stats::{series_variance, with_bank_series, with_bank_series_in, Series};
 use super::terms::{Coefficient, FittedTerms};
 use crate::gmwm::model::ModelSpec;
 use crate::model::ChannelModel;
+use crate::series_bank::SeriesBank;
 use crate::wv::stream::HaarWvStream;
+use crate::wv::{haar_wv, WaveletVariance, WvOptions};
 
 /// The log wavelet variance per level (1..=max) the engine compares, of a series fed a block
 /// at a time: the overlapping Haar estimator up to level [`LogWv::FULL_LEVELS`], above it
@@ -70,6 +72,37 @@ pub(super) fn log_wv(x: &Series, dt_s: f64, max_level: u32) -> Vec<f64> {
     x.for_each_block(&mut |block| wv.push(block));
     wv.finish()
 }
+
+/// The wavelet variance a noise model is fitted on (levels 1..=floor(log2 N) - 1) of a
+/// series held or drawn: the batch estimator up to [`FIT_WV_GATHERED`] samples (a drawn
+/// series gathered first), the streamed one above, overlapping to level
+/// [`HaarWvStream::DEFAULT_FULL_LEVELS`] as `dynacal wv` streams a long file. None when
+/// the series is too short (or not finite).
+pub(super) fn fit_wv(x: &Series, dt_s: f64) -> Option<WaveletVariance> {
+    match x {
+        Series::Held(x) => haar_wv(x, dt_s, &WvOptions::default()).ok(),
+        Series::Drawn { len, .. } if *len <= FIT_WV_GATHERED => {
+            let mut all = Vec::with_capacity(*len);
+            x.for_each_block(&mut |block| all.extend_from_slice(block));
+            haar_wv(&all, dt_s, &WvOptions::default()).ok()
+        }
+        Series::Drawn { .. } => {
+            let mut stream = HaarWvStream::new(HaarWvStream::DEFAULT_FULL_LEVELS);
+            let mut finite = true;
+            x.for_each_block(&mut |block| {
+                finite &= block.iter().all(|v| v.is_finite());
+                stream.push_block(block);
+            });
+            finite
+                .then(|| stream.wavelet_variance(None, 1.0, dt_s).ok())
+                .flatten()
+        }
+    }
+}
+
+/// Samples up to which [`fit_wv`] gathers a drawn series for the batch estimator (8 MiB):
+/// below 2^20 samples the streamed estimator's levels are all overlapping, the batch's.
+const FIT_WV_GATHERED: usize = 1 << 20;
 
 /// Mean and standard deviation per level of simulated log-WVs.
 pub(super) fn level_stats(sims: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
@@ -182,35 +215,39 @@ pub(super) fn simulate_model(
         .collect()
 }
 
-/// The WV misfit of the error `e` over `range` against simulations of `model` there.
+/// The WV misfit of the error `e` (the one series of a bank) over `range` against
+/// simulations of `model` there.
 pub(super) fn misfit_over(
     run: &Run,
     slot: usize,
     terms: &FittedTerms,
-    e: &[f64],
+    e: &SeriesBank,
     model: &ChannelModelSims,
     range: std::ops::Range<usize>,
     salt: u64,
 ) -> Result<f64, DiagnoseError> {
     let sims = simulate_model(run, slot, terms, model, range.clone(), salt)?;
     let max_level = sims.iter().map(Vec::len).min().unwrap_or(0) as u32;
-    Ok(wv_misfit(
-        &log_wv(&Series::Held(&e[range]), run.dt_s, max_level.max(1)),
-        &sims,
-    ))
+    let measured = with_bank_series_in(e, 0, range, |e| log_wv(e, run.dt_s, max_level.max(1)))?;
+    Ok(wv_misfit(&measured, &sims))
 }
 
-/// Share of the variance of `e` over `range` that `coefficients` explain there.
+/// Share of the variance of the error `e` (the one series of a bank) over `range` that
+/// `coefficients` explain there.
 pub(super) fn variance_explained_over(
     terms: &FittedTerms,
     coefficients: &[Coefficient],
-    e: &[f64],
+    e: &SeriesBank,
     range: std::ops::Range<usize>,
 ) -> Result<f64, DiagnoseError> {
-    let mut left = terms.deterministic(coefficients, range.clone())?;
-    let part = &e[range];
-    left.iter_mut().zip(part).for_each(|(d, a)| *d = a - *d);
-    Ok(1.0 - variance(&left) / variance(part))
+    let left = terms.with_residual(
+        coefficients,
+        e,
+        std::slice::from_ref(&range),
+        series_variance,
+    )?;
+    let whole = with_bank_series_in(e, 0, range, series_variance)?;
+    Ok(1.0 - left / whole)
 }
 
 /// The gain of the extended model (`terms` kept as `coefficients`, zero for a term left
@@ -220,7 +257,7 @@ pub(super) fn variance_explained_over(
 pub(super) fn measure_gain(
     run: &Run,
     slot: usize,
-    e: &[f64],
+    e: &SeriesBank,
     terms: &FittedTerms,
     extended: &ChannelModelSims,
     selection: Selection,
@@ -234,7 +271,7 @@ pub(super) fn measure_gain(
         effects: &no_effects,
         intercept: 0.0,
     };
-    let e_wv = log_wv(&Series::Held(e), run.dt_s, run.max_wv_level());
+    let e_wv = with_bank_series(e, 0, |e| log_wv(e, run.dt_s, run.max_wv_level()))?;
     // The same random numbers for both: an extended model that kept nothing is the
     // baseline, to the digit.
     let base_sims = simulate_model(run, slot, terms, &baseline, 0..n, 11)?;
@@ -251,4 +288,50 @@ pub(super) fn measure_gain(
         not_kept: selection.not_kept,
     };
     Ok((gain, wv_curves))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    /// A drawn series gets the batch estimator up to 2^20 samples and the streamed one
+    /// above, whose overlapping levels are the batch's.
+    #[test]
+    fn a_noise_models_wavelet_variance_is_the_batch_one_held_or_drawn() {
+        let mut rng = ChaCha8Rng::seed_from_u64(61);
+        let mut walk = 0.0;
+        let x: Vec<f64> = (0..(1 << 20) + 5_000)
+            .map(|_| {
+                walk += 1e-3 * rng.sample::<f64, _>(StandardNormal);
+                walk + rng.sample::<f64, _>(StandardNormal)
+            })
+            .collect();
+        let drawn = |x: &[f64]| {
+            let draw = |visit: &mut dyn FnMut(&[f64])| x.chunks(4_096).for_each(&mut *visit);
+            fit_wv(
+                &Series::Drawn {
+                    len: x.len(),
+                    draw: &draw,
+                },
+                0.01,
+            )
+            .unwrap()
+        };
+        let short = &x[..200_000];
+        let held = fit_wv(&Series::Held(short), 0.01).unwrap();
+        assert_eq!(drawn(short).variance, held.variance);
+        let batch = fit_wv(&Series::Held(&x), 0.01).unwrap();
+        let streamed = drawn(&x);
+        assert_eq!(streamed.levels, batch.levels);
+        for (j, (s, b)) in streamed.variance.iter().zip(&batch.variance).enumerate() {
+            let overlapping = j < HaarWvStream::DEFAULT_FULL_LEVELS as usize;
+            let tolerance = if overlapping { 1e-9 } else { 0.5 };
+            assert!((s / b - 1.0).abs() < tolerance, "level {}: {s} {b}", j + 1);
+        }
+        let mut broken = short.to_vec();
+        broken[7] = f64::NAN;
+        assert!(fit_wv(&Series::Held(&broken), 0.01).is_none());
+    }
 }

@@ -18,7 +18,8 @@
 use nalgebra::{DMatrix, DVector};
 
 use super::engine::{DiagnoseError, NotKept, Run};
-use super::gain::{misfit_over, variance_explained_over, ChannelModelSims};
+use super::gain::{fit_wv, misfit_over, variance_explained_over, ChannelModelSims};
+use super::stats::Series;
 use super::stochastic::StochasticFindings;
 use super::terms::{Coefficient, FittedTerms};
 use crate::gmwm::fit::{FitInput, FitOptions};
@@ -26,8 +27,7 @@ use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
 use crate::model::{Cause, ChannelModel};
 use crate::regress::{column_scale, solve_scaled};
-use crate::series_bank::BlockVisit;
-use crate::wv::{haar_wv, WvOptions};
+use crate::series_bank::{BlockVisit, SeriesBank};
 
 /// Smallest relative decrease of the cross-validated misfit that lets an effect in: below
 /// it, the difference is within what the simulations' own noise moves the score.
@@ -138,14 +138,15 @@ pub(super) fn kept_coefficients(terms: &FittedTerms, kept: &[Component]) -> Vec<
         .collect()
 }
 
-/// The kept terms' coefficients refitted on `e` over the epochs of `train` alone
+/// The kept terms' coefficients refitted on the error `e` (the one series of a bank) over
+/// the epochs of `train` alone
 /// ([`slopes_over`]); intervals and shares stay those of the whole run. A term constant over
 /// `train` (collinear with the intercept), or too few epochs, keeps its whole-run
 /// coefficient.
 fn coefficients_on(
     terms: &FittedTerms,
     kept: &[Component],
-    e: &[f64],
+    e: &SeriesBank,
     train: &[std::ops::Range<usize>],
 ) -> Result<Vec<Coefficient>, DiagnoseError> {
     let mut all = kept_coefficients(terms, kept);
@@ -184,13 +185,14 @@ fn coefficients_on(
 type ColumnBlocks<'c> =
     dyn Fn(std::ops::Range<usize>, &mut BlockVisit<'_>) -> Result<(), DiagnoseError> + 'c;
 
-/// The slopes of an ordinary least-squares fit of `y` on an intercept and the series
+/// The slopes of an ordinary least-squares fit of `y` (the one series of a bank) on an
+/// intercept and the series
 /// `columns` of `blocks` over the epochs `ranges`, from the column-scaled normal equations
 /// as [`crate::regress::backward_elimination`] solves them, summed over the epochs rather
 /// than made from a design matrix of them (memory in the columns, not the epochs). None
 /// without a column, or with no more epochs than parameters plus one.
 fn slopes_over(
-    y: &[f64],
+    y: &SeriesBank,
     columns: &[usize],
     ranges: &[std::ops::Range<usize>],
     blocks: &ColumnBlocks<'_>,
@@ -203,20 +205,31 @@ fn slopes_over(
     let mut xtx = DMatrix::<f64>::zeros(p, p);
     let mut xty = DVector::<f64>::zeros(p);
     let mut row = vec![1.0; p];
+    let mut failed = None;
     for range in ranges {
         blocks(range.clone(), &mut |block, series| {
-            for (t, k) in block.enumerate() {
+            let y = match y.range(0, block) {
+                Ok(y) => y,
+                Err(e) => {
+                    failed.get_or_insert(e);
+                    return;
+                }
+            };
+            for (t, y) in y.iter().enumerate() {
                 for (slot, &c) in row[1..].iter_mut().zip(columns) {
                     *slot = series[c][t];
                 }
                 for a in 0..p {
-                    xty[a] += row[a] * y[k];
+                    xty[a] += row[a] * y;
                     for b in a..p {
                         xtx[(a, b)] += row[a] * row[b];
                     }
                 }
             }
         })?;
+    }
+    if let Some(e) = failed {
+        return Err(e.into());
     }
     let scale: Vec<f64> = (0..p).map(|a| column_scale(xtx[(a, a)].sqrt())).collect();
     let scaled = DMatrix::from_fn(p, p, |a, b| {
@@ -228,8 +241,8 @@ fn slopes_over(
 }
 
 /// The baseline's structure refitted on `residual`: the noise model of a training set.
-fn noise_model_on(spec: &ModelSpec, residual: &[f64], dt_s: f64) -> Option<ModelSpec> {
-    let wv = haar_wv(residual, dt_s, &WvOptions::default()).ok()?;
+fn noise_model_on(spec: &ModelSpec, residual: &Series, dt_s: f64) -> Option<ModelSpec> {
+    let wv = fit_wv(residual, dt_s)?;
     let input = FitInput::from_wv(&wv).ok()?;
     let fit = analyze(
         "residual",
@@ -248,7 +261,7 @@ struct Scoring<'a> {
     run: &'a Run<'a>,
     slot: usize,
     spec: &'a ModelSpec,
-    e: &'a [f64],
+    e: &'a SeriesBank,
     terms: &'a FittedTerms<'a>,
     found: &'a StochasticFindings,
 }
@@ -274,13 +287,11 @@ impl Scoring<'_> {
             let train = [0..edge(k), edge(k + 1)..n];
             let coefficients = coefficients_on(terms, kept, e, &train)?;
             let noise = keeps_noise_model(kept).then(|| {
-                let mut residual = Vec::with_capacity(n - test.len());
-                for r in &train {
-                    let d = terms.deterministic(&coefficients, r.clone())?;
-                    residual.extend(e[r.clone()].iter().zip(&d).map(|(a, b)| a - b));
-                }
                 Ok::<_, DiagnoseError>(
-                    noise_model_on(spec, &residual, run.dt_s)
+                    terms
+                        .with_residual(&coefficients, e, &train, |residual| {
+                            noise_model_on(spec, residual, run.dt_s)
+                        })?
                         .unwrap_or_else(|| found.stochastic.clone()),
                 )
             });
@@ -304,7 +315,7 @@ pub(super) fn select(
     run: &Run,
     slot: usize,
     spec: &ModelSpec,
-    e: &[f64],
+    e: &SeriesBank,
     terms: &FittedTerms,
     found: &StochasticFindings,
 ) -> Result<Selection, DiagnoseError> {
@@ -379,7 +390,9 @@ mod tests {
             }
             Ok(())
         };
-        let slopes = slopes_over(&y, &[0, 1, 2], &ranges, &blocks)
+        let mut y_bank = SeriesBank::new(n, false).unwrap();
+        y_bank.push(y.clone()).unwrap();
+        let slopes = slopes_over(&y_bank, &[0, 1, 2], &ranges, &blocks)
             .unwrap()
             .unwrap();
         let gathered: Vec<Vec<f64>> = columns.iter().map(|c| gather(c)).collect();
@@ -402,8 +415,11 @@ mod tests {
             );
         }
         assert!((slopes[0] - 2.0).abs() < 0.05 && (slopes[2] + 0.5).abs() < 0.05);
-        assert_eq!(slopes_over(&y, &[], &ranges, &blocks).unwrap(), None);
+        assert_eq!(slopes_over(&y_bank, &[], &ranges, &blocks).unwrap(), None);
         let four = [0..2, 2..4];
-        assert_eq!(slopes_over(&y, &[0, 1, 2], &four, &blocks).unwrap(), None);
+        assert_eq!(
+            slopes_over(&y_bank, &[0, 1, 2], &four, &blocks).unwrap(),
+            None
+        );
     }
 }

@@ -236,10 +236,10 @@ pub(super) struct Term<'a> {
     /// The body axis of the regressor (x, y, z = 0, 1, 2).
     pub axis: usize,
     /// The regressor, and what absorbs of it: the term's unfiltered signature on its own
-    /// channel ([`Term::own`]) is made from them when asked for rather than held.
+    /// channel ([`Term::own_in`]) is made from them when asked for rather than held.
     regressor: Regressor<'a>,
     absorber: Absorber<'a>,
-    /// Mean and variance of [`Term::own`] (channel unit / regressor unit, squared).
+    /// Mean and variance of [`Term::own_in`] (channel unit / regressor unit, squared).
     pub own_mean: f64,
     pub own_variance: f64,
     pub projection: Projection,
@@ -526,12 +526,7 @@ impl<'a> Term<'a> {
     }
 
     /// The regressor less what the calibration absorbs of it on its own channel, one value
-    /// per epoch (made anew at each call).
-    pub fn own(&self) -> Result<Vec<f64>, DiagnoseError> {
-        self.own_in(0..self.regressor.epochs())
-    }
-
-    /// [`Term::own`] over the epochs `epochs`.
+    /// per epoch of `epochs` (made anew at each call).
     pub fn own_in(&self, epochs: Range<usize>) -> Result<Vec<f64>, DiagnoseError> {
         self.absorber
             .own_in(self.channel, &self.regressor, &self.projection, epochs)
@@ -956,7 +951,7 @@ mod tests {
                 Term::join(&space, Channel::Gx, &candidate("step", step), &mut batch).unwrap();
             step.fix(0.03, 0.001, 1e-9);
             let whitener = space.whitener(0).unwrap();
-            let white = |t: &Term| whitener.apply(&t.own().unwrap());
+            let white = |t: &Term| whitener.apply(&t.own_in(0..n).unwrap());
             let mut white_error = Vec::new();
             space
                 .error(Channel::Gx)

@@ -86,22 +86,72 @@ pub fn with_bank_series<T>(
     k: usize,
     f: impl FnOnce(&Series) -> T,
 ) -> Result<T, SpillError> {
+    with_bank_series_in(bank, k, 0..bank.epochs(), f)
+}
+
+/// [`with_bank_series`] of the epochs `epochs` of series `k` alone.
+pub fn with_bank_series_in<T>(
+    bank: &SeriesBank,
+    k: usize,
+    epochs: std::ops::Range<usize>,
+    f: impl FnOnce(&Series) -> T,
+) -> Result<T, SpillError> {
     if !bank.is_spilled() {
-        return Ok(f(&Series::Held(&bank.series(k)?)));
+        return Ok(f(&Series::Held(&bank.range(k, epochs)?)));
     }
+    let draw = |visit: &mut dyn FnMut(&[f64])| {
+        bank.for_each_block_in(&[k], epochs.clone(), &mut |_, series| visit(series[0]))
+    };
+    drawn_from(epochs.len(), &draw, f)
+}
+
+/// A block of a series made from the same block of another: `map(epochs, block, out)`
+/// fills `out` (cleared) from the source's `block` over `epochs`.
+pub type BlockMap<'m> = dyn Fn(std::ops::Range<usize>, &[f64], &mut Vec<f64>) + Sync + 'm;
+
+/// `f` of the series `map` makes of the epochs `epochs` of series `k` of `bank`, a block of
+/// [`crate::series_bank::block_ranges`] at a time at each reading (held or spilled alike):
+/// a residual less a fitted line, scored without being held.
+pub fn with_mapped_bank_series<T>(
+    bank: &SeriesBank,
+    k: usize,
+    epochs: std::ops::Range<usize>,
+    map: &BlockMap<'_>,
+    f: impl FnOnce(&Series) -> T,
+) -> Result<T, SpillError> {
+    let draw = |visit: &mut dyn FnMut(&[f64])| {
+        let mut out = Vec::with_capacity(crate::series_bank::BANK_BLOCK_EPOCHS);
+        for range in crate::series_bank::block_ranges(epochs.clone()) {
+            let block = bank.range(k, range.clone())?;
+            out.clear();
+            map(range, &block, &mut out);
+            visit(&out);
+        }
+        Ok(())
+    };
+    drawn_from(epochs.len(), &draw, f)
+}
+
+/// Blocks drawn by a reader that can fail.
+pub type FallibleDraw<'a, E> = dyn Fn(&mut dyn FnMut(&[f64])) -> Result<(), E> + Sync + 'a;
+
+/// `f` of the series of `len` samples `draw` reads at each reading; the first read that
+/// failed is the error returned, after `f`.
+pub fn drawn_from<T, E: Send>(
+    len: usize,
+    draw: &FallibleDraw<'_, E>,
+    f: impl FnOnce(&Series) -> T,
+) -> Result<T, E> {
     let failed = std::sync::Mutex::new(None);
     let draw = |visit: &mut dyn FnMut(&[f64])| {
-        if let Err(e) = bank.for_each_block_of(&[k], &mut |_, series| visit(series[0])) {
+        if let Err(e) = draw(visit) {
             failed
                 .lock()
                 .unwrap_or_else(|poisoned| poisoned.into_inner())
                 .get_or_insert(e);
         }
     };
-    let out = f(&Series::Drawn {
-        len: bank.epochs(),
-        draw: &draw,
-    });
+    let out = f(&Series::Drawn { len, draw: &draw });
     match failed.into_inner().unwrap_or_else(|p| p.into_inner()) {
         Some(e) => Err(e),
         None => Ok(out),
@@ -1025,6 +1075,21 @@ mod tests {
             }
             assert_eq!(bank.is_spilled(), spill);
             figures.push(with_bank_series(&bank, 1, scan).unwrap());
+            // A part of the series, and a series made from it a block at a time.
+            let part = 5_000..33_333;
+            let read = with_bank_series_in(&bank, 1, part.clone(), series_variance).unwrap();
+            assert_eq!(read, series_variance(&Series::Held(&x[part.clone()])));
+            let map = |epochs: std::ops::Range<usize>, block: &[f64], out: &mut Vec<f64>| {
+                out.extend(block.iter().zip(epochs).map(|(v, i)| 2.0 * v + i as f64));
+            };
+            let mapped = with_mapped_bank_series(&bank, 1, part.clone(), &map, |s| {
+                let mut all = Vec::new();
+                s.for_each_block(&mut |block| all.extend_from_slice(block));
+                all
+            })
+            .unwrap();
+            let want: Vec<f64> = part.map(|i| 2.0 * x[i] + i as f64).collect();
+            assert_eq!(mapped, want);
         }
         assert_eq!(figures[0], figures[1]);
         assert_eq!(figures[0], scan(&Series::Held(&x)));

@@ -14,12 +14,13 @@ use super::draws::ChannelSimulation;
 use super::engine::{
     ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run, WV_MIN_LOG_DEVIATION,
 };
-use super::gain::{log_wv, LogWv};
+use super::gain::{fit_wv, log_wv, LogWv};
 use super::null::{normal_p_value, poisson_upper_tail, wv_level_test, LevelTest};
 use super::readable::significant;
 use super::stats::{
-    find_outliers, find_outliers_in, noise_vs_window_dynamics, outlier_process, spectral_lines,
-    welch_psd, Series, SeriesSet, SpectralLine,
+    find_outliers, find_outliers_in, noise_vs_window_dynamics, outlier_process, series_variance,
+    spectral_lines, welch_psd, with_bank_series, with_mapped_bank_series, Series, SeriesSet,
+    SpectralLine,
 };
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, parameter_values, ModelChoice};
@@ -27,7 +28,8 @@ use crate::gmwm::model::ModelSpec;
 use crate::model::{
     Cause, Channel, ChannelModel, DynamicDriver, DynamicNoise, Outliers, VibrationLine,
 };
-use crate::wv::{eta3, haar_wv, level_coefficients, WvOptions};
+use crate::series_bank::SeriesBank;
+use crate::wv::{eta3, level_coefficients, WaveletVariance};
 
 /// What the stochastic stage found on one channel.
 pub(super) struct StochasticFindings {
@@ -44,15 +46,16 @@ pub(super) struct StochasticFindings {
     pub notes: Vec<String>,
 }
 
-/// Runs the tests in order on `resid` (the channel's error `e` less its deterministic
-/// terms and bias), `sims` being the channel's baseline simulations.
+/// Runs the tests in order on `resid` (the one series of a bank: the channel's error less
+/// its deterministic terms and bias, changed in place as effects are taken out of it), the
+/// error's variance being `var_e` and `sims` the channel's baseline simulations.
 pub(super) fn find_stochastic_effects(
     run: &Run,
     slot: usize,
     channel: Channel,
     spec: &ModelSpec,
-    e: &[f64],
-    mut resid: Vec<f64>,
+    var_e: f64,
+    resid: &mut SeriesBank,
     sims: &impl SeriesSet,
 ) -> Result<StochasticFindings, DiagnoseError> {
     let mut found = StochasticFindings {
@@ -66,14 +69,14 @@ pub(super) fn find_stochastic_effects(
     // noise that grows in the manoeuvres are not outliers, and the outlier search then runs
     // on the residual scaled back to the quiet noise level.
     let noise_scale = if run.has_dynamics {
-        noise_growth(run, channel, e, &resid, sims, &mut found)
+        noise_growth(run, channel, var_e, resid, sims, &mut found)?
     } else {
         None
     };
-    outliers(run, channel, e, &mut resid, noise_scale, sims, &mut found)?;
-    vibration_lines(run, channel, e, &mut resid, sims, &mut found);
-    quantization(run, channel, e, &mut found);
-    noise_change(run, slot, channel, spec, &resid, sims, &mut found)?;
+    outliers(run, channel, var_e, resid, noise_scale, sims, &mut found)?;
+    vibration_lines(run, channel, var_e, resid, sims, &mut found)?;
+    quantization(run, channel, var_e, &mut found);
+    noise_change(run, slot, channel, spec, resid, sims, &mut found)?;
     Ok(found)
 }
 
@@ -88,13 +91,15 @@ pub(super) fn noise_window(dt_s: f64) -> usize {
 fn noise_growth(
     run: &Run,
     channel: Channel,
-    e: &[f64],
-    resid: &[f64],
+    var_e: f64,
+    resid: &SeriesBank,
     sims: &impl SeriesSet,
     found: &mut StochasticFindings,
-) -> Option<(f64, f64)> {
+) -> Result<Option<(f64, f64)>, DiagnoseError> {
     let window = noise_window(run.dt_s);
-    let nd = noise_vs_window_dynamics(&Series::Held(resid), &run.omega2_windows, window);
+    let nd = with_bank_series(resid, 0, |r| {
+        noise_vs_window_dynamics(r, &run.omega2_windows, window)
+    })?;
     let sim_t: Vec<f64> =
         sims.map_each(&|s| noise_vs_window_dynamics(s, &run.omega2_windows, window).t);
     let range = simulated_range(&sim_t);
@@ -102,7 +107,7 @@ fn noise_growth(
         && nd.sigma_per_unit > 0.0
         && nd.sigma_per_unit_ci95[0] > 0.0)
     {
-        return None;
+        return Ok(None);
     }
     found.discrepancies.push(Discrepancy {
         channel,
@@ -117,14 +122,14 @@ fn noise_growth(
         regressors: vec!["|omega| (rad/s)".into()],
         estimate: json!(nd.sigma_per_unit),
         ci95: json!(nd.sigma_per_unit_ci95),
-        variance_explained: nd.sigma_per_unit.powi(2) * run.mean_omega2 / variance(e),
+        variance_explained: nd.sigma_per_unit.powi(2) * run.mean_omega2 / var_e,
         p_value: Some(run.family_p(normal_p_value(nd.t))),
     });
     found.effects.dynamic_noise = Some(DynamicNoise {
         driver: DynamicDriver::AngularRateNorm,
         sigma_per_unit: nd.sigma_per_unit,
     });
-    Some((nd.intercept.max(0.0), nd.slope))
+    Ok(Some((nd.intercept.max(0.0), nd.slope)))
 }
 
 /// Outliers beyond 6 robust sigma, more than the baseline simulations show. Named only when
@@ -135,34 +140,38 @@ fn noise_growth(
 fn outliers(
     run: &Run,
     channel: Channel,
-    e: &[f64],
-    resid: &mut [f64],
+    var_e: f64,
+    resid: &mut SeriesBank,
     noise_scale: Option<(f64, f64)>,
     sims: &impl SeriesSet,
     found: &mut StochasticFindings,
 ) -> Result<(), DiagnoseError> {
     let n = run.n;
-    let held: &[f64] = resid;
+    let held: &SeriesBank = resid;
     let scaled = |visit: &mut dyn FnMut(&[f64])| -> Result<(), DiagnoseError> {
         match noise_scale {
             Some((var0, slope)) if var0 > 0.0 => {
-                let mut block = Vec::new();
+                let (mut block, mut failed) = (Vec::new(), None);
                 run.signals
                     .for_each_angular_rate_norm(0..n, &mut |epochs, omega| {
+                        let r = match held.range(0, epochs) {
+                            Ok(r) => r,
+                            Err(e) => {
+                                failed.get_or_insert(e);
+                                return;
+                            }
+                        };
                         block.clear();
                         block.extend(
-                            held[epochs]
-                                .iter()
+                            r.iter()
                                 .zip(omega)
                                 .map(|(r, w)| r * (var0 / (var0 + slope * w * w)).sqrt()),
                         );
                         visit(&block);
-                    })
+                    })?;
+                failed.map_or(Ok(()), |e| Err(e.into()))
             }
-            _ => {
-                visit(held);
-                Ok(())
-            }
+            _ => Ok(held.for_each_block_of(&[0], &mut |_, r| visit(r[0]))?),
         }
     };
     let out = find_outliers_in(n, 11, 6.0, &scaled)?;
@@ -172,23 +181,22 @@ fn outliers(
         return Ok(());
     }
     let half_window = 5usize;
-    let local_median: Vec<f64> = out
+    // Each outlier's local median, and its deviation from it.
+    let (local_median, devs): (Vec<f64>, Vec<f64>) = out
         .indices
         .iter()
         .map(|&i| {
             let lo = i.saturating_sub(half_window);
             let hi = (i + half_window + 1).min(n);
-            let mut b: Vec<f64> = resid[lo..hi].to_vec();
+            let mut b: Vec<f64> = resid.range(0, lo..hi)?.into_owned();
+            let at = b[i - lo];
             let m = b.len() / 2;
-            *b.select_nth_unstable_by(m, f64::total_cmp).1
+            let median = *b.select_nth_unstable_by(m, f64::total_cmp).1;
+            Ok((median, at - median))
         })
-        .collect();
-    let devs: Vec<f64> = out
-        .indices
-        .iter()
-        .zip(&local_median)
-        .map(|(&i, m)| resid[i] - m)
-        .collect();
+        .collect::<Result<Vec<_>, DiagnoseError>>()?
+        .into_iter()
+        .unzip();
     let op = outlier_process(
         &out.scaled_deviations,
         6.0 * out.robust_sigma,
@@ -221,7 +229,7 @@ fn outliers(
     if !(op.separated && op.probability_ci95[0] > 0.0 && p < run.alpha_test) {
         return Ok(());
     }
-    let ve = devs.iter().map(|d| d * d).sum::<f64>() / n as f64 / variance(e);
+    let ve = devs.iter().map(|d| d * d).sum::<f64>() / n as f64 / var_e;
     found.findings.push(Finding {
         channel,
         cause: Cause::Outliers,
@@ -238,57 +246,76 @@ fn outliers(
         probability: op.probability_per_sample,
         sigma: op.sigma,
     });
-    for (&i, m) in out.indices.iter().zip(&local_median) {
-        resid[i] = *m;
-    }
+    // The indices come in order: each block takes the run of them inside it.
+    let mut next = 0;
+    resid.update(0, &mut |epochs, values| {
+        while next < out.indices.len() && out.indices[next] < epochs.end {
+            values[out.indices[next] - epochs.start] = local_median[next];
+            next += 1;
+        }
+    })?;
     Ok(())
 }
 
-/// Least-squares sinusoid a sin(w t) + b cos(w t) at `f_hz` in `y` sampled every `dt_s`.
-fn fit_sinusoid(f_hz: f64, y: &[f64], dt_s: f64) -> (f64, f64) {
-    let w = std::f64::consts::TAU * f_hz;
-    let (mut ss, mut cc, mut sc, mut ys, mut yc) = (0.0, 0.0, 0.0, 0.0, 0.0);
-    for (i, v) in y.iter().enumerate() {
-        let (s, c) = (w * i as f64 * dt_s).sin_cos();
-        ss += s * s;
-        cc += c * c;
-        sc += s * c;
-        ys += v * s;
-        yc += v * c;
-    }
-    let d = ss * cc - sc * sc;
-    if d <= 0.0 {
-        return (0.0, 0.0);
-    }
-    ((ys * cc - yc * sc) / d, (yc * ss - ys * sc) / d)
+/// Least-squares sinusoids a sin(w t) + b cos(w t) at each of `freqs_hz` in `y` sampled
+/// every `dt_s`, all in one pass over `y`.
+fn fit_sinusoids(freqs_hz: &[f64], y: &Series, dt_s: f64) -> Vec<(f64, f64)> {
+    let ws: Vec<f64> = freqs_hz.iter().map(|f| std::f64::consts::TAU * f).collect();
+    // ss, cc, sc, ys, yc of each frequency.
+    let mut sums = vec![[0.0f64; 5]; ws.len()];
+    let mut first = 0usize;
+    y.for_each_block(&mut |block| {
+        for (w, [ss, cc, sc, ys, yc]) in ws.iter().zip(sums.iter_mut()) {
+            for (k, v) in block.iter().enumerate() {
+                let (s, c) = (w * (first + k) as f64 * dt_s).sin_cos();
+                *ss += s * s;
+                *cc += c * c;
+                *sc += s * c;
+                *ys += v * s;
+                *yc += v * c;
+            }
+        }
+        first += block.len();
+    });
+    sums.iter()
+        .map(|[ss, cc, sc, ys, yc]| {
+            let d = ss * cc - sc * sc;
+            if d <= 0.0 {
+                return (0.0, 0.0);
+            }
+            ((ys * cc - yc * sc) / d, (yc * ss - ys * sc) / d)
+        })
+        .collect()
 }
 
 /// The frequency of a line found in a PSD bin of width `bin_hz`, refined within the bin by
 /// the power of the fitted sinusoid: over minutes a half-bin error would turn the fit into
 /// nothing.
-fn refine_line_frequency(freq_hz: f64, bin_hz: f64, y: &[f64], dt_s: f64) -> f64 {
-    let power = |f_hz: f64| {
-        let (a, b) = fit_sinusoid(f_hz, y, dt_s);
-        a * a + b * b
+fn refine_line_frequency(freq_hz: f64, bin_hz: f64, y: &Series, dt_s: f64) -> f64 {
+    // The frequency of greatest power among `freqs_hz` (the first of equals), from `start`.
+    let strongest = |freqs_hz: Vec<f64>, start: (f64, f64)| {
+        let fits = fit_sinusoids(&freqs_hz, y, dt_s);
+        freqs_hz
+            .into_iter()
+            .zip(fits)
+            .fold(start, |best, (f_hz, (a, b))| {
+                let p = a * a + b * b;
+                if p > best.1 {
+                    (f_hz, p)
+                } else {
+                    best
+                }
+            })
     };
-    let mut best = (freq_hz, 0.0);
-    for k in -40..=40 {
-        let f_hz = freq_hz + k as f64 * bin_hz / 40.0;
-        let p = power(f_hz);
-        if p > best.1 {
-            best = (f_hz, p);
-        }
-    }
+    let coarse: Vec<f64> = (-40..=40)
+        .map(|k| freq_hz + k as f64 * bin_hz / 40.0)
+        .collect();
+    let best = strongest(coarse, (freq_hz, 0.0));
     let span = bin_hz / 40.0;
-    let mut fine = best;
-    for k in -20..=20 {
-        let f_hz = best.0 + k as f64 * span / 20.0;
-        let p = power(f_hz);
-        if p > fine.1 {
-            fine = (f_hz, p);
-        }
-    }
-    fine.0
+    let fine: Vec<f64> = (-20..=20)
+        .map(|k| best.0 + k as f64 * span / 20.0)
+        .collect();
+    strongest(fine, best).0
 }
 
 /// Spectral lines of the residual (from 1 Hz, and at least 16 PSD bins, up): each is fitted
@@ -296,15 +323,17 @@ fn refine_line_frequency(freq_hz: f64, bin_hz: f64, y: &[f64], dt_s: f64) -> f64
 fn vibration_lines(
     run: &Run,
     channel: Channel,
-    e: &[f64],
-    resid: &mut [f64],
+    var_e: f64,
+    resid: &mut SeriesBank,
     sims: &impl SeriesSet,
     found: &mut StochasticFindings,
-) {
+) -> Result<(), DiagnoseError> {
     let (n, dt_s) = (run.n, run.dt_s);
     let seg = 1usize << ((n as f64 / 16.0).log2().floor() as u32).clamp(6, 12);
     let min_line_hz = (1.0f64).max(16.0 / (seg as f64 * dt_s));
-    let lines = spectral_lines(&welch_psd(&Series::Held(resid), dt_s, seg), run.alpha_test);
+    let lines = with_bank_series(resid, 0, |r| {
+        spectral_lines(&welch_psd(r, dt_s, seg), run.alpha_test)
+    })?;
     let sim_lines: Vec<f64> = sims.map_first(8, &|s| {
         spectral_lines(&welch_psd(s, dt_s, seg), run.alpha_test)
             .iter()
@@ -313,27 +342,34 @@ fn vibration_lines(
     });
     for line in lines.iter().filter(|l| l.freq_hz >= min_line_hz) {
         let bin_hz = 1.0 / (seg as f64 * dt_s);
-        let freq_hz = refine_line_frequency(line.freq_hz, bin_hz, resid, dt_s);
+        let (freq_hz, (a, b)) = with_bank_series(resid, 0, |r| {
+            let freq_hz = refine_line_frequency(line.freq_hz, bin_hz, r, dt_s);
+            (freq_hz, fit_sinusoids(&[freq_hz], r, dt_s)[0])
+        })?;
         let w = std::f64::consts::TAU * freq_hz;
-        let (a, b) = fit_sinusoid(freq_hz, resid, dt_s);
         let amp = (a * a + b * b).sqrt();
-        let after: Vec<f64> = resid
-            .iter()
-            .enumerate()
-            .map(|(i, y)| {
-                let (s, c) = (w * i as f64 * dt_s).sin_cos();
-                y - (a * s + b * c)
-            })
-            .collect();
+        let sinusoid = |i: usize| {
+            let (s, c) = (w * i as f64 * dt_s).sin_cos();
+            a * s + b * c
+        };
+        let less_line = |epochs: std::ops::Range<usize>, block: &[f64], out: &mut Vec<f64>| {
+            out.extend(block.iter().zip(epochs).map(|(y, i)| y - sinusoid(i)));
+        };
+        let var_after = with_mapped_bank_series(resid, 0, 0..n, &less_line, series_variance)?;
         // Statistical error of a least-squares sinusoid, plus a 3% allowance for what the
         // sampling does to a line near or above Nyquist (clock jitter, the boresight
         // rotation mixing axes), which the statistical part ignores.
-        let noise = ((variance(&after) * 2.0 / n as f64) + (0.015 * amp).powi(2)).sqrt();
+        let noise = ((var_after * 2.0 / n as f64) + (0.015 * amp).powi(2)).sqrt();
         let interval = ci(amp, noise);
         if interval[0] <= 0.0 {
             continue;
         }
-        resid.copy_from_slice(&after);
+        resid.update(0, &mut |epochs, values| {
+            values
+                .iter_mut()
+                .zip(epochs)
+                .for_each(|(y, i)| *y -= sinusoid(i));
+        })?;
         let line = SpectralLine {
             freq_hz,
             ..line.clone()
@@ -351,7 +387,7 @@ fn vibration_lines(
             regressors: vec![format!("sinusoid at {:.3} Hz (as sampled)", line.freq_hz)],
             estimate: json!(amp),
             ci95: json!(interval),
-            variance_explained: amp * amp / 2.0 / variance(e),
+            variance_explained: amp * amp / 2.0 / var_e,
             p_value: Some(run.family_p(line.p_value)),
         });
         found.effects.vibration_lines.push(VibrationLine {
@@ -360,10 +396,11 @@ fn vibration_lines(
             phase_rad: 0.0,
         });
     }
+    Ok(())
 }
 
 /// Quantization: the raw sensor values on a lattice the baseline does not have.
-fn quantization(run: &Run, channel: Channel, e: &[f64], found: &mut StochasticFindings) {
+fn quantization(run: &Run, channel: Channel, var_e: f64, found: &mut StochasticFindings) {
     let Some((q, q_se)) = run.raw_lattice[channel.index()] else {
         return;
     };
@@ -380,7 +417,7 @@ fn quantization(run: &Run, channel: Channel, e: &[f64], found: &mut StochasticFi
         regressors: vec!["lsb".into()],
         estimate: json!(q),
         ci95: json!(ci(q, q_se)),
-        variance_explained: q * q / 12.0 / variance(e),
+        variance_explained: q * q / 12.0 / var_e,
         p_value: None,
     });
     found.effects.quantization_step = Some(q);
@@ -431,12 +468,12 @@ fn noise_change(
     slot: usize,
     channel: Channel,
     spec: &ModelSpec,
-    resid: &[f64],
+    resid: &SeriesBank,
     sims: &impl SeriesSet,
     found: &mut StochasticFindings,
 ) -> Result<(), DiagnoseError> {
     let (dt_s, max_level) = (run.dt_s, run.max_wv_level());
-    let measured_wv = log_wv(&Series::Held(resid), dt_s, max_level);
+    let measured_wv = with_bank_series(resid, 0, |r| log_wv(r, dt_s, max_level))?;
     let sim_wv: Vec<Vec<f64>> = match found.effects.dynamic_noise {
         None => sims.map_each(&|s| log_wv(s, dt_s, max_level)),
         Some(_) => {
@@ -472,7 +509,7 @@ fn noise_change(
             wv_level_test(
                 measured_wv[j],
                 &sims_j,
-                eta3(level_coefficients(resid.len(), level), level),
+                eta3(level_coefficients(run.n, level), level),
                 run.alpha_test,
             )
         })
@@ -541,22 +578,23 @@ fn noise_change(
         });
     }
     let p = bad.iter().map(|&j| tests[j].p_value).fold(1.0, f64::min);
-    refit_noise(channel, spec, resid, dt_s, &bad, run.family_p(p), found);
+    let wv = with_bank_series(resid, 0, |r| fit_wv(r, dt_s))?;
+    refit_noise(channel, spec, wv, &bad, run.family_p(p), found);
     Ok(())
 }
 
-/// Refits the baseline's structure on what remains and names the changed parameters: the
-/// white noise when only the two finest levels are off, the correlated processes otherwise.
+/// Refits the baseline's structure on the wavelet variance `wv` of what remains (none: too
+/// short to have one) and names the changed parameters: the white noise when only the two
+/// finest levels are off, the correlated processes otherwise.
 fn refit_noise(
     channel: Channel,
     spec: &ModelSpec,
-    resid: &[f64],
-    dt_s: f64,
+    wv: Option<WaveletVariance>,
     bad_levels: &[usize],
     p_value: f64,
     found: &mut StochasticFindings,
 ) {
-    let Ok(wv) = haar_wv(resid, dt_s, &WvOptions::default()) else {
+    let Some(wv) = wv else {
         return;
     };
     let Ok(input) = FitInput::from_wv(&wv) else {

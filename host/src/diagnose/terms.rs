@@ -9,7 +9,7 @@
 
 use serde_json::json;
 
-use super::engine::{ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run};
+use super::engine::{ci, simulated_range, DiagnoseError, Discrepancy, Finding, Run};
 use super::moments::{
     eliminate_on_moments, full_fit_residual, gram_matrix, Batch, MeasuredSpread, Regressor, Term,
     WhiteSpace,
@@ -17,14 +17,14 @@ use super::moments::{
 use super::null::{normal_p_value, scan_p_value};
 use super::signals::Dynamics;
 use super::stats::{
-    local_step_null_sd, local_step_robust_sd, local_step_scan, series_variance, step_sharpness,
-    with_bank_series, Series, SeriesSet,
+    drawn_from, local_step_null_sd, local_step_robust_sd, local_step_scan, series_variance,
+    step_sharpness, with_bank_series, Series, SeriesSet,
 };
 use super::white_space::SimReader;
 use super::whiten::Whitener;
 use crate::calibration::DesignRows;
 use crate::model::{Cause, Channel};
-use crate::series_bank::{BlockVisit, SeriesBank};
+use crate::series_bank::{block_ranges, BlockVisit, SeriesBank, BANK_BLOCK_EPOCHS};
 
 /// True when a term's share of the error variance reaches `min`; a NaN share (an error
 /// without variance) never does.
@@ -548,12 +548,14 @@ impl Coefficient {
 /// (`coefficients[k]` belongs to `terms[k]`) and the bias left beside them.
 pub(super) struct FittedTerms<'a> {
     pub terms: Vec<Term<'a>>,
-    /// Each term's [`Term::own`], made once (the gain's simulations read them over and
+    /// Each term's [`Term::own_in`], made once (the gain's simulations read them over and
     /// over): held on a short run, in a temporary file on a long one.
     own: SeriesBank,
     pub coefficients: Vec<Coefficient>,
     /// Mean error the terms leave, channel unit.
     pub intercept: f64,
+    /// The channel error's variance, channel unit squared.
+    pub var_e: f64,
     /// Time of the bias step, s from the start of the sensor recording, if one was kept.
     pub step_at_s: Option<f64>,
 }
@@ -570,17 +572,17 @@ const TERM_CAUSES: [Cause; 6] = [
 
 impl<'a> FittedTerms<'a> {
     /// The terms `found` on `channel`, whose error (as the joint calibration leaves it) is
-    /// `e`. A term whose final interval (widened by the time offset's uncertainty where it
+    /// the one series of the bank `e`. A term whose final interval (widened by the time offset's uncertainty where it
     /// rides on the channel's own derivative) no longer excludes zero at the run's per-test
     /// level is dropped: a finding means its effect is there.
     pub fn new(
         run: &Run,
         channel: Channel,
         found: ChannelTerms<'a>,
-        e: &[f64],
+        e: &SeriesBank,
     ) -> Result<Self, DiagnoseError> {
         let n = run.n;
-        let var_e = variance(e);
+        let (var_e, e_sum) = with_bank_series(e, 0, |e| (series_variance(e), e.sum()))?;
         let offset_sigma_s = run
             .calibration
             .and_then(|c| c.time_offset_s)
@@ -611,25 +613,27 @@ impl<'a> FittedTerms<'a> {
             })
             .filter(|(_, c)| c.p_value < run.alpha_test)
             .unzip();
-        let intercept = e.iter().sum::<f64>() / n as f64
-            - terms.iter().map(|t| t.coef * t.own_mean).sum::<f64>();
+        let intercept = e_sum / n as f64 - terms.iter().map(|t| t.coef * t.own_mean).sum::<f64>();
         let step_kept = terms.iter().any(|t| t.cause == Cause::BiasShift);
-        let mut own = SeriesBank::new(n, run.is_long())?;
-        for t in &terms {
-            own.push(t.own()?)?;
+        let mut own = SeriesBank::columns(n, terms.len(), run.is_long())?;
+        for epochs in block_ranges(0..n) {
+            for (k, t) in terms.iter().enumerate() {
+                own.write(k, epochs.start, &t.own_in(epochs.clone())?)?;
+            }
         }
         Ok(Self {
             own,
             terms,
             coefficients,
             intercept,
+            var_e,
             step_at_s: found.step_at_s.filter(|_| step_kept),
         })
     }
 
     /// `visit(epochs, owns)` for each block of `range` in order, `owns` being each kept
     /// term's regressor less what the calibration absorbs of it on the channel
-    /// ([`Term::own`]) over the block, in [`FittedTerms::terms`] order.
+    /// ([`Term::own_in`]) over the block, in [`FittedTerms::terms`] order.
     pub fn for_each_own_block(
         &self,
         range: std::ops::Range<usize>,
@@ -637,6 +641,51 @@ impl<'a> FittedTerms<'a> {
     ) -> Result<(), DiagnoseError> {
         let all: Vec<usize> = (0..self.own.len()).collect();
         Ok(self.own.for_each_block_in(&all, range, visit)?)
+    }
+
+    /// The residual of the error `e` (the one series of a bank) over the run: less the
+    /// terms' deterministic part and the intercept, made a block at a time into a bank of
+    /// its own (spilled when `spill`).
+    pub fn residual(&self, e: &SeriesBank, spill: bool) -> Result<SeriesBank, DiagnoseError> {
+        let n = e.epochs();
+        let mut resid = SeriesBank::columns(n, 1, spill)?;
+        let mut r = Vec::with_capacity(BANK_BLOCK_EPOCHS);
+        for epochs in block_ranges(0..n) {
+            r.clear();
+            r.resize(epochs.len(), 0.0);
+            self.add_deterministic(&self.coefficients, epochs.clone(), 0.0, &mut r)?;
+            let e = e.range(0, epochs.clone())?;
+            r.iter_mut()
+                .zip(e.iter())
+                .for_each(|(r, e)| *r = e - self.intercept - *r);
+            resid.write(0, epochs.start, &r)?;
+        }
+        Ok(resid)
+    }
+
+    /// `f` of the error `e` (the one series of a bank) less the deterministic part of
+    /// `coefficients` over the epochs of `ranges`, joined in order, a block at a time at
+    /// each reading: a training set's residual, or a test set's, without holding it.
+    pub fn with_residual<T>(
+        &self,
+        coefficients: &[Coefficient],
+        e: &SeriesBank,
+        ranges: &[std::ops::Range<usize>],
+        f: impl FnOnce(&Series) -> T,
+    ) -> Result<T, DiagnoseError> {
+        let draw = |visit: &mut dyn FnMut(&[f64])| -> Result<(), DiagnoseError> {
+            for range in ranges {
+                for epochs in block_ranges(range.clone()) {
+                    let mut left = self.deterministic(coefficients, epochs.clone())?;
+                    let e = e.range(0, epochs)?;
+                    left.iter_mut().zip(e.iter()).for_each(|(d, a)| *d = a - *d);
+                    visit(&left);
+                }
+            }
+            Ok(())
+        };
+        let len = ranges.iter().map(|r| r.len()).sum();
+        drawn_from(len, &draw, f)
     }
 
     /// The deterministic part of the error over `range` with these `coefficients` (one per
