@@ -587,7 +587,7 @@ pub(super) fn full_fit_residual(
     run: &Run,
     channel: Channel,
     terms: &[Term],
-    steps_elsewhere: Option<&[f64]>,
+    steps_elsewhere: Option<&SeriesBank>,
 ) -> Result<SeriesBank, DiagnoseError> {
     let k = terms.len();
     let beta = if k == 0 {
@@ -616,13 +616,19 @@ pub(super) fn full_fit_residual(
         bank.write(0, epochs.start, &r)?;
     }
     let m = sum / run.n.max(1) as f64;
+    let mut failed = None;
     bank.update(0, &mut |epochs, r| {
         r.iter_mut().for_each(|v| *v -= m);
         if let Some(spill) = steps_elsewhere {
-            r.iter_mut().zip(&spill[epochs]).for_each(|(v, s)| *v += s);
+            match spill.range(0, epochs) {
+                Ok(spill) => r.iter_mut().zip(spill.iter()).for_each(|(v, s)| *v += s),
+                Err(e) => {
+                    failed.get_or_insert(e);
+                }
+            }
         }
     })?;
-    Ok(bank)
+    failed.map_or(Ok(bank), |e| Err(e.into()))
 }
 
 /// Coefficients, null standard deviations and |z| of a least-squares fit on moments.
@@ -861,7 +867,9 @@ mod tests {
         let mut whiteners: [Option<super::super::whiten::Whitener>; 6] =
             std::array::from_fn(|_| None);
         whiteners[0] = Some(super::super::whiten::Whitener::new(&spec, e.len()));
-        let error_of = |ch: usize| Ok((ch == 0).then_some(Cow::Borrowed(e)));
+        let error_of = |ch: usize, epochs: std::ops::Range<usize>| {
+            Ok((ch == 0).then(|| Cow::Borrowed(&e[epochs])))
+        };
         let sim_of = move |r: usize, ch: usize| {
             (ch == 0).then(|| -> super::super::white_space::SimReader<'a> {
                 Box::new(move |epochs, values| {

@@ -42,11 +42,6 @@ impl RunSignals {
             .expect("a channel the sensor has")
     }
 
-    /// The error of `channel` (rad/s or m/s^2), a channel the sensor has.
-    pub fn error(&self, channel: Channel) -> Result<Cow<'_, [f64]>, DiagnoseError> {
-        Ok(self.bank.series(self.error_index(channel))?)
-    }
-
     /// `f` of the error of `channel` as a [`Series`]: held, or read a block at a time.
     pub fn with_error<T>(
         &self,
@@ -60,7 +55,8 @@ impl RunSignals {
         )?)
     }
 
-    /// The error of `channel` over the epochs `range`.
+    /// The error of `channel` (rad/s or m/s^2, a channel the sensor has) over the epochs
+    /// `range`.
     pub fn error_range(
         &self,
         channel: Channel,

@@ -118,11 +118,11 @@ fn white_space<'a>(run: &'a Run) -> Result<WhiteSpace<'a>, DiagnoseError> {
     for channel in &run.channels {
         whiteners[channel.index()] = Some(Whitener::new(run.spec(*channel)?, run.n));
     }
-    let error_of = |ch: usize| {
+    let error_of = |ch: usize, epochs: std::ops::Range<usize>| {
         let channel = Channel::ALL[ch];
         run.signals
             .has_error(channel)
-            .then(|| run.signals.error(channel))
+            .then(|| run.signals.error_range(channel, epochs))
             .transpose()
     };
     // A channel's baseline simulation of one replicate (the ones every stage draws).
@@ -313,7 +313,7 @@ fn channel_terms<'a>(
     space: &WhiteSpace<'a>,
     slot: usize,
     channel: Channel,
-    steps_elsewhere: Option<&[f64]>,
+    steps_elsewhere: Option<&SeriesBank>,
 ) -> Result<ChannelTerms<'a>, DiagnoseError> {
     let cands = candidates(run, channel);
     // Baseline simulations: the null distribution of the step scan.
@@ -379,7 +379,7 @@ pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, Diag
         error_variance[channel.index()] = run.signals.with_error(*channel, series_variance)?;
     }
     let space = white_space(run)?;
-    let stage1 = |slot: usize, channel: Channel, steps_elsewhere: Option<&[f64]>| {
+    let stage1 = |slot: usize, channel: Channel, steps_elsewhere: Option<&SeriesBank>| {
         channel_terms(run, &space, slot, channel, steps_elsewhere)
     };
     let first: Vec<Result<ChannelTerms, DiagnoseError>> = run
@@ -433,33 +433,40 @@ pub(super) fn find_terms<'a>(run: &'a Run) -> Result<Vec<ChannelTerms<'a>>, Diag
 /// What the bias steps found on the other channels (`steps`: every channel's) took from
 /// `channel` through the calibration (None where no other channel has a step): each step's
 /// coefficient times the calibration's fit of what it absorbed of the step, on this
-/// channel's rows. Made when the channel's scan runs again, so one channel's is held at a
-/// time.
+/// channel's rows. Made when the channel's scan runs again, a block at a time into a bank
+/// of one series (spilled on a long run).
 fn step_spill(
     design: DesignRows<'_>,
     run: &Run,
     steps: &[&Term],
     channel: Channel,
-) -> Result<Option<Vec<f64>>, DiagnoseError> {
+) -> Result<Option<SeriesBank>, DiagnoseError> {
     let elsewhere: Vec<&&Term> = steps.iter().filter(|t| t.channel != channel).collect();
     if elsewhere.is_empty() {
         return Ok(None);
     }
-    let mut spill = vec![0.0; run.n];
-    for t in elsewhere {
-        design.for_each_fitted(
-            channel.index(),
-            &t.projection.absorbed,
-            0..run.n,
-            &mut |range, fit| {
-                spill[range]
-                    .iter_mut()
-                    .zip(fit)
-                    .for_each(|(v, x)| *v += t.coef * x);
-            },
-        )?;
+    let mut bank = SeriesBank::columns(run.n, 1, run.is_long())?;
+    let mut spill = Vec::with_capacity(BANK_BLOCK_EPOCHS);
+    for epochs in block_ranges(0..run.n) {
+        spill.clear();
+        spill.resize(epochs.len(), 0.0);
+        let first = epochs.start;
+        for t in &elsewhere {
+            design.for_each_fitted(
+                channel.index(),
+                &t.projection.absorbed,
+                epochs.clone(),
+                &mut |range, fit| {
+                    spill[range.start - first..range.end - first]
+                        .iter_mut()
+                        .zip(fit)
+                        .for_each(|(v, x)| *v += t.coef * x);
+                },
+            )?;
+        }
+        bank.write(0, first, &spill)?;
     }
-    Ok(Some(spill))
+    Ok(Some(bank))
 }
 
 /// The terms the joint fit keeps and, per channel, what the other channels' kept terms

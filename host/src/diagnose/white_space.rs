@@ -70,13 +70,52 @@ struct WhiteError {
     sum: f64,
 }
 
+impl WhiteError {
+    /// Channel `ch`'s error of `n` epochs (`error_of`, present) less what the calibration
+    /// (`absorber` with parameters `theta`) takes from it, filtered by `whitener`, a block
+    /// at a time into a bank (spilled when `spill`).
+    fn new(
+        (error_of, n): (&ErrorOf<'_>, usize),
+        ch: usize,
+        (absorber, theta): (Absorber<'_>, Option<&DVector<f64>>),
+        whitener: &Whitener,
+        spill: bool,
+    ) -> Result<Self, DiagnoseError> {
+        let read = |epochs: Range<usize>| -> Result<Vec<f64>, DiagnoseError> {
+            Ok(error_of(ch, epochs)?.unwrap_or_default().into_owned())
+        };
+        // Only what is taken without a design needs the mean.
+        let mean = match absorber {
+            Absorber::Mean => {
+                let mut sum = 0.0;
+                for epochs in block_ranges(0..n) {
+                    read(epochs)?.iter().for_each(|v| sum += v);
+                }
+                sum / n.max(1) as f64
+            }
+            Absorber::Design(_) => 0.0,
+        };
+        let mut bank = SeriesBank::columns(n, 1, spill)?;
+        let (mut stream, mut sum) = (whitener.stream(), 0.0);
+        for epochs in block_ranges(0..n) {
+            let mut y = read(epochs.clone())?;
+            subtract_calibration(absorber, ch, epochs.clone(), &mut y, theta, mean)?;
+            stream.apply_in_place(&mut y);
+            y.iter().for_each(|v| sum += v);
+            bank.write(0, epochs.start, &y)?;
+        }
+        Ok(Self { bank, sum })
+    }
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
 
-/// Channel `ch`'s error (0..6, gx..az), None where the run has no such channel: held, or
-/// read back from a long run's temporary file.
-pub(super) type ErrorOf<'e> = dyn Fn(usize) -> Result<Option<Cow<'e, [f64]>>, DiagnoseError> + 'e;
+/// Channel `ch`'s error (0..6, gx..az) over a range of epochs, None where the run has no
+/// such channel: held, or read back from a long run's temporary file.
+pub(super) type ErrorOf<'e> =
+    dyn Fn(usize, Range<usize>) -> Result<Option<Cow<'e, [f64]>>, DiagnoseError> + 'e;
 
 /// `y` on channel `ch` less what the calibration takes from it: the fit of parameters
 /// `theta` with a design, the mean without one.
@@ -122,8 +161,8 @@ fn subtract_calibration(
 }
 
 impl<'a> WhiteSpace<'a> {
-    /// `error_of(ch)`: every channel's error of `n` epochs (None where absent), read one at
-    /// a time; `sim_of(r, ch)`: channel `ch`'s baseline simulation of replicate r, for r in
+    /// `error_of(ch, epochs)`: every channel's error of `n` epochs (None where absent), read
+    /// a block at a time; `sim_of(r, ch)`: channel `ch`'s baseline simulation of replicate r, for r in
     /// 0..replicates. The filtered simulations are held when replicates times epochs is at
     /// most `held_samples`.
     pub fn new(
@@ -136,14 +175,18 @@ impl<'a> WhiteSpace<'a> {
     ) -> Result<Self, DiagnoseError> {
         let hold = replicates.saturating_mul(n) <= held_samples;
         // The calibration of every channel's error together (its moments add over the
-        // channels), then each channel's error calibrated, filtered and banked, one at a
-        // time: a long drive holds none.
+        // channels), then each channel's error calibrated, filtered and banked, a block at
+        // a time: a long drive holds none.
         let theta = match absorber {
             Absorber::Design(d) => {
                 let mut moments = DVector::<f64>::zeros(d.parameters());
+                // An empty read tells whether the channel is there.
                 for ch in (0..6).filter(|&ch| d.has_channel(ch)) {
-                    if let Some(e) = error_of(ch)? {
-                        moments += d.moments(ch, &e)?;
+                    if error_of(ch, 0..0)?.is_some() {
+                        moments += d.moments_of_blocks(ch, &mut |epochs, values| {
+                            values.extend_from_slice(&error_of(ch, epochs)?.unwrap_or_default());
+                            Ok::<_, DiagnoseError>(())
+                        })?;
                     }
                 }
                 Some(d.bread() * moments)
@@ -155,15 +198,16 @@ impl<'a> WhiteSpace<'a> {
             let Some(w) = whiteners[ch].as_ref() else {
                 continue;
             };
-            let Some(e) = error_of(ch)? else {
+            if error_of(ch, 0..0)?.is_none() {
                 continue;
-            };
-            let mut filtered = calibrated(absorber, ch, e.into_owned(), theta.as_ref())?;
-            w.stream().apply_in_place(&mut filtered);
-            let sum = filtered.iter().sum();
-            let mut bank = SeriesBank::new(n, !hold)?;
-            bank.push(filtered)?;
-            *white = Some(WhiteError { bank, sum });
+            }
+            *white = Some(WhiteError::new(
+                (error_of, n),
+                ch,
+                (absorber, theta.as_ref()),
+                w,
+                !hold,
+            )?);
         }
         let mut space = WhiteSpace {
             absorber,
