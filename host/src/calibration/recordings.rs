@@ -328,12 +328,30 @@ impl SpilledRecording {
     /// The values of channel `channel` (0..6, gx..az: rad/s or m/s^2), None where its
     /// triplet is absent.
     pub fn channel_values(&self, channel: usize) -> Result<Option<Vec<f64>>, ErrorsError> {
-        let triplet = channel / 3;
-        if !self.present[triplet] {
-            return Ok(None);
+        self.channel_column(channel)
+            .map(|k| self.column(k))
+            .transpose()
+    }
+
+    /// Calls `visit` with every value of channel `channel` (0..6, gx..az: rad/s or m/s^2)
+    /// in order, read a block at a time; false (nothing visited) where its triplet is
+    /// absent.
+    pub fn for_each_channel_value(
+        &self,
+        channel: usize,
+        visit: impl FnMut(f64),
+    ) -> Result<bool, ErrorsError> {
+        match self.channel_column(channel) {
+            Some(k) => self.for_each_in_column(k, visit).map(|()| true),
+            None => Ok(false),
         }
+    }
+
+    /// The spill's column of channel `channel` (0..6), None where its triplet is absent.
+    fn channel_column(&self, channel: usize) -> Option<usize> {
+        let triplet = channel / 3;
         let before = self.present[..triplet].iter().filter(|p| **p).count();
-        self.column(1 + 3 * before + channel % 3).map(Some)
+        self.present[triplet].then_some(1 + 3 * before + channel % 3)
     }
 
     /// The first step between consecutive times more than half of `median_s` away from it:

@@ -60,26 +60,36 @@ impl SignalBank {
         })
     }
 
-    /// The error signals of a run without dynamics (static data): its times, and room for
-    /// the errors of the channels `present` (gx .. az), each written whole
-    /// ([`SignalBank::write_error`]); spilled to a temporary file when `spill`.
-    pub fn static_run(t_s: &[f64], present: [bool; 6], spill: bool) -> Result<Self, SpillError> {
+    /// The error signals of a run of `n` epochs without dynamics (static data): room for
+    /// its times and the errors of the channels `present` (gx .. az), each written in
+    /// order a block at a time ([`SignalBank::write_time`], [`SignalBank::write_error`]);
+    /// spilled to a temporary file when `spill`.
+    pub fn static_run(n: usize, present: [bool; 6], spill: bool) -> Result<Self, SpillError> {
         let slots = error_slots(present, 1);
         let count = 1 + slots.iter().flatten().count();
-        let mut bank = SeriesBank::columns(t_s.len(), count, spill)?;
-        bank.write(Self::TIME, 0, t_s)?;
         Ok(Self {
-            bank,
+            bank: SeriesBank::columns(n, count, spill)?,
             errors: slots,
             dynamics: false,
-            written: t_s.len(),
+            written: n,
         })
     }
 
-    /// Writes the error of channel `channel` (0..6, gx .. az) of a static run whole.
-    pub fn write_error(&mut self, channel: usize, values: &[f64]) -> Result<(), SpillError> {
+    /// Writes the times (s) of a static run's epochs `start..`.
+    pub fn write_time(&mut self, start: usize, t_s: &[f64]) -> Result<(), SpillError> {
+        self.bank.write(Self::TIME, start, t_s)
+    }
+
+    /// Writes the error of channel `channel` (0..6, gx .. az) of a static run over its
+    /// epochs `start..`.
+    pub fn write_error(
+        &mut self,
+        channel: usize,
+        start: usize,
+        values: &[f64],
+    ) -> Result<(), SpillError> {
         let k = self.errors[channel].expect("a channel the run has");
-        self.bank.write(k, 0, values)
+        self.bank.write(k, start, values)
     }
 
     /// Appends epochs `own` of a block: its times `t_s`, its `errors` (as

@@ -5,7 +5,7 @@
 //! stages, the sensor-wide terms of that calibration named as findings (time offset, lever
 //! arm), corrected for what the per-channel terms had pushed into them.
 
-use std::borrow::Cow;
+use std::ops::Range;
 use std::path::Path;
 
 use rand::SeedableRng;
@@ -24,6 +24,7 @@ use crate::calibration::{
 };
 use crate::interchange::ImuRecording;
 use crate::model::{Cause, Channel};
+use crate::series_bank::{block_ranges, BANK_BLOCK_EPOCHS};
 
 /// Epochs a long run's calibration forms at a time: a quarter of the calibration's own
 /// default, so that the blocks it holds (about 3 MiB each, one per core) stay below what the
@@ -73,19 +74,22 @@ impl Recording {
         })
     }
 
-    /// The values of channel `ch` (0..6, gx..az), None where the recording lacks it.
-    pub(super) fn channel(&self, ch: usize) -> Result<Option<Cow<'_, [f64]>>, DiagnoseError> {
+    /// Calls `visit` with every value of channel `ch` (0..6, gx..az) in order, read a block
+    /// at a time where spilled; false (nothing visited) where the recording lacks it.
+    pub(super) fn for_each_value(
+        &self,
+        ch: usize,
+        mut visit: impl FnMut(f64),
+    ) -> Result<bool, DiagnoseError> {
         Ok(match self {
-            Recording::Held(r) => r.channel(Channel::ALL[ch].name()).map(Cow::Borrowed),
-            Recording::Spilled(r) => r.channel_values(ch)?.map(Cow::Owned),
-        })
-    }
-
-    /// Every sample's time, s.
-    fn times_s(&self) -> Result<Cow<'_, [f64]>, DiagnoseError> {
-        Ok(match self {
-            Recording::Held(r) => Cow::Borrowed(&r.t_s[..]),
-            Recording::Spilled(r) => Cow::Owned(r.times_s()?),
+            Recording::Held(r) => match r.channel(Channel::ALL[ch].name()) {
+                Some(x) => {
+                    x.iter().for_each(|v| visit(*v));
+                    true
+                }
+                None => false,
+            },
+            Recording::Spilled(r) => r.for_each_channel_value(ch, visit)?,
         })
     }
 
@@ -137,21 +141,50 @@ pub(super) fn calibrate(
     })
 }
 
+/// What visits a block of a recording's epochs: their range, the rows holding them, and
+/// where the first of them is among those rows.
+type RowsVisit<'v> =
+    dyn FnMut(Range<usize>, &ImuRecording, usize) -> Result<(), DiagnoseError> + 'v;
+
 /// Error signals of static data without a reference: each channel minus its mean, without
-/// dynamics.
+/// dynamics. Two passes over the recording a block at a time (the means, then the
+/// signals), so a long one is never held.
 fn static_signals(sensor: &Recording, spill: bool) -> Result<SignalBank, DiagnoseError> {
-    let mut present = [false; 6];
-    for (ch, present) in present.iter_mut().enumerate() {
-        *present = sensor.channel(ch)?.is_some();
-    }
-    let mut bank = SignalBank::static_run(&sensor.times_s()?, present, spill)?;
-    // A channel at a time: a long run holds one.
-    for ch in (0..6).filter(|&ch| present[ch]) {
-        let x = sensor.channel(ch)?.expect("present");
-        let m = x.iter().sum::<f64>() / x.len() as f64;
-        let e: Vec<f64> = x.iter().map(|v| v - m).collect();
-        bank.write_error(ch, &e)?;
-    }
+    let samples = sensor.samples();
+    let n = samples.len();
+    let names = Channel::ALL.map(|c| c.name());
+    let (first, _) = samples.rows(0..n.min(1))?;
+    let present = names.map(|name| first.channel(name).is_some());
+    let blocks = |visit: &mut RowsVisit<'_>| {
+        for range in block_ranges(0..n) {
+            let (rows, first) = samples.rows(range.clone())?;
+            visit(range.clone(), &rows, range.start - first)?;
+        }
+        Ok::<_, DiagnoseError>(())
+    };
+    let mut sums = [0.0f64; 6];
+    blocks(&mut |range, rows, at| {
+        for (sum, name) in sums.iter_mut().zip(names) {
+            if let Some(x) = rows.channel(name) {
+                x[at..at + range.len()].iter().for_each(|v| *sum += v);
+            }
+        }
+        Ok(())
+    })?;
+    let means = sums.map(|s| s / n as f64);
+    let mut bank = SignalBank::static_run(n, present, spill)?;
+    let mut e = Vec::with_capacity(BANK_BLOCK_EPOCHS);
+    blocks(&mut |range, rows, at| {
+        let own = at..at + range.len();
+        bank.write_time(range.start, &rows.t_s[own.clone()])?;
+        for ch in (0..6).filter(|&ch| present[ch]) {
+            let x = rows.channel(names[ch]).expect("present in every block");
+            e.clear();
+            e.extend(x[own.clone()].iter().map(|v| v - means[ch]));
+            bank.write_error(ch, range.start, &e)?;
+        }
+        Ok(())
+    })?;
     Ok(bank)
 }
 

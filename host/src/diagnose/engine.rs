@@ -52,7 +52,7 @@ use super::generalise::{keeps_noise_model, kept_coefficients, kept_effects, sele
 use super::moments::Absorber;
 use super::signals::RunSignals;
 use super::stats::{Series, SeriesSet, WindowMeanSquares};
-use super::stochastic::{find_stochastic_effects, lattice_step};
+use super::stochastic::{find_stochastic_effects, lattice_step_in};
 use super::terms::{find_terms, ChannelTerms, FittedTerms};
 use crate::calibration::{CalibrationSummary, DesignRows};
 use crate::gmwm::model::ModelSpec;
@@ -248,11 +248,6 @@ pub const WV_MIN_LOG_DEVIATION: f64 = 0.1;
 
 /// The two-sided 95% normal quantile.
 pub(super) const Z_FLOOR: f64 = 1.959_963_984_540_054;
-
-/// Sample variance (n - 1).
-pub(super) fn variance(x: &[f64]) -> f64 {
-    super::stats::series_variance(&Series::Held(x))
-}
 
 /// The 95% interval of an estimate with standard error `se`.
 pub(super) fn ci(est: f64, se: f64) -> [f64; 2] {
@@ -632,7 +627,7 @@ pub fn diagnose_recordings(
     let sensor_start_s = sensor.first_time_s()?;
     let mut raw_lattice = [None; 6];
     for (ch, lattice) in raw_lattice.iter_mut().enumerate() {
-        *lattice = sensor.channel(ch)?.and_then(|x| lattice_step(&x));
+        *lattice = lattice_step_in(|visit| sensor.for_each_value(ch, visit).map(|_| ()))?;
     }
     let calibrated = calibrate(sensor, reference, opts.held_epochs(), &mut notes)?;
     let signals = &calibrated.signals;

@@ -65,11 +65,6 @@ impl RunSignals {
         Ok(self.bank.range(self.error_index(channel), range)?)
     }
 
-    /// The epochs' times, s.
-    pub fn time_s(&self) -> Result<Cow<'_, [f64]>, DiagnoseError> {
-        Ok(self.bank.series(SignalBank::TIME)?)
-    }
-
     /// The time of epoch `k`, s.
     pub fn time_at_s(&self, k: usize) -> Result<f64, DiagnoseError> {
         Ok(self.bank.range(SignalBank::TIME, k..k + 1)?[0])
@@ -153,15 +148,9 @@ impl RunSignals {
         Ok(())
     }
 
-    /// The median interval between epochs, s.
+    /// The median interval between epochs, s (0 with fewer than two).
     pub fn median_step_s(&self) -> Result<f64, DiagnoseError> {
-        let t = self.time_s()?;
-        let mut d: Vec<f64> = t.windows(2).map(|w| w[1] - w[0]).collect();
-        if d.is_empty() {
-            return Ok(0.0);
-        }
-        let m = d.len() / 2;
-        Ok(*d.select_nth_unstable_by(m, f64::total_cmp).1)
+        Ok(self.bank.median_step_s()?.unwrap_or(0.0))
     }
 }
 

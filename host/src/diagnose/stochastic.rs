@@ -12,7 +12,7 @@ use serde_json::json;
 
 use super::draws::ChannelSimulation;
 use super::engine::{
-    ci, simulated_range, variance, DiagnoseError, Discrepancy, Finding, Run, WV_MIN_LOG_DEVIATION,
+    ci, simulated_range, DiagnoseError, Discrepancy, Finding, Run, WV_MIN_LOG_DEVIATION,
 };
 use super::gain::{fit_wv, log_wv, LogWv};
 use super::null::{normal_p_value, poisson_upper_tail, wv_level_test, LevelTest};
@@ -424,39 +424,59 @@ fn quantization(run: &Run, channel: Channel, var_e: f64, found: &mut StochasticF
 }
 
 /// Lattice spacing of a raw sensor channel and its standard error, if its values lie on one
-/// (quantised output).
-pub(super) fn lattice_step(x: &[f64]) -> Option<(f64, f64)> {
-    let diffs: Vec<f64> = x
-        .windows(2)
-        .map(|w| (w[1] - w[0]).abs())
-        .filter(|d| *d > 0.0)
-        .collect();
-    if diffs.len() < 100 {
-        return None;
-    }
-    let scale = diffs.iter().fold(0.0f64, |a, b| a.max(*b));
-    let q0 = diffs.iter().fold(f64::INFINITY, |a, b| a.min(*b));
+/// (quantised output): the channel is what each call of `pass` yields, in order (three
+/// passes, in memory that does not grow with it: the nonzero steps between consecutive
+/// values, their smallest (q0) and largest; then the share on multiples of q0 and the unit
+/// steps' mean; then their spread).
+pub(super) fn lattice_step_in<E>(
+    mut pass: impl FnMut(&mut dyn FnMut(f64)) -> Result<(), E>,
+) -> Result<Option<(f64, f64)>, E> {
+    // `visit(d)` with each nonzero |step| in order.
+    let mut steps = |visit: &mut dyn FnMut(f64)| {
+        let mut previous: Option<f64> = None;
+        pass(&mut |v| {
+            if let Some(p) = previous {
+                let d = (v - p).abs();
+                if d > 0.0 {
+                    visit(d);
+                }
+            }
+            previous = Some(v);
+        })
+    };
+    let (mut count, mut scale, mut q0) = (0usize, 0.0f64, f64::INFINITY);
+    steps(&mut |d| {
+        count += 1;
+        scale = scale.max(d);
+        q0 = q0.min(d);
+    })?;
     // Steps below 1e-9 of the largest are rounding, not a lattice (NaN: no lattice).
-    let resolved = q0 > 1e-9 * scale;
-    if !resolved {
-        return None;
+    if count < 100 || !(q0 > 1e-9 * scale) {
+        return Ok(None);
     }
-    let on_lattice = diffs
-        .iter()
-        .filter(|d| ((*d / q0) - (*d / q0).round()).abs() < 1e-3)
-        .count();
-    if (on_lattice as f64) < 0.999 * diffs.len() as f64 {
-        return None;
+    let (mut on_lattice, mut unit_count, mut unit_sum) = (0usize, 0usize, 0.0);
+    steps(&mut |d| {
+        if ((d / q0) - (d / q0).round()).abs() < 1e-3 {
+            on_lattice += 1;
+        }
+        // Refined from the many unit steps.
+        if (d / q0).round() == 1.0 {
+            unit_count += 1;
+            unit_sum += d;
+        }
+    })?;
+    if (on_lattice as f64) < 0.999 * count as f64 {
+        return Ok(None);
     }
-    // Refine from the many unit steps.
-    let unit: Vec<f64> = diffs
-        .iter()
-        .copied()
-        .filter(|d| (d / q0).round() == 1.0)
-        .collect();
-    let q = unit.iter().sum::<f64>() / unit.len() as f64;
-    let sd = variance(&unit).sqrt() / (unit.len() as f64).sqrt();
-    Some((q, sd.max(q * 1e-12)))
+    let q = unit_sum / unit_count as f64;
+    let mut squares = 0.0;
+    steps(&mut |d| {
+        if (d / q0).round() == 1.0 {
+            squares += (d - q).powi(2);
+        }
+    })?;
+    let sd = (squares / (unit_count as f64 - 1.0).max(1.0)).sqrt() / (unit_count as f64).sqrt();
+    Ok(Some((q, sd.max(q * 1e-12))))
 }
 
 /// A change of the white or correlated noise: levels of the residual's log wavelet variance
@@ -659,4 +679,36 @@ fn refit_noise(
         variance_explained: f64::NAN,
         p_value: Some(p_value),
     });
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+    use rand_chacha::ChaCha8Rng;
+
+    fn lattice_of(x: &[f64]) -> Option<(f64, f64)> {
+        let pass = |visit: &mut dyn FnMut(f64)| {
+            x.iter().for_each(|v| visit(*v));
+            Ok::<_, std::convert::Infallible>(())
+        };
+        lattice_step_in(pass).unwrap_or_else(|never| match never {})
+    }
+
+    #[test]
+    fn a_quantised_channel_gives_its_lsb_and_a_continuous_one_none() {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        let lsb = 0.0061;
+        let continuous: Vec<f64> = (0..5_000)
+            .map(|i| (i as f64 * 0.01).sin() + 0.02 * rng.random::<f64>())
+            .collect();
+        assert_eq!(lattice_of(&continuous), None);
+        let quantised: Vec<f64> = continuous.iter().map(|v| (v / lsb).round() * lsb).collect();
+        let (q, se) = lattice_of(&quantised).unwrap();
+        assert!((q / lsb - 1.0).abs() < 1e-9, "{q} {se}");
+        assert!(se < 1e-9 * lsb.max(q), "{se}");
+        // Too few steps to tell, and a constant: none.
+        assert_eq!(lattice_of(&quantised[..50]), None);
+        assert_eq!(lattice_of(&[1.0; 1_000]), None);
+    }
 }
