@@ -151,8 +151,7 @@ impl SeriesBank {
                 held[k].extend_from_slice(values);
             }
             Store::Spilled { file, .. } => {
-                let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-                write_all_at(file, &bytes, 8 * (k * self.n + start) as u64).map_err(spill_error)?;
+                write_values(file, values, 8 * (k * self.n + start) as u64)?;
             }
         }
         Ok(())
@@ -200,8 +199,7 @@ impl SeriesBank {
                     values.clear();
                     read_values(file, offset, range.len(), &mut values)?;
                     change(range, &mut values);
-                    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
-                    write_all_at(file, &bytes, offset).map_err(spill_error)?;
+                    write_values(file, &values, offset)?;
                 }
             }
         }
@@ -338,20 +336,32 @@ fn read_values(
     count: usize,
     values: &mut Vec<f64>,
 ) -> Result<(), SpillError> {
-    let mut bytes = vec![0u8; 8 * count.min(BANK_BLOCK_EPOCHS)];
-    let mut done = 0;
-    while done < count {
-        let take = (count - done).min(BANK_BLOCK_EPOCHS);
-        let bytes = &mut bytes[..8 * take];
-        read_exact_at(file, bytes, offset + 8 * done as u64).map_err(spill_error)?;
-        values.extend(
-            bytes
-                .chunks_exact(8)
-                .map(|b| f64::from_le_bytes(b.try_into().expect("8 bytes"))),
-        );
-        done += take;
+    // Read straight into the values' own memory: a buffer of bytes per read was most of a
+    // long diagnosis's allocations (millions of 128 KiB blocks).
+    let start = values.len();
+    values.resize(start + count, 0.0);
+    let read = read_exact_at(file, bytemuck::cast_slice_mut(&mut values[start..]), offset);
+    if let Err(e) = read {
+        values.truncate(start);
+        return Err(spill_error(e));
+    }
+    if cfg!(target_endian = "big") {
+        for v in &mut values[start..] {
+            *v = f64::from_bits(u64::from_le(v.to_bits()));
+        }
     }
     Ok(())
+}
+
+/// Writes `values` into `file` at `offset`, little-endian as [`read_values`] reads them.
+fn write_values(file: &File, values: &[f64], offset: u64) -> Result<(), SpillError> {
+    let written = if cfg!(target_endian = "little") {
+        write_all_at(file, bytemuck::cast_slice(values), offset)
+    } else {
+        let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+        write_all_at(file, &bytes, offset)
+    };
+    written.map_err(spill_error)
 }
 
 /// Writes all of `buf` into `file` at `offset`.

@@ -370,6 +370,55 @@ fn check_common(dt_s: f64, opts: &WvOptions) -> Result<(), WvError> {
     Ok(())
 }
 
+/// Samples up to which [`haar_wv_of_blocks`] gathers a series for the batch estimator (8
+/// MiB): below 2^20 samples the streamed estimator's levels are all overlapping, the batch's.
+pub const GATHERED_SAMPLES: usize = 1 << 20;
+
+/// A visit of a series a block at a time, in order.
+pub type BlockFeed<'a> = dyn FnMut(&mut dyn FnMut(&[f64])) + 'a;
+
+/// [`haar_wv`] (levels 1..=`max_level`, all when None) of a series of `len` samples that
+/// `feed` gives a block at a time, in memory that does not grow with it: gathered for the
+/// batch estimator up to [`GATHERED_SAMPLES`], streamed above ([`stream::HaarWvStream`],
+/// overlapping to level [`stream::HaarWvStream::DEFAULT_FULL_LEVELS`], as `dynacal wv`
+/// streams a long file). An error when the series is too short or not finite (its first
+/// such sample named).
+pub fn haar_wv_of_blocks(
+    len: usize,
+    dt_s: f64,
+    max_level: Option<u32>,
+    feed: &mut BlockFeed<'_>,
+) -> Result<WaveletVariance, WvError> {
+    if len <= GATHERED_SAMPLES {
+        let mut all = Vec::with_capacity(len);
+        feed(&mut |block| all.extend_from_slice(block));
+        let opts = WvOptions {
+            max_level,
+            ..WvOptions::default()
+        };
+        return haar_wv(&all, dt_s, &opts);
+    }
+    let mut stream = stream::HaarWvStream::new(stream::HaarWvStream::DEFAULT_FULL_LEVELS);
+    let (mut seen, mut not_finite) = (0, None);
+    feed(&mut |block| {
+        if not_finite.is_none() {
+            not_finite = block
+                .iter()
+                .position(|v| !v.is_finite())
+                .map(|k| WvError::NonFinite {
+                    index: seen + k,
+                    value: block[k],
+                });
+        }
+        seen += block.len();
+        stream.push_block(block);
+    });
+    match not_finite {
+        Some(e) => Err(e),
+        None => stream.wavelet_variance(max_level, 1.0, dt_s),
+    }
+}
+
 /// Haar MODWT wavelet variance of `x` (any unit) sampled every `dt_s` seconds, all levels
 /// 1..=J. See the module documentation for the estimator and its conventions.
 pub fn haar_wv(x: &[f64], dt_s: f64, opts: &WvOptions) -> Result<WaveletVariance, WvError> {

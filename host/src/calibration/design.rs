@@ -294,6 +294,28 @@ impl DesignRows<'_> {
         Ok(fitted)
     }
 
+    /// Adds `scale` times the fitted error on `channel` of a parameter vector to a series
+    /// `y` given over the epochs `epochs` (nothing where the channel has no rows): how a
+    /// block of an error takes a calibration's pull out (`scale` -1) or puts a term's
+    /// pushed share in (its coefficient).
+    pub fn add_fitted(
+        &self,
+        channel: usize,
+        theta: &DVector<f64>,
+        scale: f64,
+        epochs: Range<usize>,
+        y: &mut [f64],
+    ) -> Result<(), SpillError> {
+        debug_assert_eq!(y.len(), epochs.len());
+        let first = epochs.start;
+        self.for_each_fitted(channel, theta, epochs, &mut |range, fitted| {
+            y[range.start - first..range.end - first]
+                .iter_mut()
+                .zip(fitted)
+                .for_each(|(v, f)| *v += scale * f);
+        })
+    }
+
     /// `visit(epochs, fitted)` for each block of `epochs` in order: the fitted error on
     /// `channel` of a parameter vector over the block (nothing where the channel has no
     /// rows).

@@ -6,12 +6,12 @@
 use std::collections::BTreeMap;
 
 use super::engine::DiagnoseError;
+use super::gain::fit_wv;
 use super::signals::RunSignals;
 use crate::gmwm::fit::{FitInput, FitOptions};
 use crate::gmwm::inference::{analyze, ModelChoice};
 use crate::gmwm::model::ModelSpec;
 use crate::model::{fitted_record_samples, Channel, ModelFileError, SimModel};
-use crate::wv::{haar_wv, WvOptions};
 
 /// The baseline stochastic model per channel, in SI units (rad/s, m/s^2).
 #[derive(Debug, Clone)]
@@ -50,29 +50,22 @@ impl Baseline {
 }
 
 /// Fits a baseline on the quietest stretch (lowest mean |omega|, a quarter of the run).
+/// The stretch's wavelet variance is the noise refits' ([`fit_wv`]: batch up to 2^20
+/// samples, streamed above), so a long run's quarter is never held.
 pub(super) fn fit_quietest(
     signals: &RunSignals,
     channels: &[Channel],
     dt_s: f64,
 ) -> Result<Baseline, DiagnoseError> {
     let n = signals.epochs();
-    let omega_norm = signals.angular_rate_norm()?;
     let w = (n / 4).max(256).min(n);
-    let mut best = (0usize, f64::INFINITY);
-    let step = (w / 8).max(1);
-    let mut start = 0;
-    while start + w <= n {
-        let m = omega_norm[start..start + w].iter().sum::<f64>() / w as f64;
-        if m < best.1 {
-            best = (start, m);
-        }
-        start += step;
-    }
+    let best = quietest_window(signals, w)?;
     let mut out = BTreeMap::new();
     for &channel in channels {
-        let e = &signals.error_range(channel, best.0..best.0 + w)?;
         let err = |message: String| DiagnoseError::Channel { channel, message };
-        let wv = haar_wv(e, dt_s, &WvOptions::default()).map_err(|x| err(x.to_string()))?;
+        let wv = signals
+            .with_error_in(channel, best.0..best.0 + w, |e| fit_wv(e, dt_s))?
+            .map_err(|x| err(x.to_string()))?;
         let input = FitInput::from_wv(&wv).map_err(|x| err(x.to_string()))?;
         let fit = analyze(
             channel.name(),
@@ -97,11 +90,110 @@ pub(super) fn fit_quietest(
     })
 }
 
+/// The start of the window of `w` epochs, among those starting every `w / 8`, with the
+/// lowest mean |omega| (the first such), and that mean, rad/s; |omega| read a block at a
+/// time.
+fn quietest_window(signals: &RunSignals, w: usize) -> Result<(usize, f64), DiagnoseError> {
+    let mut scan = QuietestWindow::new(signals.epochs(), w);
+    signals.for_each_angular_rate_norm(0..signals.epochs(), &mut |epochs, norm| {
+        scan.push(epochs.start, norm)
+    })?;
+    Ok(scan.best)
+}
+
+/// The scan of [`quietest_window`] over a series fed a block at a time: each window summed
+/// from its start in order as it goes by (at most nine open), so the means are those of
+/// the series held whole, to the bit.
+struct QuietestWindow {
+    n: usize,
+    w: usize,
+    step: usize,
+    /// The windows being summed, oldest first: (start, sum so far).
+    open: std::collections::VecDeque<(usize, f64)>,
+    /// The first window with the lowest mean so far: (start, mean).
+    best: (usize, f64),
+}
+
+impl QuietestWindow {
+    fn new(n: usize, w: usize) -> Self {
+        QuietestWindow {
+            n,
+            w,
+            step: (w / 8).max(1),
+            open: Default::default(),
+            best: (0, f64::INFINITY),
+        }
+    }
+
+    /// Feeds the values of epochs `first..first + values.len()` (the next ones).
+    fn push(&mut self, first: usize, values: &[f64]) {
+        for (p, &v) in (first..).zip(values) {
+            if p % self.step == 0 && p + self.w <= self.n {
+                self.open.push_back((p, 0.0));
+            }
+            self.open.iter_mut().for_each(|(_, sum)| *sum += v);
+            if let Some(&(start, sum)) = self.open.front() {
+                if p + 1 == start + self.w {
+                    self.open.pop_front();
+                    let mean = sum / self.w as f64;
+                    if mean < self.best.1 {
+                        self.best = (start, mean);
+                    }
+                }
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::gmwm::model::Process;
+    use rand::{Rng, SeedableRng};
     use serde_json::json;
+
+    /// The scan over the series held whole that the streamed one replaced.
+    fn quietest_held(x: &[f64], w: usize) -> (usize, f64) {
+        let (n, step) = (x.len(), (w / 8).max(1));
+        let mut best = (0usize, f64::INFINITY);
+        let mut start = 0;
+        while start + w <= n {
+            let m = x[start..start + w].iter().sum::<f64>() / w as f64;
+            if m < best.1 {
+                best = (start, m);
+            }
+            start += step;
+        }
+        best
+    }
+
+    #[test]
+    fn the_quietest_window_fed_in_blocks_is_the_one_held_whole_to_the_bit() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(62);
+        for (n, block) in [
+            (1_000, 7),
+            (5_003, 1_024),
+            (40_000, 16_384),
+            (300, 300),
+            (9, 4),
+        ] {
+            // |omega| of a drive: quiet stretches among turns, so the choice is not the first.
+            let x: Vec<f64> = (0..n)
+                .map(|k| {
+                    let turning = (k / 250) % 3 != 1;
+                    rng.random::<f64>() * if turning { 0.5 } else { 0.01 }
+                })
+                .collect();
+            let w = (n / 4).max(256).min(n);
+            let mut scan = QuietestWindow::new(n, w);
+            for (i, part) in x.chunks(block).enumerate() {
+                scan.push(i * block, part);
+            }
+            let held = quietest_held(&x, w);
+            assert_eq!(scan.best.0, held.0, "n {n}");
+            assert_eq!(scan.best.1.to_bits(), held.1.to_bits(), "n {n}");
+        }
+    }
 
     #[test]
     fn baseline_reads_model_files_old_fit_outputs_and_restates_units_in_si() {

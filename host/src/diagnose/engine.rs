@@ -581,18 +581,7 @@ fn channel_error(
             .error_range(channel, epochs.clone())?
             .into_owned();
         if let (Some(pushed), Some(design)) = (pushed, run.design) {
-            let first = epochs.start;
-            design.for_each_fitted(
-                channel.index(),
-                pushed,
-                epochs.clone(),
-                &mut |range, fitted| {
-                    e[range.start - first..range.end - first]
-                        .iter_mut()
-                        .zip(fitted)
-                        .for_each(|(v, s)| *v -= s);
-                },
-            )?;
+            design.add_fitted(channel.index(), pushed, -1.0, epochs.clone(), &mut e)?;
         }
         bank.write(0, epochs.start, &e)?;
     }

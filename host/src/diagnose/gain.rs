@@ -19,7 +19,7 @@ use crate::gmwm::model::ModelSpec;
 use crate::model::ChannelModel;
 use crate::series_bank::SeriesBank;
 use crate::wv::stream::HaarWvStream;
-use crate::wv::{haar_wv, WaveletVariance, WvOptions};
+use crate::wv::{haar_wv, haar_wv_of_blocks, WaveletVariance, WvError, WvOptions};
 
 /// The log wavelet variance per level (1..=max) the engine compares, of a series fed a block
 /// at a time: the overlapping Haar estimator up to level [`LogWv::FULL_LEVELS`], above it
@@ -74,35 +74,17 @@ pub(super) fn log_wv(x: &Series, dt_s: f64, max_level: u32) -> Vec<f64> {
 }
 
 /// The wavelet variance a noise model is fitted on (levels 1..=floor(log2 N) - 1) of a
-/// series held or drawn: the batch estimator up to [`FIT_WV_GATHERED`] samples (a drawn
-/// series gathered first), the streamed one above, overlapping to level
-/// [`HaarWvStream::DEFAULT_FULL_LEVELS`] as `dynacal wv` streams a long file. None when
-/// the series is too short (or not finite).
-pub(super) fn fit_wv(x: &Series, dt_s: f64) -> Option<WaveletVariance> {
+/// series held or drawn: held, the batch estimator; drawn, [`haar_wv_of_blocks`] (gathered
+/// for the batch estimator up to 2^20 samples, streamed above). An error when the series
+/// is too short or not finite (its first such sample named).
+pub(super) fn fit_wv(x: &Series, dt_s: f64) -> Result<WaveletVariance, WvError> {
     match x {
-        Series::Held(x) => haar_wv(x, dt_s, &WvOptions::default()).ok(),
-        Series::Drawn { len, .. } if *len <= FIT_WV_GATHERED => {
-            let mut all = Vec::with_capacity(*len);
-            x.for_each_block(&mut |block| all.extend_from_slice(block));
-            haar_wv(&all, dt_s, &WvOptions::default()).ok()
-        }
-        Series::Drawn { .. } => {
-            let mut stream = HaarWvStream::new(HaarWvStream::DEFAULT_FULL_LEVELS);
-            let mut finite = true;
-            x.for_each_block(&mut |block| {
-                finite &= block.iter().all(|v| v.is_finite());
-                stream.push_block(block);
-            });
-            finite
-                .then(|| stream.wavelet_variance(None, 1.0, dt_s).ok())
-                .flatten()
+        Series::Held(x) => haar_wv(x, dt_s, &WvOptions::default()),
+        Series::Drawn { len, .. } => {
+            haar_wv_of_blocks(*len, dt_s, None, &mut |visit| x.for_each_block(visit))
         }
     }
 }
-
-/// Samples up to which [`fit_wv`] gathers a drawn series for the batch estimator (8 MiB):
-/// below 2^20 samples the streamed estimator's levels are all overlapping, the batch's.
-const FIT_WV_GATHERED: usize = 1 << 20;
 
 /// Mean and standard deviation per level of simulated log-WVs.
 pub(super) fn level_stats(sims: &[Vec<f64>]) -> (Vec<f64>, Vec<f64>) {
@@ -332,6 +314,6 @@ mod tests {
         }
         let mut broken = short.to_vec();
         broken[7] = f64::NAN;
-        assert!(fit_wv(&Series::Held(&broken), 0.01).is_none());
+        assert!(fit_wv(&Series::Held(&broken), 0.01).is_err());
     }
 }

@@ -242,7 +242,7 @@ fn slopes_over(
 
 /// The baseline's structure refitted on `residual`: the noise model of a training set.
 fn noise_model_on(spec: &ModelSpec, residual: &Series, dt_s: f64) -> Option<ModelSpec> {
-    let wv = fit_wv(residual, dt_s)?;
+    let wv = fit_wv(residual, dt_s).ok()?;
     let input = FitInput::from_wv(&wv).ok()?;
     let fit = analyze(
         "residual",

@@ -7,7 +7,7 @@ use std::borrow::Cow;
 use std::ops::Range;
 
 use super::engine::DiagnoseError;
-use super::stats::{with_bank_series, Series};
+use super::stats::{with_bank_series, with_bank_series_in, Series};
 use crate::calibration::SignalBank;
 use crate::model::Channel;
 
@@ -51,6 +51,22 @@ impl RunSignals {
         Ok(with_bank_series(
             self.bank.series_bank(),
             self.error_index(channel),
+            f,
+        )?)
+    }
+
+    /// `f` of the error of `channel` over the epochs `range` as a [`Series`]: borrowed when
+    /// held, read a block at a time when spilled.
+    pub fn with_error_in<T>(
+        &self,
+        channel: Channel,
+        range: Range<usize>,
+        f: impl FnOnce(&Series) -> T,
+    ) -> Result<T, DiagnoseError> {
+        Ok(with_bank_series_in(
+            self.bank.series_bank(),
+            self.error_index(channel),
+            range,
             f,
         )?)
     }
@@ -109,15 +125,6 @@ impl RunSignals {
         range: Range<usize>,
     ) -> Result<Cow<'_, [f64]>, DiagnoseError> {
         Ok(self.bank.range(k, range)?)
-    }
-
-    /// |omega| per epoch, rad/s (zero on static data), read a block at a time.
-    pub fn angular_rate_norm(&self) -> Result<Vec<f64>, DiagnoseError> {
-        let mut norm = Vec::with_capacity(self.epochs());
-        self.for_each_angular_rate_norm(0..self.epochs(), &mut |_, block| {
-            norm.extend_from_slice(block)
-        })?;
-        Ok(norm)
     }
 
     /// `visit(epochs, |omega| over them)` for each block of `range` in order, rad/s (zero on

@@ -598,7 +598,7 @@ fn noise_change(
         });
     }
     let p = bad.iter().map(|&j| tests[j].p_value).fold(1.0, f64::min);
-    let wv = with_bank_series(resid, 0, |r| fit_wv(r, dt_s))?;
+    let wv = with_bank_series(resid, 0, |r| fit_wv(r, dt_s).ok())?;
     refit_noise(channel, spec, wv, &bad, run.family_p(p), found);
     Ok(())
 }

@@ -450,21 +450,16 @@ fn step_spill(
     for epochs in block_ranges(0..run.n) {
         spill.clear();
         spill.resize(epochs.len(), 0.0);
-        let first = epochs.start;
         for t in &elsewhere {
-            design.for_each_fitted(
+            design.add_fitted(
                 channel.index(),
                 &t.projection.absorbed,
+                t.coef,
                 epochs.clone(),
-                &mut |range, fit| {
-                    spill[range.start - first..range.end - first]
-                        .iter_mut()
-                        .zip(fit)
-                        .for_each(|(v, x)| *v += t.coef * x);
-                },
+                &mut spill,
             )?;
         }
-        bank.write(0, first, &spill)?;
+        bank.write(0, epochs.start, &spill)?;
     }
     Ok(Some(bank))
 }
@@ -681,9 +676,13 @@ impl<'a> FittedTerms<'a> {
         f: impl FnOnce(&Series) -> T,
     ) -> Result<T, DiagnoseError> {
         let draw = |visit: &mut dyn FnMut(&[f64])| -> Result<(), DiagnoseError> {
+            // One block's buffer for every block: this runs per fold and per trial.
+            let mut left = Vec::with_capacity(BANK_BLOCK_EPOCHS);
             for range in ranges {
                 for epochs in block_ranges(range.clone()) {
-                    let mut left = self.deterministic(coefficients, epochs.clone())?;
+                    left.clear();
+                    left.resize(epochs.len(), 0.0);
+                    self.add_deterministic(coefficients, epochs.clone(), 0.0, &mut left)?;
                     let e = e.range(0, epochs)?;
                     left.iter_mut().zip(e.iter()).for_each(|(d, a)| *d = a - *d);
                     visit(&left);
@@ -695,19 +694,8 @@ impl<'a> FittedTerms<'a> {
         drawn_from(len, &draw, f)
     }
 
-    /// The deterministic part of the error over `range` with these `coefficients` (one per
-    /// term, or none): the sum of each term's regressor times its coefficient.
-    pub fn deterministic(
-        &self,
-        coefficients: &[Coefficient],
-        range: std::ops::Range<usize>,
-    ) -> Result<Vec<f64>, DiagnoseError> {
-        let mut out = vec![0.0; range.len()];
-        self.each_deterministic(coefficients, range, &mut |k, d| out[k] = d)?;
-        Ok(out)
-    }
-
-    /// Adds the deterministic part over `range` (see [`FittedTerms::deterministic`]) and
+    /// Adds the deterministic part of the error over `range` with these `coefficients` (one
+    /// per term, or none: the sum of each term's regressor times its coefficient) and
     /// `intercept` to `x`, a series over `range`, a block at a time.
     pub fn add_deterministic(
         &self,

@@ -146,13 +146,7 @@ fn subtract_calibration(
 ) -> Result<(), DiagnoseError> {
     match (absorber, theta) {
         (Absorber::Design(d), Some(theta)) if d.has_channel(ch) => {
-            let first = epochs.start;
-            d.for_each_fitted(ch, theta, epochs, &mut |range, fitted| {
-                y[range.start - first..range.end - first]
-                    .iter_mut()
-                    .zip(fitted)
-                    .for_each(|(v, f)| *v -= f);
-            })?;
+            d.add_fitted(ch, theta, -1.0, epochs, y)?;
         }
         (Absorber::Design(_), _) => {}
         (Absorber::Mean, _) => y.iter_mut().for_each(|v| *v -= mean),
