@@ -50,8 +50,8 @@ impl Baseline {
 }
 
 /// Fits a baseline on the quietest stretch (lowest mean |omega|, a quarter of the run).
-/// The stretch's wavelet variance is the noise refits' ([`fit_wv`]: batch up to 2^20
-/// samples, streamed above), so a long run's quarter is never held.
+/// The stretch's wavelet variance is the noise refits' ([`fit_wv`]: batch up to
+/// [`crate::wv::GATHERED_SAMPLES`], streamed above), so a long run's quarter is never held.
 pub(super) fn fit_quietest(
     signals: &RunSignals,
     channels: &[Channel],

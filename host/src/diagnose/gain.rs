@@ -75,7 +75,7 @@ pub(super) fn log_wv(x: &Series, dt_s: f64, max_level: u32) -> Vec<f64> {
 
 /// The wavelet variance a noise model is fitted on (levels 1..=floor(log2 N) - 1) of a
 /// series held or drawn: held, the batch estimator; drawn, [`haar_wv_of_blocks`] (gathered
-/// for the batch estimator up to 2^20 samples, streamed above). An error when the series
+/// for the batch estimator up to [`crate::wv::GATHERED_SAMPLES`], streamed above). An error when the series
 /// is too short or not finite (its first such sample named).
 pub(super) fn fit_wv(x: &Series, dt_s: f64) -> Result<WaveletVariance, WvError> {
     match x {
