@@ -18,8 +18,10 @@
 //! differences live in, so each sample minus the first is added exactly (TwoSum) into a
 //! double-double running sum. For integer counts below 2^53 every prefix sum, and hence every
 //! Haar difference, is exact, as in [`super::haar_wv_counts`]; for floats each sample enters
-//! exactly and the sums keep about 32 digits. The squared differences are summed with a
-//! TwoSum compensation per level.
+//! exactly and the sums keep about 32 digits; each Haar difference is formed from the sums'
+//! parts ([`haar_difference`]), within a rounding or two of its exact value. A full level's
+//! squared differences are summed plainly in groups of 4 096 (eight lanes), the groups' sums
+//! with a TwoSum compensation, as the batch estimator sums its blocks.
 
 use super::{eta3, two_sum, WaveletVariance, WvError};
 
@@ -31,19 +33,29 @@ struct DoubleDouble {
 }
 
 impl DoubleDouble {
-    fn add_f64(self, b: f64) -> Self {
-        let (s, e) = two_sum(self.hi, b);
-        let (hi, lo) = fast_two_sum(s, e + self.lo);
+    /// self + (big + small), with |small| <= ulp(big) / 2 (the parts of an exact difference):
+    /// `big` added exactly (TwoSum), `small` with the low parts, then renormalised, one
+    /// TwoSum on the running sum's chain per sample instead of one per part.
+    fn add_parts(self, big: f64, small: f64) -> Self {
+        let (s, e) = two_sum(self.hi, big);
+        let (hi, lo) = fast_two_sum(s, e + (self.lo + small));
         Self { hi, lo }
     }
+}
 
-    /// self - other as the nearest f64 (the operands are within a few rounding errors of
-    /// exact, their difference is at the noise level).
-    fn minus(self, other: Self) -> Self {
-        let (s, e) = two_sum(self.hi, -other.hi);
-        let (hi, lo) = fast_two_sum(s, e + (self.lo - other.lo));
-        Self { hi, lo }
-    }
+/// The unscaled Haar difference (S_k - S_{k-h}) - (S_{k-h} - S_{k-2h}) from the three
+/// double-double prefix sums `now`, `half` and `whole` (S_k, S_{k-h}, S_{k-2h}). Each window
+/// sum is taken part by part: the high parts of neighbouring sums are within a factor of two
+/// of each other wherever the window sum is small beside them (where digits are at risk), so
+/// their difference is exact (Sterbenz), and each window sum is within a rounding of its
+/// exact value; the difference of the two is then rounded once more, as the batch estimator
+/// rounds its f64 prefix sums. A fifth of the arithmetic of double-double subtractions, with
+/// no dependence between coefficients, so it vectorises.
+#[inline(always)]
+fn haar_difference(now: DoubleDouble, half: DoubleDouble, whole: DoubleDouble) -> f64 {
+    let recent = (now.hi - half.hi) + (now.lo - half.lo);
+    let older = (half.hi - whole.hi) + (half.lo - whole.lo);
+    recent - older
 }
 
 /// Dekker's FastTwoSum, |a| >= |b|: a + b = s + e exactly.
@@ -85,24 +97,45 @@ fn segment_end(k: u64, last_k: u64, backs: &[u64], mask: u64) -> u64 {
     end
 }
 
-/// A full level's sum of squared coefficients in four compensated lanes, the coefficient
-/// ending at sample k going to lane k mod 4: four independent chains of additions keep the
-/// processor busy where one waits on each addition, and the lanes depend only on k, so any
-/// split of the samples into blocks gives the same sums.
+/// Coefficients whose squares are summed plainly before their sum joins a level's
+/// compensated total, by the sample a coefficient ends at (k / group), as the batch
+/// estimator sums a block of positions in plain lanes: a plain addition costs a fraction of
+/// a compensated one, and a group's 4 096 squares in eight lanes lose at most 512 roundings.
+/// A group is summed once every prefix sum it reads is in the ring, every level over it in
+/// turn, so the ring's stretches a group reads stay in the core's cache from one level to
+/// the next (each level's older window is the next level's middle one).
+const GROUP: u64 = 1 << 12;
+
+/// A full level's sum of squared coefficients over the groups summed so far.
 #[derive(Debug, Clone, Copy, Default)]
-struct LaneSums {
-    lanes: [CompensatedSum; 4],
+struct LevelSums {
+    finished: CompensatedSum,
     count: u64,
 }
 
-impl LaneSums {
-    fn total(&self) -> CompensatedSum {
-        let mut total = CompensatedSum::default();
-        for lane in &self.lanes {
-            total.add(lane.sum);
-            total.compensation += lane.compensation;
+/// The eight lanes' sum, always in the same order.
+fn lanes_total(lanes: &[f64; 8]) -> f64 {
+    ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3]))
+        + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
+}
+
+/// Adds `squares` (of the coefficients ending at samples `k..`) to lanes k mod 8: the same
+/// additions as one at a time, eight abreast where the run is aligned, so they vectorise.
+fn add_to_lanes(lanes: &mut [f64; 8], k: u64, squares: &[f64]) {
+    let lead = (k.wrapping_neg() % 8) as usize;
+    let (head, rest) = squares.split_at(lead.min(squares.len()));
+    for (i, square) in head.iter().enumerate() {
+        lanes[((k + i as u64) % 8) as usize] += square;
+    }
+    let octets = rest.chunks_exact(8);
+    let tail = octets.remainder();
+    for octet in octets {
+        for (lane, square) in lanes.iter_mut().zip(octet) {
+            *lane += square;
         }
-        total
+    }
+    for (lane, square) in lanes.iter_mut().zip(tail) {
+        *lane += square;
     }
 }
 
@@ -133,7 +166,13 @@ pub struct HaarWvStream {
     /// filter ignores any constant).
     origin: Option<f64>,
     n: u64,
-    full: Vec<LaneSums>,
+    full: Vec<LevelSums>,
+    /// Coefficients ending at samples 1..=summed_to are in `full`; the rest, fewer than a
+    /// group, wait for their group to fill.
+    summed_to: u64,
+    /// Coefficients a group holds: [`GROUP`], or half the widest full level's reach where
+    /// that is less (the ring holds a waiting group beside the block being added).
+    group: u64,
     /// Decimated level j takes its coefficients every h / 2^oversampling samples.
     oversampling: u32,
     decimated: Vec<DecimatedLevel>,
@@ -175,7 +214,9 @@ impl HaarWvStream {
             sum: DoubleDouble::default(),
             origin: None,
             n: 0,
-            full: vec![LaneSums::default(); full_levels as usize],
+            full: vec![LevelSums::default(); full_levels as usize],
+            summed_to: 0,
+            group: GROUP.min(1 << (full_levels - 1)),
             oversampling,
             decimated: vec![level; (Self::MAX_LEVELS - full_levels) as usize],
         }
@@ -196,14 +237,13 @@ impl HaarWvStream {
     }
 
     /// Adds samples in order; the same result, bit for bit, as pushing them one by one, in
-    /// a fraction of the time on long blocks: their prefix sums are stored first, then each
-    /// full level runs along the block on its own (on every core), reading the ring in
-    /// order rather than at 18 scattered places per sample.
+    /// a fraction of the time on long blocks: their prefix sums are stored first, then the
+    /// groups of coefficients they complete are summed (on every core), each reading the
+    /// ring in order rather than at 18 scattered places per sample.
     pub fn push_block(&mut self, values: &[f64]) {
         for chunk in values.chunks(1usize << (self.full_levels - 1)) {
-            let first_k = self.n + 1;
             self.store_prefix_sums(chunk);
-            self.add_full_levels(first_k, self.n);
+            self.add_full_groups();
         }
     }
 
@@ -215,7 +255,7 @@ impl HaarWvStream {
             let origin = *self.origin.get_or_insert(value);
             // value - origin exactly, as a double-double (both parts enter the running sum).
             let (difference, rounding) = two_sum(value, -origin);
-            self.sum = self.sum.add_f64(difference).add_f64(rounding);
+            self.sum = self.sum.add_parts(difference, rounding);
             self.n += 1;
             self.ring[(self.n & ring_mask) as usize] = self.sum;
             if self.n & period_mask == 0 {
@@ -224,52 +264,74 @@ impl HaarWvStream {
         }
     }
 
-    /// The full levels' coefficients ending at samples `first_k..=last_k`, whose prefix sums
-    /// (and the 2^full_levels before them) are in the ring.
-    fn add_full_levels(&mut self, first_k: u64, last_k: u64) {
+    /// Sums the groups of coefficients the ring now holds whole (on every core when there
+    /// are several), each group's level sums added in order.
+    fn add_full_groups(&mut self) {
         use rayon::prelude::*;
-        let ring = &self.ring;
-        let mask = ring.len() as u64 - 1;
-        let level = |(index, sums): (usize, &mut LaneSums)| {
-            let h = 1u64 << index;
-            let start = first_k.max(2 * h);
-            if start > last_k {
-                return;
-            }
-            sums.count += last_k - start + 1;
-            let mut lanes = sums.lanes;
-            let mut squares = [0.0f64; SEGMENT];
-            let mut k = start;
-            while k <= last_k {
-                // A run of coefficients whose three prefix sums lie in unbroken stretches
-                // of the ring: computed independently of each other (vectorised), then
-                // added in order.
-                let end = segment_end(k, last_k, &[0, h, 2 * h], mask);
-                let n = (end - k + 1) as usize;
-                let slot = |back: u64| ((k - back) & mask) as usize;
-                let (now, one, two) = (
-                    &ring[slot(0)..slot(0) + n],
-                    &ring[slot(h)..slot(h) + n],
-                    &ring[slot(2 * h)..slot(2 * h) + n],
-                );
-                for (i, square) in squares[..n].iter_mut().enumerate() {
-                    let recent = now[i].minus(one[i]);
-                    let older = one[i].minus(two[i]);
-                    let d = recent.minus(older).hi;
-                    *square = d * d;
-                }
-                for (i, square) in squares[..n].iter().enumerate() {
-                    lanes[((k + i as u64) % 4) as usize].add(*square);
-                }
-                k = end + 1;
-            }
-            sums.lanes = lanes;
-        };
-        if last_k - first_k < 4096 {
-            self.full.iter_mut().enumerate().for_each(level);
-        } else {
-            self.full.par_iter_mut().enumerate().for_each(level);
+        let g = self.group;
+        let whole_groups = (self.n + 1) / g;
+        let first_group = (self.summed_to + 1) / g;
+        if whole_groups <= first_group {
+            return;
         }
+        // Group i holds the coefficients ending at samples i g ..= i g + g - 1 (none ends at 0).
+        let group_sums = |i: u64| self.group_squares((i * g).max(1), i * g + g - 1);
+        let sums: Vec<Vec<(f64, u64)>> = if whole_groups - first_group > 1 {
+            (first_group..whole_groups)
+                .into_par_iter()
+                .map(group_sums)
+                .collect()
+        } else {
+            (first_group..whole_groups).map(group_sums).collect()
+        };
+        for group in &sums {
+            for (level, &(squares, count)) in self.full.iter_mut().zip(group) {
+                if count > 0 {
+                    level.finished.add(squares);
+                    level.count += count;
+                }
+            }
+        }
+        self.summed_to = whole_groups * g - 1;
+    }
+
+    /// Each full level's sum of squared coefficients ending at samples `first..=last` (one
+    /// group or the start of one: their prefix sums and the 2^full_levels before them are
+    /// in the ring) and their number.
+    fn group_squares(&self, first: u64, last: u64) -> Vec<(f64, u64)> {
+        let mask = self.ring.len() as u64 - 1;
+        let mut squares = [0.0f64; SEGMENT];
+        (0..self.full_levels)
+            .map(|index| {
+                let h = 1u64 << index;
+                let start = first.max(2 * h);
+                if start > last {
+                    return (0.0, 0);
+                }
+                let mut lanes = [0.0f64; 8];
+                let mut k = start;
+                while k <= last {
+                    // A run of coefficients whose three prefix sums lie in unbroken
+                    // stretches of the ring: computed independently of each other
+                    // (vectorised), then added in order.
+                    let end = segment_end(k, last, &[0, h, 2 * h], mask);
+                    let n = (end - k + 1) as usize;
+                    let slot = |back: u64| ((k - back) & mask) as usize;
+                    let (now, one, two) = (
+                        &self.ring[slot(0)..slot(0) + n],
+                        &self.ring[slot(h)..slot(h) + n],
+                        &self.ring[slot(2 * h)..slot(2 * h) + n],
+                    );
+                    for (i, square) in squares[..n].iter_mut().enumerate() {
+                        let d = haar_difference(now[i], one[i], two[i]);
+                        *square = d * d;
+                    }
+                    add_to_lanes(&mut lanes, k, &squares[..n]);
+                    k = end + 1;
+                }
+                (lanes_total(&lanes), last - start + 1)
+            })
+            .collect()
     }
 
     /// The decimated levels at a multiple k of 2^(full_levels - oversampling): level j takes
@@ -288,9 +350,7 @@ impl HaarWvStream {
             if m >= len {
                 let half = level.previous[((m - len / 2) % len) as usize];
                 let whole = level.previous[(m % len) as usize];
-                let recent = self.sum.minus(half);
-                let older = half.minus(whole);
-                let d = recent.minus(older).hi;
+                let d = haar_difference(self.sum, half, whole);
                 level.squares.add(d * d);
                 level.count += 1;
             }
@@ -327,11 +387,17 @@ impl HaarWvStream {
                 })
             }
         };
+        let waiting = self.group_squares(self.summed_to + 1, self.n);
         let (mut levels, mut variance, mut m, mut eta) = (vec![], vec![], vec![], vec![]);
         for j in 1..=j_max {
             let (squares, count, dof) = if j <= self.full_levels {
-                let level = self.full[j as usize - 1];
-                (level.total(), level.count, eta3(level.count as usize, j))
+                let mut level = self.full[j as usize - 1];
+                let (waiting_squares, waiting_count) = waiting[j as usize - 1];
+                if waiting_count > 0 {
+                    level.finished.add(waiting_squares);
+                    level.count += waiting_count;
+                }
+                (level.finished, level.count, eta3(level.count as usize, j))
             } else {
                 let level = &self.decimated[(j - self.full_levels - 1) as usize];
                 let dof = match self.oversampling {
@@ -428,6 +494,37 @@ mod tests {
             let relative = (streamed.variance[i] / batch.variance[i] - 1.0).abs();
             assert!(relative < 1e-12, "level {}: {relative:e}", i + 1);
             assert!((streamed.ci_low[i] / batch.ci_low[i] - 1.0).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn a_large_offset_and_a_random_walk_keep_their_digits_when_streamed() {
+        // The batch estimator's hard case (`wv::tests`): 1 g of offset, a random-walk bias and
+        // 1e-3 of noise in exact counts of 1e-6 g, streamed as floats in blocks that cross
+        // the groups, against the exact integer sums; the first sample far from the rest, so
+        // the sums relative to it grow by 0.05 g a sample.
+        let n = (1 << 20) + 12_345;
+        let mut rng = ChaCha8Rng::seed_from_u64(3);
+        let noise = Normal::new(0.0, 1000.0).unwrap();
+        let walk = Normal::new(0.0, 3.0).unwrap();
+        let mut bias = 0.0f64;
+        let mut counts: Vec<i32> = (0..n)
+            .map(|_| {
+                bias += walk.sample(&mut rng);
+                (1_000_000.0 + bias + noise.sample(&mut rng)).round() as i32
+            })
+            .collect();
+        counts[0] = 950_000;
+        let lsb = 1e-6;
+        let exact = haar_wv_counts(&counts, lsb, 0.01, &WvOptions::default()).unwrap();
+        let mut stream = HaarWvStream::new(HaarWvStream::DEFAULT_FULL_LEVELS);
+        let x: Vec<f64> = counts.iter().map(|&c| c as f64 * lsb).collect();
+        x.chunks(100_003).for_each(|block| stream.push_block(block));
+        let streamed = stream.wavelet_variance(None, 1.0, 0.01).unwrap();
+        for i in 0..HaarWvStream::DEFAULT_FULL_LEVELS as usize {
+            assert_eq!(streamed.n_coefficients[i], exact.n_coefficients[i]);
+            let err = ((streamed.variance[i] - exact.variance[i]) / exact.variance[i]).abs();
+            assert!(err < 1e-11, "level {}: {err:e}", i + 1);
         }
     }
 
