@@ -113,6 +113,16 @@ struct LevelSums {
     count: u64,
 }
 
+impl LevelSums {
+    /// Adds one group's sum of squares and its number of coefficients (none: nothing).
+    fn add_group(&mut self, (squares, count): (f64, u64)) {
+        if count > 0 {
+            self.finished.add(squares);
+            self.count += count;
+        }
+    }
+}
+
 /// The eight lanes' sum, always in the same order.
 fn lanes_total(lanes: &[f64; 8]) -> f64 {
     ((lanes[0] + lanes[1]) + (lanes[2] + lanes[3]))
@@ -170,9 +180,6 @@ pub struct HaarWvStream {
     /// Coefficients ending at samples 1..=summed_to are in `full`; the rest, fewer than a
     /// group, wait for their group to fill.
     summed_to: u64,
-    /// Coefficients a group holds: [`GROUP`], or half the widest full level's reach where
-    /// that is less (the ring holds a waiting group beside the block being added).
-    group: u64,
     /// Decimated level j takes its coefficients every h / 2^oversampling samples.
     oversampling: u32,
     decimated: Vec<DecimatedLevel>,
@@ -216,7 +223,6 @@ impl HaarWvStream {
             n: 0,
             full: vec![LevelSums::default(); full_levels as usize],
             summed_to: 0,
-            group: GROUP.min(1 << (full_levels - 1)),
             oversampling,
             decimated: vec![level; (Self::MAX_LEVELS - full_levels) as usize],
         }
@@ -264,11 +270,17 @@ impl HaarWvStream {
         }
     }
 
+    /// Coefficients a group holds: [`GROUP`], or half the widest full level's reach where
+    /// that is less (the ring holds a waiting group beside the block being added).
+    fn group(&self) -> u64 {
+        GROUP.min(1 << (self.full_levels - 1))
+    }
+
     /// Sums the groups of coefficients the ring now holds whole (on every core when there
     /// are several), each group's level sums added in order.
     fn add_full_groups(&mut self) {
         use rayon::prelude::*;
-        let g = self.group;
+        let g = self.group();
         let whole_groups = (self.n + 1) / g;
         let first_group = (self.summed_to + 1) / g;
         if whole_groups <= first_group {
@@ -285,11 +297,8 @@ impl HaarWvStream {
             (first_group..whole_groups).map(group_sums).collect()
         };
         for group in &sums {
-            for (level, &(squares, count)) in self.full.iter_mut().zip(group) {
-                if count > 0 {
-                    level.finished.add(squares);
-                    level.count += count;
-                }
+            for (level, &level_group) in self.full.iter_mut().zip(group) {
+                level.add_group(level_group);
             }
         }
         self.summed_to = whole_groups * g - 1;
@@ -392,11 +401,7 @@ impl HaarWvStream {
         for j in 1..=j_max {
             let (squares, count, dof) = if j <= self.full_levels {
                 let mut level = self.full[j as usize - 1];
-                let (waiting_squares, waiting_count) = waiting[j as usize - 1];
-                if waiting_count > 0 {
-                    level.finished.add(waiting_squares);
-                    level.count += waiting_count;
-                }
+                level.add_group(waiting[j as usize - 1]);
                 (level.finished, level.count, eta3(level.count as usize, j))
             } else {
                 let level = &self.decimated[(j - self.full_levels - 1) as usize];
