@@ -460,16 +460,16 @@ fn from_recordings(
     recordings: Vec<(String, ImuRecording, RowLines)>,
 ) -> Result<Vec<Series>, InputError> {
     let mut available = Vec::new();
-    for (prefix, rec, lines) in &recordings {
+    for (prefix, mut rec, lines) in recordings {
         let rate = args.rate_hz.or(rec.sample_rate_hz);
-        let dt_s = sample_interval_at(path, &rec.t_s, rate, *lines)?;
+        let dt_s = sample_interval_at(path, &rec.t_s, rate, lines)?;
         for c in Channel::ALL {
-            if let Some(values) = rec.channel(c.name()) {
+            if let Some(raw) = rec.take_channel(c.name()) {
                 available.push(Series {
                     name: format!("{prefix}{c}"),
                     unit: c.si_unit().into(),
                     dt_s,
-                    raw: values.to_vec(),
+                    raw,
                     scale: 1.0,
                 });
             }

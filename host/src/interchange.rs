@@ -493,12 +493,8 @@ pub(crate) fn csv_error(path: &Path, e: csv::Error) -> TableError {
 /// The median step of a time column, s: dynacal's one estimate of a sample interval where
 /// none is stated (robust to a gap or a late sample). `None` for fewer than two samples.
 pub fn median_step_s(t_s: &[f64]) -> Option<f64> {
-    if t_s.len() < 2 {
-        return None;
-    }
-    let mut steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
-    let mid = steps.len() / 2;
-    Some(*steps.select_nth_unstable_by(mid, f64::total_cmp).1)
+    let steps = t_s.len().checked_sub(1)?;
+    crate::numeric::select_rank(steps, |i| t_s[i + 1] - t_s[i], steps / 2)
 }
 
 /// How regular a time column is: the median step, the spread of the steps and the gaps.
@@ -914,6 +910,14 @@ pub struct ImuRecording {
     pub sample_rate_hz: Option<f64>,
 }
 
+/// Where an [`ImuRecording`] holds one of its channels.
+enum ChannelSlot {
+    Gyro(usize),
+    Accel(usize),
+    /// An index into [`ImuRecording::single_axis`].
+    Single(usize),
+}
+
 impl ImuRecording {
     /// Number of samples.
     pub fn len(&self) -> usize {
@@ -970,27 +974,47 @@ impl ImuRecording {
     /// The sample rate, Hz: the stated one, else the reciprocal of the median step (0 for
     /// fewer than two samples).
     pub fn rate_hz(&self) -> f64 {
-        match (self.sample_rate_hz, median_step_s(&self.t_s)) {
-            (Some(rate), _) => rate,
-            (None, Some(step)) if step > 0.0 => 1.0 / step,
-            _ => 0.0,
+        match self.sample_rate_hz {
+            Some(rate) => rate,
+            None => median_step_s(&self.t_s)
+                .filter(|&step| step > 0.0)
+                .map_or(0.0, |step| 1.0 / step),
         }
     }
     /// A channel by its short name (`gx` ... `az`), if the recording has it.
     pub fn channel(&self, name: &str) -> Option<&[f64]> {
+        Some(match self.channel_slot(name)? {
+            ChannelSlot::Gyro(axis) => &self.gyro_rad_s.as_ref()?[axis],
+            ChannelSlot::Accel(axis) => &self.accel_m_s2.as_ref()?[axis],
+            ChannelSlot::Single(k) => &self.single_axis[k].values,
+        })
+    }
+    /// A channel's values taken out of the recording (left empty), as
+    /// [`ImuRecording::channel`] finds it: for a reader that keeps the series alone.
+    pub fn take_channel(&mut self, name: &str) -> Option<Vec<f64>> {
+        let values = match self.channel_slot(name)? {
+            ChannelSlot::Gyro(axis) => &mut self.gyro_rad_s.as_mut()?[axis],
+            ChannelSlot::Accel(axis) => &mut self.accel_m_s2.as_mut()?[axis],
+            ChannelSlot::Single(k) => &mut self.single_axis[k].values,
+        };
+        Some(std::mem::take(values))
+    }
+    /// Where the channel `name` is held: an axis of a triplet, or a lone channel.
+    fn channel_slot(&self, name: &str) -> Option<ChannelSlot> {
         let i = CHANNELS.iter().position(|c| *c == name)?;
         let triplet = if i < 3 {
-            self.gyro_rad_s.as_ref()
+            &self.gyro_rad_s
         } else {
-            self.accel_m_s2.as_ref()
+            &self.accel_m_s2
         };
-        match triplet {
-            Some(t) => Some(t[i % 3].as_slice()),
-            None => self
+        match (triplet, i < 3) {
+            (Some(_), true) => Some(ChannelSlot::Gyro(i % 3)),
+            (Some(_), false) => Some(ChannelSlot::Accel(i % 3)),
+            (None, _) => self
                 .single_axis
                 .iter()
-                .find(|s| s.channel == i)
-                .map(|s| s.values.as_slice()),
+                .position(|s| s.channel == i)
+                .map(ChannelSlot::Single),
         }
     }
     /// The short names of the channels this recording has, in [`CHANNELS`] order.

@@ -14,7 +14,7 @@ pub fn median(mut values: Vec<f64>) -> Option<f64> {
 }
 
 /// Bits of a radix digit in [`select_by_passes`]: 2^16 buckets a pass (1.5 MiB of counts and
-/// bounds), four passes at most for 64-bit keys.
+/// bounds), four passes at most for 64-bit keys after the one that finds their range.
 const SELECT_DIGIT_BITS: u32 = 16;
 
 /// `x`'s bits as an unsigned key in the order of [`f64::total_cmp`].
@@ -36,18 +36,38 @@ fn from_total_order_key(key: u64) -> f64 {
 }
 
 /// The value of rank `rank` (0-based, in [`f64::total_cmp`] order) among the values each
-/// call of `pass` yields (the same values on every call, in any order), in memory that does
+/// call of `pass` yields, in slices of any length (the same values on every call, in any
+/// order; a slice a call keeps the passes' loops tight), in memory that does
 /// not grow with their number: what [`median`] gives of a sample held whole, for one that is
-/// not (`rank = count / 2`). Radix selection on the values' bits, [`SELECT_DIGIT_BITS`] a
-/// pass, most significant first; a pass whose chosen bucket holds one distinct value ends
-/// it, so evenly sampled times take one or two passes and any values at most four. `None`
-/// when `rank` is not below the number of values.
+/// not (`rank = count / 2`). A first pass finds the values' range; radix selection then runs
+/// on the bits below those all the values share, [`SELECT_DIGIT_BITS`] a pass, most
+/// significant first, and a pass whose chosen bucket holds one distinct value ends it. So
+/// evenly sampled times (steps alike but for their last bits) take two or three passes, and
+/// any values five at most. `None` when `rank` is not below the number of values.
 pub fn select_by_passes<E>(
     rank: u64,
-    mut pass: impl FnMut(&mut dyn FnMut(f64)) -> Result<(), E>,
+    mut pass: impl FnMut(&mut dyn FnMut(&[f64])) -> Result<(), E>,
 ) -> Result<Option<f64>, E> {
+    let (mut count, mut least, mut most) = (0u64, u64::MAX, 0u64);
+    pass(&mut |values| {
+        count += values.len() as u64;
+        for &x in values {
+            let key = total_order_key(x);
+            least = least.min(key);
+            most = most.max(key);
+        }
+    })?;
+    if rank >= count {
+        return Ok(None);
+    }
+    // The bits every value shares need no pass (buckets all of one digit would also chain
+    // each count on the last).
+    let mut known_bits = (least ^ most).leading_zeros();
+    if known_bits == 64 {
+        return Ok(Some(from_total_order_key(least)));
+    }
     let buckets = 1usize << SELECT_DIGIT_BITS;
-    let (mut known_bits, mut prefix, mut rank) = (0u32, 0u64, rank);
+    let (mut prefix, mut rank) = (least.checked_shr(64 - known_bits).unwrap_or(0), rank);
     let mut counts = vec![0u64; buckets];
     let mut lowest = vec![u64::MAX; buckets];
     let mut highest = vec![0u64; buckets];
@@ -55,16 +75,20 @@ pub fn select_by_passes<E>(
         counts.fill(0);
         lowest.fill(u64::MAX);
         highest.fill(0);
-        let shift = 64 - known_bits - SELECT_DIGIT_BITS;
-        pass(&mut |x| {
-            let key = total_order_key(x);
-            if known_bits > 0 && key >> (64 - known_bits) != prefix {
-                return;
+        let digit_bits = SELECT_DIGIT_BITS.min(64 - known_bits);
+        let shift = 64 - known_bits - digit_bits;
+        let digit_mask = (1usize << digit_bits) - 1;
+        pass(&mut |values| {
+            for &x in values {
+                let key = total_order_key(x);
+                if key.checked_shr(64 - known_bits).unwrap_or(0) != prefix {
+                    continue;
+                }
+                let b = ((key >> shift) as usize) & digit_mask;
+                counts[b] += 1;
+                lowest[b] = lowest[b].min(key);
+                highest[b] = highest[b].max(key);
             }
-            let b = ((key >> shift) as usize) & (buckets - 1);
-            counts[b] += 1;
-            lowest[b] = lowest[b].min(key);
-            highest[b] = highest[b].max(key);
         })?;
         let Some(b) = (0..buckets).find(|&b| {
             if rank < counts[b] {
@@ -78,8 +102,135 @@ pub fn select_by_passes<E>(
         if lowest[b] == highest[b] {
             return Ok(Some(from_total_order_key(lowest[b])));
         }
-        prefix = (prefix << SELECT_DIGIT_BITS) | b as u64;
-        known_bits += SELECT_DIGIT_BITS;
+        prefix = (prefix << digit_bits) | b as u64;
+        known_bits += digit_bits;
+    }
+}
+
+/// The value of rank `rank` (0-based, in [`f64::total_cmp`] order) among `value(0..n)`:
+/// what a copy of the values and [`slice::select_nth_unstable_by`] give, to the bit, without
+/// the copy (8 bytes a value of new memory, whose pages cost more than the selection). A
+/// sample of the values brackets the rank, one pass counts the values below the bracket and
+/// keeps those inside it (a few percent), and the rank is selected among those; where the
+/// sample misjudged (the rank falls outside the bracket, or the bracket holds too many) the
+/// values are copied after all.
+pub fn select_rank(n: usize, value: impl Fn(usize) -> f64, rank: usize) -> Option<f64> {
+    const SAMPLE: usize = 4096;
+    let copied = || {
+        let mut all: Vec<u64> = (0..n).map(|i| total_order_key(value(i))).collect();
+        from_total_order_key(*all.select_nth_unstable(rank).1)
+    };
+    if rank >= n {
+        return None;
+    }
+    if n < 16 * SAMPLE {
+        return Some(copied());
+    }
+    let mut sample: Vec<u64> = (0..SAMPLE)
+        .map(|k| total_order_key(value(k * (n - 1) / (SAMPLE - 1))))
+        .collect();
+    sample.sort_unstable();
+    // About six standard deviations of the sample's rank either side.
+    let at = rank * (SAMPLE - 1) / (n - 1);
+    let (lo, hi) = (
+        sample[at.saturating_sub(400)],
+        sample[(at + 400).min(SAMPLE - 1)],
+    );
+    let (mut below, mut at_lo, mut at_hi) = (0usize, 0usize, 0usize);
+    let mut inside = Vec::new();
+    for i in 0..n {
+        let key = total_order_key(value(i));
+        if key < lo {
+            below += 1;
+        } else if key == lo {
+            at_lo += 1;
+        } else if key < hi {
+            inside.push(key);
+            if inside.len() > n / 8 {
+                return Some(copied());
+            }
+        } else if key == hi {
+            at_hi += 1;
+        }
+    }
+    let Some(mut r) = rank.checked_sub(below) else {
+        return Some(copied());
+    };
+    if r < at_lo {
+        return Some(from_total_order_key(lo));
+    }
+    r -= at_lo;
+    if r < inside.len() {
+        return Some(from_total_order_key(*inside.select_nth_unstable(r).1));
+    }
+    r -= inside.len();
+    if lo != hi && r < at_hi {
+        return Some(from_total_order_key(hi));
+    }
+    Some(copied())
+}
+
+/// Values handed to a [`select_by_passes`] visitor a slice at a time, from one at a time.
+pub struct Batched<'a> {
+    visit: &'a mut dyn FnMut(&[f64]),
+    buffer: [f64; 256],
+    len: usize,
+}
+
+impl<'a> Batched<'a> {
+    pub fn new(visit: &'a mut dyn FnMut(&[f64])) -> Self {
+        Self {
+            visit,
+            buffer: [0.0; 256],
+            len: 0,
+        }
+    }
+
+    pub fn push(&mut self, x: f64) {
+        self.buffer[self.len] = x;
+        self.len += 1;
+        if self.len == self.buffer.len() {
+            self.flush();
+        }
+    }
+
+    /// Hands over what is left.
+    pub fn finish(mut self) {
+        self.flush();
+    }
+
+    fn flush(&mut self) {
+        (self.visit)(&self.buffer[..self.len]);
+        self.len = 0;
+    }
+}
+
+/// The steps between consecutive times, s, handed to a [`select_by_passes`] visitor: what a
+/// median sample interval is selected from.
+pub struct TimeSteps<'a> {
+    steps: Batched<'a>,
+    previous_t_s: Option<f64>,
+}
+
+impl<'a> TimeSteps<'a> {
+    pub fn new(visit: &'a mut dyn FnMut(&[f64])) -> Self {
+        Self {
+            steps: Batched::new(visit),
+            previous_t_s: None,
+        }
+    }
+
+    /// The next time, s.
+    pub fn push(&mut self, t_s: f64) {
+        if let Some(previous) = self.previous_t_s {
+            self.steps.push(t_s - previous);
+        }
+        self.previous_t_s = Some(t_s);
+    }
+
+    /// Hands over the steps not yet handed.
+    pub fn finish(self) {
+        self.steps.finish();
     }
 }
 
@@ -241,6 +392,44 @@ mod tests {
     }
 
     #[test]
+    fn rank_selection_without_a_copy_is_the_sorted_value() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let n = 200_000;
+        let t_s: Vec<f64> = (0..=n).map(|k| k as f64 * 0.01).collect();
+        let cases: Vec<(&str, Vec<f64>)> = vec![
+            (
+                "random",
+                (0..n).map(|_| rng.random_range(-1.0..1.0)).collect(),
+            ),
+            ("time steps", t_s.windows(2).map(|w| w[1] - w[0]).collect()),
+            // Every value the sample sees is 0, the rest 1: the bracket misjudges.
+            ("against the sample", {
+                let mut v = vec![1.0; n];
+                (0..4096).for_each(|k| v[k * (n - 1) / 4095] = 0.0);
+                v
+            }),
+            ("sorted", (0..n).map(|i| i as f64).collect()),
+            ("equal", vec![-0.0; n]),
+            (
+                "signed zeros",
+                (0..n)
+                    .map(|i| if i % 3 == 0 { 0.0 } else { -0.0 })
+                    .collect(),
+            ),
+        ];
+        for (name, values) in cases {
+            let mut sorted = values.clone();
+            sorted.sort_by(f64::total_cmp);
+            for rank in [0, 1, n / 3, n / 2, n - 1, rng.random_range(0..n)] {
+                let got = select_rank(n, |i| values[i], rank).map(f64::to_bits);
+                assert_eq!(got, Some(sorted[rank].to_bits()), "{name}, rank {rank}");
+            }
+            assert_eq!(select_rank(n, |i| values[i], n), None);
+        }
+    }
+
+    #[test]
     fn selection_by_passes_is_the_sorted_sample_at_its_rank() {
         use rand::{Rng, SeedableRng};
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
@@ -258,7 +447,7 @@ mod tests {
             for rank in [0, sorted.len() / 3, sorted.len() / 2, sorted.len() - 1] {
                 let got = select_by_passes::<()>(rank as u64, |visit| {
                     passes += 1;
-                    values.iter().for_each(|&x| visit(x));
+                    visit(&values);
                     Ok(())
                 })
                 .unwrap();
@@ -268,14 +457,27 @@ mod tests {
                     "rank {rank}"
                 );
             }
-            assert!(passes <= 16, "{passes} passes for four ranks");
+            assert!(passes <= 20, "{passes} passes for four ranks");
             assert_eq!(
                 median(values.clone()),
                 sorted.get(sorted.len() / 2).copied()
             );
         }
+        // A time column's steps, alike but for their last bits: the range pass and two.
+        let t_s: Vec<f64> = (0..400_000).map(|k| k as f64 * 0.01).collect();
+        let mut steps: Vec<f64> = t_s.windows(2).map(|w| w[1] - w[0]).collect();
+        let mut passes = 0;
+        let got = select_by_passes::<()>(steps.len() as u64 / 2, |visit| {
+            passes += 1;
+            visit(&steps);
+            Ok(())
+        });
+        let mid = steps.len() / 2;
+        let want = *steps.select_nth_unstable_by(mid, f64::total_cmp).1;
+        assert_eq!(got.unwrap().map(f64::to_bits), Some(want.to_bits()));
+        assert!(passes <= 3, "{passes} passes over a time column's steps");
         let beyond = select_by_passes::<()>(3, |visit| {
-            [1.0, 2.0].iter().for_each(|&x| visit(x));
+            visit(&[1.0, 2.0]);
             Ok(())
         });
         assert_eq!(beyond, Ok(None));

@@ -437,16 +437,15 @@ fn calibrate_streamed(
 fn median_epoch_step_s(view: &View, epochs: usize) -> Result<f64, ErrorsError> {
     let steps = epochs.saturating_sub(1) as u64;
     let median = crate::numeric::select_by_passes(steps / 2, |visit| {
-        let mut previous: Option<f64> = None;
-        view.pass(&mut |block| {
-            for &t in &block.t_s[block.own.clone()] {
-                if let Some(p) = previous {
-                    visit(t - p);
-                }
-                previous = Some(t);
-            }
+        let mut steps = crate::numeric::TimeSteps::new(visit);
+        let read = view.pass(&mut |block| {
+            block.t_s[block.own.clone()]
+                .iter()
+                .for_each(|&t| steps.push(t));
             Ok(())
-        })
+        });
+        steps.finish();
+        read
     })?;
     Ok(median.unwrap_or(0.0))
 }

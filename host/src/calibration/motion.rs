@@ -146,12 +146,17 @@ fn median_norm_by_passes(
     of: impl Fn(&EpochData) -> Option<&[Vector3<f64>]>,
 ) -> Result<f64, ErrorsError> {
     let median = crate::numeric::select_by_passes(epochs as u64 / 2, |visit| {
-        view.pass(&mut |block| {
+        let mut norms = crate::numeric::Batched::new(visit);
+        let read = view.pass(&mut |block| {
             if let Some(v) = of(block.data) {
-                v[block.own.clone()].iter().for_each(|x| visit(x.norm()));
+                v[block.own.clone()]
+                    .iter()
+                    .for_each(|x| norms.push(x.norm()));
             }
             Ok(())
-        })
+        });
+        norms.finish();
+        read
     })?;
     Ok(median.unwrap_or(0.0))
 }

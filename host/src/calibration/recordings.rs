@@ -374,13 +374,10 @@ impl SpilledRecording {
     pub fn median_step_s(&self) -> Result<Option<f64>, ErrorsError> {
         let steps = self.len.saturating_sub(1) as u64;
         crate::numeric::select_by_passes(steps / 2, |visit| {
-            let mut previous: Option<f64> = None;
-            self.for_each_time(|t| {
-                if let Some(p) = previous {
-                    visit(t - p);
-                }
-                previous = Some(t);
-            })
+            let mut steps = crate::numeric::TimeSteps::new(visit);
+            let read = self.for_each_time(|t| steps.push(t));
+            steps.finish();
+            read
         })
     }
 }

@@ -137,16 +137,14 @@ impl SignalBank {
     pub fn median_step_s(&self) -> Result<Option<f64>, SpillError> {
         let steps = self.epochs().saturating_sub(1) as u64;
         crate::numeric::select_by_passes(steps / 2, |visit| {
-            let mut previous: Option<f64> = None;
-            self.bank
+            let mut steps = crate::numeric::TimeSteps::new(visit);
+            let read = self
+                .bank
                 .for_each_block_in(&[Self::TIME], 0..self.epochs(), &mut |_, t| {
-                    for &t in t[0] {
-                        if let Some(p) = previous {
-                            visit(t - p);
-                        }
-                        previous = Some(t);
-                    }
-                })
+                    t[0].iter().for_each(|&t| steps.push(t));
+                });
+            steps.finish();
+            read
         })
     }
 

@@ -240,6 +240,7 @@ fn feed_fast(
             }
             line += piece[time].len() as u64;
         }
+        blocks.recycle(block);
     }
 }
 

@@ -31,28 +31,24 @@ const BLOCKS_AHEAD: usize = 2;
 /// The table of `path` when the fast path can read it; `None`: read it with the `csv` crate.
 pub(super) fn read_table(path: &Path, wanted: Option<&[&str]>) -> Option<Table> {
     let mut blocks = FastBlocks::open(path, wanted)?;
-    let mut parsed = Vec::new();
+    // Each block is appended as it comes and its pieces' buffers parse the next one, so the
+    // only new memory is the columns' own (a large vector grows by remapping, not copying).
+    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); blocks.headers().len()];
+    let mut first_line = None;
     while let Some(block) = blocks.next_block().ok()? {
-        parsed.push(block);
-    }
-    // One copy into columns of the final length (the pieces are parsed into their own).
-    let rows: u64 = parsed.iter().map(ParsedBlock::rows).sum();
-    let columns = (0..blocks.headers().len())
-        .map(|c| {
-            let mut column = Vec::with_capacity(rows as usize);
-            for piece in parsed.iter().flat_map(ParsedBlock::pieces) {
-                column.extend_from_slice(&piece[c]);
+        first_line.get_or_insert(block.first_line);
+        for piece in block.pieces() {
+            for (column, values) in columns.iter_mut().zip(piece) {
+                column.extend_from_slice(values);
             }
-            column
-        })
-        .collect();
+        }
+        blocks.recycle(block);
+    }
     Some(Table {
         path: path.to_path_buf(),
         headers: blocks.header.names,
         columns,
-        row_lines: parsed
-            .first()
-            .map_or(RowLines::Unknown, |b| RowLines::From(b.first_line)),
+        row_lines: first_line.map_or(RowLines::Unknown, RowLines::From),
     })
 }
 
@@ -91,6 +87,8 @@ pub struct FastBlocks {
     /// A line begun in the previous block.
     carry: Vec<u8>,
     header: Header,
+    /// Parsed pieces' column buffers handed back ([`FastBlocks::recycle`]), to parse into.
+    spare: Vec<Vec<Vec<f64>>>,
     /// The file line of the next row.
     next_line: u64,
     at_end: bool,
@@ -120,6 +118,7 @@ impl FastBlocks {
                     queued: Some(pending),
                     carry: Vec::new(),
                     header,
+                    spare: Vec::new(),
                     next_line: lines + 1,
                     at_end,
                 });
@@ -133,6 +132,14 @@ impl FastBlocks {
     /// The parsed columns' names, in file order.
     pub fn headers(&self) -> &[String] {
         &self.header.names
+    }
+
+    /// Hands a consumed block's buffers back to parse later blocks into: a reader that
+    /// recycles its blocks touches no new memory after the first (new pages cost more than
+    /// the parse of what fills them).
+    pub fn recycle(&mut self, block: ParsedBlock) {
+        self.spare
+            .extend(block.pieces.into_iter().map(|(_, columns)| columns));
     }
 
     /// The next block of rows; `Ok(None)` after the last.
@@ -156,7 +163,7 @@ impl FastBlocks {
                     return Ok(None);
                 }
                 let last = std::mem::take(&mut self.carry);
-                let pieces = parse_rows(&last, &self.header).ok_or(Fallback)?;
+                let pieces = parse_rows(&last, &self.header, &mut self.spare).ok_or(Fallback)?;
                 return Ok(Some(self.counted(pieces)));
             };
             let pieces = self.parse_block(&block);
@@ -181,11 +188,15 @@ impl FastBlocks {
         let mut body_start = 0;
         if !self.carry.is_empty() {
             self.carry.extend_from_slice(&block[..=first_end]);
-            pieces.extend(parse_rows(&self.carry, &self.header)?);
+            pieces.extend(parse_rows(&self.carry, &self.header, &mut self.spare)?);
             self.carry.clear();
             body_start = first_end + 1;
         }
-        pieces.extend(parse_rows(&block[body_start..=last_end], &self.header)?);
+        pieces.extend(parse_rows(
+            &block[body_start..=last_end],
+            &self.header,
+            &mut self.spare,
+        )?);
         self.carry.extend_from_slice(&block[last_end + 1..]);
         Some(pieces)
     }
@@ -239,6 +250,7 @@ pub(crate) fn for_each_fast_row<E>(
                 rows += 1;
             }
         }
+        blocks.recycle(block);
     }
     Ok(rows > 0)
 }
@@ -344,17 +356,27 @@ fn strip_cr(line: &[u8]) -> &[u8] {
 }
 
 /// Parses whole lines of rows in parallel over pieces of `bytes` split at line ends: each
-/// piece's row count and columns; `None` at anything the fast path leaves to the `csv` crate.
-fn parse_rows(bytes: &[u8], header: &Header) -> Option<Vec<(u64, Vec<Vec<f64>>)>> {
+/// piece's row count and columns, parsed into buffers from `spare` where it has them;
+/// `None` at anything the fast path leaves to the `csv` crate.
+fn parse_rows(
+    bytes: &[u8],
+    header: &Header,
+    spare: &mut Vec<Vec<Vec<f64>>>,
+) -> Option<Vec<(u64, Vec<Vec<f64>>)>> {
     if bytes.is_empty() {
         return Some(Vec::new());
     }
     if memchr::memchr(b'"', bytes).is_some() {
         return None;
     }
-    split_at_lines(bytes, rayon::current_num_threads() * 4)
-        .par_iter()
-        .map(|piece| parse_piece(piece, header))
+    let pieces: Vec<(&[u8], Vec<Vec<f64>>)> =
+        split_at_lines(bytes, rayon::current_num_threads() * 4)
+            .into_iter()
+            .map(|piece| (piece, spare.pop().unwrap_or_default()))
+            .collect();
+    pieces
+        .into_par_iter()
+        .map(|(piece, buffers)| parse_piece(piece, header, buffers))
         .collect()
 }
 
@@ -379,12 +401,19 @@ fn split_at_lines(bytes: &[u8], parts: usize) -> Vec<&[u8]> {
     pieces
 }
 
-/// The number of lines in `piece` and their parsed columns.
-fn parse_piece(piece: &[u8], header: &Header) -> Option<(u64, Vec<Vec<f64>>)> {
+/// The number of lines in `piece` and their parsed columns, in `buffers` (emptied first;
+/// more made if it has too few).
+fn parse_piece(
+    piece: &[u8],
+    header: &Header,
+    mut columns: Vec<Vec<f64>>,
+) -> Option<(u64, Vec<Vec<f64>>)> {
     let rows_guess = piece.len() / 16 + 1;
-    let mut columns: Vec<Vec<f64>> = (0..header.names.len())
-        .map(|_| Vec::with_capacity(rows_guess))
-        .collect();
+    columns.resize_with(header.names.len(), Vec::new);
+    for column in &mut columns {
+        column.clear();
+        column.reserve(rows_guess);
+    }
     let mut rows = 0;
     let mut pos = 0;
     while pos < piece.len() {

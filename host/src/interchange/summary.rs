@@ -127,25 +127,21 @@ pub fn summarise_streamed(path: &Path) -> Result<Summary, TableError> {
     }
     let samples = span.samples;
     let median_step_s = crate::numeric::select_by_passes(samples.saturating_sub(1) / 2, |visit| {
-        let mut previous: Option<f64> = None;
-        let mut step = |t_s: f64| {
-            if let Some(p) = previous {
-                visit(t_s - p);
-            }
-            previous = Some(t_s);
-        };
-        if fast {
+        let mut steps = crate::numeric::TimeSteps::new(visit);
+        let read = if fast {
             for_each_fast_row(path, &["t_s"], |row| -> Result<bool, TableError> {
-                step(row[0]);
+                steps.push(row[0]);
                 Ok(true)
             })
             .map(|_| ())
         } else {
             for_each_row(path, &["t_s"], |_, row: &[f64]| -> Result<(), TableError> {
-                step(row[0]);
+                steps.push(row[0]);
                 Ok(())
             })
-        }
+        };
+        steps.finish();
+        read
     })?;
     let stated = read_stated_rate(path)?;
     let stated_rate_hz = stated.as_ref().map(|(_, rate)| *rate);
