@@ -19,7 +19,7 @@
 use std::path::Path;
 
 use super::{format_error, per_channel, ChannelWv, InputArgs, InputError};
-use crate::interchange::fast::{Fallback, FastBlocks};
+use crate::interchange::fast::{Fallback, FastBlocks, ParsedBlock};
 use crate::interchange::parquet::{is_parquet, ParquetColumns};
 use crate::interchange::{
     csv_error, csv_reader, is_interchange_column, open_maybe_gz, parse_field, read_stated_rate,
@@ -224,24 +224,49 @@ fn feed_fast(
     ) else {
         return Ok(false);
     };
+    // The next block is parsed while the last one goes into the streams: the streams' prefix
+    // chain is serial, and the parse fills the other cores meanwhile.
+    let mut last: Option<ParsedBlock> = None;
     loop {
-        let block = match blocks.next_block() {
-            Ok(Some(block)) => block,
+        let (next, fed) = rayon::join(
+            || blocks.next_block(),
+            || match &last {
+                Some(block) => feed_block(block, time, &slots, rows, streams),
+                None => Ok(()),
+            },
+        );
+        fed?;
+        if let Some(block) = last.take() {
+            blocks.recycle(block);
+        }
+        last = match next {
+            Ok(Some(block)) => Some(block),
             Ok(None) => return Ok(true),
             Err(Fallback) => return Ok(false),
         };
-        let mut line = block.first_line;
-        for piece in block.pieces() {
-            for (r, &t_s) in piece[time].iter().enumerate() {
-                rows.check(t_s, line + r as u64)?;
-            }
-            for (stream, &slot) in streams.iter_mut().zip(&slots) {
-                stream.push_block(&piece[slot]);
-            }
-            line += piece[time].len() as u64;
-        }
-        blocks.recycle(block);
     }
+}
+
+/// One parsed block's rows checked and its channels (`slots` of its columns, time at
+/// `time`) pushed into `streams`.
+fn feed_block(
+    block: &ParsedBlock,
+    time: usize,
+    slots: &[usize],
+    rows: &mut RowChecker,
+    streams: &mut [HaarWvStream],
+) -> Result<(), InputError> {
+    let mut line = block.first_line;
+    for piece in block.pieces() {
+        for (r, &t_s) in piece[time].iter().enumerate() {
+            rows.check(t_s, line + r as u64)?;
+        }
+        for (stream, &slot) in streams.iter_mut().zip(slots) {
+            stream.push_block(&piece[slot]);
+        }
+        line += piece[time].len() as u64;
+    }
+    Ok(())
 }
 
 /// As [`feed_fast`], from a Parquet file's column blocks (errors name the row).
