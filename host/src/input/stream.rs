@@ -20,7 +20,7 @@ use std::path::Path;
 
 use super::{format_error, per_channel, ChannelWv, InputArgs, InputError};
 use crate::interchange::fast::{Fallback, FastBlocks, ParsedBlock};
-use crate::interchange::parquet::{is_parquet, ParquetColumns};
+use crate::interchange::parquet::{is_parquet, OwnedBlock, ParquetColumns};
 use crate::interchange::{
     csv_error, csv_reader, is_interchange_column, open_maybe_gz, parse_field, read_stated_rate,
     TableError,
@@ -258,13 +258,27 @@ fn feed_block(
 ) -> Result<(), InputError> {
     let mut line = block.first_line;
     for piece in block.pieces() {
-        for (r, &t_s) in piece[time].iter().enumerate() {
-            rows.check(t_s, line + r as u64)?;
-        }
-        for (stream, &slot) in streams.iter_mut().zip(slots) {
-            stream.push_block(&piece[slot]);
-        }
+        feed_columns(piece, line, time, slots, rows, streams)?;
         line += piece[time].len() as u64;
+    }
+    Ok(())
+}
+
+/// Rows of `columns` (the first at line or row `first`) checked by their times (column
+/// `time`) and their channels (`slots`) pushed into `streams`.
+fn feed_columns(
+    columns: &[Vec<f64>],
+    first: u64,
+    time: usize,
+    slots: &[usize],
+    rows: &mut RowChecker,
+    streams: &mut [HaarWvStream],
+) -> Result<(), InputError> {
+    for (r, &t_s) in columns[time].iter().enumerate() {
+        rows.check(t_s, first + r as u64)?;
+    }
+    for (stream, &slot) in streams.iter_mut().zip(slots) {
+        stream.push_block(&columns[slot]);
     }
     Ok(())
 }
@@ -286,15 +300,27 @@ fn feed_parquet(
         .iter()
         .map(|&i| at(columns[i].0.column()).expect("the header has the channel"))
         .collect();
-    while let Some(block) = blocks.next_block()? {
-        for (r, &t_s) in block.columns[time].iter().enumerate() {
-            rows.check(t_s, block.first_row + r as u64)?;
+    // As in `feed_fast`: the next block decoded while the last goes into the streams.
+    let (mut last, mut spare): (Option<OwnedBlock>, Vec<Vec<f64>>) = (None, Vec::new());
+    loop {
+        let (next, fed) = rayon::join(
+            || blocks.next_owned(std::mem::take(&mut spare)),
+            || match &last {
+                Some(block) => {
+                    feed_columns(&block.columns, block.first_row, time, &slots, rows, streams)
+                }
+                None => Ok(()),
+            },
+        );
+        fed?;
+        if let Some(block) = last.take() {
+            spare = block.columns;
         }
-        for (stream, &slot) in streams.iter_mut().zip(&slots) {
-            stream.push_block(&block.columns[slot]);
-        }
+        last = match next? {
+            Some(block) => Some(block),
+            None => return Ok(()),
+        };
     }
-    Ok(())
 }
 
 /// As [`feed_fast`], with the `csv` crate, one record at a time (its errors name the line).

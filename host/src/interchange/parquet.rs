@@ -30,9 +30,10 @@ use ::parquet::data_type::{DataType, DoubleType, FloatType, Int32Type, Int64Type
 use ::parquet::errors::ParquetError;
 use ::parquet::file::metadata::KeyValue;
 use ::parquet::file::properties::WriterProperties;
-use ::parquet::file::reader::{FileReader, SerializedFileReader};
+use ::parquet::file::reader::{ChunkReader, FileReader, Length, SerializedFileReader};
 use ::parquet::file::writer::SerializedFileWriter;
 use ::parquet::schema::types::{ColumnDescriptor, Type as SchemaType};
+use rayon::prelude::*;
 
 use super::{RowLines, Table, TableError};
 use crate::output::AtomicFile;
@@ -75,15 +76,76 @@ fn format_error(path: &Path, message: impl std::fmt::Display) -> TableError {
 }
 
 /// The file's reader (its footer read and checked) and its size on disk, bytes.
-fn open_file(path: &Path) -> Result<(SerializedFileReader<File>, u64), TableError> {
+fn open_file(path: &Path) -> Result<(SerializedFileReader<PositionalFile>, u64), TableError> {
     let io = |source| TableError::Io {
         path: path.to_path_buf(),
         source,
     };
     let handle = File::open(path).map_err(io)?;
     let size_bytes = handle.metadata().map_err(io)?.len();
-    let file = SerializedFileReader::new(handle).map_err(|e| unreadable_file(path, e))?;
+    let file = SerializedFileReader::new(PositionalFile(Arc::new(handle)))
+        .map_err(|e| unreadable_file(path, e))?;
     Ok((file, size_bytes))
+}
+
+/// A Parquet file read by positional reads (`pread`), which share no file offset: the
+/// `parquet` crate's own source for a `File` reads through handles cloned from it, whose
+/// clones share one offset, so columns decoded on several threads would read each other's
+/// pages (seen: snappy reporting corrupt input).
+struct PositionalFile(Arc<File>);
+
+/// Reads a [`PositionalFile`] onward from a position of its own.
+struct PositionalRead {
+    file: Arc<File>,
+    at_byte: u64,
+}
+
+impl Read for PositionalRead {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        let read = read_at(&self.file, buf, self.at_byte)?;
+        self.at_byte += read as u64;
+        Ok(read)
+    }
+}
+
+#[cfg(unix)]
+fn read_at(file: &File, buf: &mut [u8], at_byte: u64) -> std::io::Result<usize> {
+    std::os::unix::fs::FileExt::read_at(file, buf, at_byte)
+}
+
+#[cfg(windows)]
+fn read_at(file: &File, buf: &mut [u8], at_byte: u64) -> std::io::Result<usize> {
+    // Moves the handle's offset too, which no reader here relies on.
+    std::os::windows::fs::FileExt::seek_read(file, buf, at_byte)
+}
+
+impl Length for PositionalFile {
+    fn len(&self) -> u64 {
+        self.0.metadata().map_or(0, |m| m.len())
+    }
+}
+
+impl ChunkReader for PositionalFile {
+    type T = std::io::BufReader<PositionalRead>;
+
+    fn get_read(&self, start: u64) -> ::parquet::errors::Result<Self::T> {
+        Ok(std::io::BufReader::new(PositionalRead {
+            file: Arc::clone(&self.0),
+            at_byte: start,
+        }))
+    }
+
+    fn get_bytes(&self, start: u64, length: usize) -> ::parquet::errors::Result<bytes::Bytes> {
+        let mut buffer = vec![0; length];
+        let mut reader = PositionalRead {
+            file: Arc::clone(&self.0),
+            at_byte: start,
+        };
+        reader.read_exact(&mut buffer).map_err(|e| {
+            ParquetError::EOF(format!("expected {length} bytes at byte {start}: {e}"))
+        })?;
+        Ok(buffer.into())
+    }
 }
 
 fn unreadable_file(path: &Path, e: ParquetError) -> TableError {
@@ -150,6 +212,13 @@ impl NumberReader {
     }
 }
 
+/// What one column's read of a block gave: records read, and its first non-finite value's
+/// offset, if any.
+struct ColumnRead {
+    records: usize,
+    non_finite: Option<usize>,
+}
+
 /// Why a leaf column cannot be read as numbers, if it cannot.
 fn unreadable(descr: &ColumnDescriptor) -> Option<String> {
     if descr.max_rep_level() > 0 {
@@ -202,11 +271,20 @@ pub struct Block<'a> {
     pub columns: &'a [Vec<f64>],
 }
 
+/// Rows of a Parquet file's wanted columns, moved out of the reader (see
+/// [`ParquetColumns::next_owned`]).
+pub struct OwnedBlock {
+    /// 1-based index of the block's first row among the file's data rows.
+    pub first_row: u64,
+    /// As [`Block::columns`].
+    pub columns: Vec<Vec<f64>>,
+}
+
 /// A Parquet interchange file's wanted columns read in blocks of rows, in memory that does
 /// not grow with the file.
 pub struct ParquetColumns {
     path: PathBuf,
-    file: SerializedFileReader<File>,
+    file: SerializedFileReader<PositionalFile>,
     /// The wanted columns' names, in file order, and their leaf indices and nullability.
     headers: Vec<String>,
     leaves: Vec<(usize, bool)>,
@@ -217,7 +295,8 @@ pub struct ParquetColumns {
     group_bytes: u64,
     rows_read: u64,
     block: Vec<Vec<f64>>,
-    levels: Vec<i16>,
+    /// Each column's definition levels of its last read (nullable columns only).
+    levels: Vec<Vec<i16>>,
     reporter: Reporter,
 }
 
@@ -245,6 +324,7 @@ impl ParquetColumns {
         Ok(Self {
             path: path.to_path_buf(),
             block: vec![Vec::new(); headers.len()],
+            levels: vec![Vec::new(); headers.len()],
             headers,
             leaves,
             next_group: 0,
@@ -252,7 +332,6 @@ impl ParquetColumns {
             group_rows_left: 0,
             group_bytes: 0,
             rows_read: 0,
-            levels: Vec::new(),
             reporter: Reporter::new(path, size_bytes),
             file,
         })
@@ -289,6 +368,27 @@ impl ParquetColumns {
 
     /// The next block of rows; None at the end of the file.
     pub fn next_block(&mut self) -> Result<Option<Block<'_>>, TableError> {
+        Ok(self.read_next()?.map(|first_row| Block {
+            first_row,
+            columns: &self.block,
+        }))
+    }
+
+    /// As [`Self::next_block`], the rows moved out to the caller, `reuse` (a spent block's
+    /// buffers) taken for the next read: for a caller that works on one block while the
+    /// next is decoded.
+    pub fn next_owned(&mut self, reuse: Vec<Vec<f64>>) -> Result<Option<OwnedBlock>, TableError> {
+        let Some(first_row) = self.read_next()? else {
+            return Ok(None);
+        };
+        let mut columns = reuse;
+        columns.resize_with(self.headers.len(), Vec::new);
+        std::mem::swap(&mut columns, &mut self.block);
+        Ok(Some(OwnedBlock { first_row, columns }))
+    }
+
+    /// The next block of rows read into `self.block`; its first row's index, None at the end.
+    fn read_next(&mut self) -> Result<Option<u64>, TableError> {
         while self.group_rows_left == 0 {
             if self.next_group == self.file.num_row_groups() {
                 self.reporter.add(self.group_bytes);
@@ -299,15 +399,10 @@ impl ParquetColumns {
         }
         let rows = BATCH_ROWS.min(usize::try_from(self.group_rows_left).unwrap_or(BATCH_ROWS));
         let first_row = self.rows_read + 1;
-        for k in 0..self.readers.len() {
-            self.read_column(k, rows, first_row)?;
-        }
+        self.read_columns(rows, first_row)?;
         self.group_rows_left -= rows as u64;
         self.rows_read += rows as u64;
-        Ok(Some(Block {
-            first_row,
-            columns: &self.block,
-        }))
+        Ok(Some(first_row))
     }
 
     fn open_group(&mut self) -> Result<(), TableError> {
@@ -329,28 +424,58 @@ impl ParquetColumns {
         Ok(())
     }
 
-    /// Column `k`'s next `rows` values into its block, checked: no null, every value finite.
-    fn read_column(&mut self, k: usize, rows: usize, first_row: u64) -> Result<(), TableError> {
-        let nullable = self.leaves[k].1;
-        let out = &mut self.block[k];
-        out.clear();
-        self.levels.clear();
-        let read = self.readers[k]
-            .read(rows, nullable, &mut self.levels, out)
-            .map_err(|e| format_error(&self.path, format!("column `{}`: {e}", self.headers[k])))?;
+    /// Every column's next `rows` values into the block, checked: no null, every value
+    /// finite. The columns are decoded in parallel (each its own pages and decompression);
+    /// an error names the first failing column in file order, as a serial read would.
+    fn read_columns(&mut self, rows: usize, first_row: u64) -> Result<(), TableError> {
+        let outcomes: Vec<Result<ColumnRead, ParquetError>> = self
+            .readers
+            .par_iter_mut()
+            .zip(&mut self.block)
+            .zip(&mut self.levels)
+            .zip(&self.leaves)
+            .map(|(((reader, out), levels), &(_, nullable))| {
+                out.clear();
+                levels.clear();
+                let records = reader.read(rows, nullable, levels, out)?;
+                let non_finite = out.iter().position(|v| !v.is_finite());
+                Ok(ColumnRead {
+                    records,
+                    non_finite,
+                })
+            })
+            .collect();
+        for (k, outcome) in outcomes.into_iter().enumerate() {
+            let outcome = outcome.map_err(|e| {
+                format_error(&self.path, format!("column `{}`: {e}", self.headers[k]))
+            })?;
+            self.check_column(k, &outcome, rows, first_row)?;
+        }
+        Ok(())
+    }
+
+    /// Column `k`'s last read, `rows` records from row `first_row` on: an error at its
+    /// first missing, null or non-finite value.
+    fn check_column(
+        &self,
+        k: usize,
+        read: &ColumnRead,
+        rows: usize,
+        first_row: u64,
+    ) -> Result<(), TableError> {
         let at_row = |offset: usize| first_row + offset as u64;
-        if read < rows {
-            return Err(self.cell_error(k, at_row(read), "the column ends early".into()));
+        let out = &self.block[k];
+        if read.records < rows {
+            return Err(self.cell_error(k, at_row(read.records), "the column ends early".into()));
         }
         if out.len() < rows {
-            let null = self
-                .levels
+            let null = self.levels[k]
                 .iter()
                 .position(|&l| l == 0)
                 .unwrap_or(out.len());
             return Err(self.cell_error(k, at_row(null), "empty (null), not a number".into()));
         }
-        if let Some(i) = out.iter().position(|v| !v.is_finite()) {
+        if let Some(i) = read.non_finite {
             let value = out[i];
             return Err(self.cell_error(k, at_row(i), format!("{value} is not a finite number")));
         }
