@@ -571,7 +571,10 @@ fn level_square_sums(s: &[f64], j_max: u32) -> Vec<f64> {
         .collect()
 }
 
-/// sum_k (a_k - 2 b_k + c_k)^2 with eight independent accumulators so the loop vectorises.
+/// sum_k (a_k - 2 b_k + c_k)^2 with eight independent accumulators so the loop vectorises;
+/// compiled again for wider vector units as [`stream`]'s level sums are (the same result to
+/// the bit on any of them).
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
 fn squared_haar_sum(a: &[f64], b: &[f64], c: &[f64]) -> f64 {
     let mut acc = [0.0f64; 8];
     let (a8, b8, c8) = (a.chunks_exact(8), b.chunks_exact(8), c.chunks_exact(8));

@@ -136,14 +136,18 @@ impl ChunkReader for PositionalFile {
     }
 
     fn get_bytes(&self, start: u64, length: usize) -> ::parquet::errors::Result<bytes::Bytes> {
-        let mut buffer = vec![0; length];
-        let mut reader = PositionalRead {
+        // Read into spare capacity: zeroing the buffer first cost a few percent of a read.
+        let mut buffer = Vec::with_capacity(length);
+        let reader = PositionalRead {
             file: Arc::clone(&self.0),
             at_byte: start,
         };
-        reader.read_exact(&mut buffer).map_err(|e| {
-            ParquetError::EOF(format!("expected {length} bytes at byte {start}: {e}"))
-        })?;
+        let read = reader.take(length as u64).read_to_end(&mut buffer)?;
+        if read != length {
+            return Err(ParquetError::EOF(format!(
+                "expected {length} bytes at byte {start}, the file has {read}"
+            )));
+        }
         Ok(buffer.into())
     }
 }

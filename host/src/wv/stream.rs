@@ -88,6 +88,7 @@ const SEGMENT: usize = 256;
 
 /// The last k' <= `last_k`, at most [`SEGMENT`] - 1 past `k`, such that for every offset
 /// `back` the ring slots of k - back .. k' - back do not wrap around (`mask` = ring length - 1).
+#[inline(always)]
 fn segment_end(k: u64, last_k: u64, backs: &[u64], mask: u64) -> u64 {
     let mut end = last_k.min(k + SEGMENT as u64 - 1);
     for &back in backs {
@@ -131,6 +132,7 @@ fn lanes_total(lanes: &[f64; 8]) -> f64 {
 
 /// Adds `squares` (of the coefficients ending at samples `k..`) to lanes k mod 8: the same
 /// additions as one at a time, eight abreast where the run is aligned, so they vectorise.
+#[inline(always)]
 fn add_to_lanes(lanes: &mut [f64; 8], k: u64, squares: &[f64]) {
     let lead = (k.wrapping_neg() % 8) as usize;
     let (head, rest) = squares.split_at(lead.min(squares.len()));
@@ -147,6 +149,37 @@ fn add_to_lanes(lanes: &mut [f64; 8], k: u64, squares: &[f64]) {
     for (lane, square) in lanes.iter_mut().zip(tail) {
         *lane += square;
     }
+}
+
+/// The sum of squared Haar coefficients of half-width `h` ending at samples `first..=last`,
+/// from the prefix-sum ring `ring` (S_k at k mod its length, a power of two). Compiled
+/// again for the wider vector units of the machine it runs on (chosen when first called):
+/// the same operations in the same order, so the same result to the bit on any of them.
+#[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
+fn level_squares(ring: &[DoubleDouble], h: u64, first: u64, last: u64) -> f64 {
+    let mask = ring.len() as u64 - 1;
+    let mut squares = [0.0f64; SEGMENT];
+    let mut lanes = [0.0f64; 8];
+    let mut k = first;
+    while k <= last {
+        // A run of coefficients whose three prefix sums lie in unbroken stretches of the
+        // ring: computed independently of each other (vectorised), then added in order.
+        let end = segment_end(k, last, &[0, h, 2 * h], mask);
+        let n = (end - k + 1) as usize;
+        let slot = |back: u64| ((k - back) & mask) as usize;
+        let (now, one, two) = (
+            &ring[slot(0)..slot(0) + n],
+            &ring[slot(h)..slot(h) + n],
+            &ring[slot(2 * h)..slot(2 * h) + n],
+        );
+        for (i, square) in squares[..n].iter_mut().enumerate() {
+            let d = haar_difference(now[i], one[i], two[i]);
+            *square = d * d;
+        }
+        add_to_lanes(&mut lanes, k, &squares[..n]);
+        k = end + 1;
+    }
+    lanes_total(&lanes)
 }
 
 /// One decimated level: its prefix sums at the last 2^(oversampling + 1) multiples of its
@@ -308,8 +341,6 @@ impl HaarWvStream {
     /// group or the start of one: their prefix sums and the 2^full_levels before them are
     /// in the ring) and their number.
     fn group_squares(&self, first: u64, last: u64) -> Vec<(f64, u64)> {
-        let mask = self.ring.len() as u64 - 1;
-        let mut squares = [0.0f64; SEGMENT];
         (0..self.full_levels)
             .map(|index| {
                 let h = 1u64 << index;
@@ -317,28 +348,8 @@ impl HaarWvStream {
                 if start > last {
                     return (0.0, 0);
                 }
-                let mut lanes = [0.0f64; 8];
-                let mut k = start;
-                while k <= last {
-                    // A run of coefficients whose three prefix sums lie in unbroken
-                    // stretches of the ring: computed independently of each other
-                    // (vectorised), then added in order.
-                    let end = segment_end(k, last, &[0, h, 2 * h], mask);
-                    let n = (end - k + 1) as usize;
-                    let slot = |back: u64| ((k - back) & mask) as usize;
-                    let (now, one, two) = (
-                        &self.ring[slot(0)..slot(0) + n],
-                        &self.ring[slot(h)..slot(h) + n],
-                        &self.ring[slot(2 * h)..slot(2 * h) + n],
-                    );
-                    for (i, square) in squares[..n].iter_mut().enumerate() {
-                        let d = haar_difference(now[i], one[i], two[i]);
-                        *square = d * d;
-                    }
-                    add_to_lanes(&mut lanes, k, &squares[..n]);
-                    k = end + 1;
-                }
-                (lanes_total(&lanes), last - start + 1)
+                let squares = level_squares(&self.ring, h, start, last);
+                (squares, last - start + 1)
             })
             .collect()
     }
