@@ -5,7 +5,7 @@ pandas + numpy and pandas + allantools, side by side in one run on the same file
 One run writes seeded one-channel recordings (`t_s,gx_rad_s` at 100 Hz, a 1e-3 rad/s white
 noise on a random walk, `# sample_rate_hz: 100`) of each size into bench/.data/, plain and
 gzip, and the same table as Parquet the way pandas writes it (`DataFrame.to_parquet`: pyarrow,
-snappy, dictionary pages tried; the rate in the `sample_rate_hz` metadata), and times every tool in its own process under /usr/bin/time -v (wall time and peak RSS
+snappy, dictionary pages tried; the rate in the `sample_rate_hz` metadata), and times every tool in its own process, --repeats rounds (default 3) with every tool once a round, medians reported, under /usr/bin/time -v (wall time and peak RSS
 of the whole process, interpreter start included): `dynacal wv FILE` as a user runs it
 (the default `--stream auto`, which streams files over 256 MiB) and loaded whole
 (`--stream never`); `pandas.read_csv` then the numpy prefix-sum Haar WV of wv_bench.py;
@@ -116,6 +116,8 @@ def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--sizes", default="4000000,36000000")
     ap.add_argument("--seed", type=int, default=22)
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="rounds per file, every tool once a round (interleaved); medians reported")
     ap.add_argument("--worker", nargs=2, metavar=("TOOL", "PATH"))
     args = ap.parse_args()
     if args.worker:
@@ -147,21 +149,30 @@ def main():
             result = {"n": n, "kind": kind, "mb": mb, "disk_mb": os.path.getsize(path) / 1e6,
                       "dynacal_read_s": read["read_s"],
                       "csv_crate_read_s": read["csv_crate_s"] or float("nan")}
-            for mode in ["auto", "never"]:
-                wall, rss, rep = dynacal_wv(exe, path, mode, os.path.join(DATA, "wv.json"))
-                result[f"dynacal_{mode}"] = (wall, rss)
-                result[f"wv_{mode}"] = wv_values(rep)
-            # `fit --model auto` end to end, and its fit stage alone: the same fit from the
-            # wavelet variances `wv` (auto) stored, so read + WV is the difference.
-            _, _, _ = dynacal_wv(exe, path, "auto", os.path.join(DATA, "wv.json"))
-            result["fit"] = dynacal_fit(exe, path, os.path.join(DATA, "model.json"))
-            result["fit_stage"] = dynacal_fit(exe, os.path.join(DATA, "wv.json"),
-                                              os.path.join(DATA, "model-wv.json"))
-            for tool in ["numpy", "allantools"]:
-                wall, rss, out = timed([sys.executable, __file__, "--worker", tool, path])
-                w = json.loads(out.strip().splitlines()[-1])
-                result[tool] = (wall, rss, w["read_s"])
-                result[f"wv_{tool}"] = w["wv"]
+            runs = {}  # tool -> one (wall s, RSS MiB[, read s]) per round
+            for _ in range(args.repeats):
+                for mode in ["auto", "never"]:
+                    wall, rss, rep = dynacal_wv(exe, path, mode, os.path.join(DATA, "wv.json"))
+                    runs.setdefault(f"dynacal_{mode}", []).append((wall, rss))
+                    result[f"wv_{mode}"] = wv_values(rep)
+                # `fit --model auto` end to end, and its fit stage alone: the same fit from
+                # the wavelet variances `wv` (auto) stored, so read + WV is the difference.
+                _, _, _ = dynacal_wv(exe, path, "auto", os.path.join(DATA, "wv.json"))
+                runs.setdefault("fit", []).append(
+                    dynacal_fit(exe, path, os.path.join(DATA, "model.json")))
+                runs.setdefault("fit_stage", []).append(
+                    dynacal_fit(exe, os.path.join(DATA, "wv.json"),
+                                os.path.join(DATA, "model-wv.json")))
+                for tool in ["numpy", "allantools"]:
+                    wall, rss, out = timed([sys.executable, __file__, "--worker", tool, path])
+                    w = json.loads(out.strip().splitlines()[-1])
+                    runs.setdefault(tool, []).append((wall, rss, w["read_s"]))
+                    result[f"wv_{tool}"] = w["wv"]
+            for tool, values in runs.items():
+                result[tool] = tuple(float(np.median(column)) for column in zip(*values))
+            # The speed-up round by round (each round's tools ran one after another).
+            ratios = [n[0] / a[0] for n, a in zip(runs["numpy"], runs["dynacal_auto"])]
+            result["speedup_range"] = (min(ratios), max(ratios))
             ref = result["wv_numpy"]
             for key in ["wv_auto", "wv_never", "wv_allantools"]:
                 k = min(len(ref), len(result[key]), 18)
@@ -169,9 +180,10 @@ def main():
                 assert rel < 1e-3, f"{key} disagrees with numpy by {rel:.2e}"
             rows.append(result)
             print(json.dumps({k: v for k, v in result.items() if not k.startswith("wv_")}))
+    print(f"\nMedians of {args.repeats} rounds (every tool once a round, one after another).")
     print("\n| rows | file | MB (text) | MB on disk | dynacal wv (auto) s / MiB | dynacal wv (whole) s / MiB "
           "| dynacal read s (MB/s) | csv crate read s (MB/s) | pandas+numpy s / MiB (read s) "
-          "| pandas+allantools s / MiB | speed-up vs pandas+numpy | vs pandas+allantools |")
+          "| pandas+allantools s / MiB | speed-up vs pandas+numpy (rounds) | vs pandas+allantools |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         a, w, npy, alt = r["dynacal_auto"], r["dynacal_never"], r["numpy"], r["allantools"]
@@ -180,7 +192,8 @@ def main():
               f"| {w[0]:.2f} / {w[1]:.0f} | {r['dynacal_read_s']:.2f} ({r['mb'] / r['dynacal_read_s']:.0f}) "
               f"| {r['csv_crate_read_s']:.2f} ({r['mb'] / r['csv_crate_read_s']:.0f}) "
               f"| {npy[0]:.2f} / {npy[1]:.0f} ({npy[2]:.2f}) | {alt[0]:.2f} / {alt[1]:.0f} "
-              f"| {npy[0] / a[0]:.1f}x | {alt[0] / a[0]:.1f}x |")
+              f"| {npy[0] / a[0]:.1f}x ({r['speedup_range'][0]:.1f}-{r['speedup_range'][1]:.1f}) "
+              f"| {alt[0] / a[0]:.1f}x |")
 
     print("\n| rows | file | `fit --model auto` s / MiB | read + WV s (share) | fit stage s (share) |")
     print("|---|---|---|---|---|")
