@@ -748,6 +748,72 @@ mod tests {
         assert_eq!(ImuRecording::read(&path).unwrap(), rec);
     }
 
+    /// Writes `columns` (named, one length) as snappy pages of 256 rows: many small pages per
+    /// column chunk, read lazily one after another, as in the files pyarrow writes.
+    fn write_small_pages(path: &Path, columns: &[(&str, Vec<f64>)]) {
+        let fields = columns
+            .iter()
+            .map(|(name, _)| {
+                SchemaType::primitive_type_builder(name, PhysicalType::DOUBLE)
+                    .with_repetition(Repetition::REQUIRED)
+                    .build()
+                    .map(Arc::new)
+                    .unwrap()
+            })
+            .collect();
+        let schema = SchemaType::group_type_builder("t")
+            .with_fields(fields)
+            .build()
+            .unwrap();
+        let properties = WriterProperties::builder()
+            .set_dictionary_enabled(false)
+            .set_compression(Compression::SNAPPY)
+            .set_write_batch_size(256)
+            .set_data_page_row_count_limit(256)
+            .build();
+        let out: Box<dyn Write + Send> = Box::new(File::create(path).unwrap());
+        let mut writer =
+            SerializedFileWriter::new(out, Arc::new(schema), Arc::new(properties)).unwrap();
+        let rows = columns[0].1.len();
+        for start in (0..rows).step_by(50_000) {
+            let end = (start + 50_000).min(rows);
+            let group = columns.iter().map(|(_, v)| &v[start..end]);
+            write_group(&mut writer, path, group).unwrap();
+        }
+        writer.close().unwrap();
+    }
+
+    #[test]
+    fn columns_decoded_on_several_threads_read_their_own_pages() {
+        // GIVEN three columns of 200 000 rows in snappy pages of 256 rows (the columns of a
+        // block are decoded in parallel, each page read lazily from the file)
+        let n = 200_000;
+        let column = |c: usize| -> Vec<f64> {
+            (0..n)
+                .map(|k| ((k * (c + 7)) % 1013) as f64 * 1e-3 + c as f64)
+                .collect()
+        };
+        let columns = [
+            ("t_s", (0..n).map(|k| k as f64 * 0.01).collect()),
+            ("gx_rad_s", column(1)),
+            ("gy_rad_s", column(2)),
+        ];
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("pages.parquet");
+        write_small_pages(&path, &columns);
+        // WHEN the table is read (on every core)
+        let table = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap()
+            .install(|| read_table(&path, None))
+            .unwrap();
+        // THEN each column is the one written, to the bit: no column read another's pages
+        for (name, values) in &columns {
+            assert_eq!(table.column(name).unwrap(), values.as_slice(), "{name}");
+        }
+    }
+
     #[test]
     fn a_wanted_column_that_is_not_numbers_is_named_other_columns_are_not_read() {
         let path = Path::new(env!("CARGO_MANIFEST_DIR"))
