@@ -224,26 +224,43 @@ fn feed_fast(
     ) else {
         return Ok(false);
     };
-    // The next block is parsed while the last one goes into the streams: the streams' prefix
-    // chain is serial, and the parse fills the other cores meanwhile.
-    let mut last: Option<ParsedBlock> = None;
+    // The error `None` is the fast reader giving up (the `csv` crate reads the file then).
+    let fed = pipelined(
+        |spent| {
+            if let Some(block) = spent {
+                blocks.recycle(block);
+            }
+            blocks.next_block().map_err(|Fallback| None)
+        },
+        |block| feed_block(block, time, &slots, rows, streams).map_err(Some),
+    );
+    match fed {
+        Ok(()) => Ok(true),
+        Err(None) => Ok(false),
+        Err(Some(e)) => Err(e),
+    }
+}
+
+/// Runs `feed` on every block `next` reads, the next block read while the last one is fed:
+/// the streams' prefix chain is serial, and the reading fills the other cores meanwhile.
+/// `next` is handed the block fed last, to reuse its buffers. A block's feed error comes
+/// before the read error of the block after it, as in a loop that reads then feeds.
+fn pipelined<B: Send + Sync, E: Send>(
+    mut next: impl FnMut(Option<B>) -> Result<Option<B>, E> + Send,
+    mut feed: impl FnMut(&B) -> Result<(), E> + Send,
+) -> Result<(), E> {
+    let (mut last, mut spent) = (None, None);
     loop {
-        let (next, fed) = rayon::join(
-            || blocks.next_block(),
-            || match &last {
-                Some(block) => feed_block(block, time, &slots, rows, streams),
-                None => Ok(()),
-            },
+        let (read, fed) = rayon::join(
+            || next(spent.take()),
+            || last.as_ref().map_or(Ok(()), &mut feed),
         );
         fed?;
-        if let Some(block) = last.take() {
-            blocks.recycle(block);
+        spent = last.take();
+        match read? {
+            Some(block) => last = Some(block),
+            None => return Ok(()),
         }
-        last = match next {
-            Ok(Some(block)) => Some(block),
-            Ok(None) => return Ok(true),
-            Err(Fallback) => return Ok(false),
-        };
     }
 }
 
@@ -300,27 +317,13 @@ fn feed_parquet(
         .iter()
         .map(|&i| at(columns[i].0.column()).expect("the header has the channel"))
         .collect();
-    // As in `feed_fast`: the next block decoded while the last goes into the streams.
-    let (mut last, mut spare): (Option<OwnedBlock>, Vec<Vec<f64>>) = (None, Vec::new());
-    loop {
-        let (next, fed) = rayon::join(
-            || blocks.next_owned(std::mem::take(&mut spare)),
-            || match &last {
-                Some(block) => {
-                    feed_columns(&block.columns, block.first_row, time, &slots, rows, streams)
-                }
-                None => Ok(()),
-            },
-        );
-        fed?;
-        if let Some(block) = last.take() {
-            spare = block.columns;
-        }
-        last = match next? {
-            Some(block) => Some(block),
-            None => return Ok(()),
-        };
-    }
+    pipelined(
+        |spent: Option<OwnedBlock>| {
+            let reuse = spent.map(|block| block.columns).unwrap_or_default();
+            Ok(blocks.next_owned(reuse)?)
+        },
+        |block| feed_columns(&block.columns, block.first_row, time, &slots, rows, streams),
+    )
 }
 
 /// As [`feed_fast`], with the `csv` crate, one record at a time (its errors name the line).

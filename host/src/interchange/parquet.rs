@@ -83,8 +83,11 @@ fn open_file(path: &Path) -> Result<(SerializedFileReader<PositionalFile>, u64),
     };
     let handle = File::open(path).map_err(io)?;
     let size_bytes = handle.metadata().map_err(io)?.len();
-    let file = SerializedFileReader::new(PositionalFile(Arc::new(handle)))
-        .map_err(|e| unreadable_file(path, e))?;
+    let source = PositionalFile {
+        file: Arc::new(handle),
+        len_bytes: size_bytes,
+    };
+    let file = SerializedFileReader::new(source).map_err(|e| unreadable_file(path, e))?;
     Ok((file, size_bytes))
 }
 
@@ -92,7 +95,20 @@ fn open_file(path: &Path) -> Result<(SerializedFileReader<PositionalFile>, u64),
 /// `parquet` crate's own source for a `File` reads through handles cloned from it, whose
 /// clones share one offset, so columns decoded on several threads would read each other's
 /// pages (seen: snappy reporting corrupt input).
-struct PositionalFile(Arc<File>);
+struct PositionalFile {
+    file: Arc<File>,
+    /// The file's size when opened.
+    len_bytes: u64,
+}
+
+impl PositionalFile {
+    fn reader_at(&self, start: u64) -> PositionalRead {
+        PositionalRead {
+            file: Arc::clone(&self.file),
+            at_byte: start,
+        }
+    }
+}
 
 /// Reads a [`PositionalFile`] onward from a position of its own.
 struct PositionalRead {
@@ -121,7 +137,7 @@ fn read_at(file: &File, buf: &mut [u8], at_byte: u64) -> std::io::Result<usize> 
 
 impl Length for PositionalFile {
     fn len(&self) -> u64 {
-        self.0.metadata().map_or(0, |m| m.len())
+        self.len_bytes
     }
 }
 
@@ -129,20 +145,16 @@ impl ChunkReader for PositionalFile {
     type T = std::io::BufReader<PositionalRead>;
 
     fn get_read(&self, start: u64) -> ::parquet::errors::Result<Self::T> {
-        Ok(std::io::BufReader::new(PositionalRead {
-            file: Arc::clone(&self.0),
-            at_byte: start,
-        }))
+        Ok(std::io::BufReader::new(self.reader_at(start)))
     }
 
     fn get_bytes(&self, start: u64, length: usize) -> ::parquet::errors::Result<bytes::Bytes> {
         // Read into spare capacity: zeroing the buffer first cost a few percent of a read.
         let mut buffer = Vec::with_capacity(length);
-        let reader = PositionalRead {
-            file: Arc::clone(&self.0),
-            at_byte: start,
-        };
-        let read = reader.take(length as u64).read_to_end(&mut buffer)?;
+        let read = self
+            .reader_at(start)
+            .take(length as u64)
+            .read_to_end(&mut buffer)?;
         if read != length {
             return Err(ParquetError::EOF(format!(
                 "expected {length} bytes at byte {start}, the file has {read}"
