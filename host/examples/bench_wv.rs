@@ -103,7 +103,7 @@ fn main() {
     // The call `dynacal.wv` makes from Python (the counts rule on a borrowed slice): the
     // Rust time the bindings are measured against.
     let (input_min, _, _) = time_min(repeats, || {
-        wavelet_variance_of(&x, 1.0, dt_s, &opts).unwrap()
+        wavelet_variance_of((&x[..]).into(), 1.0, dt_s, &opts).unwrap()
     });
     let naive = naive_prefix_wv(&x, wv.len() as u32);
     println!(

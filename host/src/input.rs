@@ -20,6 +20,7 @@
 //! column to 1%. The wavelet variance assumes evenly spaced samples, so a step that differs
 //! from the median by more than half of it is a gap, and an error naming its line.
 
+use std::borrow::Cow;
 use std::path::{Path, PathBuf};
 
 pub mod stream;
@@ -32,7 +33,9 @@ use crate::interchange::{
     median_step_s, open_maybe_gz, read_table, ImuRecording, RowLines, TableError,
 };
 use crate::model::Channel;
-use crate::wv::{haar_wv, haar_wv_counts, read_smac_golden, WaveletVariance, WvError, WvOptions};
+use crate::wv::{
+    haar_wv, haar_wv_counts, haar_wv_owned, read_smac_golden, WaveletVariance, WvError, WvOptions,
+};
 
 /// Errors reading inputs; each names the file and, where there is one, the line or field.
 #[derive(Debug, thiserror::Error)]
@@ -108,26 +111,32 @@ impl Series {
 
     /// The Haar wavelet variance; integer raw values (counts) are processed exactly.
     pub fn wavelet_variance(&self, opts: &WvOptions) -> Result<WaveletVariance, WvError> {
-        wavelet_variance_of(&self.raw, self.scale, self.dt_s, opts)
+        wavelet_variance_of(Cow::Borrowed(&self.raw), self.scale, self.dt_s, opts)
+    }
+
+    /// [`Series::wavelet_variance`] of a series not needed after, computed in its memory.
+    pub fn into_wavelet_variance(self, opts: &WvOptions) -> Result<WaveletVariance, WvError> {
+        wavelet_variance_of(Cow::Owned(self.raw), self.scale, self.dt_s, opts)
     }
 }
 
 /// The Haar wavelet variance of `raw * scale` sampled every `dt_s` s: integer raw values
 /// (counts) are processed exactly ([`haar_wv_counts`]), other values as they are.
+/// An owned `raw` is worked on in place ([`haar_wv_owned`]).
 pub fn wavelet_variance_of(
-    raw: &[f64],
+    raw: Cow<'_, [f64]>,
     scale: f64,
     dt_s: f64,
     opts: &WvOptions,
 ) -> Result<WaveletVariance, WvError> {
-    match as_counts(raw) {
+    match as_counts(&raw) {
         Some(counts) => haar_wv_counts(&counts, scale, dt_s, opts),
         // x * 1.0 is x: no copy needed.
-        None if scale == 1.0 => haar_wv(raw, dt_s, opts),
-        None => {
-            let values: Vec<f64> = raw.iter().map(|v| v * scale).collect();
-            haar_wv(&values, dt_s, opts)
-        }
+        None if scale == 1.0 => match raw {
+            Cow::Borrowed(x) => haar_wv(x, dt_s, opts),
+            Cow::Owned(x) => haar_wv_owned(x, dt_s, opts),
+        },
+        None => haar_wv_owned(raw.iter().map(|v| v * scale).collect(), dt_s, opts),
     }
 }
 
@@ -635,17 +644,16 @@ pub fn load_wavelet_variances(
     if !is_json {
         return load_series(path, args)?
             .into_iter()
-            .map(|s| {
-                let wv = s.wavelet_variance(opts).map_err(|source| InputError::Wv {
-                    path: path.to_path_buf(),
-                    channel: s.name.clone(),
-                    source,
-                })?;
-                Ok(ChannelWv {
-                    channel: s.name,
-                    unit: s.unit,
-                    wv,
-                })
+            .map(|mut s| {
+                let (channel, unit) = (std::mem::take(&mut s.name), std::mem::take(&mut s.unit));
+                let wv = s
+                    .into_wavelet_variance(opts)
+                    .map_err(|source| InputError::Wv {
+                        path: path.to_path_buf(),
+                        channel: channel.clone(),
+                        source,
+                    })?;
+                Ok(ChannelWv { channel, unit, wv })
             })
             .collect();
     }

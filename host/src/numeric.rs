@@ -110,11 +110,12 @@ pub fn select_by_passes<E>(
 /// The value of rank `rank` (0-based, in [`f64::total_cmp`] order) among `value(0..n)`:
 /// what a copy of the values and [`slice::select_nth_unstable_by`] give, to the bit, without
 /// the copy (8 bytes a value of new memory, whose pages cost more than the selection). A
-/// sample of the values brackets the rank, one pass counts the values below the bracket and
+/// sample of the values brackets the rank, one pass (in parallel chunks: the counts and the
+/// set of values kept do not depend on their order) counts the values below the bracket and
 /// keeps those inside it (a few percent), and the rank is selected among those; where the
 /// sample misjudged (the rank falls outside the bracket, or the bracket holds too many) the
 /// values are copied after all.
-pub fn select_rank(n: usize, value: impl Fn(usize) -> f64, rank: usize) -> Option<f64> {
+pub fn select_rank(n: usize, value: impl Fn(usize) -> f64 + Sync, rank: usize) -> Option<f64> {
     const SAMPLE: usize = 4096;
     let copied = || {
         let mut all: Vec<u64> = (0..n).map(|i| total_order_key(value(i))).collect();
@@ -136,23 +137,15 @@ pub fn select_rank(n: usize, value: impl Fn(usize) -> f64, rank: usize) -> Optio
         sample[at.saturating_sub(400)],
         sample[(at + 400).min(SAMPLE - 1)],
     );
-    let (mut below, mut at_lo, mut at_hi) = (0usize, 0usize, 0usize);
-    let mut inside = Vec::new();
-    for i in 0..n {
-        let key = total_order_key(value(i));
-        if key < lo {
-            below += 1;
-        } else if key == lo {
-            at_lo += 1;
-        } else if key < hi {
-            inside.push(key);
-            if inside.len() > n / 8 {
-                return Some(copied());
-            }
-        } else if key == hi {
-            at_hi += 1;
-        }
-    }
+    let Some(Bracketed {
+        below,
+        at_lo,
+        at_hi,
+        mut inside,
+    }) = bracket(n, &value, lo, hi)
+    else {
+        return Some(copied());
+    };
     let Some(mut r) = rank.checked_sub(below) else {
         return Some(copied());
     };
@@ -168,6 +161,71 @@ pub fn select_rank(n: usize, value: impl Fn(usize) -> f64, rank: usize) -> Optio
         return Some(from_total_order_key(hi));
     }
     Some(copied())
+}
+
+/// How `value(0..n)` falls about the total-order keys `lo` <= `hi`: the counts below, at
+/// `lo` and at `hi`, and the keys strictly between.
+struct Bracketed {
+    below: usize,
+    at_lo: usize,
+    at_hi: usize,
+    inside: Vec<u64>,
+}
+
+/// [`Bracketed`] of `value(0..n)`, counted in parallel chunks; `None` when more than n / 8
+/// fall inside (the sample misjudged the spread: copying is then cheaper).
+fn bracket(
+    n: usize,
+    value: &(impl Fn(usize) -> f64 + Sync),
+    lo: u64,
+    hi: u64,
+) -> Option<Bracketed> {
+    use rayon::prelude::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    const CHUNK: usize = 1 << 16;
+    let kept = AtomicUsize::new(0);
+    let chunks: Option<Vec<Bracketed>> = (0..n.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|c| {
+            if kept.load(Ordering::Relaxed) > n / 8 {
+                return None;
+            }
+            let mut counts = Bracketed {
+                below: 0,
+                at_lo: 0,
+                at_hi: 0,
+                inside: Vec::new(),
+            };
+            for i in c * CHUNK..((c + 1) * CHUNK).min(n) {
+                let key = total_order_key(value(i));
+                if key < lo {
+                    counts.below += 1;
+                } else if key == lo {
+                    counts.at_lo += 1;
+                } else if key < hi {
+                    counts.inside.push(key);
+                } else if key == hi {
+                    counts.at_hi += 1;
+                }
+            }
+            kept.fetch_add(counts.inside.len(), Ordering::Relaxed);
+            Some(counts)
+        })
+        .collect();
+    if kept.into_inner() > n / 8 {
+        return None;
+    }
+    let chunks = chunks?;
+    let mut all = Bracketed {
+        below: chunks.iter().map(|c| c.below).sum(),
+        at_lo: chunks.iter().map(|c| c.at_lo).sum(),
+        at_hi: chunks.iter().map(|c| c.at_hi).sum(),
+        inside: Vec::with_capacity(chunks.iter().map(|c| c.inside.len()).sum()),
+    };
+    for chunk in chunks {
+        all.inside.extend(chunk.inside);
+    }
+    Some(all)
 }
 
 /// Values handed to a [`select_by_passes`] visitor a slice at a time, from one at a time.

@@ -430,8 +430,32 @@ pub fn haar_wv(x: &[f64], dt_s: f64, opts: &WvOptions) -> Result<WaveletVariance
             value: x[index],
         });
     }
-    let prefix = centred_prefix_sums(x);
+    let mut prefix = Vec::with_capacity(x.len() + 1);
+    prefix.push(0.0);
+    prefix.extend_from_slice(x);
+    centred_prefix_sums_in_place(&mut prefix);
     Ok(wv_from_prefix(&prefix, x.len(), j_max, 1.0, dt_s, opts))
+}
+
+/// [`haar_wv`] of a series the caller is done with: its prefix sums are built in the series'
+/// own memory, so no second array of its length is allocated (new pages cost more than the
+/// summing: at 4e6 samples, 32 MB of first touches). The same result, to the bit.
+pub fn haar_wv_owned(
+    mut x: Vec<f64>,
+    dt_s: f64,
+    opts: &WvOptions,
+) -> Result<WaveletVariance, WvError> {
+    check_common(dt_s, opts)?;
+    let (n, j_max) = (x.len(), resolve_max_level(x.len(), opts)?);
+    if let Some(index) = x.iter().position(|v| !v.is_finite()) {
+        return Err(WvError::NonFinite {
+            index,
+            value: x[index],
+        });
+    }
+    x.insert(0, 0.0);
+    centred_prefix_sums_in_place(&mut x);
+    Ok(wv_from_prefix(&x, n, j_max, 1.0, dt_s, opts))
 }
 
 /// Haar MODWT wavelet variance of integer counts, `lsb` physical units per count: the same
@@ -470,10 +494,12 @@ pub fn haar_wv_counts(
 /// Prefix sums S_k = sum_{i<k} (x_i - m), k = 0..=N, with m the mean of x (any constant
 /// would do: the Haar filter ignores it; the mean keeps |S| smallest), the running sum carried
 /// with a compensation term (Knuth's branch-free TwoSum), so each stored S_k is within one
-/// rounding of the exact value. Parallel over chunks: the chunks' compensated sums give each
-/// chunk its starting value, then every chunk continues the compensated running sum.
-fn centred_prefix_sums(x: &[f64]) -> Vec<f64> {
+/// rounding of the exact value. `buf` holds 0 then x on entry and S_0..=S_N on return, each
+/// S_k+1 written where x_k was read. Parallel over chunks: the chunks' compensated sums give
+/// each chunk its starting value, then every chunk continues the compensated running sum.
+fn centred_prefix_sums_in_place(buf: &mut [f64]) {
     const CHUNK: usize = 1 << 16;
+    let x = &buf[1..];
     // Partial sums collected in order (not rayon's `sum`, whose order varies between runs) so
     // results are bit-for-bit reproducible.
     let partial: Vec<f64> = x.par_chunks(CHUNK).map(|c| c.iter().sum()).collect();
@@ -496,20 +522,18 @@ fn centred_prefix_sums(x: &[f64]) -> Vec<f64> {
         sum = t;
         comp += e + c;
     }
-    let mut out = vec![0.0; x.len() + 1];
-    out[1..]
+    buf[0] = 0.0;
+    buf[1..]
         .par_chunks_mut(CHUNK)
-        .zip(x.par_chunks(CHUNK))
         .zip(starts.par_iter())
-        .for_each(|((out, x), &(mut sum, mut comp))| {
-            for (o, &v) in out.iter_mut().zip(x) {
-                let (t, e) = two_sum(sum, v - mean);
+        .for_each(|(chunk, &(mut sum, mut comp))| {
+            for slot in chunk {
+                let (t, e) = two_sum(sum, *slot - mean);
                 sum = t;
                 comp += e;
-                *o = sum + comp;
+                *slot = sum + comp;
             }
         });
-    out
 }
 
 /// Knuth's TwoSum: a + b = s + e exactly, with s = fl(a + b). No branch, so a running sum
@@ -926,6 +950,40 @@ mod tests {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let dist = Normal::new(0.0, sigma).unwrap();
         (0..n).map(|_| dist.sample(&mut rng)).collect()
+    }
+
+    /// The prefix sums built in the series' own memory are the ones built beside it: same
+    /// chunks, same order, so the same bits, at a length of several chunks and a partial one.
+    #[test]
+    fn a_series_worked_on_in_place_gives_the_borrowed_result_to_the_bit() {
+        let n = 3 * (1 << 16) + 12_345;
+        let mut walk = 0.0;
+        let x: Vec<f64> = gaussian(5, n, 1e-3)
+            .into_iter()
+            .zip(gaussian(6, n, 1e-6))
+            .map(|(white, step)| {
+                walk += step;
+                0.5 + walk + white
+            })
+            .collect();
+        for opts in [
+            WvOptions::default(),
+            WvOptions {
+                robust: true,
+                ..WvOptions::default()
+            },
+        ] {
+            let borrowed = haar_wv(&x, 0.01, &opts).unwrap();
+            let owned = haar_wv_owned(x.clone(), 0.01, &opts).unwrap();
+            assert_eq!(owned, borrowed);
+        }
+        let mut bad = x;
+        bad[70_000] = f64::NAN;
+        let e = haar_wv_owned(bad, 0.01, &WvOptions::default()).unwrap_err();
+        assert!(
+            matches!(e, WvError::NonFinite { index: 70_000, .. }),
+            "{e:?}"
+        );
     }
 
     #[test]

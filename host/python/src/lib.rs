@@ -80,7 +80,7 @@ fn wavelet_variance(
     let x = samples(&x);
     let opts = wv_options(robust, efficiency, max_level);
     let wv = py
-        .detach(|| wavelet_variance_of(&x, 1.0, dt_s, &opts))
+        .detach(|| wavelet_variance_of(x, 1.0, dt_s, &opts))
         .map_err(|e| raise(&e))?;
     to_json(&wv)
 }

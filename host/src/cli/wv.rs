@@ -142,7 +142,7 @@ fn batch(
     let series = load_series(&args.file, &args.input)?;
     let dt_s = series[0].dt_s;
     let mut channels = BTreeMap::new();
-    for s in &series {
+    for mut s in series {
         if (s.dt_s - dt_s).abs() > 1e-9 * dt_s {
             bail!(
                 "{}: channel `{}` has another sample interval ({} s, not {dt_s} s)",
@@ -151,10 +151,11 @@ fn batch(
                 s.dt_s
             );
         }
+        let name = std::mem::take(&mut s.name);
         let wv = s
-            .wavelet_variance(opts)
-            .with_context(|| format!("{}: column `{}`", args.file.display(), s.name))?;
-        channels.insert(s.name.clone(), wv);
+            .into_wavelet_variance(opts)
+            .with_context(|| format!("{}: column `{name}`", args.file.display()))?;
+        channels.insert(name, wv);
     }
     Ok((dt_s, channels))
 }

@@ -19,7 +19,7 @@
 use std::path::Path;
 
 use super::{format_error, per_channel, ChannelWv, InputArgs, InputError};
-use crate::interchange::fast::{Fallback, FastBlocks, ParsedBlock};
+use crate::interchange::fast::{pipelined, Fallback, FastBlocks, ParsedBlock};
 use crate::interchange::parquet::{is_parquet, OwnedBlock, ParquetColumns};
 use crate::interchange::{
     csv_error, csv_reader, is_interchange_column, open_maybe_gz, parse_field, read_stated_rate,
@@ -238,29 +238,6 @@ fn feed_fast(
         Ok(()) => Ok(true),
         Err(None) => Ok(false),
         Err(Some(e)) => Err(e),
-    }
-}
-
-/// Runs `feed` on every block `next` reads, the next block read while the last one is fed:
-/// the streams' prefix chain is serial, and the reading fills the other cores meanwhile.
-/// `next` is handed the block fed last, to reuse its buffers. A block's feed error comes
-/// before the read error of the block after it, as in a loop that reads then feeds.
-fn pipelined<B: Send + Sync, E: Send>(
-    mut next: impl FnMut(Option<B>) -> Result<Option<B>, E> + Send,
-    mut feed: impl FnMut(&B) -> Result<(), E> + Send,
-) -> Result<(), E> {
-    let (mut last, mut spent) = (None, None);
-    loop {
-        let (read, fed) = rayon::join(
-            || next(spent.take()),
-            || last.as_ref().map_or(Ok(()), &mut feed),
-        );
-        fed?;
-        spent = last.take();
-        match read? {
-            Some(block) => last = Some(block),
-            None => return Ok(()),
-        }
     }
 }
 
