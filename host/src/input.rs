@@ -226,7 +226,19 @@ pub fn sample_interval_at(
     stated_rate_hz: Option<f64>,
     lines: RowLines,
 ) -> Result<f64, InputError> {
-    let median = median_step_s(t_s)
+    sample_interval_from_median(path, t_s, stated_rate_hz, lines, median_step_s(t_s))
+}
+
+/// [`sample_interval_at`] given the column's median step ([`median_step_s`] of `t_s`, as
+/// [`ImuRecording::read_with_median`] found it: `None` for fewer than two samples).
+fn sample_interval_from_median(
+    path: &Path,
+    t_s: &[f64],
+    stated_rate_hz: Option<f64>,
+    lines: RowLines,
+    median: Option<f64>,
+) -> Result<f64, InputError> {
+    let median = median
         .ok_or_else(|| format_error(path, "fewer than two samples: no sample interval".into()))?;
     if let Some(i) = t_s
         .windows(2)
@@ -373,8 +385,8 @@ pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputEr
             .iter()
             .any(|h| crate::interchange::is_interchange_column(h));
     let mut series = if interchange {
-        let (recording, lines) = ImuRecording::read_with_lines(path)?;
-        from_recordings(path, args, vec![(String::new(), recording, lines)])?
+        let (recording, lines, median) = ImuRecording::read_with_median(path)?;
+        from_recordings(path, args, vec![(String::new(), recording, lines, median)])?
     } else if let Some(dataset) = (!args.raw)
         .then(|| crate::import::detect(path))
         .transpose()?
@@ -390,7 +402,7 @@ pub fn load_series(path: &Path, args: &InputArgs) -> Result<Vec<Series>, InputEr
                 } else {
                     String::new()
                 };
-                (prefix, s.recording, RowLines::Unknown)
+                (prefix, s.recording, RowLines::Unknown, None)
             })
             .collect();
         let read = from_recordings(path, args, recordings);
@@ -462,16 +474,18 @@ fn column_names(path: &Path) -> Result<Vec<String>, InputError> {
         .collect())
 }
 
-/// The wanted channels of recordings (named with their `sensor/` prefix).
+/// The wanted channels of recordings (named with their `sensor/` prefix), each with where
+/// its rows are and its median step where the read found it.
 fn from_recordings(
     path: &Path,
     args: &InputArgs,
-    recordings: Vec<(String, ImuRecording, RowLines)>,
+    recordings: Vec<(String, ImuRecording, RowLines, Option<f64>)>,
 ) -> Result<Vec<Series>, InputError> {
     let mut available = Vec::new();
-    for (prefix, mut rec, lines) in recordings {
+    for (prefix, mut rec, lines, median) in recordings {
         let rate = args.rate_hz.or(rec.sample_rate_hz);
-        let dt_s = sample_interval_at(path, &rec.t_s, rate, lines)?;
+        let median = median.or_else(|| median_step_s(&rec.t_s));
+        let dt_s = sample_interval_from_median(path, &rec.t_s, rate, lines, median)?;
         for c in Channel::ALL {
             if let Some(raw) = rec.take_channel(c.name()) {
                 available.push(Series {

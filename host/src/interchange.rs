@@ -1113,6 +1113,13 @@ impl ImuRecording {
 
     /// As [`Self::read`], with where its samples are in the file (for errors found later).
     pub fn read_with_lines(path: &Path) -> Result<(Self, RowLines), TableError> {
+        Self::read_with_median(path).map(|(recording, lines, _)| (recording, lines))
+    }
+
+    /// As [`Self::read_with_lines`], with the time column's median step where the read found
+    /// it ([`median_step_s`]; `None`: not computed), so a caller needing it does not select
+    /// it again.
+    pub fn read_with_median(path: &Path) -> Result<(Self, RowLines, Option<f64>), TableError> {
         let mut wanted: Vec<&str> = vec!["t_s"];
         for names in [&GYRO, &ACCEL, &ATTITUDE, &POSITION, &VELOCITY] {
             wanted.extend_from_slice(names);
@@ -1122,14 +1129,16 @@ impl ImuRecording {
         let recording = Self::from_table(table)?;
         let stated = read_stated_rate(path)?;
         let sample_rate_hz = stated.as_ref().map(|(_, rate)| *rate);
+        let mut median = None;
         if let Some((place, stated_hz)) = stated {
-            check_stated_rate(path, place, stated_hz, &recording.t_s)?;
+            median = median_step_s(&recording.t_s);
+            check_stated_rate_against(path, place, stated_hz, median)?;
         }
         let recording = ImuRecording {
             sample_rate_hz,
             ..recording
         };
-        Ok((recording, row_lines))
+        Ok((recording, row_lines, median))
     }
 
     /// The recording a table's interchange columns hold (others are ignored), checked as a
