@@ -1129,9 +1129,8 @@ impl ImuRecording {
         let recording = Self::from_table(table)?;
         let stated = read_stated_rate(path)?;
         let sample_rate_hz = stated.as_ref().map(|(_, rate)| *rate);
-        let mut median = None;
+        let median = stated.as_ref().and_then(|_| median_step_s(&recording.t_s));
         if let Some((place, stated_hz)) = stated {
-            median = median_step_s(&recording.t_s);
             check_stated_rate_against(path, place, stated_hz, median)?;
         }
         let recording = ImuRecording {

@@ -422,19 +422,10 @@ pub fn haar_wv_of_blocks(
 /// Haar MODWT wavelet variance of `x` (any unit) sampled every `dt_s` seconds, all levels
 /// 1..=J. See the module documentation for the estimator and its conventions.
 pub fn haar_wv(x: &[f64], dt_s: f64, opts: &WvOptions) -> Result<WaveletVariance, WvError> {
-    check_common(dt_s, opts)?;
-    let j_max = resolve_max_level(x.len(), opts)?;
-    if let Some(index) = x.iter().position(|v| !v.is_finite()) {
-        return Err(WvError::NonFinite {
-            index,
-            value: x[index],
-        });
-    }
-    let mut prefix = Vec::with_capacity(x.len() + 1);
-    prefix.push(0.0);
-    prefix.extend_from_slice(x);
-    centred_prefix_sums_in_place(&mut prefix);
-    Ok(wv_from_prefix(&prefix, x.len(), j_max, 1.0, dt_s, opts))
+    let mut buf = Vec::with_capacity(x.len() + 1);
+    buf.push(0.0);
+    buf.extend_from_slice(x);
+    haar_wv_of_shifted(buf, dt_s, opts)
 }
 
 /// [`haar_wv`] of a series the caller is done with: its prefix sums are built in the series'
@@ -445,17 +436,27 @@ pub fn haar_wv_owned(
     dt_s: f64,
     opts: &WvOptions,
 ) -> Result<WaveletVariance, WvError> {
+    x.insert(0, 0.0);
+    haar_wv_of_shifted(x, dt_s, opts)
+}
+
+/// [`haar_wv`] of `buf[1..]` (`buf[0]` is 0), whose prefix sums replace it.
+fn haar_wv_of_shifted(
+    mut buf: Vec<f64>,
+    dt_s: f64,
+    opts: &WvOptions,
+) -> Result<WaveletVariance, WvError> {
+    let n = buf.len() - 1;
     check_common(dt_s, opts)?;
-    let (n, j_max) = (x.len(), resolve_max_level(x.len(), opts)?);
-    if let Some(index) = x.iter().position(|v| !v.is_finite()) {
+    let j_max = resolve_max_level(n, opts)?;
+    if let Some(index) = buf[1..].iter().position(|v| !v.is_finite()) {
         return Err(WvError::NonFinite {
             index,
-            value: x[index],
+            value: buf[index + 1],
         });
     }
-    x.insert(0, 0.0);
-    centred_prefix_sums_in_place(&mut x);
-    Ok(wv_from_prefix(&x, n, j_max, 1.0, dt_s, opts))
+    centred_prefix_sums_in_place(&mut buf);
+    Ok(wv_from_prefix(&buf, n, j_max, 1.0, dt_s, opts))
 }
 
 /// Haar MODWT wavelet variance of integer counts, `lsb` physical units per count: the same
