@@ -31,7 +31,9 @@ use crate::wv::{WaveletVariance, WvOptions};
 
 /// Files larger than this on disk (256 MiB: about ten million rows of a one-channel text
 /// interchange file) are streamed by `dynacal wv` unless told otherwise; smaller ones are
-/// loaded whole, which is faster (the batch estimator runs on every core).
+/// loaded whole, where every level is the batch estimator's (a stream decimates the levels
+/// above 18, with wider intervals). Not for speed: on a 3.6e7-row CSV the stream was the
+/// faster (2.34 s in 30 MiB against 2.80 s in 571 MiB, BENCHMARKS.md "Ingest", stop 65).
 pub const STREAM_THRESHOLD_BYTES: u64 = 256 << 20;
 
 /// The streamed wavelet variances of a file's channels and their sample interval.
