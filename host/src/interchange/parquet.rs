@@ -531,7 +531,10 @@ pub fn headers(path: &Path) -> Result<Vec<String>, TableError> {
 pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableError> {
     let mut reader = ParquetColumns::open(path, wanted)?;
     let rows = usize::try_from(reader.rows()).unwrap_or(0);
-    let mut columns: Vec<Vec<f64>> = vec![Vec::with_capacity(rows); reader.headers().len()];
+    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); reader.headers().len()];
+    for column in &mut columns {
+        super::reserve_column(column, rows);
+    }
     while let Some(block) = reader.next_block()? {
         for (column, values) in columns.iter_mut().zip(block.columns) {
             column.extend_from_slice(values);
