@@ -240,10 +240,8 @@ fn sample_interval_from_median(
 ) -> Result<f64, InputError> {
     let median = median
         .ok_or_else(|| format_error(path, "fewer than two samples: no sample interval".into()))?;
-    if let Some(i) = t_s
-        .windows(2)
-        .position(|w| (w[1] - w[0] - median).abs() > 0.5 * median)
-    {
+    let uneven = |previous: f64, t: f64| (t - previous - median).abs() > 0.5 * median;
+    if let Some(i) = crate::numeric::first_bad_step(t_s, uneven) {
         let place = match lines {
             RowLines::From(first) => format!("line {}", first + i as u64 + 1),
             RowLines::Unknown => format!("sample {} (1-based, t_s {} s)", i + 2, t_s[i + 1]),

@@ -1688,25 +1688,27 @@ pub fn check_time_increasing_at(
     t_s: &[f64],
     lines: RowLines,
 ) -> Result<(), TableError> {
-    for (i, w) in t_s.windows(2).enumerate() {
-        if !(w[1] > w[0]) {
-            if let RowLines::From(first) = lines {
-                return Err(TableError::TimeNotIncreasing {
-                    path: path.to_path_buf(),
-                    line: first + i as u64 + 1,
-                    t_s: w[1],
-                    previous_t_s: w[0],
-                });
-            }
-            return Err(TableError::TimeNotIncreasingAtSample {
-                path: path.to_path_buf(),
-                sample: i as u64 + 2,
-                t_s: w[1],
-                previous_t_s: w[0],
-            });
-        }
-    }
-    Ok(())
+    // On every core: a long recording's checks after its parallel read took a tenth of a
+    // whole-file `wv` on one (BENCHMARKS.md, "Ingest", stop 67).
+    let Some(i) = crate::numeric::first_bad_step(t_s, |previous, t| !(t > previous)) else {
+        return Ok(());
+    };
+    let path = path.to_path_buf();
+    let (t_s, previous_t_s) = (t_s[i + 1], t_s[i]);
+    Err(match lines {
+        RowLines::From(first) => TableError::TimeNotIncreasing {
+            path,
+            line: first + i as u64 + 1,
+            t_s,
+            previous_t_s,
+        },
+        RowLines::Unknown => TableError::TimeNotIncreasingAtSample {
+            path,
+            sample: i as u64 + 2,
+            t_s,
+            previous_t_s,
+        },
+    })
 }
 
 #[cfg(test)]

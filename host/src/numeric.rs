@@ -3,7 +3,8 @@
 //! central difference for derived epoch series (the calibration and the diagnosis), and a
 //! streaming sixth-order central difference for filters fed one sample at a time (Fig. 1).
 //! Also the median of a sample, used where a check must not move with a few outliers, held
-//! whole ([`median`]) or passed over as often as needed ([`select_by_passes`]).
+//! whole ([`median`]) or passed over as often as needed ([`select_by_passes`]), and the
+//! first bad step of a long series, searched on every core ([`first_bad_step`]).
 
 use nalgebra::{RealField, Vector3};
 
@@ -11,6 +12,25 @@ use nalgebra::{RealField, Vector3};
 pub fn median(mut values: Vec<f64>) -> Option<f64> {
     values.sort_by(f64::total_cmp);
     values.get(values.len() / 2).copied()
+}
+
+/// The first `i` where `bad(values[i], values[i + 1])`, searched on every core in stretches
+/// of consecutive pairs (a long recording's checks of its time column; rayon's own search
+/// over `par_windows` pays per pair and took longer than one core). `None`: no such pair.
+pub fn first_bad_step(values: &[f64], bad: impl Fn(f64, f64) -> bool + Sync) -> Option<usize> {
+    use rayon::prelude::*;
+    const STRETCH: usize = 1 << 16;
+    let pairs = values.len().saturating_sub(1);
+    (0..pairs.div_ceil(STRETCH))
+        .into_par_iter()
+        .find_map_first(|k| {
+            let start = k * STRETCH;
+            let end = (start + STRETCH).min(pairs);
+            values[start..=end]
+                .windows(2)
+                .position(|w| bad(w[0], w[1]))
+                .map(|i| start + i)
+        })
 }
 
 /// Bits of a radix digit in [`select_by_passes`]: 2^16 buckets a pass (1.5 MiB of counts and
@@ -429,6 +449,34 @@ impl<T: RealField + Copy, P: Copy> AngularAccelerationStencil<T, P> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_first_bad_step_is_found_across_stretches() {
+        // A series with steps back at chosen places: the first is found wherever it falls
+        // (either side of a stretch's edge, the first and last pair), as a scan finds it.
+        let n = 3 * (1 << 16) + 5;
+        let increasing = |previous: f64, t: f64| !(t > previous);
+        let series: Vec<f64> = (0..n).map(|i| i as f64).collect();
+        assert_eq!(first_bad_step(&series, increasing), None);
+        assert_eq!(first_bad_step(&[], increasing), None);
+        assert_eq!(first_bad_step(&[1.0], increasing), None);
+        for bad in [
+            &[0][..],
+            &[65_534],
+            &[65_535],
+            &[65_536, 3],
+            &[n - 2],
+            &[150_000, 70_000],
+        ] {
+            let mut t = series.clone();
+            for &i in bad {
+                t[i + 1] = t[i];
+            }
+            let scanned = t.windows(2).position(|w| increasing(w[0], w[1]));
+            assert_eq!(first_bad_step(&t, increasing), scanned, "{bad:?}");
+            assert_eq!(scanned, bad.iter().min().copied());
+        }
+    }
 
     #[test]
     fn stencil_is_exact_on_an_octic_and_central_on_a_quadratic() {
