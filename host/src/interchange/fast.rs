@@ -65,9 +65,10 @@ pub(super) fn read_table(path: &Path, wanted: Option<&[&str]>) -> Option<Table> 
 }
 
 /// Runs `feed` on every block `next` reads, the next block read while the last one is fed:
-/// what consumes a block (a stream's serial prefix chain, a column's append) runs while the
-/// next is parsed on the other cores. `next` is handed the block fed last, to reuse its buffers. A block's feed error comes
-/// before the read error of the block after it, as in a loop that reads then feeds.
+/// what consumes a block (a stream's serial prefix chain) runs while the next is parsed on
+/// the other cores. `next` is handed the block fed last, to reuse its buffers. A block's
+/// feed error comes before the read error of the block after it, as in a loop that reads
+/// then feeds.
 pub(crate) fn pipelined<B: Send + Sync, E: Send>(
     mut next: impl FnMut(Option<B>) -> Result<Option<B>, E> + Send,
     mut feed: impl FnMut(&B) -> Result<(), E> + Send,
