@@ -193,6 +193,9 @@ fn advise_huge_pages<T>(room: &mut [T]) {
 #[cfg(not(target_os = "linux"))]
 fn advise_huge_pages<T>(_room: &mut [T]) {}
 
+/// The first two bytes of every gzip member (RFC 1952).
+const GZIP_MAGIC: [u8; 2] = [0x1f, 0x8b];
+
 /// Opens a file for reading, transparently decompressing gzip (detected by its magic bytes,
 /// so a `.csv` that is really gzip, or a `.gz` that is not, still reads).
 pub fn open_maybe_gz(path: &Path) -> Result<Box<dyn Read>, TableError> {
@@ -206,7 +209,7 @@ pub fn open_maybe_gz(path: &Path) -> Result<Box<dyn Read>, TableError> {
     let file = File::open(path).map_err(io)?;
     let size_bytes = file.metadata().map_err(io)?.len();
     let file = crate::progress::Counted::new(file, path, size_bytes);
-    if n == 2 && magic == [0x1f, 0x8b] {
+    if n == 2 && magic == GZIP_MAGIC {
         Ok(Box::new(BufReader::with_capacity(
             1 << 16,
             GzipText {
@@ -230,7 +233,7 @@ pub(crate) fn text_bytes_hint(path: &Path) -> u64 {
     };
     let size_bytes = file.metadata().map_or(0, |m| m.len());
     let mut magic = [0u8; 2];
-    if size_bytes < 18 || file.read_exact(&mut magic).is_err() || magic != [0x1f, 0x8b] {
+    if size_bytes < 18 || file.read_exact(&mut magic).is_err() || magic != GZIP_MAGIC {
         return size_bytes;
     }
     let mut stated = [0u8; 4];

@@ -456,8 +456,8 @@ fn append_rows(
         .map(|piece| unquoted(piece).then(|| line_count(piece)))
         .collect::<Option<_>>()?;
     let total: usize = counts.iter().sum();
-    let room = columns.first().map_or(0, |c| c.capacity() - c.len());
-    let reserve = if room < total {
+    let spare_rows = columns.first().map_or(0, |c| c.capacity() - c.len());
+    let reserve = if spare_rows < total {
         total + (total as u64 * bytes_after / bytes.len() as u64) as usize
     } else {
         total
@@ -672,15 +672,33 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
+    /// `text` as one gzip member.
+    fn gzip(text: &[u8]) -> Vec<u8> {
+        use std::io::Write as _;
+        let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
+        enc.write_all(text).unwrap();
+        enc.finish().unwrap()
+    }
+
+    /// A `t_s,gx_rad_s` table of `n` rows at 100 Hz, the rate `(i % period) * scale`.
+    fn two_column_text(n: usize, period: usize, scale: f64) -> String {
+        let mut text = String::from("t_s,gx_rad_s\n");
+        for i in 0..n {
+            text.push_str(&format!(
+                "{},{}\n",
+                i as f64 * 0.01,
+                (i % period) as f64 * scale
+            ));
+        }
+        text
+    }
+
     /// What the fast path reads must be what the `csv` path reads, to the bit.
     fn agrees(text: &[u8], gzip: bool, wanted: Option<&[&str]>) -> Option<Table> {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("t.csv");
         if gzip {
-            use std::io::Write as _;
-            let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
-            enc.write_all(text).unwrap();
-            std::fs::write(&path, enc.finish().unwrap()).unwrap();
+            std::fs::write(&path, self::gzip(text)).unwrap();
         } else {
             std::fs::write(&path, text).unwrap();
         }
@@ -745,14 +763,7 @@ mod tests {
     fn blocks_join_across_their_boundaries() {
         // Rows across several read blocks and parse pieces: every value lands in order.
         let n = 1_200_000;
-        let mut text = String::from("t_s,gx_rad_s\n");
-        for i in 0..n {
-            text.push_str(&format!(
-                "{},{}\n",
-                i as f64 * 0.01,
-                (i % 977) as f64 * 1e-4
-            ));
-        }
+        let text = two_column_text(n, 977, 1e-4);
         let table = agrees(text.as_bytes(), false, None).expect("fast path");
         assert_eq!(table.rows(), n);
         assert_eq!(table.columns[1][n - 1], ((n - 1) % 977) as f64 * 1e-4);
@@ -762,25 +773,16 @@ mod tests {
     fn rows_land_in_place_whatever_the_length_hint_says() {
         // Two gzip members, the last a single row: its stated length is that row's, so the
         // columns are made room for too short and grow block by block.
-        use std::io::Write as _;
-        let gzip = |text: &str| {
-            let mut enc = flate2::write::GzEncoder::new(Vec::new(), flate2::Compression::fast());
-            enc.write_all(text.as_bytes()).unwrap();
-            enc.finish().unwrap()
-        };
         let n = 600_000;
-        let mut body = String::from("t_s,gx_rad_s\n");
-        for i in 0..n {
-            body.push_str(&format!(
-                "{},{}\n",
-                i as f64 * 0.01,
-                (i % 491) as f64 * 1e-3
-            ));
-        }
+        let body = two_column_text(n, 491, 1e-3);
         let last = format!("{},7.5\n", n as f64 * 0.01);
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("two-members.csv.gz");
-        std::fs::write(&path, [gzip(&body), gzip(&last)].concat()).unwrap();
+        std::fs::write(
+            &path,
+            [gzip(body.as_bytes()), gzip(last.as_bytes())].concat(),
+        )
+        .unwrap();
         assert_eq!(
             super::super::text_bytes_hint(&path),
             std::fs::metadata(&path).unwrap().len()
@@ -796,7 +798,7 @@ mod tests {
         let plain = dir.path().join("plain.csv");
         std::fs::write(&plain, &body).unwrap();
         assert_eq!(super::super::text_bytes_hint(&plain), body.len() as u64);
-        std::fs::write(&path, gzip(&body)).unwrap();
+        std::fs::write(&path, gzip(body.as_bytes())).unwrap();
         assert_eq!(super::super::text_bytes_hint(&path), body.len() as u64);
     }
 
