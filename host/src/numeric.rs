@@ -21,16 +21,52 @@ pub fn first_bad_step(values: &[f64], bad: impl Fn(f64, f64) -> bool + Sync) -> 
     use rayon::prelude::*;
     const STRETCH: usize = 1 << 16;
     let pairs = values.len().saturating_sub(1);
+    if pairs <= STRETCH {
+        return first_bad_pair(values, &bad);
+    }
     (0..pairs.div_ceil(STRETCH))
         .into_par_iter()
         .find_map_first(|k| {
             let start = k * STRETCH;
             let end = (start + STRETCH).min(pairs);
-            values[start..=end]
-                .windows(2)
-                .position(|w| bad(w[0], w[1]))
-                .map(|i| start + i)
+            first_bad_pair(&values[start..=end], &bad).map(|i| start + i)
         })
+}
+
+/// Values tested together, with no branch among them (so the tests vectorise), before a run
+/// that holds a bad one is searched value by value.
+const TEST_RUN: usize = 64;
+
+/// The index of the first value that is not finite (a decoded column's check).
+pub fn first_non_finite(values: &[f64]) -> Option<usize> {
+    let mut start = 0;
+    for run in values.chunks(TEST_RUN) {
+        if run.iter().fold(false, |any, v| any | !v.is_finite()) {
+            return run.iter().position(|v| !v.is_finite()).map(|i| start + i);
+        }
+        start += TEST_RUN;
+    }
+    None
+}
+
+/// [`first_bad_step`] on one core, [`TEST_RUN`] pairs at a time.
+fn first_bad_pair(values: &[f64], bad: &impl Fn(f64, f64) -> bool) -> Option<usize> {
+    const RUN: usize = TEST_RUN;
+    let pairs = values.len().saturating_sub(1);
+    let (earlier, later) = (&values[..pairs], values.get(1..).unwrap_or_default());
+    let mut start = 0;
+    for (a, b) in earlier.chunks(RUN).zip(later.chunks(RUN)) {
+        let any_bad = a.iter().zip(b).fold(false, |any, (&x, &y)| any | bad(x, y));
+        if any_bad {
+            return a
+                .iter()
+                .zip(b)
+                .position(|(&x, &y)| bad(x, y))
+                .map(|i| start + i);
+        }
+        start += RUN;
+    }
+    None
 }
 
 /// Bits of a radix digit in [`select_by_passes`]: 2^16 buckets a pass (1.5 MiB of counts and
@@ -476,6 +512,41 @@ mod tests {
             assert_eq!(first_bad_step(&t, increasing), scanned, "{bad:?}");
             assert_eq!(scanned, bad.iter().min().copied());
         }
+    }
+
+    #[test]
+    fn a_short_series_is_searched_run_by_run_as_a_scan_finds_it() {
+        // One stretch, searched on one core 64 pairs at a time: a bad pair either side of a
+        // run's edge, alone or after another, is the first found.
+        let increasing = |previous: f64, t: f64| !(t > previous);
+        let series: Vec<f64> = (0..200).map(|i| i as f64).collect();
+        for bad in [
+            &[0][..],
+            &[62],
+            &[63],
+            &[64],
+            &[127, 128],
+            &[190, 70],
+            &[198],
+        ] {
+            let mut t = series.clone();
+            for &i in bad {
+                t[i + 1] = t[i] - 1.0;
+            }
+            assert_eq!(
+                first_bad_step(&t, increasing),
+                bad.iter().min().copied(),
+                "{bad:?}"
+            );
+        }
+        let mut x = series.clone();
+        assert_eq!(first_non_finite(&x), None);
+        x[130] = f64::INFINITY;
+        x[64] = f64::NAN;
+        assert_eq!(first_non_finite(&x), Some(64));
+        x[63] = f64::NEG_INFINITY;
+        assert_eq!(first_non_finite(&x), Some(63));
+        assert_eq!(first_non_finite(&[]), None);
     }
 
     #[test]

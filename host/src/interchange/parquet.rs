@@ -454,7 +454,7 @@ impl ParquetColumns {
                 out.clear();
                 levels.clear();
                 let records = reader.read(rows, nullable, levels, out)?;
-                let non_finite = out.iter().position(|v| !v.is_finite());
+                let non_finite = crate::numeric::first_non_finite(out);
                 Ok(ColumnRead {
                     records,
                     non_finite,

@@ -53,8 +53,15 @@ impl DoubleDouble {
 /// no dependence between coefficients, so it vectorises.
 #[inline(always)]
 fn haar_difference(now: DoubleDouble, half: DoubleDouble, whole: DoubleDouble) -> f64 {
-    let recent = (now.hi - half.hi) + (now.lo - half.lo);
-    let older = (half.hi - whole.hi) + (half.lo - whole.lo);
+    haar_difference_parts([now.hi, half.hi, whole.hi], [now.lo, half.lo, whole.lo])
+}
+
+/// [`haar_difference`] of the sums' high parts `hi` and low parts `lo` (S_k, S_{k-h},
+/// S_{k-2h} each), as the ring holds them.
+#[inline(always)]
+fn haar_difference_parts(hi: [f64; 3], lo: [f64; 3]) -> f64 {
+    let recent = (hi[0] - hi[1]) + (lo[0] - lo[1]);
+    let older = (hi[1] - hi[2]) + (lo[1] - lo[2]);
     recent - older
 }
 
@@ -130,24 +137,39 @@ fn lanes_total(lanes: &[f64; 8]) -> f64 {
         + ((lanes[4] + lanes[5]) + (lanes[6] + lanes[7]))
 }
 
-/// Adds `squares` (of the coefficients ending at samples `k..`) to lanes k mod 8: the same
-/// additions as one at a time, eight abreast where the run is aligned, so they vectorise.
+/// Adds the squared coefficients of one run (ending at samples `k`, `k + 1`, ...; the
+/// runs of S_k, S_{k-h} and S_{k-2h}, high parts in `hi`, low parts in `lo`) to lanes
+/// (k + i) mod 8: the same additions as one at a time, eight abreast where the run is
+/// aligned, so the squares are formed and added in vector registers.
 #[inline(always)]
-fn add_to_lanes(lanes: &mut [f64; 8], k: u64, squares: &[f64]) {
-    let lead = (k.wrapping_neg() % 8) as usize;
-    let (head, rest) = squares.split_at(lead.min(squares.len()));
-    for (i, square) in head.iter().enumerate() {
-        lanes[((k + i as u64) % 8) as usize] += square;
+fn add_run_to_lanes(lanes: &mut [f64; 8], k: u64, hi: [&[f64]; 3], lo: [&[f64]; 3]) {
+    let square = |i: usize| {
+        let d = haar_difference_parts(
+            [hi[0][i], hi[1][i], hi[2][i]],
+            [lo[0][i], lo[1][i], lo[2][i]],
+        );
+        d * d
+    };
+    let n = hi[0].len();
+    let lead = ((k.wrapping_neg() % 8) as usize).min(n);
+    for i in 0..lead {
+        lanes[((k + i as u64) % 8) as usize] += square(i);
     }
-    let octets = rest.chunks_exact(8);
-    let tail = octets.remainder();
-    for octet in octets {
-        for (lane, square) in lanes.iter_mut().zip(octet) {
-            *lane += square;
+    let octets = (n - lead) / 8;
+    let octet = |part: &[f64], first: usize| -> [f64; 8] {
+        part[first..first + 8].try_into().expect("eight")
+    };
+    for o in 0..octets {
+        let first = lead + 8 * o;
+        let (h, l) = (hi.map(|p| octet(p, first)), lo.map(|p| octet(p, first)));
+        for (j, lane) in lanes.iter_mut().enumerate() {
+            let d = haar_difference_parts([h[0][j], h[1][j], h[2][j]], [l[0][j], l[1][j], l[2][j]]);
+            *lane += d * d;
         }
     }
-    for (lane, square) in lanes.iter_mut().zip(tail) {
-        *lane += square;
+    let done = lead + 8 * octets;
+    for (j, lane) in lanes.iter_mut().enumerate().take(n - done) {
+        *lane += square(done + j);
     }
 }
 
@@ -156,30 +178,48 @@ fn add_to_lanes(lanes: &mut [f64; 8], k: u64, squares: &[f64]) {
 /// again for the wider vector units of the machine it runs on (chosen when first called):
 /// the same operations in the same order, so the same result to the bit on any of them.
 #[multiversion::multiversion(targets("x86_64+avx2+fma", "x86_64+avx"))]
-fn level_squares(ring: &[DoubleDouble], h: u64, first: u64, last: u64) -> f64 {
-    let mask = ring.len() as u64 - 1;
-    let mut squares = [0.0f64; SEGMENT];
+fn level_squares<'r>(ring: &'r PrefixRing, h: u64, first: u64, last: u64) -> f64 {
+    let mask = ring.hi.len() as u64 - 1;
     let mut lanes = [0.0f64; 8];
     let mut k = first;
     while k <= last {
         // A run of coefficients whose three prefix sums lie in unbroken stretches of the
-        // ring: computed independently of each other (vectorised), then added in order.
+        // ring: computed independently of each other (vectorised), added in order.
         let end = segment_end(k, last, &[0, h, 2 * h], mask);
         let n = (end - k + 1) as usize;
         let slot = |back: u64| ((k - back) & mask) as usize;
-        let (now, one, two) = (
-            &ring[slot(0)..slot(0) + n],
-            &ring[slot(h)..slot(h) + n],
-            &ring[slot(2 * h)..slot(2 * h) + n],
+        let run = |part: &'r [f64], back: u64| -> &'r [f64] { &part[slot(back)..slot(back) + n] };
+        add_run_to_lanes(
+            &mut lanes,
+            k,
+            [run(&ring.hi, 0), run(&ring.hi, h), run(&ring.hi, 2 * h)],
+            [run(&ring.lo, 0), run(&ring.lo, h), run(&ring.lo, 2 * h)],
         );
-        for (i, square) in squares[..n].iter_mut().enumerate() {
-            let d = haar_difference(now[i], one[i], two[i]);
-            *square = d * d;
-        }
-        add_to_lanes(&mut lanes, k, &squares[..n]);
         k = end + 1;
     }
     lanes_total(&lanes)
+}
+
+/// The last prefix sums, S_k at k mod the length (a power of two), their high and low parts
+/// in arrays of their own so that a run of coefficients loads each part in whole vectors.
+#[derive(Debug, Clone)]
+struct PrefixRing {
+    hi: Vec<f64>,
+    lo: Vec<f64>,
+}
+
+impl PrefixRing {
+    fn new(len: usize) -> Self {
+        Self {
+            hi: vec![0.0; len],
+            lo: vec![0.0; len],
+        }
+    }
+
+    fn store(&mut self, slot: usize, sum: DoubleDouble) {
+        self.hi[slot] = sum.hi;
+        self.lo[slot] = sum.lo;
+    }
 }
 
 /// One decimated level: its prefix sums at the last 2^(oversampling + 1) multiples of its
@@ -203,7 +243,7 @@ struct DecimatedLevel {
 pub struct HaarWvStream {
     full_levels: u32,
     /// ring[k mod 2^(full_levels + 1)] = S_k, k = number of samples summed.
-    ring: Vec<DoubleDouble>,
+    ring: PrefixRing,
     sum: DoubleDouble,
     /// The first sample: subtracted from every sample so the sums stay small (the Haar
     /// filter ignores any constant).
@@ -250,7 +290,7 @@ impl HaarWvStream {
         };
         Self {
             full_levels,
-            ring: vec![DoubleDouble::default(); 2 << full_levels],
+            ring: PrefixRing::new(2 << full_levels),
             sum: DoubleDouble::default(),
             origin: None,
             n: 0,
@@ -288,7 +328,7 @@ impl HaarWvStream {
 
     /// S_k of each sample into the ring, and the decimated levels at their multiples.
     fn store_prefix_sums(&mut self, values: &[f64]) {
-        let ring_mask = self.ring.len() as u64 - 1;
+        let ring_mask = self.ring.hi.len() as u64 - 1;
         let period_mask = (1u64 << (self.full_levels - self.oversampling)) - 1;
         for &value in values {
             let origin = *self.origin.get_or_insert(value);
@@ -296,7 +336,7 @@ impl HaarWvStream {
             let (difference, rounding) = two_sum(value, -origin);
             self.sum = self.sum.add_parts(difference, rounding);
             self.n += 1;
-            self.ring[(self.n & ring_mask) as usize] = self.sum;
+            self.ring.store((self.n & ring_mask) as usize, self.sum);
             if self.n & period_mask == 0 {
                 self.push_decimated(self.n);
             }
