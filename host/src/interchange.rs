@@ -163,10 +163,13 @@ impl Table {
 /// fifth of the read's processor time, BENCHMARKS.md "Ingest", stop 67), where a 2 MiB
 /// page costs one. The memory a column holds is the same, but for the last page's rounding.
 /// Room that cannot be had (a file stating more rows than memory holds) is not made: the
-/// column then grows as it is filled, and fails only if what it holds does not fit.
+/// column then grows as it is filled, and fails only if what it holds does not fit. One
+/// value more is made room for: the wavelet variance puts its prefix sums in the column's
+/// own memory, one longer than the series ([`crate::wv::haar_wv_owned`]), and a column
+/// with no room to spare would be copied whole into a new allocation for it.
 pub(crate) fn reserve_column(column: &mut Vec<f64>, additional: usize) {
     let capacity = column.capacity();
-    if column.try_reserve(additional).is_err() {
+    if column.try_reserve(additional + 1).is_err() {
         return;
     }
     if column.capacity() != capacity {

@@ -449,7 +449,7 @@ fn haar_wv_of_shifted(
     let n = buf.len() - 1;
     check_common(dt_s, opts)?;
     let j_max = resolve_max_level(n, opts)?;
-    if let Some(index) = buf[1..].iter().position(|v| !v.is_finite()) {
+    if let Some(index) = crate::numeric::first_non_finite(&buf[1..]) {
         return Err(WvError::NonFinite {
             index,
             value: buf[index + 1],

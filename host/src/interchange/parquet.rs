@@ -9,8 +9,10 @@
 //! integers, as pandas, polars and pyarrow write them) is read as `f64`; nested columns are
 //! ignored as unknown CSV columns are; a wanted column of another type, a list, a null or a
 //! value that is not finite is an error naming the file, the column and the row (1-based,
-//! among the data rows). Columns are decoded [`BATCH_ROWS`] rows at a time, so memory does
-//! not grow with a row group's size. Written: required doubles, BYTE_STREAM_SPLIT encoded
+//! among the data rows). Columns are decoded [`BATCH_ROWS`] rows at a time, so the memory a
+//! read holds beside its output does not grow with a row group's size; a whole-file read
+//! decodes every row group's columns at once on every core, each into its place in the
+//! table. Written: required doubles, BYTE_STREAM_SPLIT encoded
 //! (a float's bytes grouped by significance, which compresses where raw IEEE bytes do not)
 //! and zstd-compressed, in row groups of [`GROUP_ROWS`] rows.
 //!
@@ -19,6 +21,7 @@
 
 use std::fs::File;
 use std::io::{Read, Write};
+use std::mem::MaybeUninit;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
@@ -313,7 +316,8 @@ pub struct ParquetColumns {
     block: Vec<Vec<f64>>,
     /// Each column's definition levels of its last read (nullable columns only).
     levels: Vec<Vec<i16>>,
-    reporter: Reporter,
+    /// Locked only by a whole-file read's decoding tasks.
+    reporter: std::sync::Mutex<Reporter>,
 }
 
 impl ParquetColumns {
@@ -348,7 +352,7 @@ impl ParquetColumns {
             group_rows_left: 0,
             group_bytes: 0,
             rows_read: 0,
-            reporter: Reporter::new(path, size_bytes),
+            reporter: std::sync::Mutex::new(Reporter::new(path, size_bytes)),
             file,
         })
     }
@@ -407,7 +411,7 @@ impl ParquetColumns {
     fn read_next(&mut self) -> Result<Option<u64>, TableError> {
         while self.group_rows_left == 0 {
             if self.next_group == self.file.num_row_groups() {
-                self.reporter.add(self.group_bytes);
+                self.report(self.group_bytes);
                 self.group_bytes = 0;
                 return Ok(None);
             }
@@ -422,7 +426,7 @@ impl ParquetColumns {
     }
 
     fn open_group(&mut self) -> Result<(), TableError> {
-        self.reporter.add(self.group_bytes);
+        self.report(self.group_bytes);
         let group = self
             .file
             .get_row_group(self.next_group)
@@ -479,39 +483,150 @@ impl ParquetColumns {
         rows: usize,
         first_row: u64,
     ) -> Result<(), TableError> {
-        let at_row = |offset: usize| first_row + offset as u64;
-        let out = &self.block[k];
-        if read.records < rows {
-            return Err(self.cell_error(k, at_row(read.records), "the column ends early".into()));
-        }
-        if out.len() < rows {
-            let null = self.levels[k]
-                .iter()
-                .position(|&l| l == 0)
-                .unwrap_or(out.len());
-            return Err(self.cell_error(k, at_row(null), "empty (null), not a number".into()));
-        }
-        if let Some(i) = read.non_finite {
-            let value = out[i];
-            return Err(self.cell_error(k, at_row(i), format!("{value} is not a finite number")));
-        }
-        Ok(())
-    }
-
-    fn cell_error(&self, k: usize, row: u64, message: String) -> TableError {
-        TableError::AtRow {
-            path: self.path.clone(),
-            row,
-            column: self.headers[k].clone(),
-            message,
-        }
+        let column = (self.path.as_path(), self.headers[k].as_str());
+        check_read(
+            column,
+            read,
+            (&self.block[k], &self.levels[k]),
+            rows,
+            first_row,
+        )
     }
 
     fn damaged(&self, e: ParquetError) -> TableError {
-        format_error(
-            &self.path,
-            format!("row group {}: {e}", self.next_group + 1),
-        )
+        damaged_group(&self.path, self.next_group, e)
+    }
+
+    fn report(&mut self, bytes: u64) {
+        let reporter = self.reporter.get_mut();
+        reporter
+            .unwrap_or_else(std::sync::PoisonError::into_inner)
+            .add(bytes);
+    }
+}
+
+/// Row group `group` (0-based) of `path` could not be opened.
+fn damaged_group(path: &Path, group: usize, e: ParquetError) -> TableError {
+    format_error(path, format!("row group {}: {e}", group + 1))
+}
+
+/// A read's check: `read` of `rows` records from row `first_row` on left these values and
+/// definition levels; an error at the first missing, null or non-finite value, naming the
+/// file and column `(path, name)`.
+fn check_read(
+    (path, name): (&Path, &str),
+    read: &ColumnRead,
+    (out, levels): (&[f64], &[i16]),
+    rows: usize,
+    first_row: u64,
+) -> Result<(), TableError> {
+    let error = |offset: usize, message: String| TableError::AtRow {
+        path: path.to_path_buf(),
+        row: first_row + offset as u64,
+        column: name.to_string(),
+        message,
+    };
+    if read.records < rows {
+        return Err(error(read.records, "the column ends early".into()));
+    }
+    if out.len() < rows {
+        let null = levels.iter().position(|&l| l == 0).unwrap_or(out.len());
+        return Err(error(null, "empty (null), not a number".into()));
+    }
+    if let Some(i) = read.non_finite {
+        let value = out[i];
+        return Err(error(i, format!("{value} is not a finite number")));
+    }
+    Ok(())
+}
+
+/// What the decoding tasks of a whole-file read share (the file and its wanted columns).
+struct WholeRead<'a> {
+    path: &'a Path,
+    file: &'a SerializedFileReader<PositionalFile>,
+    headers: &'a [String],
+    leaves: &'a [(usize, bool)],
+}
+
+impl WholeRead<'_> {
+    /// Column `k` of row group `group`, whose first row is `first_row` (1-based), decoded
+    /// into `stretch` (as many values as the group has rows) [`BATCH_ROWS`] at a time and
+    /// checked as a serial read checks it; an error comes with where a serial read would
+    /// have met it ([`ReadPlace`]).
+    fn decode_group_column(
+        &self,
+        group: usize,
+        k: usize,
+        first_row: u64,
+        stretch: &mut [MaybeUninit<f64>],
+    ) -> Result<(), (ReadPlace, TableError)> {
+        let opening = |e| {
+            (
+                ReadPlace::opening(group, k),
+                damaged_group(self.path, group, e),
+            )
+        };
+        let reader = self.file.get_row_group(group).map_err(opening)?;
+        let (leaf, nullable) = self.leaves[k];
+        let mut column = NumberReader::new(reader.get_column_reader(leaf).map_err(opening)?);
+        let (mut out, mut levels) = (Vec::with_capacity(BATCH_ROWS), Vec::new());
+        let mut row = first_row;
+        for (batch, room) in stretch.chunks_mut(BATCH_ROWS).enumerate() {
+            let place = ReadPlace::reading(group, batch, k);
+            out.clear();
+            levels.clear();
+            let records = column
+                .read(room.len(), nullable, &mut levels, &mut out)
+                .map_err(|e| {
+                    let message = format!("column `{}`: {e}", self.headers[k]);
+                    (place, format_error(self.path, message))
+                })?;
+            let read = ColumnRead {
+                records,
+                non_finite: crate::numeric::first_non_finite(&out),
+            };
+            check_read(
+                (self.path, &self.headers[k]),
+                &read,
+                (&out, &levels),
+                room.len(),
+                row,
+            )
+            .map_err(|e| (place, e))?;
+            for (slot, &value) in room.iter_mut().zip(&out) {
+                slot.write(value);
+            }
+            row += room.len() as u64;
+        }
+        Ok(())
+    }
+}
+
+/// Where a serial read of a file meets an error, in the order it meets them: by row group,
+/// a group's column readers opened before its batches are read, then by batch and column.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
+struct ReadPlace {
+    group: usize,
+    /// 0 while the group's column readers are opened, batch + 1 when reading.
+    stage: usize,
+    column: usize,
+}
+
+impl ReadPlace {
+    fn opening(group: usize, column: usize) -> Self {
+        Self {
+            group,
+            stage: 0,
+            column,
+        }
+    }
+
+    fn reading(group: usize, batch: usize, column: usize) -> Self {
+        Self {
+            group,
+            stage: batch + 1,
+            column,
+        }
     }
 }
 
@@ -527,18 +642,59 @@ pub fn headers(path: &Path) -> Result<Vec<String>, TableError> {
         .collect())
 }
 
-/// A whole Parquet table (the wanted columns, as [`super::read_table`]).
+/// A whole Parquet table (the wanted columns, as [`super::read_table`]): every column of
+/// every row group decoded at once on every core, each straight into its stretch of the
+/// table's columns (read a block at a time, one core copied what the other decoded). The
+/// error is the one a serial read meets first.
 pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableError> {
-    let mut reader = ParquetColumns::open(path, wanted)?;
-    let rows = usize::try_from(reader.rows()).unwrap_or(0);
-    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); reader.headers().len()];
-    for column in &mut columns {
+    let reader = ParquetColumns::open(path, wanted)?;
+    let metadata = reader.file.metadata();
+    let groups: Vec<(usize, u64)> = metadata
+        .row_groups()
+        .iter()
+        .map(|g| {
+            let rows = usize::try_from(g.num_rows()).unwrap_or(0);
+            (rows, u64::try_from(g.compressed_size()).unwrap_or(0))
+        })
+        .collect();
+    let rows: usize = groups.iter().map(|g| g.0).sum();
+    let mut columns: Vec<Vec<f64>> = vec![Vec::new(); reader.headers.len()];
+    let columns_per_group = columns.len().max(1) as u64;
+    let mut tasks = Vec::with_capacity(groups.len() * columns.len());
+    for (k, column) in columns.iter_mut().enumerate() {
         super::reserve_column(column, rows);
-    }
-    while let Some(block) = reader.next_block()? {
-        for (column, values) in columns.iter_mut().zip(block.columns) {
-            column.extend_from_slice(values);
+        let mut room = &mut column.spare_capacity_mut()[..rows];
+        let mut first_row = 1;
+        for (group, &(group_rows, _)) in groups.iter().enumerate() {
+            let (stretch, rest) = std::mem::take(&mut room).split_at_mut(group_rows);
+            tasks.push((group, k, first_row, stretch));
+            first_row += group_rows as u64;
+            room = rest;
         }
+    }
+    let whole = WholeRead {
+        path,
+        file: &reader.file,
+        headers: &reader.headers,
+        leaves: &reader.leaves,
+    };
+    let first_error = tasks
+        .into_par_iter()
+        .filter_map(|(group, k, first_row, stretch)| {
+            let decoded = whole.decode_group_column(group, k, first_row, stretch);
+            if let Ok(mut reporter) = reader.reporter.lock() {
+                reporter.add(groups[group].1 / columns_per_group);
+            }
+            decoded.err()
+        })
+        .min_by_key(|(place, _)| *place);
+    if let Some((_, error)) = first_error {
+        return Err(error);
+    }
+    for column in &mut columns {
+        // SAFETY: every task succeeded, and each wrote every value of its stretch (a
+        // group's rows of one column); the stretches tile the column's first `rows` slots.
+        unsafe { column.set_len(rows) };
     }
     Ok(Table {
         path: path.to_path_buf(),
@@ -761,6 +917,59 @@ mod tests {
         assert_eq!(columns.file.num_row_groups(), 2);
         assert_eq!(columns.stated_rate_hz().unwrap(), Some(200.0));
         assert_eq!(ImuRecording::read(&path).unwrap(), rec);
+    }
+
+    #[test]
+    fn a_whole_read_decoded_in_parallel_names_the_error_a_serial_read_meets_first() {
+        // GIVEN three columns over three row groups, with values that are not finite
+        // planted in several places (by 0-based row)
+        let n = 2 * GROUP_ROWS + 100;
+        let dir = tempfile::tempdir().unwrap();
+        let plant = |bad: &[(usize, usize)]| {
+            let mut columns: Vec<Vec<f64>> = (0..3)
+                .map(|c| (0..n).map(|k| made(c, k)).collect())
+                .collect();
+            for &(c, row) in bad {
+                columns[c][row] = if row % 2 == 0 {
+                    f64::NAN
+                } else {
+                    f64::INFINITY
+                };
+            }
+            let path = dir.path().join(format!("bad-{}.parquet", bad.len()));
+            let named: Vec<(&str, &[f64])> = ["a", "b", "c"]
+                .iter()
+                .zip(&columns)
+                .map(|(h, v)| (*h, v.as_slice()))
+                .collect();
+            write_columns(&path, &named).unwrap();
+            path
+        };
+        let g = GROUP_ROWS;
+        for (bad, (column, row)) in [
+            // in the last group and in the second: the second's
+            (&[(0, 2 * g + 5), (2, g + 7)][..], ("c", g + 7)),
+            // one group, an earlier batch in a later column before a later batch's
+            (&[(0, g + BATCH_ROWS + 1), (2, g + 3)], ("c", g + 3)),
+            // one batch, two columns: the earlier column's, though its row is later
+            (&[(1, 40), (2, 10)], ("b", 40)),
+        ] {
+            let path = plant(bad);
+            // WHEN it is read whole, and block by block
+            let whole = read_table(&path, None).unwrap_err().to_string();
+            let mut blocks = ParquetColumns::open(&path, None).unwrap();
+            let serial = loop {
+                match blocks.next_block() {
+                    Ok(Some(_)) => {}
+                    Ok(None) => panic!("no error read serially"),
+                    Err(e) => break e.to_string(),
+                }
+            };
+            // THEN both name the same cell: the one a serial read meets first
+            assert_eq!(whole, serial, "{bad:?}");
+            let expected = format!("row {}, column `{column}`", row + 1);
+            assert!(whole.contains(&expected), "{whole} (expected {expected})");
+        }
     }
 
     /// Writes `columns` (named, one length) as snappy pages of 256 rows: many small pages per
