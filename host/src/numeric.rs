@@ -51,11 +51,10 @@ pub fn first_non_finite(values: &[f64]) -> Option<usize> {
 
 /// [`first_bad_step`] on one core, [`TEST_RUN`] pairs at a time.
 fn first_bad_pair(values: &[f64], bad: &impl Fn(f64, f64) -> bool) -> Option<usize> {
-    const RUN: usize = TEST_RUN;
     let pairs = values.len().saturating_sub(1);
     let (earlier, later) = (&values[..pairs], values.get(1..).unwrap_or_default());
     let mut start = 0;
-    for (a, b) in earlier.chunks(RUN).zip(later.chunks(RUN)) {
+    for (a, b) in earlier.chunks(TEST_RUN).zip(later.chunks(TEST_RUN)) {
         let any_bad = a.iter().zip(b).fold(false, |any, (&x, &y)| any | bad(x, y));
         if any_bad {
             return a
@@ -64,7 +63,7 @@ fn first_bad_pair(values: &[f64], bad: &impl Fn(f64, f64) -> bool) -> Option<usi
                 .position(|(&x, &y)| bad(x, y))
                 .map(|i| start + i);
         }
-        start += RUN;
+        start += TEST_RUN;
     }
     None
 }

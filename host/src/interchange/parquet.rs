@@ -316,8 +316,7 @@ pub struct ParquetColumns {
     block: Vec<Vec<f64>>,
     /// Each column's definition levels of its last read (nullable columns only).
     levels: Vec<Vec<i16>>,
-    /// Locked only by a whole-file read's decoding tasks.
-    reporter: std::sync::Mutex<Reporter>,
+    reporter: Reporter,
 }
 
 impl ParquetColumns {
@@ -352,7 +351,7 @@ impl ParquetColumns {
             group_rows_left: 0,
             group_bytes: 0,
             rows_read: 0,
-            reporter: std::sync::Mutex::new(Reporter::new(path, size_bytes)),
+            reporter: Reporter::new(path, size_bytes),
             file,
         })
     }
@@ -360,11 +359,6 @@ impl ParquetColumns {
     /// The wanted columns present, in file order.
     pub fn headers(&self) -> &[String] {
         &self.headers
-    }
-
-    /// Rows in the file.
-    pub fn rows(&self) -> u64 {
-        u64::try_from(self.file.metadata().file_metadata().num_rows()).unwrap_or(0)
     }
 
     /// The stated sample rate (metadata `sample_rate_hz`), Hz; an error if it is not a
@@ -411,7 +405,7 @@ impl ParquetColumns {
     fn read_next(&mut self) -> Result<Option<u64>, TableError> {
         while self.group_rows_left == 0 {
             if self.next_group == self.file.num_row_groups() {
-                self.report(self.group_bytes);
+                self.reporter.add(self.group_bytes);
                 self.group_bytes = 0;
                 return Ok(None);
             }
@@ -426,7 +420,7 @@ impl ParquetColumns {
     }
 
     fn open_group(&mut self) -> Result<(), TableError> {
-        self.report(self.group_bytes);
+        self.reporter.add(self.group_bytes);
         let group = self
             .file
             .get_row_group(self.next_group)
@@ -469,39 +463,15 @@ impl ParquetColumns {
             let outcome = outcome.map_err(|e| {
                 format_error(&self.path, format!("column `{}`: {e}", self.headers[k]))
             })?;
-            self.check_column(k, &outcome, rows, first_row)?;
+            let column = (self.path.as_path(), self.headers[k].as_str());
+            let values = (self.block[k].as_slice(), self.levels[k].as_slice());
+            check_read(column, &outcome, values, rows, first_row)?;
         }
         Ok(())
     }
 
-    /// Column `k`'s last read, `rows` records from row `first_row` on: an error at its
-    /// first missing, null or non-finite value.
-    fn check_column(
-        &self,
-        k: usize,
-        read: &ColumnRead,
-        rows: usize,
-        first_row: u64,
-    ) -> Result<(), TableError> {
-        let column = (self.path.as_path(), self.headers[k].as_str());
-        check_read(
-            column,
-            read,
-            (&self.block[k], &self.levels[k]),
-            rows,
-            first_row,
-        )
-    }
-
     fn damaged(&self, e: ParquetError) -> TableError {
         damaged_group(&self.path, self.next_group, e)
-    }
-
-    fn report(&mut self, bytes: u64) {
-        let reporter = self.reporter.get_mut();
-        reporter
-            .unwrap_or_else(std::sync::PoisonError::into_inner)
-            .add(bytes);
     }
 }
 
@@ -672,17 +642,25 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
             room = rest;
         }
     }
+    let ParquetColumns {
+        file,
+        headers,
+        leaves,
+        reporter,
+        ..
+    } = reader;
+    let reporter = std::sync::Mutex::new(reporter);
     let whole = WholeRead {
         path,
-        file: &reader.file,
-        headers: &reader.headers,
-        leaves: &reader.leaves,
+        file: &file,
+        headers: &headers,
+        leaves: &leaves,
     };
     let first_error = tasks
         .into_par_iter()
         .filter_map(|(group, k, first_row, stretch)| {
             let decoded = whole.decode_group_column(group, k, first_row, stretch);
-            if let Ok(mut reporter) = reader.reporter.lock() {
+            if let Ok(mut reporter) = reporter.lock() {
                 reporter.add(groups[group].1 / columns_per_group);
             }
             decoded.err()
@@ -698,7 +676,7 @@ pub fn read_table(path: &Path, wanted: Option<&[&str]>) -> Result<Table, TableEr
     }
     Ok(Table {
         path: path.to_path_buf(),
-        headers: reader.headers.clone(),
+        headers,
         columns,
         row_lines: RowLines::Unknown,
     })
