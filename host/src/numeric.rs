@@ -14,12 +14,15 @@ pub fn median(mut values: Vec<f64>) -> Option<f64> {
     values.get(values.len() / 2).copied()
 }
 
+/// Values (or pairs) one core searches at a time in [`first_bad_step`] and
+/// [`first_non_finite`]: a search no longer than this stays on one core.
+const STRETCH: usize = 1 << 16;
+
 /// The first `i` where `bad(values[i], values[i + 1])`, searched on every core in stretches
 /// of consecutive pairs (a long recording's checks of its time column; rayon's own search
 /// over `par_windows` pays per pair and took longer than one core). `None`: no such pair.
 pub fn first_bad_step(values: &[f64], bad: impl Fn(f64, f64) -> bool + Sync) -> Option<usize> {
     use rayon::prelude::*;
-    const STRETCH: usize = 1 << 16;
     let pairs = values.len().saturating_sub(1);
     if pairs <= STRETCH {
         return first_bad_pair(values, &bad);
@@ -37,8 +40,24 @@ pub fn first_bad_step(values: &[f64], bad: impl Fn(f64, f64) -> bool + Sync) -> 
 /// that holds a bad one is searched value by value.
 const TEST_RUN: usize = 64;
 
-/// The index of the first value that is not finite (a decoded column's check).
+/// The index of the first value that is not finite (a decoded column's check, a series'
+/// before its wavelet variance), searched on every core in stretches when long (on one, a
+/// 4e6-sample series' test held the other core idle for 4 ms).
 pub fn first_non_finite(values: &[f64]) -> Option<usize> {
+    use rayon::prelude::*;
+    if values.len() <= STRETCH {
+        return first_non_finite_on_one_core(values);
+    }
+    values
+        .par_chunks(STRETCH)
+        .enumerate()
+        .find_map_first(|(k, stretch)| {
+            first_non_finite_on_one_core(stretch).map(|i| k * STRETCH + i)
+        })
+}
+
+/// [`first_non_finite`] on one core, [`TEST_RUN`] values at a time.
+fn first_non_finite_on_one_core(values: &[f64]) -> Option<usize> {
     let mut start = 0;
     for run in values.chunks(TEST_RUN) {
         if run.iter().fold(false, |any, v| any | !v.is_finite()) {
@@ -546,6 +565,27 @@ mod tests {
         x[63] = f64::NEG_INFINITY;
         assert_eq!(first_non_finite(&x), Some(63));
         assert_eq!(first_non_finite(&[]), None);
+    }
+
+    #[test]
+    fn the_first_non_finite_value_is_found_across_stretches() {
+        let n = 3 * STRETCH + 777;
+        let clean: Vec<f64> = (0..n).map(|k| k as f64 * 1e-3).collect();
+        assert_eq!(first_non_finite(&clean), None);
+        for bad in [
+            &[0][..],
+            &[STRETCH - 1],
+            &[STRETCH],
+            &[2 * STRETCH + 5, STRETCH + 3],
+            &[3 * STRETCH + 1, 2 * STRETCH + 64],
+            &[n - 1],
+        ] {
+            let mut x = clean.clone();
+            for &i in bad {
+                x[i] = if i % 2 == 0 { f64::NAN } else { f64::INFINITY };
+            }
+            assert_eq!(first_non_finite(&x), bad.iter().min().copied(), "{bad:?}");
+        }
     }
 
     #[test]

@@ -423,40 +423,30 @@ pub fn haar_wv_of_blocks(
 /// 1..=J. See the module documentation for the estimator and its conventions.
 pub fn haar_wv(x: &[f64], dt_s: f64, opts: &WvOptions) -> Result<WaveletVariance, WvError> {
     let mut buf = Vec::with_capacity(x.len() + 1);
-    buf.push(0.0);
     buf.extend_from_slice(x);
-    haar_wv_of_shifted(buf, dt_s, opts)
+    haar_wv_owned(buf, dt_s, opts)
 }
 
 /// [`haar_wv`] of a series the caller is done with: its prefix sums are built in the series'
 /// own memory, so no second array of its length is allocated (new pages cost more than the
-/// summing: at 4e6 samples, 32 MB of first touches). The same result, to the bit.
+/// summing: at 4e6 samples, 32 MB of first touches), nor the series moved (the sums take one
+/// value more, at the end: room for it spares a copy). The same result, to the bit.
 pub fn haar_wv_owned(
     mut x: Vec<f64>,
     dt_s: f64,
     opts: &WvOptions,
 ) -> Result<WaveletVariance, WvError> {
-    x.insert(0, 0.0);
-    haar_wv_of_shifted(x, dt_s, opts)
-}
-
-/// [`haar_wv`] of `buf[1..]` (`buf[0]` is 0), whose prefix sums replace it.
-fn haar_wv_of_shifted(
-    mut buf: Vec<f64>,
-    dt_s: f64,
-    opts: &WvOptions,
-) -> Result<WaveletVariance, WvError> {
-    let n = buf.len() - 1;
+    let n = x.len();
     check_common(dt_s, opts)?;
     let j_max = resolve_max_level(n, opts)?;
-    if let Some(index) = crate::numeric::first_non_finite(&buf[1..]) {
+    if let Some(index) = crate::numeric::first_non_finite(&x) {
         return Err(WvError::NonFinite {
             index,
-            value: buf[index + 1],
+            value: x[index],
         });
     }
-    centred_prefix_sums_in_place(&mut buf);
-    Ok(wv_from_prefix(&buf, n, j_max, 1.0, dt_s, opts))
+    centred_prefix_sums_in_place(&mut x);
+    Ok(wv_from_prefix(&x, n, j_max, 1.0, dt_s, opts))
 }
 
 /// Haar MODWT wavelet variance of integer counts, `lsb` physical units per count: the same
@@ -495,16 +485,17 @@ pub fn haar_wv_counts(
 /// Prefix sums S_k = sum_{i<k} (x_i - m), k = 0..=N, with m the mean of x (any constant
 /// would do: the Haar filter ignores it; the mean keeps |S| smallest), the running sum carried
 /// with a compensation term (Knuth's branch-free TwoSum), so each stored S_k is within one
-/// rounding of the exact value. `buf` holds 0 then x on entry and S_0..=S_N on return, each
-/// S_k+1 written where x_k was read. Parallel over chunks: the chunks' compensated sums give
-/// each chunk its starting value, then every chunk continues the compensated running sum.
-fn centred_prefix_sums_in_place(buf: &mut [f64]) {
+/// rounding of the exact value. `buf` holds x on entry and S_0..=S_N on return: S_k is
+/// written where x_k was read (then S_N pushed), so nothing moves. Parallel over chunks: the
+/// chunks' compensated sums give each chunk its starting value, then every chunk continues
+/// the compensated running sum.
+fn centred_prefix_sums_in_place(buf: &mut Vec<f64>) {
     const CHUNK: usize = 1 << 16;
-    let x = &buf[1..];
+    let x = buf.as_slice();
     // Partial sums collected in order (not rayon's `sum`, whose order varies between runs) so
     // results are bit-for-bit reproducible.
     let partial: Vec<f64> = x.par_chunks(CHUNK).map(|c| c.iter().sum()).collect();
-    let mean = partial.iter().sum::<f64>() / x.len() as f64;
+    let mean = partial.iter().sum::<f64>() / x.len().max(1) as f64;
     let chunk_sums: Vec<(f64, f64)> = x
         .par_chunks(CHUNK)
         .map(|c| {
@@ -523,18 +514,26 @@ fn centred_prefix_sums_in_place(buf: &mut [f64]) {
         sum = t;
         comp += e + c;
     }
-    buf[0] = 0.0;
-    buf[1..]
+    // Each chunk's sum after its last value: the next chunk's first S (carried on from the
+    // chunk's values, as a serial pass would), and the last chunk's S_N.
+    let ends: Vec<f64> = buf
         .par_chunks_mut(CHUNK)
         .zip(starts.par_iter())
-        .for_each(|(chunk, &(mut sum, mut comp))| {
+        .map(|(chunk, &(mut sum, mut comp))| {
             for slot in chunk {
-                let (t, e) = two_sum(sum, *slot - mean);
+                let value = *slot;
+                *slot = sum + comp;
+                let (t, e) = two_sum(sum, value - mean);
                 sum = t;
                 comp += e;
-                *slot = sum + comp;
             }
-        });
+            sum + comp
+        })
+        .collect();
+    for (k, &end) in ends.iter().enumerate().take(ends.len().saturating_sub(1)) {
+        buf[(k + 1) * CHUNK] = end;
+    }
+    buf.push(ends.last().copied().unwrap_or(0.0));
 }
 
 /// Knuth's TwoSum: a + b = s + e exactly, with s = fl(a + b). No branch, so a running sum
@@ -985,6 +984,39 @@ mod tests {
             matches!(e, WvError::NonFinite { index: 70_000, .. }),
             "{e:?}"
         );
+    }
+
+    #[test]
+    fn prefix_sums_built_in_place_are_the_serial_compensated_sums() {
+        // Three and a bit chunks, so every chunk boundary's sum is carried across.
+        let n = 3 * (1 << 16) + 4_321;
+        let x: Vec<f64> = gaussian(21, n, 1e-3).iter().map(|v| 0.5 + v).collect();
+        let mut sums = x.clone();
+        centred_prefix_sums_in_place(&mut sums);
+        assert_eq!(sums.len(), n + 1);
+        // The serial compensated running sum, in the chunks' order of operations: each
+        // chunk's values summed from the same start as the parallel pass.
+        let mean = x
+            .chunks(1 << 16)
+            .map(|c| c.iter().sum::<f64>())
+            .sum::<f64>()
+            / n as f64;
+        let (mut sum, mut comp) = (0.0f64, 0.0f64);
+        let mut exact_enough = vec![0.0];
+        for &v in &x {
+            let (t, e) = two_sum(sum, v - mean);
+            sum = t;
+            comp += e;
+            exact_enough.push(sum + comp);
+        }
+        for (k, (got, want)) in sums.iter().zip(&exact_enough).enumerate() {
+            let ulp = want.abs().max(f64::MIN_POSITIVE) * f64::EPSILON;
+            assert!(
+                (got - want).abs() <= 2.0 * ulp,
+                "S_{k}: {got} against {want}"
+            );
+        }
+        assert_eq!(sums[0], 0.0);
     }
 
     #[test]
