@@ -145,6 +145,53 @@ impl I32F32 {
         }
     }
 
+    /// `x` rounded to the nearest representable value (half away from zero), as
+    /// [`I32F32::from_f64`] rounds `f64::from(x)`, to the bit; out of range or non-finite
+    /// saturates (and is counted). Integer operations only: on a core without an FPU the
+    /// way through `f64` costs a software multiply and a rounding.
+    pub fn from_f32(x: f32) -> Self {
+        let bits = x.to_bits();
+        let negative = bits >> 31 == 1;
+        let biased = ((bits >> 23) & 0xff) as i32;
+        if biased == 0xff {
+            if bits & 0x7f_ffff != 0 {
+                counter::bump();
+                return Self::NAN;
+            }
+            return Self::saturated(!negative);
+        }
+        if biased == 0 {
+            return Self::ZERO; // Zero or subnormal: below 2^-126, far under 2^-32.
+        }
+        // |x| = m 2^(biased - 150); its raw value is that times 2^32.
+        let m = u64::from(bits & 0x7f_ffff | 0x80_0000);
+        let shift = biased - 118;
+        let magnitude = if shift >= 0 {
+            if shift > 39 {
+                return Self::saturated(!negative); // 2^63 or more.
+            }
+            m << shift
+        } else if shift < -25 {
+            0 // Below half of 2^-32.
+        } else {
+            let right = shift.unsigned_abs();
+            (m + (1 << (right - 1))) >> right
+        };
+        let raw = magnitude as i64; // Below 2^63 - 2^39: finite.
+        Self(if negative { -raw } else { raw })
+    }
+
+    /// The value in `f32`, rounded to nearest once (infinities and NaN carried).
+    pub fn to_f32(self) -> f32 {
+        match self.0 {
+            POS_INF_RAW => f32::INFINITY,
+            NEG_INF_RAW => f32::NEG_INFINITY,
+            NAN_RAW => f32::NAN,
+            // `raw as f32` rounds once; the power of two is exact above f32's subnormals.
+            raw => raw as f32 * (1.0 / SCALE as f32),
+        }
+    }
+
     /// The value in `f64` (exact to 53 significant bits; infinities and NaN carried).
     pub fn to_f64(self) -> f64 {
         match self.0 {
@@ -645,6 +692,39 @@ mod tests {
     }
 
     proptest! {
+        #[test]
+        fn from_f32_is_from_f64_of_the_widened_value(bits in any::<u32>()) {
+            let x = f32::from_bits(bits);
+            let before = overflows();
+            let direct = I32F32::from_f32(x);
+            let direct_counted = overflows() - before;
+            let before = overflows();
+            let widened = I32F32::from_f64(f64::from(x));
+            prop_assert_eq!(direct.to_raw(), widened.to_raw(), "{}", x);
+            prop_assert_eq!(direct_counted, overflows() - before, "{}", x);
+        }
+
+        #[test]
+        fn from_f32_rounds_values_near_the_resolution_and_the_range(
+            m in 0x80_0000u32..0x100_0000,
+            e in -60i32..40,
+            negative in any::<bool>(),
+        ) {
+            let x = (m as f32) * 2f32.powi(e - 23) * if negative { -1.0 } else { 1.0 };
+            prop_assert_eq!(
+                I32F32::from_f32(x).to_raw(),
+                I32F32::from_f64(f64::from(x)).to_raw(),
+                "{}", x
+            );
+        }
+
+        #[test]
+        fn to_f32_rounds_once(raw in -(1i64 << 53)..(1i64 << 53)) {
+            // Below 2^53 the raw value is exact in f64, so the f64 way rounds once too.
+            let x = I32F32::from_raw(raw);
+            prop_assert_eq!(x.to_f32(), x.to_f64() as f32);
+        }
+
         #[test]
         fn arithmetic_is_the_exact_result_rounded(a in -4.0e4f64..4.0e4, b in -4.0e4f64..4.0e4) {
             let (x, y) = (fx(a), fx(b));

@@ -207,6 +207,11 @@ pub struct LiveNoise<const N: usize, T: FilterScalar = f32> {
     still_rad_s: T,
     /// The differences' power-of-two scale exponent (0 in floating point).
     scale: i32,
+    /// Sets after which the exponential weight is at least twice a plain mean's, so the
+    /// plain mean's (a division, bit by bit in fixed point) is no longer formed.
+    plain_mean_sets: u32,
+    /// Axes times pairs per unit: what a unit's summed products are divided by.
+    products_per_unit: T,
 }
 
 impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
@@ -215,16 +220,19 @@ impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
     pub fn new(sample_interval_s: f32, time_constant_s: f32, thresholds: MotionThresholds) -> Self {
         assert!(N >= 3, "a live noise level needs three units or more");
         let c = |x: f32| nalgebra::convert::<f64, T>(f64::from(x));
+        let alpha = 1.0 - (-sample_interval_s / time_constant_s).exp();
         Self {
             previous: None,
             weighted: [T::zero(); N],
-            alpha: c(1.0 - (-sample_interval_s / time_constant_s).exp()),
+            alpha: c(alpha),
             seen: 0,
             smoothed_rate_rad_s: T::zero(),
             moving: false,
             moving_rad_s: c(thresholds.moving_rad_s),
             still_rad_s: c(thresholds.still_rad_s),
             scale: 0,
+            plain_mean_sets: (2.0 / alpha).min(u32::MAX as f32) as u32 + 1,
+            products_per_unit: nalgebra::convert((3 * (N - 1) * (N - 2) / 2) as f64),
         }
     }
 
@@ -256,11 +264,12 @@ impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
         }
         self.seen = self.seen.saturating_add(1);
         // A plain mean until the exponential weight is the smaller: no start-up bias to zero.
-        let weight = self
-            .alpha
-            .max(T::one() / nalgebra::convert::<f64, T>(f64::from(self.seen)));
-        let pairs_per_unit: T = nalgebra::convert(((N - 1) * (N - 2) / 2) as f64);
-        let three: T = nalgebra::convert(3.0);
+        let weight = if self.seen < self.plain_mean_sets {
+            self.alpha
+                .max(T::one() / nalgebra::convert::<f64, T>(f64::from(self.seen)))
+        } else {
+            self.alpha
+        };
         for k in 0..N {
             let mut sum = T::zero();
             for l in 0..N {
@@ -275,7 +284,7 @@ impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
                     sum += axes;
                 }
             }
-            let product = sum / (three * pairs_per_unit);
+            let product = sum / self.products_per_unit;
             self.weighted[k] += weight * (product - self.weighted[k]);
         }
         if T::SCALED {
@@ -305,8 +314,7 @@ impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
     /// sets of samples; a negative weighted product (possible over a short window when the
     /// unit is much quieter than the others) reads 0.
     pub fn sigma(&self, unit: usize) -> T {
-        let two: T = nalgebra::convert(2.0);
-        let sigma = (self.weighted[unit] / two).max(T::zero()).sqrt();
+        let sigma = self.weighted[unit].mul_pow2(-1).max(T::zero()).sqrt();
         if T::SCALED {
             sigma.mul_pow2(self.scale)
         } else {

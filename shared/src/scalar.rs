@@ -38,6 +38,21 @@ pub trait FilterScalar: RealField + Copy {
         self.sin_cos()
     }
 
+    /// `x` in this scalar: what `nalgebra::convert(f64::from(x))` gives (floats exactly;
+    /// fixed point rounded to nearest, saturated and counted out of range), without the
+    /// software `f64` a core without an FPU would spend on the way (the fusion's sensor
+    /// means go into the filter's scalar this way, a few dozen a step).
+    #[inline(always)]
+    fn convert_from_f32(x: f32) -> Self {
+        nalgebra::convert(f64::from(x))
+    }
+
+    /// The value in `f32`, rounded to nearest (NaN for a value `f64` cannot hold).
+    #[inline(always)]
+    fn convert_to_f32(self) -> f32 {
+        nalgebra::try_convert::<Self, f64>(self).map_or(f32::NAN, |v| v as f32)
+    }
+
     /// Results of this scalar that saturated or were invalid so far (never decreasing; 0
     /// for floats, whose overflow the filter sees as non-finite values). The filter reads
     /// it around each step, since fixed-point saturation does not propagate as IEEE
@@ -145,6 +160,12 @@ impl FilterScalar for I32F32 {
     }
     fn overflows() -> u64 {
         crate::fixed::overflows()
+    }
+    fn convert_from_f32(x: f32) -> Self {
+        I32F32::from_f32(x)
+    }
+    fn convert_to_f32(self) -> f32 {
+        I32F32::to_f32(self)
     }
     fn pow2_from_f64(x: f64) -> Pow2<Self> {
         if x == 0.0 || !x.is_finite() {

@@ -72,12 +72,12 @@ pub type BoardFilter = FusionFilter<BoardScalar>;
 
 /// `x` in the filter's scalar.
 fn t<T: FilterScalar>(x: f32) -> T {
-    nalgebra::convert(f64::from(x))
+    T::convert_from_f32(x)
 }
 
 /// A filter value back in f32 (NaN for a scalar f32 cannot hold).
 fn f<T: FilterScalar>(x: T) -> f32 {
-    nalgebra::try_convert::<T, f64>(x).map_or(f32::NAN, |v| v as f32)
+    x.convert_to_f32()
 }
 
 fn tv<T: FilterScalar>(v: Vector3<f32>) -> Vector3<T> {
@@ -373,8 +373,9 @@ const ANCHOR_S: f32 = 5.0;
 const CREEP_S: f32 = 2.0;
 
 /// The fusion (see the module's note), its filter in scalar `T`: f32 on the board; f64 on
-/// the host, to measure what f32 costs. The monitors, live levels and alignment are f32
-/// either way.
+/// the host, to measure what f32 costs; Q32.32 fixed point on a core without an FPU. The
+/// live levels (the redundancy estimator) run in `T` too; the monitors and the alignment are
+/// f32 either way.
 pub struct BoardFusion<T: FilterScalar = BoardScalar> {
     config: FusionConfig,
     /// Board-model alignment of each unit: C_b^k and lever arm (body axes, m).
@@ -383,8 +384,12 @@ pub struct BoardFusion<T: FilterScalar = BoardScalar> {
     accel_noise_model: FusedNoise,
     gyro_monitor: FaultMonitor<UNITS>,
     accel_monitor: FaultMonitor<UNITS>,
-    gyro_live: LiveNoise<UNITS>,
-    accel_live: LiveNoise<UNITS>,
+    gyro_live: LiveNoise<UNITS, T>,
+    accel_live: LiveNoise<UNITS, T>,
+    /// The live levels' standard deviations of an interval mean (gyro rad/s, accelerometer
+    /// m/s^2) per unit, as of the last push: read a dozen times an interval, so taken (a
+    /// square root each, bit by bit in fixed point) once.
+    live_sigmas: [[f32; UNITS]; 2],
     /// The previous interval's per-unit means (for the stuck test).
     previous_means: [Option<UnitReading>; UNITS],
     unit_sums: UnitSums,
@@ -443,6 +448,7 @@ impl<T: FilterScalar> BoardFusion<T> {
                 config.live_time_constant_s,
                 thresholds,
             ),
+            live_sigmas: [[0.0; UNITS]; 2],
             previous_means: [None; UNITS],
             unit_sums: UnitSums::default(),
             alignment: Alignment::new(config.heading_speed_change_m_s),
@@ -536,8 +542,11 @@ impl<T: FilterScalar> BoardFusion<T> {
         self.fused_shares = [gyro_fused.map(|(_, s)| s), accel_fused.map(|(_, s)| s)]
             .map(|shares| shares.unwrap_or([0.0; UNITS]));
         if let (Some(g), Some(a)) = (all_present(&gyro_body), all_present(&accel_body)) {
-            self.gyro_live.push(&g, omega.into());
-            self.accel_live.push(&a, omega.into());
+            let rate: [T; 3] = tv(omega).into();
+            self.gyro_live.push(&g.map(|v| v.map(t)), rate);
+            self.accel_live.push(&a.map(|v| v.map(t)), rate);
+            self.live_sigmas = [&self.gyro_live, &self.accel_live]
+                .map(|live| core::array::from_fn(|k| f(live.sigma(k))));
         }
 
         let (Some(rate), Some(force)) = (fused_rate, fused_force) else {
@@ -650,13 +659,10 @@ impl<T: FilterScalar> BoardFusion<T> {
         dt_s: f32,
         out: &mut impl FnMut(FusionOutput),
     ) {
+        let [gyro_sigmas, accel_sigmas] = &self.live_sigmas;
         let (gyro_psd, accel_psd) = live_psds(
-            (&self.gyro_live, &self.gyro_monitor, &self.gyro_noise_model),
-            (
-                &self.accel_live,
-                &self.accel_monitor,
-                &self.accel_noise_model,
-            ),
+            (gyro_sigmas, &self.gyro_monitor, &self.gyro_noise_model),
+            (accel_sigmas, &self.accel_monitor, &self.accel_noise_model),
             self.config.fusion_interval_s(),
         );
         let Some(filter) = &mut self.filter else {
@@ -763,7 +769,8 @@ impl<T: FilterScalar> BoardFusion<T> {
         let Some((omega, omega_dot, m)) = self.differentiator.push(window_s, rate, means) else {
             return;
         };
-        let per_set = |live: &LiveNoise<UNITS>, k: usize| live.sigma(k) * live.sigma(k);
+        let [gyro_sigmas, accel_sigmas] = self.live_sigmas;
+        let per_set = |sigmas: &[f32; UNITS], k: usize| sigmas[k] * sigmas[k];
         let m_sets = m.sets.max(1) as f32;
         let absorbed = AbsorbedMeans {
             omega_ib_b_rad_s: tv(m.absorbed.rate),
@@ -779,9 +786,9 @@ impl<T: FilterScalar> BoardFusion<T> {
         );
         for k in 1..UNITS {
             let [gyro_offset_var, accel_offset_var] = self.offset_error_variance[k];
-            let rate_var = (per_set(&self.gyro_live, k) + per_set(&self.gyro_live, 0)) / m_sets
+            let rate_var = (per_set(&gyro_sigmas, k) + per_set(&gyro_sigmas, 0)) / m_sets
                 + gyro_repeats * gyro_offset_var;
-            let force_var = (per_set(&self.accel_live, k) + per_set(&self.accel_live, 0)) / m_sets
+            let force_var = (per_set(&accel_sigmas, k) + per_set(&accel_sigmas, 0)) / m_sets
                 + accel_repeats * accel_offset_var;
             let sigma_rate = rate_var
                 .sqrt()
@@ -836,13 +843,14 @@ impl<T: FilterScalar> BoardFusion<T> {
         s.force_deviation2 += ((force - s.slow_force).norm_squared() - s.force_deviation2) * alpha;
         // The means' own noise: three axes of the noisiest unit's level (the live levels are
         // per interval mean already).
-        let noise = |live: &LiveNoise<UNITS>| {
-            let level = (0..UNITS).map(|k| live.sigma(k)).fold(0.0f32, f32::max);
+        let noise = |sigmas: &[f32; UNITS]| {
+            let level = sigmas.iter().copied().fold(0.0f32, f32::max);
             3.0 * level * level
         };
+        let [gyro_sigmas, accel_sigmas] = self.live_sigmas;
         let (rate, force) = (self.config.still_rate_rad_s, self.config.still_force_m_s2);
-        let rate_limit = rate * rate + noise(&self.gyro_live);
-        let force_limit = force * force + noise(&self.accel_live);
+        let rate_limit = rate * rate + noise(&gyro_sigmas);
+        let force_limit = force * force + noise(&accel_sigmas);
         let slow = self
             .filter
             .as_ref()
@@ -859,7 +867,7 @@ impl<T: FilterScalar> BoardFusion<T> {
             None => s.creep_m_s = Vector3::zeros(),
         }
         let creep = self.config.still_creep_m_s;
-        let creep_limit = creep * creep + noise(&self.accel_live) * dt_s * CREEP_S / 2.0;
+        let creep_limit = creep * creep + noise(&accel_sigmas) * dt_s * CREEP_S / 2.0;
         let anchored = s.anchor.is_none_or(|(r, f)| {
             (s.fast_rate - r).norm_squared() < rate_limit
                 && (s.fast_force - f).norm_squared() < force_limit
@@ -1031,8 +1039,8 @@ impl<T: FilterScalar> BoardFusion<T> {
         // The live levels are of interval means; white noise per IMU sample is sqrt(n) more.
         let per_sample = self.config.config_filter_every().sqrt();
         for k in 0..UNITS.min(MAX_IMUS) {
-            frame.gyro_sigma_rad_s[k] = self.gyro_live.sigma(k) * per_sample;
-            frame.accel_sigma_m_s2[k] = self.accel_live.sigma(k) * per_sample;
+            frame.gyro_sigma_rad_s[k] = self.live_sigmas[0][k] * per_sample;
+            frame.accel_sigma_m_s2[k] = self.live_sigmas[1][k] * per_sample;
             frame.in_use |= u8::from(self.gyro_monitor.healthy(k)) << k;
             frame.in_use |= u8::from(self.accel_monitor.healthy(k)) << (3 + k);
         }
@@ -1121,17 +1129,17 @@ fn all_present(triads: &[Option<[f32; 3]>; UNITS]) -> Option<[[f32; 3]; UNITS]> 
 }
 
 /// The white-noise PSDs (gyro, accelerometer) of the fused output: from the units in use
-/// and their live levels (of `interval_s` means, so the PSD is the variance times the
-/// interval), or the model's where a level is not known yet.
+/// and their live levels (standard deviations of `interval_s` means, so the PSD is the
+/// variance times the interval), or the model's where a level is not known yet.
 fn live_psds(
-    gyro: (&LiveNoise<UNITS>, &FaultMonitor<UNITS>, &FusedNoise),
-    accel: (&LiveNoise<UNITS>, &FaultMonitor<UNITS>, &FusedNoise),
+    gyro: (&[f32; UNITS], &FaultMonitor<UNITS>, &FusedNoise),
+    accel: (&[f32; UNITS], &FaultMonitor<UNITS>, &FusedNoise),
     interval_s: f32,
 ) -> (f32, f32) {
-    let psd = |(live, monitor, model): (&LiveNoise<UNITS>, &FaultMonitor<UNITS>, &FusedNoise)| {
+    let psd = |(sigmas, monitor, model): (&[f32; UNITS], &FaultMonitor<UNITS>, &FusedNoise)| {
         let mut information = 0.0f32;
         for k in (0..UNITS).filter(|&k| monitor.healthy(k)) {
-            let variance = live.sigma(k) * live.sigma(k);
+            let variance = sigmas[k] * sigmas[k];
             if variance <= 0.0 {
                 return model.white_psd;
             }
