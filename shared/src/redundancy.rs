@@ -210,8 +210,10 @@ pub struct LiveNoise<const N: usize, T: FilterScalar = f32> {
     /// Sets after which the exponential weight is at least twice a plain mean's, so the
     /// plain mean's (a division, bit by bit in fixed point) is no longer formed.
     plain_mean_sets: u32,
-    /// Axes times pairs per unit: what a unit's summed products are divided by.
+    /// Axes times pairs per unit: what a unit's summed products are divided by (in fixed
+    /// point multiplied by its reciprocal: a division there is a bit-by-bit loop).
     products_per_unit: T,
+    reciprocal_products_per_unit: T,
 }
 
 impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
@@ -233,6 +235,9 @@ impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
             scale: 0,
             plain_mean_sets: (2.0 / alpha).min(u32::MAX as f32) as u32 + 1,
             products_per_unit: nalgebra::convert((3 * (N - 1) * (N - 2) / 2) as f64),
+            reciprocal_products_per_unit: nalgebra::convert(
+                1.0 / (3 * (N - 1) * (N - 2) / 2) as f64,
+            ),
         }
     }
 
@@ -284,7 +289,11 @@ impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
                     sum += axes;
                 }
             }
-            let product = sum / self.products_per_unit;
+            let product = if T::SCALED {
+                sum * self.reciprocal_products_per_unit
+            } else {
+                sum / self.products_per_unit
+            };
             self.weighted[k] += weight * (product - self.weighted[k]);
         }
         if T::SCALED {

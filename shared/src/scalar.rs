@@ -112,6 +112,9 @@ impl<T: FilterScalar> Pow2<T> {
 // `f32` filter never scales, and must not carry the code to).
 impl FilterScalar for f64 {
     const SCALED: bool = false;
+    fn convert_from_f32(x: f32) -> Self {
+        f64::from(x)
+    }
     fn mul_pow2(self, n: i32) -> Self {
         // Two factors, each a normal power of two, cover any shift a finite value survives.
         let half = n / 2;
@@ -131,6 +134,12 @@ impl FilterScalar for f64 {
 
 impl FilterScalar for f32 {
     const SCALED: bool = false;
+    fn convert_from_f32(x: f32) -> Self {
+        x
+    }
+    fn convert_to_f32(self) -> f32 {
+        self
+    }
     fn sin_cos_rad(self) -> (Self, Self) {
         sin_cos_f32(self)
     }

@@ -213,3 +213,66 @@ fn redundant_imu_estimator_cost_per_sample_set_on_cortex_m4f_stays_within_bounds
         "the bench used {used} bytes of RAM of {ram}"
     );
 }
+
+/// The same estimator on a core without an FPU (a Cortex-M3, QEMU's netduino2: every `f32`
+/// operation a call into compiler-builtins' soft float, the live levels in the board's fixed
+/// point), in the same run as on the Cortex-M4F: software floats round as the FPU does, and
+/// the monitors do not read the live levels, so the same faults are confirmed at the same
+/// samples; and each part's instructions per sample set on both cores, which says what the
+/// fusion's monitors and live levels spend there (BENCHMARKS.md, "The filter on a core
+/// without an FPU").
+#[test]
+fn the_estimator_without_an_fpu_confirms_the_same_faults_at_the_same_samples() {
+    let Some(m4f) = dynacal_tests::run_cost_bench("redundancy_cost") else {
+        return;
+    };
+    let Some((m3, _)) =
+        dynacal_tests::run_cost_bench_on("redundancy_cost", dynacal_tests::CostCore::M3)
+    else {
+        return;
+    };
+    let events = |stderr: &str| -> Vec<(String, String, String, u64)> {
+        lines(stderr, "event")
+            .iter()
+            .map(|e| {
+                let text = |key: &str| e[key].to_string();
+                (
+                    text("sensor"),
+                    text("unit"),
+                    text("kind"),
+                    number(e, "detected_sample"),
+                )
+            })
+            .collect()
+    };
+    assert_eq!(events(&m3), events(&m4f), "M3:\n{m3}\nM4F:\n{m4f}");
+    assert_eq!(events(&m3).len(), 2, "{m3}");
+    let healthy = |stderr: &str| {
+        let phase = lines(stderr, "phase=")
+            .into_iter()
+            .find(|p| p["phase"] == "healthy")
+            .expect("a healthy phase");
+        ["live", "monitor", "fused", "total"].map(|key| number(&phase, key))
+    };
+    let (soft, hard) = (healthy(&m3), healthy(&m4f));
+    eprintln!(
+        "instructions per fault-free sample set, Cortex-M3 (software f32) against Cortex-M4F: \
+         live levels {} / {}, fault monitors {} / {}, fused outputs {} / {}, total {} / {} \
+         ({:.1}x)",
+        soft[0],
+        hard[0],
+        soft[1],
+        hard[1],
+        soft[2],
+        hard[2],
+        soft[3],
+        hard[3],
+        soft[3] as f64 / hard[3] as f64
+    );
+    // Each part does the same work on both cores; without an FPU every float operation is a
+    // call of tens of instructions and every fixed-point product four multiplications, so
+    // every part costs more there.
+    for (part, (s, h)) in soft.iter().zip(&hard).enumerate() {
+        assert!(s > h, "part {part}: M3 {s} against M4F {h}");
+    }
+}

@@ -1,10 +1,13 @@
-//! Cost of the redundant-IMU estimator on the Cortex-M4F per sample set of three IMUs, in
-//! `f32`, measured with SysTick under QEMU's `-icount shift=0` (deterministic: 1 ns of
-//! virtual time per instruction, calibrated against a loop of known length).
+//! Cost of the redundant-IMU estimator per sample set of three IMUs on the Cortex-M4F (its
+//! `f32` in hardware) or, built for thumbv7m-none-eabi with `fixed-point`, on a Cortex-M3
+//! (the monitors' `f32` in software, the live levels in the board's fixed point), measured
+//! with SysTick under QEMU's `-icount shift=0` (deterministic: 1 ns of virtual time per
+//! instruction, calibrated against a loop of known length).
 //!
 //! Each sample set (gyro and accelerometer triads of three units, synthetic: a slow motion
 //! with a 26 Hz vibration line, a bias per unit and seeded noise) goes through what the board
-//! would run on it: the live noise levels (`LiveNoise`, gyro and accelerometer), the fault
+//! would run on it: the live noise levels (`LiveNoise` in the board's scalar, gyro and
+//! accelerometer), the fault
 //! monitors (`FaultMonitor::push`, gyro and accelerometer, configured as the host's
 //! `dynacal redundancy` configures them for ±2000 deg/s, ±16 g units) and the fused output
 //! (`FaultMonitor::fused`, both). After a warm-up that turns on every test of the monitors
@@ -46,11 +49,13 @@ mod bare_metal {
 
     use cortex_m_rt::{entry, exception, ExceptionFrame};
     use defmt_semihosting as _;
+    use dynacal_core::fusion::BoardScalar;
     use dynacal_core::recorder::TickClock;
     use dynacal_core::redundancy::faults::Step;
     use dynacal_core::redundancy::{
         FaultConfig, FaultEvent, FaultMonitor, LiveNoise, MotionThresholds, MAX_UNITS,
     };
+    use dynacal_core::scalar::FilterScalar;
     // Float methods without std.
     use nalgebra::ComplexField;
 
@@ -274,10 +279,19 @@ mod bare_metal {
         let overhead = clock.read_overhead(calibration, 200);
         let mut rng = SplitMix64(SEED);
         let thresholds = MotionThresholds::default();
-        let mut live_gyro =
-            LiveNoise::<UNITS>::new(SAMPLE_INTERVAL_S, LIVE_TIME_CONSTANT_S, thresholds);
-        let mut live_accel =
-            LiveNoise::<UNITS>::new(SAMPLE_INTERVAL_S, LIVE_TIME_CONSTANT_S, thresholds);
+        // In the board's scalar, as the fusion runs them: fixed point on the core without an
+        // FPU, the samples taken into it as the fusion takes its means.
+        let mut live_gyro = LiveNoise::<UNITS, BoardScalar>::new(
+            SAMPLE_INTERVAL_S,
+            LIVE_TIME_CONSTANT_S,
+            thresholds,
+        );
+        let mut live_accel = LiveNoise::<UNITS, BoardScalar>::new(
+            SAMPLE_INTERVAL_S,
+            LIVE_TIME_CONSTANT_S,
+            thresholds,
+        );
+        let to_board = |v: [f32; 3]| v.map(BoardScalar::convert_from_f32);
         let mut monitor_gyro = FaultMonitor::<UNITS>::new(monitor_config(true));
         let mut monitor_accel = FaultMonitor::<UNITS>::new(monitor_config(false));
         let (mut fault_gyro, mut fault_accel) = (Fault::default(), Fault::default());
@@ -298,8 +312,8 @@ mod bare_metal {
             let rate: [f32; 3] = core::array::from_fn(|a| {
                 set.gyro_rad_s.iter().map(|u| u[a]).sum::<f32>() / UNITS as f32
             });
-            live_gyro.push(&set.gyro_rad_s, rate);
-            live_accel.push(&set.accel_m_s2, rate);
+            live_gyro.push(&set.gyro_rad_s.map(to_board), to_board(rate));
+            live_accel.push(&set.accel_m_s2.map(to_board), to_board(rate));
             black_box((&live_gyro, &live_accel));
             let t1 = clock.now_ticks();
             let step_gyro = monitor_gyro.push(&gyro);
@@ -340,7 +354,7 @@ mod bare_metal {
         }
         let low = low_water();
 
-        let live_noise = core::mem::size_of::<LiveNoise<UNITS>>();
+        let live_noise = core::mem::size_of::<LiveNoise<UNITS, BoardScalar>>();
         let fault_monitor = core::mem::size_of::<FaultMonitor<UNITS>>();
         let ram_end = stack::ram_end();
         semihosting::eprintln!(

@@ -17,7 +17,7 @@ impl I32F32 {
         }
         // sqrt(raw / 2^32) * 2^32 = sqrt(raw * 2^32).
         let n = (self.0 as u128) << FRACTION_BITS;
-        let root = n.isqrt();
+        let root = u128::from(root_of_raw_times_2_32(self.0 as u64));
         // Nearest: root + 1 if n lies past the midpoint (root + 1/2)^2 = root^2 + root + 1/4.
         let rounded = if n - root * root > root {
             root + 1
@@ -34,6 +34,22 @@ impl I32F32 {
         }
         Self(self.0 & !(ONE_RAW - 1))
     }
+}
+
+/// `floor(sqrt(raw 2^32))` for `raw < 2^63`: the root's high bits are `raw`'s own 64-bit
+/// root times 2^16 (`sqrt(raw) 2^16` lies within 2^16 above it), its low 16 bits are set one
+/// at a time against 96-bit squares. A 128-bit integer root (`u128::isqrt`) is library
+/// arithmetic on 128-bit words on a 32-bit core, and several times longer.
+fn root_of_raw_times_2_32(raw: u64) -> u64 {
+    let n = u128::from(raw) << FRACTION_BITS;
+    let mut root = raw.isqrt() << 16;
+    for bit in (0..16).rev() {
+        let candidate = root | (1 << bit);
+        if u128::from(candidate) * u128::from(candidate) <= n {
+            root = candidate;
+        }
+    }
+    root
 }
 
 impl ComplexField for I32F32 {
@@ -323,6 +339,28 @@ mod tests {
 
     fn fx(x: f64) -> I32F32 {
         I32F32::from_f64(x)
+    }
+
+    #[test]
+    fn the_root_of_a_raw_value_is_the_128_bit_integer_root() {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(31);
+        let edges = [
+            0u64,
+            1,
+            2,
+            3,
+            4,
+            (1 << 32) - 1,
+            1 << 32,
+            (1 << 62) + 1,
+            (1 << 63) - 1,
+        ];
+        let random = (0..20_000).map(|_| rng.random::<u64>() >> rng.random_range(1..64));
+        for raw in edges.into_iter().chain(random) {
+            let n = u128::from(raw) << FRACTION_BITS;
+            assert_eq!(u128::from(root_of_raw_times_2_32(raw)), n.isqrt(), "{raw}");
+        }
     }
 
     #[test]
