@@ -221,7 +221,8 @@ impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
     /// weighting (a few seconds: Fig. 8's level follows the manoeuvres).
     pub fn new(sample_interval_s: f32, time_constant_s: f32, thresholds: MotionThresholds) -> Self {
         assert!(N >= 3, "a live noise level needs three units or more");
-        let c = |x: f32| nalgebra::convert::<f64, T>(f64::from(x));
+        let c = T::convert_from_f32;
+        let products_per_unit = (3 * (N - 1) * (N - 2) / 2) as f64;
         let alpha = 1.0 - (-sample_interval_s / time_constant_s).exp();
         Self {
             previous: None,
@@ -234,10 +235,8 @@ impl<const N: usize, T: FilterScalar> LiveNoise<N, T> {
             still_rad_s: c(thresholds.still_rad_s),
             scale: 0,
             plain_mean_sets: (2.0 / alpha).min(u32::MAX as f32) as u32 + 1,
-            products_per_unit: nalgebra::convert((3 * (N - 1) * (N - 2) / 2) as f64),
-            reciprocal_products_per_unit: nalgebra::convert(
-                1.0 / (3 * (N - 1) * (N - 2) / 2) as f64,
-            ),
+            products_per_unit: nalgebra::convert(products_per_unit),
+            reciprocal_products_per_unit: nalgebra::convert(1.0 / products_per_unit),
         }
     }
 

@@ -7,10 +7,9 @@
 //! Each sample set (gyro and accelerometer triads of three units, synthetic: a slow motion
 //! with a 26 Hz vibration line, a bias per unit and seeded noise) goes through what the board
 //! would run on it: the live noise levels (`LiveNoise` in the board's scalar, gyro and
-//! accelerometer), the fault
-//! monitors (`FaultMonitor::push`, gyro and accelerometer, configured as the host's
-//! `dynacal redundancy` configures them for ±2000 deg/s, ±16 g units) and the fused output
-//! (`FaultMonitor::fused`, both). After a warm-up that turns on every test of the monitors
+//! accelerometer), the fault monitors (`FaultMonitor::push`, gyro and accelerometer,
+//! configured as the host's `dynacal redundancy` configures them for ±2000 deg/s, ±16 g
+//! units) and the fused output (`FaultMonitor::fused`, both). After a warm-up that turns on every test of the monitors
 //! (the noise-burst and slip tests wait for `spread_time_constant_s`), sample sets are timed
 //! fault-free, then with a bias step on one unit's gyros and accelerometers: while the
 //! monitors gather the step's evidence (the confirmation window) and after, with the unit out.
